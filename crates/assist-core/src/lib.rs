@@ -1,0 +1,28 @@
+//! assist-core: the shared vocabulary of assist.
+//!
+//! Geometry (`Similarity3`, oriented boxes, rays and their intersection), cameras (pinhole
+//! intrinsics, OpenCV radial-tangential and fisheye distortion, camera-to-world poses in the
+//! OpenGL convention with conversion from OpenCV/COLMAP) and a small deterministic random
+//! number generator that every crate can rely on for reproducible results.
+//!
+//! Conventions (see `ARCHITECTURE.md`): cameras are camera-to-world in the OpenGL convention
+//! (+x right, +y up, looking along −z); pixel centres sit at +0.5; transforms are named
+//! `x_from_y`. Geometry is computed in `f64`; the renderer converts to `f32` batches.
+
+pub mod camera;
+pub mod distortion;
+pub mod error;
+pub mod geometry;
+pub mod rng;
+pub mod similarity;
+
+pub use camera::{Camera, Intrinsics, Pose};
+pub use distortion::Distortion;
+pub use error::CoreError;
+pub use geometry::{Aabb, BoxHit, Obb, Ray};
+pub use glam::{DAffine3, DMat3, DMat4, DQuat, DVec2, DVec3, Vec3};
+pub use rng::Rng;
+pub use similarity::Similarity3;
+
+/// Instance identifier of a scene node; 0 is the background.
+pub type InstanceId = u16;
