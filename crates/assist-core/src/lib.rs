@@ -20,6 +20,7 @@ pub use camera::{Camera, Intrinsics, Pose};
 pub use distortion::Distortion;
 pub use error::CoreError;
 pub use geometry::{Aabb, BoxHit, Obb, Ray};
+pub use glam;
 pub use glam::{DAffine3, DMat3, DMat4, DQuat, DVec2, DVec3, Vec3};
 pub use rng::Rng;
 pub use similarity::Similarity3;

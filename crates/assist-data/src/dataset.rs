@@ -1,0 +1,352 @@
+//! The one `Dataset` type every reader produces, format detection, splits, and scene
+//! bounds with the normalisation that maps outputs back to the dataset's own units.
+
+use std::path::{Path, PathBuf};
+
+use assist_core::{Aabb, Camera, DMat3, DVec3, InstanceId, Obb};
+use serde::Serialize;
+
+use crate::error::{DataError, Result};
+
+/// Which reader produced a dataset.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Format {
+    Nerfstudio,
+    Blender,
+    ColmapBinary,
+    ColmapText,
+    Llff,
+}
+
+impl Format {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Format::Nerfstudio => "nerfstudio",
+            Format::Blender => "blender",
+            Format::ColmapBinary => "colmap-binary",
+            Format::ColmapText => "colmap-text",
+            Format::Llff => "llff",
+        }
+    }
+    pub fn parse(s: &str) -> Option<Format> {
+        Some(match s {
+            "nerfstudio" => Format::Nerfstudio,
+            "blender" => Format::Blender,
+            "colmap" | "colmap-binary" => Format::ColmapBinary,
+            "colmap-text" => Format::ColmapText,
+            "llff" => Format::Llff,
+            _ => return None,
+        })
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Split {
+    Train,
+    Val,
+    Test,
+}
+
+impl Split {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Split::Train => "train",
+            Split::Val => "val",
+            Split::Test => "test",
+        }
+    }
+    pub fn parse(s: &str) -> Option<Split> {
+        Some(match s {
+            "train" => Split::Train,
+            "val" | "validation" => Split::Val,
+            "test" => Split::Test,
+            _ => return None,
+        })
+    }
+}
+
+/// One posed image and what comes with it.
+#[derive(Debug, Clone, Serialize)]
+pub struct Frame {
+    /// File stem of the image (used to name outputs rendered for this camera).
+    pub name: String,
+    pub image_path: PathBuf,
+    pub camera: Camera,
+    /// The camera model as the source names it (`OPENCV`, `SIMPLE_RADIAL`, …).
+    pub camera_model: String,
+    pub split: Split,
+    /// Binary mask of pixels to use (nerfstudio `mask_path`).
+    pub mask_path: Option<PathBuf>,
+    /// The image's alpha is the object mask (Blender synthetic).
+    pub alpha_is_mask: bool,
+    /// Instance ids per pixel, 0 = background.
+    pub instance_mask_path: Option<PathBuf>,
+    /// Z-depth PNG; raw value × `depth_scale` = depth in scene units.
+    pub depth_path: Option<PathBuf>,
+    pub depth_scale: f64,
+}
+
+/// An object instance declared by the dataset.
+#[derive(Debug, Clone, Serialize)]
+pub struct InstanceInfo {
+    pub id: InstanceId,
+    pub label: String,
+    /// Oriented box in world coordinates, when the dataset gives one.
+    pub bbox: Option<Obb>,
+}
+
+/// Axis-aligned region of interest and where it came from.
+#[derive(Debug, Clone, Serialize)]
+pub struct SceneBounds {
+    pub min: DVec3,
+    pub max: DVec3,
+    pub source: String,
+}
+
+/// `p_normalized = (p − center) · scale`; the inverse maps outputs back to dataset units.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Normalization {
+    pub center: DVec3,
+    pub scale: f64,
+}
+
+impl Normalization {
+    pub fn to_normalized(&self, p: DVec3) -> DVec3 {
+        (p - self.center) * self.scale
+    }
+    pub fn to_dataset(&self, p: DVec3) -> DVec3 {
+        p / self.scale + self.center
+    }
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Dataset {
+    pub format: Format,
+    /// The path the dataset was loaded from.
+    pub root: PathBuf,
+    pub frames: Vec<Frame>,
+    pub instances: Vec<InstanceInfo>,
+    pub world_up: Option<DVec3>,
+    /// Metres per world unit, when the dataset says (or implies) its scale.
+    pub meters_per_unit: Option<f64>,
+    /// Sparse 3D points (COLMAP), in world units.
+    pub points: Vec<DVec3>,
+    /// Near/far depth range (LLFF bounds), when known.
+    pub depth_range: Option<(f64, f64)>,
+    /// How the train/test split was decided.
+    pub split_source: String,
+    pub bounds: SceneBounds,
+    pub normalization: Normalization,
+}
+
+/// Options for loading.
+#[derive(Debug, Clone)]
+pub struct LoadOptions {
+    /// Force a format instead of detecting it.
+    pub format: Option<Format>,
+    /// LLFF downscale factor (`images_N`); default: the smallest available.
+    pub llff_factor: Option<u32>,
+}
+
+impl Default for LoadOptions {
+    fn default() -> Self {
+        LoadOptions {
+            format: None,
+            llff_factor: None,
+        }
+    }
+}
+
+impl Dataset {
+    pub fn frames_in(&self, split: Split) -> impl Iterator<Item = &Frame> {
+        self.frames.iter().filter(move |f| f.split == split)
+    }
+    pub fn count(&self, split: Split) -> usize {
+        self.frames_in(split).count()
+    }
+    pub fn instance(&self, id: InstanceId) -> Option<&InstanceInfo> {
+        self.instances.iter().find(|i| i.id == id)
+    }
+}
+
+/// Splits for datasets that do not declare one: every 8th frame (0, 8, 16, …) is held out
+/// for testing, the LLFF/Mip-NeRF convention.
+pub const HOLDOUT_EVERY: usize = 8;
+pub fn holdout_split(i: usize) -> Split {
+    if i % HOLDOUT_EVERY == 0 {
+        Split::Test
+    } else {
+        Split::Train
+    }
+}
+
+/// Detects the format at `path`: a `transforms.json` (nerfstudio), `transforms_train.json`
+/// (Blender), a COLMAP model with `images.bin`/`images.txt` (in `sparse/0`, `sparse` or the
+/// folder itself), or `poses_bounds.npy` (LLFF). A file path selects by its name.
+pub fn detect_format(path: &Path) -> Result<(Format, PathBuf)> {
+    if !path.exists() {
+        return Err(DataError::io(
+            path,
+            std::io::Error::new(std::io::ErrorKind::NotFound, "no such file or directory"),
+        ));
+    }
+    if path.is_file() {
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        return match name.as_str() {
+            n if n.starts_with("transforms_") && n.ends_with(".json") => Ok((Format::Blender, dir)),
+            n if n.ends_with(".json") => Ok((Format::Nerfstudio, path.to_path_buf())),
+            "poses_bounds.npy" => Ok((Format::Llff, dir)),
+            "images.bin" | "cameras.bin" | "points3D.bin" => Ok((Format::ColmapBinary, dir)),
+            "images.txt" | "cameras.txt" | "points3D.txt" => Ok((Format::ColmapText, dir)),
+            _ => Err(DataError::NotADataset {
+                path: path.into(),
+                message: "not a dataset file: expected transforms.json, transforms_train.json, poses_bounds.npy or a COLMAP model file".into(),
+            }),
+        };
+    }
+    if path.join("transforms.json").is_file() {
+        return Ok((Format::Nerfstudio, path.join("transforms.json")));
+    }
+    if path.join("transforms_train.json").is_file() || path.join("transforms_test.json").is_file() {
+        return Ok((Format::Blender, path.to_path_buf()));
+    }
+    for model in [
+        path.join("sparse/0"),
+        path.join("sparse"),
+        path.to_path_buf(),
+    ] {
+        if model.join("images.bin").is_file() {
+            return Ok((Format::ColmapBinary, model));
+        }
+        if model.join("images.txt").is_file() {
+            return Ok((Format::ColmapText, model));
+        }
+    }
+    if path.join("poses_bounds.npy").is_file() {
+        return Ok((Format::Llff, path.to_path_buf()));
+    }
+    Err(DataError::NotADataset {
+        path: path.into(),
+        message: "no dataset found here: expected transforms.json (nerfstudio), transforms_train.json (Blender), \
+                  a COLMAP model (sparse/0/images.bin or images.txt) or poses_bounds.npy (LLFF)"
+            .into(),
+    })
+}
+
+/// Loads the dataset at `path` (a folder or a dataset file).
+pub fn load(path: &Path, opts: &LoadOptions) -> Result<Dataset> {
+    let (detected, target) = detect_format(path)?;
+    let format = opts.format.unwrap_or(detected);
+    let target = if format == detected {
+        target
+    } else {
+        path.to_path_buf()
+    };
+    let mut ds = match format {
+        Format::Nerfstudio => crate::nerfstudio::load(&target)?,
+        Format::Blender => crate::blender::load(&target)?,
+        Format::ColmapBinary | Format::ColmapText => crate::colmap::load_dataset(&target, format)?,
+        Format::Llff => crate::llff::load(&target, opts.llff_factor)?,
+    };
+    ds.root = path.to_path_buf();
+    if ds.frames.is_empty() {
+        return Err(DataError::NotADataset {
+            path: path.into(),
+            message: "the dataset has no frames".into(),
+        });
+    }
+    Ok(ds)
+}
+
+/// Bounds from content (points, boxes or a depth range) united with the camera centres,
+/// and the normalisation that maps them into [−1, 1]³.
+pub fn compute_bounds(
+    frames: &[Frame],
+    points: &[DVec3],
+    instances: &[InstanceInfo],
+    depth_range: Option<(f64, f64)>,
+) -> (SceneBounds, Normalization) {
+    let mut aabb = Aabb::empty();
+    let mut sources = Vec::new();
+    if !points.is_empty() {
+        // Robust: 1st–99th percentile per axis, so stray points do not blow up the box.
+        let mut lo = DVec3::ZERO;
+        let mut hi = DVec3::ZERO;
+        for a in 0..3 {
+            let mut v: Vec<f64> = points.iter().map(|p| p[a]).collect();
+            v.sort_by(f64::total_cmp);
+            lo[a] = v[v.len() / 100];
+            hi[a] = v[(v.len() * 99 / 100).min(v.len() - 1)];
+        }
+        aabb = aabb.union(&Aabb::new(lo, hi));
+        sources.push("sparse points (1st-99th percentile)");
+    }
+    let boxes: Vec<&Obb> = instances.iter().filter_map(|i| i.bbox.as_ref()).collect();
+    if !boxes.is_empty() {
+        for b in boxes {
+            aabb = aabb.union(&b.world_aabb());
+        }
+        sources.push("instance boxes");
+    }
+    if let Some((near, far)) = depth_range {
+        for f in frames {
+            let c = &f.camera;
+            for (u, v) in [
+                (0.0, 0.0),
+                (c.width() as f64, 0.0),
+                (0.0, c.height() as f64),
+                (c.width() as f64, c.height() as f64),
+            ] {
+                for z in [near, far] {
+                    if let Some(p) = c.unproject(u, v, z) {
+                        aabb.extend(p);
+                    }
+                }
+            }
+        }
+        sources.push("near/far frustums");
+    }
+    for f in frames {
+        aabb.extend(f.camera.pose.center());
+    }
+    sources.push("camera centres");
+    if aabb.is_empty() {
+        aabb = Aabb::new(DVec3::splat(-1.0), DVec3::splat(1.0));
+    }
+    let extent = aabb.size().max_element().max(1e-9);
+    let bounds = SceneBounds {
+        min: aabb.min,
+        max: aabb.max,
+        source: sources.join(" + "),
+    };
+    let norm = Normalization {
+        center: aabb.center(),
+        scale: 2.0 / extent,
+    };
+    (bounds, norm)
+}
+
+/// Parses a row-major world-from-box rotation, checking it is a rotation.
+pub fn checked_rotation(m: DMat3, file: &Path, field: &str) -> Result<DMat3> {
+    let err = (m.transpose() * m - DMat3::IDENTITY)
+        .to_cols_array()
+        .iter()
+        .fold(0.0f64, |a, v| a.max(v.abs()));
+    if err > 1e-3 || m.determinant() < 0.0 {
+        return Err(DataError::field(
+            file,
+            field,
+            format!(
+                "expected a rotation matrix (orthonormal, determinant +1); max |RᵀR − I| = {err:.2e}, det = {:.3}",
+                m.determinant()
+            ),
+        ));
+    }
+    Ok(m)
+}

@@ -1,0 +1,253 @@
+//! `assist dataset info PATH [--json]`.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
+use assist_data::{Dataset, Format, LoadOptions, Split};
+use clap::{Args, Subcommand};
+use serde_json::{Value, json};
+
+#[derive(Subcommand, Debug)]
+pub enum DatasetCommand {
+    /// Format, frames per split, resolution, cameras, instances and bounds; validates that
+    /// every referenced file exists and decodes at the declared size.
+    Info(InfoArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct InfoArgs {
+    /// A dataset folder or file (transforms.json, transforms_train.json, a COLMAP model, poses_bounds.npy).
+    pub path: PathBuf,
+    /// Print one JSON object instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// Read as this format instead of detecting it (nerfstudio, blender, colmap, colmap-text, llff).
+    #[arg(long)]
+    pub format: Option<String>,
+    /// LLFF downscale factor (images_N); default: the smallest available.
+    #[arg(long)]
+    pub llff_factor: Option<u32>,
+    /// Skip decoding every file (only parse the dataset description).
+    #[arg(long)]
+    pub no_validate: bool,
+}
+
+pub fn run(cmd: DatasetCommand) -> anyhow::Result<()> {
+    match cmd {
+        DatasetCommand::Info(a) => info(a),
+    }
+}
+
+pub fn load_options(format: Option<&str>, llff_factor: Option<u32>) -> anyhow::Result<LoadOptions> {
+    let format = match format {
+        Some(f) => Some(Format::parse(f).with_context(|| {
+            format!("--format {f}: expected nerfstudio, blender, colmap, colmap-text or llff")
+        })?),
+        None => None,
+    };
+    Ok(LoadOptions {
+        format,
+        llff_factor,
+    })
+}
+
+fn info(a: InfoArgs) -> anyhow::Result<()> {
+    let opts = load_options(a.format.as_deref(), a.llff_factor)?;
+    let ds = assist_data::load(&a.path, &opts)?;
+    let report = if a.no_validate {
+        None
+    } else {
+        Some(assist_data::validate::validate(&ds))
+    };
+    let mut v = describe(&ds);
+    if let Some(r) = &report {
+        v["validation"] = json!({
+            "files_checked": r.files_checked,
+            "errors": r.errors.iter().map(|e| e.to_string()).collect::<Vec<_>>(),
+            "undeclared_instance_ids": r.undeclared_ids,
+        });
+    }
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        print_text(&ds, &v);
+    }
+    if let Some(r) = report
+        && !r.errors.is_empty()
+    {
+        if !a.json {
+            for e in r.errors.iter().take(20) {
+                eprintln!("invalid: {e}");
+            }
+            if r.errors.len() > 20 {
+                eprintln!("… and {} more", r.errors.len() - 20);
+            }
+        }
+        bail!(
+            "{}: {} of {} files failed validation; first: {}",
+            a.path.display(),
+            r.errors.len(),
+            r.files_checked,
+            r.errors[0]
+        );
+    }
+    Ok(())
+}
+
+/// The dataset summary as JSON (the `--json` output, minus validation).
+pub fn describe(ds: &Dataset) -> Value {
+    let mut splits = BTreeMap::new();
+    for s in [Split::Train, Split::Val, Split::Test] {
+        let n = ds.count(s);
+        if n > 0 {
+            splits.insert(s.name(), n);
+        }
+    }
+    let f0 = &ds.frames[0];
+    let same_size = ds
+        .frames
+        .iter()
+        .all(|f| (f.camera.width(), f.camera.height()) == (f0.camera.width(), f0.camera.height()));
+    let mut models: Vec<&str> = ds.frames.iter().map(|f| f.camera_model.as_str()).collect();
+    models.sort();
+    models.dedup();
+    let same_intr = ds
+        .frames
+        .iter()
+        .all(|f| f.camera.intrinsics == f0.camera.intrinsics);
+    let i = &f0.camera.intrinsics;
+    json!({
+        "format": ds.format.name(),
+        "path": ds.root.display().to_string(),
+        "frames": ds.frames.len(),
+        "splits": splits,
+        "split_source": ds.split_source,
+        "width": f0.camera.width(),
+        "height": f0.camera.height(),
+        "uniform_resolution": same_size,
+        "camera_model": if models.len() == 1 { models[0].to_string() } else { format!("mixed: {}", models.join(", ")) },
+        "intrinsics": {
+            "fx": i.fx, "fy": i.fy, "cx": i.cx, "cy": i.cy,
+            "distortion": i.distortion,
+            "shared_by_all_frames": same_intr,
+        },
+        "has_masks": ds.frames.iter().any(|f| f.mask_path.is_some() || f.alpha_is_mask),
+        "has_instance_masks": ds.frames.iter().any(|f| f.instance_mask_path.is_some()),
+        "has_depth": ds.frames.iter().any(|f| f.depth_path.is_some()),
+        "instances": ds.instances.iter().map(|inst| json!({
+            "id": inst.id,
+            "label": inst.label,
+            "bbox": inst.bbox.map(|b| json!({
+                "center": b.center.to_array(),
+                "size": b.size().to_array(),
+                "rotation": [b.rotation.row(0).to_array(), b.rotation.row(1).to_array(), b.rotation.row(2).to_array()],
+            })),
+        })).collect::<Vec<_>>(),
+        "sparse_points": ds.points.len(),
+        "depth_range": ds.depth_range.map(|(n, f)| [n, f]),
+        "world_up": ds.world_up.map(|u| u.to_array()),
+        "meters_per_unit": ds.meters_per_unit,
+        "bounds": { "min": ds.bounds.min.to_array(), "max": ds.bounds.max.to_array(), "source": ds.bounds.source },
+        "normalization": { "center": ds.normalization.center.to_array(), "scale": ds.normalization.scale,
+                           "meaning": "p_normalized = (p - center) * scale" },
+    })
+}
+
+fn print_text(ds: &Dataset, v: &Value) {
+    println!(
+        "dataset   {} ({})",
+        ds.root.display(),
+        v["format"].as_str().unwrap_or("")
+    );
+    let splits: Vec<String> = v["splits"]
+        .as_object()
+        .map(|o| o.iter().map(|(k, n)| format!("{k} {n}")).collect())
+        .unwrap_or_default();
+    println!(
+        "frames    {} ({}; split: {})",
+        ds.frames.len(),
+        splits.join(", "),
+        ds.split_source
+    );
+    println!(
+        "images    {}x{}{}",
+        v["width"],
+        v["height"],
+        if v["uniform_resolution"].as_bool() == Some(true) {
+            ""
+        } else {
+            " (first frame; sizes vary)"
+        }
+    );
+    let i = &ds.frames[0].camera.intrinsics;
+    println!(
+        "camera    {}  fx {:.3} fy {:.3} cx {:.3} cy {:.3}  distortion {:?}{}",
+        v["camera_model"].as_str().unwrap_or(""),
+        i.fx,
+        i.fy,
+        i.cx,
+        i.cy,
+        i.distortion,
+        if v["intrinsics"]["shared_by_all_frames"].as_bool() == Some(true) {
+            ""
+        } else {
+            " (first frame; per-frame intrinsics)"
+        }
+    );
+    let extras: Vec<&str> = [
+        ("masks", "has_masks"),
+        ("instance masks", "has_instance_masks"),
+        ("depth", "has_depth"),
+    ]
+    .iter()
+    .filter(|(_, k)| v[*k].as_bool() == Some(true))
+    .map(|(n, _)| *n)
+    .collect();
+    println!(
+        "with      {}",
+        if extras.is_empty() {
+            "images only".to_string()
+        } else {
+            extras.join(", ")
+        }
+    );
+    println!("instances {}", ds.instances.len());
+    for inst in &ds.instances {
+        match inst.bbox {
+            Some(b) => println!(
+                "  {:>3}  {:<40} box centre {:.3?} size {:.3?}",
+                inst.id,
+                inst.label,
+                b.center.to_array(),
+                b.size().to_array()
+            ),
+            None => println!("  {:>3}  {}", inst.id, inst.label),
+        }
+    }
+    if !ds.points.is_empty() {
+        println!("points    {} sparse 3D points", ds.points.len());
+    }
+    println!(
+        "bounds    min {:.3?} max {:.3?} ({})",
+        ds.bounds.min.to_array(),
+        ds.bounds.max.to_array(),
+        ds.bounds.source
+    );
+    match ds.meters_per_unit {
+        Some(m) => println!("scale     {m} m per unit"),
+        None => println!("scale     unknown (no metric scale in the dataset)"),
+    }
+    if let Some(val) = v.get("validation") {
+        println!(
+            "validated {} files, {} errors",
+            val["files_checked"],
+            val["errors"].as_array().map(|a| a.len()).unwrap_or(0)
+        );
+        if let Some(ids) = val["undeclared_instance_ids"].as_array()
+            && !ids.is_empty()
+        {
+            println!("warning   instance ids in masks but not declared: {ids:?}");
+        }
+    }
+}
