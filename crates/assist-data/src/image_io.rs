@@ -214,9 +214,9 @@ pub fn write_gray8_png(path: &Path, w: u32, h: u32, data: &[u8]) -> Result<()> {
     write_atomic(path, &png)
 }
 
-/// 16-bit grey PNG (PNG stores big-endian samples).
+/// 16-bit grey PNG (the encoder takes native-endian samples and stores them big-endian).
 pub fn write_gray16_png(path: &Path, w: u32, h: u32, data: &[u16]) -> Result<()> {
-    let bytes: Vec<u8> = data.iter().flat_map(|v| v.to_be_bytes()).collect();
+    let bytes: Vec<u8> = data.iter().flat_map(|v| v.to_ne_bytes()).collect();
     let png =
         encode_png(w, h, &bytes, image::ExtendedColorType::L16).map_err(|e| png_err(path, e))?;
     write_atomic(path, &png)

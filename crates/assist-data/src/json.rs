@@ -61,8 +61,7 @@ fn replace_nonfinite_tokens(text: &str) -> std::borrow::Cow<'_, str> {
         for tok in ["-Infinity", "Infinity", "-NaN", "NaN"] {
             if b[i..].starts_with(tok.as_bytes()) {
                 out.push_str(&text[last..i]);
-                out.push('"');
-                out.push_str(NONFINITE_TAG);
+                out.push_str("\"\\u0000assist-nonfinite:");
                 out.push_str(tok);
                 out.push('"');
                 i += tok.len();
@@ -82,7 +81,7 @@ fn replace_nonfinite_tokens(text: &str) -> std::borrow::Cow<'_, str> {
 }
 
 /// A JSON value together with the file and the path that lead to it.
-#[derive(Clone)]
+#[derive(Clone, Debug)]
 pub struct Node<'a> {
     pub value: &'a Value,
     pub file: &'a Path,

@@ -1,0 +1,96 @@
+//! assist-testkit: helpers for tests only (never a runtime dependency).
+//!
+//! Finding the shared datasets (`ASSIST_DATA` or `../shared/data` beside the project),
+//! skipping loudly when they are absent, temporary directories that clean up, and
+//! tolerance statistics.
+
+use std::path::{Path, PathBuf};
+
+/// The shared data folder, if present: `$ASSIST_DATA`, else `../shared/data` beside the
+/// workspace root. When absent, prints a loud SKIP line and returns `None`; under CI
+/// (`ASSIST_REQUIRE_DATA=1`) absence is a test failure instead.
+pub fn shared_data(test: &str) -> Option<PathBuf> {
+    let candidates: Vec<PathBuf> = match std::env::var_os("ASSIST_DATA") {
+        Some(p) => vec![PathBuf::from(p)],
+        None => vec![workspace_root().join("../shared/data")],
+    };
+    for c in &candidates {
+        if c.join("README.md").is_file() || c.is_dir() {
+            return Some(c.clone());
+        }
+    }
+    if std::env::var_os("ASSIST_REQUIRE_DATA").is_some_and(|v| v == "1") {
+        panic!("{test}: shared data not found at {candidates:?} and ASSIST_REQUIRE_DATA=1");
+    }
+    eprintln!(
+        "\n!!! SKIP {test}: shared data not found (looked at {candidates:?}); set ASSIST_DATA to run it\n"
+    );
+    None
+}
+
+/// A named dataset inside the shared data folder, or `None` (loudly) when absent.
+pub fn shared_dataset(test: &str, name: &str) -> Option<PathBuf> {
+    let d = shared_data(test)?.join(name);
+    if d.exists() {
+        Some(d)
+    } else if std::env::var_os("ASSIST_REQUIRE_DATA").is_some_and(|v| v == "1") {
+        panic!(
+            "{test}: shared dataset {} missing and ASSIST_REQUIRE_DATA=1",
+            d.display()
+        );
+    } else {
+        eprintln!("\n!!! SKIP {test}: {} not found\n", d.display());
+        None
+    }
+}
+
+/// The workspace root (two levels above a crate's manifest).
+pub fn workspace_root() -> PathBuf {
+    let here = Path::new(env!("CARGO_MANIFEST_DIR"));
+    here.parent()
+        .and_then(Path::parent)
+        .unwrap_or(here)
+        .to_path_buf()
+}
+
+/// A temporary directory removed on drop.
+pub struct TempDir(pub PathBuf);
+
+impl TempDir {
+    pub fn new(tag: &str) -> Self {
+        use std::sync::atomic::{AtomicU64, Ordering};
+        static N: AtomicU64 = AtomicU64::new(0);
+        let p = std::env::temp_dir().join(format!(
+            "assist-test-{tag}-{}-{}",
+            std::process::id(),
+            N.fetch_add(1, Ordering::Relaxed)
+        ));
+        let _ = std::fs::remove_dir_all(&p);
+        std::fs::create_dir_all(&p).expect("create temp dir");
+        TempDir(p)
+    }
+    pub fn path(&self) -> &Path {
+        &self.0
+    }
+    pub fn join(&self, p: impl AsRef<Path>) -> PathBuf {
+        self.0.join(p)
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// Median of a list (NaN-free); panics on an empty list.
+pub fn median(v: &mut [f64]) -> f64 {
+    assert!(!v.is_empty(), "median of nothing");
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
