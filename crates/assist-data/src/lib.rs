@@ -13,6 +13,7 @@ pub mod blender;
 pub mod colmap;
 pub mod colmap_bin;
 pub mod colmap_text;
+pub mod consistency;
 pub mod dataset;
 pub mod error;
 pub mod image_io;
@@ -20,6 +21,7 @@ pub mod json;
 pub mod llff;
 pub mod nerfstudio;
 pub mod npy;
+pub mod synth;
 pub mod validate;
 
 pub use dataset::{

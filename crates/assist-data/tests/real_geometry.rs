@@ -3,8 +3,8 @@
 
 use assist_core::{DVec2, DVec3};
 use assist_data::colmap::{intrinsics, read_model};
-use assist_data::image_io::{ImageF32, read_depth_png, read_rgb};
-use assist_data::{Dataset, LoadOptions, load};
+use assist_data::consistency::reproject;
+use assist_data::{LoadOptions, load};
 use assist_testkit::{TempDir, median, shared_dataset};
 
 /// Projects every observed 3D point with the loaded cameras. Two checks: (1) for every
@@ -84,86 +84,6 @@ fn colmap_points_reproject_onto_observations_beer() {
     assert!(med < 0.7, "median reprojection error {med} px");
 }
 
-fn bilinear(img: &ImageF32, x: f64, y: f64) -> Option<[f32; 3]> {
-    let (fx, fy) = (x - 0.5, y - 0.5);
-    if fx < 0.0 || fy < 0.0 || fx >= (img.width - 1) as f64 || fy >= (img.height - 1) as f64 {
-        return None;
-    }
-    let (x0, y0) = (fx.floor() as u32, fy.floor() as u32);
-    let (ax, ay) = ((fx - x0 as f64) as f32, (fy - y0 as f64) as f32);
-    let mut out = [0.0; 3];
-    for (dx, dy, w) in [
-        (0, 0, (1.0 - ax) * (1.0 - ay)),
-        (1, 0, ax * (1.0 - ay)),
-        (0, 1, (1.0 - ax) * ay),
-        (1, 1, ax * ay),
-    ] {
-        let p = img.pixel(x0 + dx, y0 + dy);
-        for c in 0..3 {
-            out[c] += w * p[c];
-        }
-    }
-    Some(out)
-}
-
-/// Back-projects view `a`'s depth into view `b`; returns (fraction of points whose depth
-/// agrees with b's depth map, median |ΔRGB| over those, count).
-pub fn depth_reprojection(ds: &Dataset, a: usize, b: usize, flip: bool) -> (f64, f64, usize) {
-    let (fa, fb) = (&ds.frames[a], &ds.frames[b]);
-    let (ia, _) = read_rgb(&fa.image_path, [0.0; 3]).unwrap();
-    let (ib, _) = read_rgb(&fb.image_path, [0.0; 3]).unwrap();
-    let da = read_depth_png(fa.depth_path.as_ref().unwrap(), fa.depth_scale).unwrap();
-    let db = read_depth_png(fb.depth_path.as_ref().unwrap(), fb.depth_scale).unwrap();
-    let mut cam_b = fb.camera;
-    if flip {
-        // Control: the wrong camera convention (OpenCV axes read as OpenGL).
-        let r =
-            cam_b.pose.rotation() * assist_core::DMat3::from_diagonal(DVec3::new(1.0, -1.0, -1.0));
-        cam_b.pose =
-            assist_core::Pose::from_rotation_translation(r, cam_b.pose.center(), "flip").unwrap();
-    }
-    let (mut total, mut consistent) = (0usize, 0usize);
-    let mut diffs = Vec::new();
-    for j in (0..fa.camera.height()).step_by(3) {
-        for i in (0..fa.camera.width()).step_by(3) {
-            let z = da.data[(j * da.width + i) as usize] as f64;
-            if z <= 0.0 {
-                continue;
-            }
-            let p = fa
-                .camera
-                .unproject(i as f64 + 0.5, j as f64 + 0.5, z)
-                .unwrap();
-            let Some((px, zb)) = cam_b.project(p) else {
-                continue;
-            };
-            let (ui, vi) = (px.x.floor(), px.y.floor());
-            if ui < 0.0 || vi < 0.0 || ui >= cam_b.width() as f64 || vi >= cam_b.height() as f64 {
-                continue;
-            }
-            total += 1;
-            let zb_map = db.data[(vi as u32 * db.width + ui as u32) as usize] as f64;
-            if (zb_map - zb).abs() > 0.01 * zb {
-                continue; // occluded in b (or inconsistent)
-            }
-            let Some(cb) = bilinear(&ib, px.x, px.y) else {
-                continue;
-            };
-            consistent += 1;
-            let ca = ia.pixel(i, j);
-            let d = (0..3).map(|c| (ca[c] - cb[c]).abs() as f64).sum::<f64>() / 3.0;
-            diffs.push(d);
-        }
-    }
-    let frac = consistent as f64 / total.max(1) as f64;
-    let med = if diffs.is_empty() {
-        f64::INFINITY
-    } else {
-        median(&mut diffs)
-    };
-    (frac, med, consistent)
-}
-
 /// Threshold: median |ΔRGB| below 4/255 over depth-consistent pixels, with at least 80%
 /// of the projected pixels depth-consistent; the flipped-axes control must fail.
 #[test]
@@ -173,24 +93,31 @@ fn desk_depth_reprojects_with_matching_colour() {
     };
     let ds = load(&dir, &LoadOptions::default()).unwrap();
     for (a, b) in [(0, 21), (20, 41), (60, 81), (100, 113)] {
-        let (frac, med, n) = depth_reprojection(&ds, a, b, false);
+        let r = reproject(&ds, a, b, 3, None).unwrap();
+        let (frac, med) = (r.consistent_fraction(), r.median_abs_rgb);
         eprintln!(
-            "desk {a}->{b}: n={n} depth-consistent {frac:.3} median |dRGB| {:.2}/255",
+            "desk {a}->{b}: {r:?} depth-consistent {frac:.3} median |dRGB| {:.2}/255",
             med * 255.0
         );
         assert!(
-            n > 500 && frac > 0.8,
-            "{a}->{b}: only {frac} consistent of n={n}"
+            r.depth_consistent > 500 && frac > 0.8,
+            "{a}->{b}: only {frac} consistent: {r:?}"
         );
         assert!(
             med < 4.0 / 255.0,
             "{a}->{b}: median colour difference {}/255",
             med * 255.0
         );
-        let (cfrac, _, _) = depth_reprojection(&ds, a, b, true);
+        // Control: the wrong camera convention (OpenCV axes read as OpenGL) must fail.
+        let mut wrong = ds.frames[b].camera;
+        let rot =
+            wrong.pose.rotation() * assist_core::DMat3::from_diagonal(DVec3::new(1.0, -1.0, -1.0));
+        wrong.pose =
+            assist_core::Pose::from_rotation_translation(rot, wrong.pose.center(), "flip").unwrap();
+        let c = reproject(&ds, a, b, 3, Some(wrong)).unwrap();
         assert!(
-            cfrac < 0.2,
-            "control with flipped axes should not be consistent: {cfrac}"
+            c.consistent_fraction() < 0.2,
+            "control with flipped axes should not be consistent: {c:?}"
         );
     }
 }

@@ -11,6 +11,7 @@ use clap::{Parser, Subcommand};
 mod cmd_dataset;
 mod cmd_demo;
 mod cmd_synth;
+mod progress;
 
 #[derive(Parser, Debug)]
 #[command(

@@ -1,0 +1,432 @@
+//! Renders a synth scene and writes it in the desk format, atomically (into a temporary
+//! folder beside the output, renamed into place at the end).
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use assist_core::{Camera, DVec3, Rng};
+use rayon::prelude::*;
+use serde_json::{Value, json};
+
+use super::scene::{Object, Scene, build_scene, cameras};
+use super::trace::render_view;
+use crate::error::{DataError, Result};
+use crate::image_io::{ImageF32, write_atomic, write_gray8_png, write_gray16_png, write_rgb_png};
+
+#[derive(Debug, Clone)]
+pub struct SynthConfig {
+    pub seed: u64,
+    pub views: usize,
+    pub width: u32,
+    pub height: u32,
+    pub objects: usize,
+    /// Colour samples per pixel (anti-aliasing).
+    pub spp: u32,
+    /// Light samples per colour sample (soft shadows).
+    pub shadow_samples: u32,
+}
+
+impl Default for SynthConfig {
+    fn default() -> Self {
+        SynthConfig {
+            seed: 0,
+            views: 60,
+            width: 128,
+            height: 96,
+            objects: 5,
+            spp: 4,
+            shadow_samples: 4,
+        }
+    }
+}
+
+impl SynthConfig {
+    pub fn validate(&self) -> Result<()> {
+        let bad = |f: &str, m: String| Err(DataError::field("synth", f, m));
+        if !(3..=6).contains(&self.objects) {
+            return bad(
+                "--objects",
+                format!("expected 3 to 6 objects, got {}", self.objects),
+            );
+        }
+        if self.views < 6 {
+            return bad(
+                "--views",
+                format!(
+                    "expected at least 6 views (one in six is a test view), got {}",
+                    self.views
+                ),
+            );
+        }
+        if self.views > 10_000 {
+            return bad(
+                "--views",
+                format!("expected at most 10000 views, got {}", self.views),
+            );
+        }
+        if !(16..=4096).contains(&self.width) || !(16..=4096).contains(&self.height) {
+            return bad(
+                "--width/--height",
+                format!(
+                    "expected 16 to 4096 pixels, got {}x{}",
+                    self.width, self.height
+                ),
+            );
+        }
+        if self.spp == 0 || self.spp > 256 || self.shadow_samples == 0 || self.shadow_samples > 256
+        {
+            return bad("--spp", "expected 1 to 256 samples".into());
+        }
+        Ok(())
+    }
+}
+
+/// What was written.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct SynthSummary {
+    pub out: PathBuf,
+    pub views: usize,
+    pub train: usize,
+    pub test: usize,
+    pub objects: Vec<(u16, String)>,
+    pub edits: Vec<String>,
+    pub images_written: usize,
+}
+
+/// Test views are the frames with `i % 6 == 3`, as in desk.
+pub fn is_test(i: usize) -> bool {
+    i % 6 == 3
+}
+
+fn matrix_rows(c: &Camera) -> Value {
+    let m = c.pose.to_matrix();
+    json!(
+        (0..4)
+            .map(|r| m.row(r).to_array().to_vec())
+            .collect::<Vec<_>>()
+    )
+}
+
+fn instances_json(objects: &[Object]) -> Value {
+    json!(objects.iter().map(|o| {
+        let b = o.obb();
+        json!({
+            "id": o.id,
+            "label": o.label,
+            "bbox": {
+                "center": b.center.to_array(),
+                "size": b.size().to_array(),
+                "rotation": (0..3).map(|r| b.rotation.row(r).to_array().to_vec()).collect::<Vec<_>>(),
+            }
+        })
+    }).collect::<Vec<_>>())
+}
+
+fn transforms(
+    cam: &Camera,
+    frames: Vec<Value>,
+    instances: Option<&[Object]>,
+    cfg: &SynthConfig,
+) -> Value {
+    let i = &cam.intrinsics;
+    let mut v = json!({
+        "camera_model": "OPENCV",
+        "fl_x": i.fx, "fl_y": i.fy, "cx": i.cx, "cy": i.cy, "w": i.width, "h": i.height,
+        "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0,
+        "depth_unit_scale_factor": 0.001,
+        "world_up": [0, 0, 1],
+        "meters_per_unit": 1.0,
+        "table_top_z": super::scene::TABLE_Z,
+        "renderer": format!("assist synth (seed {}, {} spp, {} light samples)", cfg.seed, cfg.spp, cfg.shadow_samples),
+        "frames": frames,
+    });
+    if let Some(objs) = instances {
+        v["instances"] = instances_json(objs);
+    }
+    v
+}
+
+struct Job {
+    dir: PathBuf,
+    scene_idx: usize,
+    view: usize,
+    with_ids: bool,
+}
+
+fn edit_name(op: &str, label: &str) -> String {
+    let slug: String = label
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() {
+                c.to_ascii_lowercase()
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    format!("{op}_{slug}")
+}
+
+/// The three edits: translate one object to a free spot, rotate another about its box
+/// centre, delete a third.
+fn make_edits(scene: &Scene, rng: &mut Rng) -> Vec<(String, Value, Scene)> {
+    let n = scene.objects.len();
+    let mut order: Vec<usize> = (0..n).collect();
+    rng.shuffle(&mut order);
+    let mut out = Vec::new();
+    // Translate.
+    let a = &scene.objects[order[0]];
+    let rad = a.shape.footprint_radius();
+    let mut offset = DVec3::ZERO;
+    for _ in 0..2000 {
+        let ang = rng.range(0.0, std::f64::consts::TAU);
+        let len = rng.range(0.08, 0.2);
+        let cand = DVec3::new(len * ang.cos(), len * ang.sin(), 0.0);
+        let nb = a.base + cand;
+        let on_table = nb.x.abs() < 0.6 && nb.y.abs() < 0.38;
+        let free =
+            scene.objects.iter().filter(|o| o.id != a.id).all(|o| {
+                (o.base - nb).truncate().length() > rad + o.shape.footprint_radius() + 0.02
+            });
+        if on_table && free {
+            offset = (cand * 1000.0).round() / 1000.0;
+            break;
+        }
+    }
+    if offset != DVec3::ZERO {
+        let mut s = scene.clone();
+        s.objects[order[0]].base += offset;
+        out.push((edit_name("translate", &a.label), json!({"instance_id": a.id, "operation": "translate", "config": {"offset": offset.to_array()}}), s));
+    }
+    // Rotate (about world +Z through the box centre; the base centre is on that axis).
+    let b = &scene.objects[order[1 % n]];
+    let degrees = [45.0, 60.0, 90.0, -45.0, -60.0, -90.0][rng.below(6) as usize];
+    let mut s = scene.clone();
+    s.objects[order[1 % n]].yaw += f64::to_radians(degrees);
+    out.push((edit_name("rotate", &b.label), json!({"instance_id": b.id, "operation": "rotate", "config": {"axis": "z", "degrees": degrees, "center": b.obb().center.to_array()}}), s));
+    // Delete.
+    let c = &scene.objects[order[2 % n]];
+    out.push((
+        edit_name("delete", &c.label),
+        json!({"instance_id": c.id, "operation": "delete", "config": {}}),
+        scene.without(c.id),
+    ));
+    out
+}
+
+/// Generates the scene and writes the dataset to `out`. Refuses to replace an existing
+/// non-empty folder unless `force`. `progress(done, total)` is called as views finish.
+pub fn generate(
+    cfg: &SynthConfig,
+    out: &Path,
+    force: bool,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<SynthSummary> {
+    cfg.validate()?;
+    let non_empty = out.is_dir()
+        && std::fs::read_dir(out)
+            .map_err(|e| DataError::io(out, e))?
+            .next()
+            .is_some();
+    if (non_empty || out.is_file()) && !force {
+        return Err(DataError::Exists { path: out.into() });
+    }
+    let mut rng = Rng::new(cfg.seed);
+    let scene = build_scene(&mut rng, cfg.objects);
+    let cams = cameras(&mut rng, cfg.views, cfg.width, cfg.height);
+    let edits = make_edits(&scene, &mut rng);
+    let parent = out
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    std::fs::create_dir_all(parent).map_err(|e| DataError::io(parent, e))?;
+    let name = out
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "synth".into());
+    let tmp = parent.join(format!(".{name}.tmp-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&tmp);
+    let result = write_all(cfg, &tmp, &scene, &cams, &edits, progress);
+    if let Err(e) = result {
+        let _ = std::fs::remove_dir_all(&tmp);
+        return Err(e);
+    }
+    // Swap into place; an old folder (with --force) is removed only after the new one is in.
+    let old = parent.join(format!(".{name}.old-{}", std::process::id()));
+    if out.exists() {
+        std::fs::rename(out, &old).map_err(|e| DataError::io(out, e))?;
+    }
+    std::fs::rename(&tmp, out).map_err(|e| DataError::io(out, e))?;
+    if old.exists() {
+        let _ = if old.is_dir() {
+            std::fs::remove_dir_all(&old)
+        } else {
+            std::fs::remove_file(&old)
+        };
+    }
+    let test = (0..cfg.views).filter(|&i| is_test(i)).count();
+    Ok(SynthSummary {
+        out: out.to_path_buf(),
+        views: cfg.views,
+        train: cfg.views - test,
+        test,
+        objects: scene
+            .objects
+            .iter()
+            .map(|o| (o.id, o.label.clone()))
+            .collect(),
+        edits: edits.iter().map(|e| e.0.clone()).collect(),
+        images_written: cfg.views + test * (1 + edits.len()),
+    })
+}
+
+fn mkdirs(dir: &Path, subs: &[&str]) -> Result<()> {
+    for s in subs {
+        let p = dir.join(s);
+        std::fs::create_dir_all(&p).map_err(|e| DataError::io(&p, e))?;
+    }
+    Ok(())
+}
+
+fn write_all(
+    cfg: &SynthConfig,
+    dir: &Path,
+    scene: &Scene,
+    cams: &[Camera],
+    edits: &[(String, Value, Scene)],
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<()> {
+    mkdirs(
+        dir,
+        &[
+            "images",
+            "depth",
+            "instances",
+            "background/images",
+            "background/depth",
+        ],
+    )?;
+    let tests: Vec<usize> = (0..cams.len()).filter(|&i| is_test(i)).collect();
+    let bg = scene.without_objects();
+    let mut scenes = vec![scene.clone(), bg];
+    let mut jobs: Vec<Job> = (0..cams.len())
+        .map(|v| Job {
+            dir: dir.to_path_buf(),
+            scene_idx: 0,
+            view: v,
+            with_ids: true,
+        })
+        .collect();
+    jobs.extend(tests.iter().map(|&v| Job {
+        dir: dir.join("background"),
+        scene_idx: 1,
+        view: v,
+        with_ids: false,
+    }));
+    for (name, edit, s) in edits {
+        let ed = dir.join("edits").join(name);
+        mkdirs(&ed, &["images", "depth", "instances"])?;
+        write_atomic(
+            &ed.join("edit.json"),
+            serde_json::to_string_pretty(edit).unwrap().as_bytes(),
+        )?;
+        scenes.push(s.clone());
+        let idx = scenes.len() - 1;
+        jobs.extend(tests.iter().map(|&v| Job {
+            dir: ed.clone(),
+            scene_idx: idx,
+            view: v,
+            with_ids: true,
+        }));
+    }
+    let done = AtomicUsize::new(0);
+    let total = jobs.len();
+    progress(0, total);
+    jobs.par_iter().try_for_each(|job| -> Result<()> {
+        let cam = &cams[job.view];
+        // The same noise seed per view in every variant, so unchanged pixels stay identical.
+        let r = render_view(
+            &scenes[job.scene_idx],
+            cam,
+            cfg.seed
+                .wrapping_mul(0x100_0001)
+                .wrapping_add(job.view as u64),
+            cfg.spp,
+            cfg.shadow_samples,
+        );
+        let (w, h) = (cam.width(), cam.height());
+        let stem = format!("r_{:03}.png", job.view);
+        write_rgb_png(
+            &job.dir.join("images").join(&stem),
+            &ImageF32 {
+                width: w,
+                height: h,
+                channels: 3,
+                data: r.rgb,
+            },
+        )?;
+        let mm: Vec<u16> = r
+            .depth
+            .iter()
+            .map(|&z| (z as f64 * 1000.0).round().clamp(0.0, 65535.0) as u16)
+            .collect();
+        write_gray16_png(&job.dir.join("depth").join(&stem), w, h, &mm)?;
+        if job.with_ids {
+            let ids: Vec<u8> = r.ids.iter().map(|&v| v as u8).collect();
+            write_gray8_png(&job.dir.join("instances").join(&stem), w, h, &ids)?;
+        }
+        progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
+        Ok(())
+    })?;
+    let frame = |v: usize, ids: bool| {
+        let mut f = json!({
+            "file_path": format!("images/r_{v:03}.png"),
+            "transform_matrix": matrix_rows(&cams[v]),
+            "depth_file_path": format!("depth/r_{v:03}.png"),
+            "frame_index": v,
+        });
+        if ids {
+            f["instance_mask_path"] = json!(format!("instances/r_{v:03}.png"));
+        }
+        f
+    };
+    let main = transforms(
+        &cams[0],
+        (0..cams.len()).map(|v| frame(v, true)).collect(),
+        Some(&scene.objects),
+        cfg,
+    );
+    write_atomic(
+        &dir.join("transforms.json"),
+        serde_json::to_string_pretty(&main).unwrap().as_bytes(),
+    )?;
+    let split = json!({"train": (0..cams.len()).filter(|&i| !is_test(i)).collect::<Vec<_>>(), "test": tests});
+    write_atomic(
+        &dir.join("split.json"),
+        serde_json::to_string_pretty(&split).unwrap().as_bytes(),
+    )?;
+    let bgt = transforms(
+        &cams[0],
+        tests.iter().map(|&v| frame(v, false)).collect(),
+        None,
+        cfg,
+    );
+    write_atomic(
+        &dir.join("background/transforms.json"),
+        serde_json::to_string_pretty(&bgt).unwrap().as_bytes(),
+    )?;
+    for (k, (name, _, s)) in edits.iter().enumerate() {
+        let t = transforms(
+            &cams[0],
+            tests.iter().map(|&v| frame(v, true)).collect(),
+            Some(&scenes[2 + k].objects),
+            cfg,
+        );
+        write_atomic(
+            &dir.join("edits").join(name).join("transforms.json"),
+            serde_json::to_string_pretty(&t).unwrap().as_bytes(),
+        )?;
+        let _ = s;
+    }
+    Ok(())
+}
