@@ -200,7 +200,7 @@ impl Pose {
         check_finite(&format!("{field}.tvec"), &tvec)?;
         let q = DQuat::from_xyzw(qvec[1], qvec[2], qvec[3], qvec[0]);
         let n = q.length();
-        if !(n > 1e-6) {
+        if n.is_nan() || n <= 1e-6 {
             return Err(CoreError::invalid(
                 format!("{field}.qvec"),
                 "expected a non-zero quaternion",
@@ -217,7 +217,7 @@ impl Pose {
     pub fn look_at(eye: DVec3, target: DVec3, up: DVec3) -> Result<Self, CoreError> {
         let back = (eye - target).normalize();
         let right = up.cross(back);
-        if !(right.length() > 1e-9) {
+        if right.length().is_nan() || right.length() <= 1e-9 {
             return Err(CoreError::invalid(
                 "look_at",
                 "view direction is parallel to up",
@@ -229,10 +229,10 @@ impl Pose {
     }
 
     pub fn rotation(&self) -> DMat3 {
-        DMat3::from(self.world_from_camera.matrix3)
+        self.world_from_camera.matrix3
     }
     pub fn center(&self) -> DVec3 {
-        DVec3::from(self.world_from_camera.translation)
+        self.world_from_camera.translation
     }
     /// Viewing direction in the world (the camera's −z axis).
     pub fn forward(&self) -> DVec3 {

@@ -103,7 +103,7 @@ impl Distortion {
                         break;
                     }
                 }
-                if !(theta.is_finite() && theta >= 0.0 && theta < std::f64::consts::PI) {
+                if !(theta.is_finite() && (0.0..std::f64::consts::PI).contains(&theta)) {
                     return None;
                 }
                 if (self.fisheye_theta_d(theta) - rd).abs() > 1e-9 {

@@ -105,7 +105,7 @@ pub fn read(dir: &Path) -> Result<ColmapModel> {
         let mut points2d = Vec::new();
         if let Some((ln2, l2)) = ls.get(i + 1) {
             let p: Vec<&str> = l2.split_whitespace().collect();
-            if p.len() % 3 != 0 {
+            if !p.len().is_multiple_of(3) {
                 return Err(DataError::field(
                     &ipath,
                     format!("line {ln2}: POINTS2D"),

@@ -143,6 +143,7 @@ pub struct Dataset {
 
 /// Options for loading.
 #[derive(Debug, Clone)]
+#[derive(Default)]
 pub struct LoadOptions {
     /// Force a format instead of detecting it.
     pub format: Option<Format>,
@@ -150,14 +151,6 @@ pub struct LoadOptions {
     pub llff_factor: Option<u32>,
 }
 
-impl Default for LoadOptions {
-    fn default() -> Self {
-        LoadOptions {
-            format: None,
-            llff_factor: None,
-        }
-    }
-}
 
 impl Dataset {
     pub fn frames_in(&self, split: Split) -> impl Iterator<Item = &Frame> {
@@ -175,7 +168,7 @@ impl Dataset {
 /// for testing, the LLFF/Mip-NeRF convention.
 pub const HOLDOUT_EVERY: usize = 8;
 pub fn holdout_split(i: usize) -> Split {
-    if i % HOLDOUT_EVERY == 0 {
+    if i.is_multiple_of(HOLDOUT_EVERY) {
         Split::Test
     } else {
         Split::Train

@@ -130,7 +130,7 @@ pub fn load(dir: &Path, factor: Option<u32>) -> Result<Dataset> {
                 want_h: eh,
             });
         }
-        if !(f > 0.0) {
+        if f <= 0.0 {
             return Err(DataError::field(
                 &npy,
                 format!("{field} focal"),

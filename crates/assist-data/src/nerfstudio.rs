@@ -124,7 +124,7 @@ fn intrinsics_of(
         cy,
         distortion,
     };
-    intr.validate(&frame.path().to_string())
+    intr.validate(frame.path())
         .map_err(|e| DataError::core(file, e))?;
     Ok((intr, model))
 }

@@ -15,6 +15,18 @@ pub struct Report {
     pub undeclared_ids: Vec<u16>,
 }
 
+/// Says which frame field referred to a file that is missing or unreadable.
+fn with_field(e: DataError, frame: usize, field: &str) -> DataError {
+    match e {
+        DataError::Io { path, source } => {
+            let what = if source.kind() == std::io::ErrorKind::NotFound { "file not found".to_string() } else { source.to_string() };
+            DataError::Field { path, field: format!("frames[{frame}].{field}"), message: what }
+        }
+        DataError::Image { path, message } => DataError::Field { path, field: format!("frames[{frame}].{field}"), message: format!("cannot decode image: {message}") },
+        other => other,
+    }
+}
+
 /// Decodes every image, mask and depth map (in parallel) and checks sizes.
 pub fn validate(ds: &Dataset) -> Report {
     let results: Vec<(usize, Vec<DataError>, Vec<u16>)> = ds
@@ -38,7 +50,7 @@ pub fn validate(ds: &Dataset) -> Report {
                         want_h: h,
                     }),
                     Ok(_) => {}
-                    Err(e) => errs.push(e),
+                    Err(e) => errs.push(with_field(e, i, field)),
                 }
             };
             check(&f.image_path, "file_path", &mut errs);
@@ -66,7 +78,7 @@ pub fn validate(ds: &Dataset) -> Report {
                         }
                         ids.extend((1..65536).filter(|&k| seen[k]).map(|k| k as u16));
                     }
-                    Err(e) => errs.push(e),
+                    Err(e) => errs.push(with_field(e, i, "instance_mask_path")),
                 }
             }
             (n, errs, ids)

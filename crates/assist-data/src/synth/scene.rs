@@ -231,8 +231,15 @@ pub fn build_scene(rng: &mut Rng, k: usize) -> Scene {
     rng.shuffle(&mut colors);
     let mut objects: Vec<Object> = Vec::new();
     let mut used_labels = std::collections::HashSet::new();
+    // Every kind of shape appears once before any repeats (a box always among them).
+    let mut kinds: Vec<u64> = vec![0, 1, 2, 3];
+    rng.shuffle(&mut kinds);
+    if kinds[3] == 0 {
+        kinds.swap(0, 3);
+    }
     for i in 0..k {
-        let shape = match rng.below(4) {
+        let kind = if i < 4 { kinds[i] } else { rng.below(4) };
+        let shape = match kind {
             0 => Shape::Box {
                 half: DVec3::new(
                     rng.range(0.025, 0.06),
