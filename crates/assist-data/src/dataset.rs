@@ -142,15 +142,13 @@ pub struct Dataset {
 }
 
 /// Options for loading.
-#[derive(Debug, Clone)]
-#[derive(Default)]
+#[derive(Debug, Clone, Default)]
 pub struct LoadOptions {
     /// Force a format instead of detecting it.
     pub format: Option<Format>,
     /// LLFF downscale factor (`images_N`); default: the smallest available.
     pub llff_factor: Option<u32>,
 }
-
 
 impl Dataset {
     pub fn frames_in(&self, split: Split) -> impl Iterator<Item = &Frame> {

@@ -19,10 +19,22 @@ pub struct Report {
 fn with_field(e: DataError, frame: usize, field: &str) -> DataError {
     match e {
         DataError::Io { path, source } => {
-            let what = if source.kind() == std::io::ErrorKind::NotFound { "file not found".to_string() } else { source.to_string() };
-            DataError::Field { path, field: format!("frames[{frame}].{field}"), message: what }
+            let what = if source.kind() == std::io::ErrorKind::NotFound {
+                "file not found".to_string()
+            } else {
+                source.to_string()
+            };
+            DataError::Field {
+                path,
+                field: format!("frames[{frame}].{field}"),
+                message: what,
+            }
         }
-        DataError::Image { path, message } => DataError::Field { path, field: format!("frames[{frame}].{field}"), message: format!("cannot decode image: {message}") },
+        DataError::Image { path, message } => DataError::Field {
+            path,
+            field: format!("frames[{frame}].{field}"),
+            message: format!("cannot decode image: {message}"),
+        },
         other => other,
     }
 }

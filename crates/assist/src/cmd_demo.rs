@@ -29,16 +29,28 @@ const MARKER: &str = ".assist-demo";
 pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     let out = &a.out;
     if out.exists() && !out.join(MARKER).exists() && !a.force {
-        let non_empty = std::fs::read_dir(out).map(|mut d| d.next().is_some()).unwrap_or(true);
+        let non_empty = std::fs::read_dir(out)
+            .map(|mut d| d.next().is_some())
+            .unwrap_or(true);
         if non_empty {
-            bail!("{}: exists and was not written by `assist demo`; pass --force to replace it, or --out elsewhere", out.display());
+            bail!(
+                "{}: exists and was not written by `assist demo`; pass --force to replace it, or --out elsewhere",
+                out.display()
+            );
         }
     }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    std::fs::write(out.join(MARKER), "written by assist demo\n").with_context(|| format!("writing {}", out.join(MARKER).display()))?;
+    std::fs::write(out.join(MARKER), "written by assist demo\n")
+        .with_context(|| format!("writing {}", out.join(MARKER).display()))?;
     let scene_dir = out.join("scene");
-    let cfg = SynthConfig { seed: a.seed, ..SynthConfig::default() };
-    eprintln!("1/3 generating the built-in scene ({} views at {}x{}, {} objects)", cfg.views, cfg.width, cfg.height, cfg.objects);
+    let cfg = SynthConfig {
+        seed: a.seed,
+        ..SynthConfig::default()
+    };
+    eprintln!(
+        "1/3 generating the built-in scene ({} views at {}x{}, {} objects)",
+        cfg.views, cfg.width, cfg.height, cfg.objects
+    );
     let summary = crate::cmd_synth::synth(&cfg, &scene_dir, true, true)?;
 
     eprintln!("2/3 reading it back as a dataset and validating every file");
@@ -47,7 +59,9 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     if let Some(e) = report.errors.first() {
         bail!("generated scene failed validation: {e}");
     }
-    let test: Vec<usize> = (0..ds.frames.len()).filter(|&i| ds.frames[i].split == Split::Test).collect();
+    let test: Vec<usize> = (0..ds.frames.len())
+        .filter(|&i| ds.frames[i].split == Split::Test)
+        .collect();
     let (a_idx, b_idx) = (test[0], nearest_view(&ds, test[0]));
     let r = assist_data::consistency::reproject(&ds, a_idx, b_idx, 1, None)?;
     eprintln!(
@@ -61,8 +75,14 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     let sheet = out.join("contact_sheet.png");
     contact_sheet(&scene_dir, &ds.frames[a_idx].name, &summary.edits, &sheet)?;
     println!("Done. Look at:");
-    println!("  {}   (test view: RGB | depth | instances | background; then each edit)", sheet.display());
-    println!("  {}/            (the dataset: images, depth, instances, background/, edits/)", scene_dir.display());
+    println!(
+        "  {}   (test view: RGB | depth | instances | background; then each edit)",
+        sheet.display()
+    );
+    println!(
+        "  {}/            (the dataset: images, depth, instances, background/, edits/)",
+        scene_dir.display()
+    );
     println!("  assist dataset info {}", scene_dir.display());
     Ok(())
 }
@@ -71,7 +91,11 @@ fn nearest_view(ds: &assist_data::Dataset, a: usize) -> usize {
     let c = ds.frames[a].camera.pose.center();
     (0..ds.frames.len())
         .filter(|&b| b != a)
-        .min_by(|&x, &y| (ds.frames[x].camera.pose.center() - c).length().total_cmp(&(ds.frames[y].camera.pose.center() - c).length()))
+        .min_by(|&x, &y| {
+            (ds.frames[x].camera.pose.center() - c)
+                .length()
+                .total_cmp(&(ds.frames[y].camera.pose.center() - c).length())
+        })
         .unwrap_or(a)
 }
 
@@ -105,7 +129,11 @@ fn depth_to_rgb(d: &ImageF32) -> ImageF32 {
     let hi = valid.iter().copied().fold(0.0, f32::max);
     let mut out = ImageF32::new(d.width, d.height, 3);
     for (k, &v) in d.data.iter().enumerate() {
-        let t = if v > 0.0 { 1.0 - ((v - lo) / (hi - lo).max(1e-6)).sqrt() } else { 0.0 };
+        let t = if v > 0.0 {
+            1.0 - ((v - lo) / (hi - lo).max(1e-6)).sqrt()
+        } else {
+            0.0
+        };
         out.data[k * 3..k * 3 + 3].copy_from_slice(&[t, t, t]);
     }
     out

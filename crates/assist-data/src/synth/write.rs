@@ -174,7 +174,10 @@ fn make_edits(scene: &Scene, rng: &mut Rng) -> Vec<(String, Value, Scene)> {
     let mut order: Vec<usize> = (0..n).collect();
     rng.shuffle(&mut order);
     // Rotate a box (a rotation is visible on it); translate and delete two others.
-    if let Some(k) = order.iter().position(|&i| matches!(scene.objects[i].shape, super::scene::Shape::Box { .. })) {
+    if let Some(k) = order
+        .iter()
+        .position(|&i| matches!(scene.objects[i].shape, super::scene::Shape::Box { .. }))
+    {
         order.swap(1, k);
     }
     let mut out = Vec::new();
