@@ -8,6 +8,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod cmd_bench;
 mod cmd_dataset;
 mod cmd_demo;
 mod cmd_synth;
@@ -35,6 +36,11 @@ pub enum Command {
     Synth(cmd_synth::SynthArgs),
     /// Run the main job on the built-in default scene (no downloads).
     Demo(cmd_demo::DemoArgs),
+    /// Measure the speed of hot paths.
+    Bench {
+        #[command(subcommand)]
+        command: cmd_bench::BenchCommand,
+    },
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -42,6 +48,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Dataset { command } => cmd_dataset::run(command),
         Command::Synth(a) => cmd_synth::run(a),
         Command::Demo(a) => cmd_demo::run(a),
+        Command::Bench { command } => cmd_bench::run(command),
     }
 }
 

@@ -1,0 +1,391 @@
+//! Multiresolution hash encoding (instant-NGP): L levels of F features, a table of T
+//! entries per level; coarse levels whose grid fits the table are indexed directly,
+//! finer ones through the spatial hash `x·1 ⊕ y·2654435761 ⊕ z·805459861 mod T`;
+//! trilinear interpolation of the 8 corners. Inputs are positions in the node's canonical
+//! box, scaled to [0, 1]³ (values outside are clamped).
+//!
+//! Forward runs level-major (one level's table at a time, so it stays in cache) over the
+//! whole batch; backward runs one level per task, so every scatter-add of a level is done
+//! by one thread and needs no atomics.
+
+use rayon::prelude::*;
+
+use crate::config::FieldConfig;
+
+/// Samples per chunk of the chunk-blocked feature layout (see [`Layout`]).
+pub const CHUNK: usize = 64;
+
+/// Geometry of one level.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Level {
+    /// Cells per axis; grid points per axis are `res + 1`.
+    pub res: u32,
+    /// Entries in this level's table.
+    pub size: u32,
+    /// Indexed directly (dense) rather than hashed.
+    pub dense: bool,
+    /// First entry of this level in the parameter vector (in entries, not floats).
+    pub offset: usize,
+}
+
+/// The grid's levels and parameter count.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GridLayout {
+    pub levels: Vec<Level>,
+    pub features: usize,
+    pub entries: usize,
+}
+
+impl GridLayout {
+    pub fn new(cfg: &FieldConfig) -> Self {
+        let t = 1u64 << cfg.log2_table_size;
+        let l = cfg.levels;
+        let growth = if l > 1 {
+            ((cfg.max_resolution as f64).ln() - (cfg.base_resolution as f64).ln()) / (l - 1) as f64
+        } else {
+            0.0
+        };
+        let mut levels = Vec::with_capacity(l);
+        let mut offset = 0usize;
+        for i in 0..l {
+            let res = (cfg.base_resolution as f64 * (growth * i as f64).exp())
+                .floor()
+                .max(1.0) as u32;
+            let side = res as u64 + 1;
+            let dense_size = side * side * side;
+            let (size, dense) = if dense_size <= t {
+                (dense_size as u32, true)
+            } else {
+                (t as u32, false)
+            };
+            levels.push(Level {
+                res,
+                size,
+                dense,
+                offset,
+            });
+            offset += size as usize;
+        }
+        GridLayout {
+            levels,
+            features: cfg.features_per_level,
+            entries: offset,
+        }
+    }
+    pub fn param_count(&self) -> usize {
+        self.entries * self.features
+    }
+}
+
+#[inline(always)]
+fn corner_index(lv: &Level, x: u32, y: u32, z: u32) -> usize {
+    if lv.dense {
+        let s = lv.res + 1;
+        (x + s * (y + s * z)) as usize
+    } else {
+        let h = x ^ y.wrapping_mul(2_654_435_761) ^ z.wrapping_mul(805_459_861);
+        (h & (lv.size - 1)) as usize
+    }
+}
+
+/// Cell corner and trilinear fractions of a position at a level.
+#[inline(always)]
+fn locate(lv: &Level, p: [f32; 3]) -> ([u32; 3], [f32; 3]) {
+    let r = lv.res as f32;
+    let mut cell = [0u32; 3];
+    let mut frac = [0f32; 3];
+    for a in 0..3 {
+        let x = p[a].clamp(0.0, 1.0) * r;
+        let c = (x.floor() as u32).min(lv.res - 1);
+        cell[a] = c;
+        frac[a] = x - c as f32;
+    }
+    (cell, frac)
+}
+
+/// The 8 corner indices (entries) and trilinear weights.
+#[inline(always)]
+pub fn corners(lv: &Level, p: [f32; 3]) -> ([usize; 8], [f32; 8]) {
+    let (c, f) = locate(lv, p);
+    let mut idx = [0usize; 8];
+    let mut w = [0f32; 8];
+    for k in 0..8 {
+        let (dx, dy, dz) = ((k & 1) as u32, ((k >> 1) & 1) as u32, ((k >> 2) & 1) as u32);
+        idx[k] = lv.offset + corner_index(lv, c[0] + dx, c[1] + dy, c[2] + dz);
+        let wx = if dx == 1 { f[0] } else { 1.0 - f[0] };
+        let wy = if dy == 1 { f[1] } else { 1.0 - f[1] };
+        let wz = if dz == 1 { f[2] } else { 1.0 - f[2] };
+        w[k] = wx * wy * wz;
+    }
+    (idx, w)
+}
+
+/// Chunk-blocked layout of per-sample feature vectors: sample `s` lives in chunk
+/// `s / CHUNK` at lane `s % CHUNK`; within a chunk, feature `f` of all lanes is contiguous
+/// (`[chunk][feature][lane]`), which is what the MLP's matrix products consume.
+#[derive(Debug, Clone, Copy)]
+pub struct Layout {
+    pub width: usize,
+}
+
+impl Layout {
+    #[inline(always)]
+    pub fn at(&self, sample: usize, feature: usize) -> usize {
+        (sample / CHUNK * self.width + feature) * CHUNK + sample % CHUNK
+    }
+    pub fn len(&self, samples: usize) -> usize {
+        samples.div_ceil(CHUNK) * self.width * CHUNK
+    }
+}
+
+/// Corner indices (within the level's table) and trilinear weights of one position.
+#[inline(always)]
+fn corners_local(lv: &Level, x: f32, y: f32, z: f32) -> ([usize; 8], [f32; 8]) {
+    let r = lv.res as f32;
+    let cell = |v: f32| {
+        let p = v.clamp(0.0, 1.0) * r;
+        let c = (p as u32).min(lv.res - 1); // p ≥ 0, so `as` is floor
+        (c, p - c as f32)
+    };
+    let ((cx, fx), (cy, fy), (cz, fz)) = (cell(x), cell(y), cell(z));
+    let wxy = [
+        (1.0 - fx) * (1.0 - fy),
+        fx * (1.0 - fy),
+        (1.0 - fx) * fy,
+        fx * fy,
+    ];
+    let w = [
+        wxy[0] * (1.0 - fz),
+        wxy[1] * (1.0 - fz),
+        wxy[2] * (1.0 - fz),
+        wxy[3] * (1.0 - fz),
+        wxy[0] * fz,
+        wxy[1] * fz,
+        wxy[2] * fz,
+        wxy[3] * fz,
+    ];
+    let mut idx = [0usize; 8];
+    if lv.dense {
+        let s = lv.res + 1;
+        let (ix, iy, iz) = (cx, cy * s, cz * s * s);
+        let (ox, oy, oz) = (1, s, s * s);
+        for k in 0..8 {
+            idx[k] = (ix
+                + if k & 1 != 0 { ox } else { 0 }
+                + iy
+                + if k & 2 != 0 { oy } else { 0 }
+                + iz
+                + if k & 4 != 0 { oz } else { 0 }) as usize;
+        }
+    } else {
+        let mask = lv.size - 1;
+        let hy0 = cy.wrapping_mul(2_654_435_761);
+        let hy1 = hy0.wrapping_add(2_654_435_761);
+        let hz0 = cz.wrapping_mul(805_459_861);
+        let hz1 = hz0.wrapping_add(805_459_861);
+        let hy = [hy0, hy1];
+        let hz = [hz0, hz1];
+        for k in 0..8 {
+            idx[k] = (((cx + (k & 1) as u32) ^ hy[(k >> 1) & 1] ^ hz[k >> 2]) & mask) as usize;
+        }
+    }
+    (idx, w)
+}
+
+/// Encodes `n` positions (structure of arrays, in [0, 1]) into `out`, chunk-blocked with
+/// `width ≥ L·F` rows per chunk (rows past `L·F` are left as they are: keep them zero).
+/// `out` must hold `Layout { width }.len(n)` values.
+pub fn encode(grid: &GridLayout, params: &[f32], pos: [&[f32]; 3], width: usize, out: &mut [f32]) {
+    match grid.features {
+        1 => encode_f::<1>(grid, params, pos, width, out),
+        2 => encode_f::<2>(grid, params, pos, width, out),
+        4 => encode_f::<4>(grid, params, pos, width, out),
+        8 => encode_f::<8>(grid, params, pos, width, out),
+        f => panic!("unsupported features per level {f}"),
+    }
+}
+
+fn encode_f<const F: usize>(
+    grid: &GridLayout,
+    params: &[f32],
+    pos: [&[f32]; 3],
+    width: usize,
+    out: &mut [f32],
+) {
+    let n = pos[0].len();
+    assert!(width >= grid.levels.len() * F && pos[1].len() == n && pos[2].len() == n);
+    let block = width * CHUNK;
+    let nc = n.div_ceil(CHUNK);
+    assert!(out.len() >= nc * block);
+    let (table_all, _) = params.as_chunks::<F>();
+    // Tasks of several chunks; every level in turn over the whole batch, so one level's
+    // table is in cache at a time.
+    let chunks_per_task = 16;
+    for (li, lv) in grid.levels.iter().enumerate() {
+        let table = &table_all[lv.offset..lv.offset + lv.size as usize];
+        out[..nc * block]
+            .par_chunks_mut(block * chunks_per_task)
+            .enumerate()
+            .for_each(|(t, dst)| {
+                assist_simd::simd(|| {
+                    encode_task::<F>(lv, table, li, pos, n, t * chunks_per_task, block, dst)
+                })
+            });
+    }
+}
+
+#[inline(always)]
+fn encode_task<const F: usize>(
+    lv: &Level,
+    table: &[[f32; F]],
+    li: usize,
+    pos: [&[f32]; 3],
+    n: usize,
+    first_chunk: usize,
+    block: usize,
+    dst: &mut [f32],
+) {
+    {
+        {
+            for (ci, chunk) in dst.chunks_mut(block).enumerate() {
+                let s0 = (first_chunk + ci) * CHUNK;
+                let lanes = CHUNK.min(n - s0);
+                let rows = &mut chunk[li * F * CHUNK..(li + 1) * F * CHUNK];
+                let (px, py, pz) = (
+                    &pos[0][s0..s0 + lanes],
+                    &pos[1][s0..s0 + lanes],
+                    &pos[2][s0..s0 + lanes],
+                );
+                for l in 0..lanes {
+                    let (idx, w) = corners_local(lv, px[l], py[l], pz[l]);
+                    let mut acc = [0f32; F];
+                    for k in 0..8 {
+                        let e = &table[idx[k].min(table.len() - 1)];
+                        for f in 0..F {
+                            acc[f] += w[k] * e[f];
+                        }
+                    }
+                    for f in 0..F {
+                        rows[f * CHUNK + l] = acc[f];
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Accumulates into `grad` (same layout as the parameters) the gradient of the loss with
+/// respect to the table entries, given `d_out` (chunk-blocked like `encode`'s output,
+/// `width` rows per chunk). One task per level: no two threads add to the same entry.
+pub fn encode_backward(
+    grid: &GridLayout,
+    pos: [&[f32]; 3],
+    width: usize,
+    d_out: &[f32],
+    grad: &mut [f32],
+) {
+    match grid.features {
+        1 => backward_f::<1>(grid, pos, width, d_out, grad),
+        2 => backward_f::<2>(grid, pos, width, d_out, grad),
+        4 => backward_f::<4>(grid, pos, width, d_out, grad),
+        8 => backward_f::<8>(grid, pos, width, d_out, grad),
+        f => panic!("unsupported features per level {f}"),
+    }
+}
+
+fn backward_f<const F: usize>(
+    grid: &GridLayout,
+    pos: [&[f32]; 3],
+    width: usize,
+    d_out: &[f32],
+    grad: &mut [f32],
+) {
+    let n = pos[0].len();
+    assert!(width >= grid.levels.len() * F);
+    let block = width * CHUNK;
+    let (g_all, _) = grad.as_chunks_mut::<F>();
+    let mut slices: Vec<(usize, &Level, &mut [[f32; F]])> = Vec::with_capacity(grid.levels.len());
+    let mut rest = g_all;
+    for (li, lv) in grid.levels.iter().enumerate() {
+        let (head, tail) = rest.split_at_mut(lv.size as usize);
+        slices.push((li, lv, head));
+        rest = tail;
+    }
+    slices.into_par_iter().for_each(|(li, lv, g)| {
+        assist_simd::simd(|| backward_level::<F>(li, lv, g, pos, n, block, d_out))
+    });
+}
+
+#[inline(always)]
+fn backward_level<const F: usize>(
+    li: usize,
+    lv: &Level,
+    g: &mut [[f32; F]],
+    pos: [&[f32]; 3],
+    n: usize,
+    block: usize,
+    d_out: &[f32],
+) {
+    {
+        let last = g.len() - 1;
+        for c in 0..n.div_ceil(CHUNK) {
+            let s0 = c * CHUNK;
+            let lanes = CHUNK.min(n - s0);
+            let rows = &d_out[c * block + li * F * CHUNK..c * block + (li + 1) * F * CHUNK];
+            let (px, py, pz) = (
+                &pos[0][s0..s0 + lanes],
+                &pos[1][s0..s0 + lanes],
+                &pos[2][s0..s0 + lanes],
+            );
+            for l in 0..lanes {
+                let mut d = [0f32; F];
+                let mut any = false;
+                for f in 0..F {
+                    d[f] = rows[f * CHUNK + l];
+                    any |= d[f] != 0.0;
+                }
+                if !any {
+                    continue;
+                }
+                let (idx, w) = corners_local(lv, px[l], py[l], pz[l]);
+                for k in 0..8 {
+                    let e = &mut g[idx[k].min(last)];
+                    for f in 0..F {
+                        e[f] += w[k] * d[f];
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nerfacto_levels() {
+        let g = GridLayout::new(&FieldConfig::nerfacto(1));
+        assert_eq!(g.levels.len(), 16);
+        assert_eq!(g.levels[0].res, 16);
+        assert_eq!(g.levels[15].res, 2048);
+        assert!(g.levels[0].dense && !g.levels[15].dense);
+        // Dense exactly while (res+1)^3 fits 2^19.
+        for lv in &g.levels {
+            assert_eq!(lv.dense, ((lv.res as u64 + 1).pow(3)) <= 1 << 19);
+        }
+    }
+
+    #[test]
+    fn weights_sum_to_one_and_corners_interpolate() {
+        let g = GridLayout::new(&FieldConfig::object(1));
+        for lv in &g.levels {
+            let (_, w) = corners(lv, [0.3, 0.71, 0.05]);
+            assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-5);
+        }
+        // At a grid point exactly, one corner has weight 1.
+        let lv = &g.levels[0];
+        let (_, w) = corners(lv, [2.0 / lv.res as f32, 0.0, 1.0]);
+        assert!(w.iter().any(|&x| (x - 1.0).abs() < 1e-5));
+    }
+}

@@ -1,0 +1,245 @@
+//! Safetensors serialisation of a field (and optionally its occupancy grid): one tensor per
+//! parameter group, the config and a format version in the metadata. Loading checks the
+//! format, version, every name, dtype and shape, and says exactly what is wrong.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use safetensors::tensor::{Dtype, TensorView};
+
+use crate::config::FieldConfig;
+use crate::error::FieldError;
+use crate::field::Field;
+use crate::occupancy::OccupancyGrid;
+
+pub const FORMAT: &str = "assist-field";
+pub const VERSION: &str = "1";
+
+fn fmt_err(path: &Path, m: impl Into<String>) -> FieldError {
+    FieldError::Format {
+        path: path.to_path_buf(),
+        message: m.into(),
+    }
+}
+
+fn shape_of(field: &Field, name: &str, len: usize) -> Vec<usize> {
+    if let Some(rest) = name.strip_suffix(".weight") {
+        let l = if let Some(i) = rest.strip_prefix("density.") {
+            field.layout.density[i.parse::<usize>().unwrap_or(0)]
+        } else {
+            field.layout.color[rest
+                .trim_start_matches("color.")
+                .parse::<usize>()
+                .unwrap_or(0)]
+        };
+        vec![l.out, l.inp_pad]
+    } else if name.starts_with("grid.") {
+        vec![len / field.layout.grid.features, field.layout.grid.features]
+    } else if name == "appearance" {
+        vec![field.config.num_images, field.config.appearance_dim]
+    } else {
+        vec![len]
+    }
+}
+
+/// Serialises to bytes.
+pub fn to_bytes(field: &Field, occupancy: Option<&OccupancyGrid>) -> Result<Vec<u8>, FieldError> {
+    let groups = field.layout.groups(&field.config);
+    let mut bufs: Vec<(String, Vec<usize>, Vec<u8>, Dtype)> = Vec::new();
+    for (name, start, len) in &groups {
+        let bytes: Vec<u8> = field.params[*start..*start + *len]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        bufs.push((name.clone(), shape_of(field, name, *len), bytes, Dtype::F32));
+    }
+    if let Some(o) = occupancy {
+        let bytes: Vec<u8> = o.density.iter().flat_map(|v| v.to_le_bytes()).collect();
+        let r = o.res as usize;
+        bufs.push(("occupancy.density".into(), vec![r, r, r], bytes, Dtype::F32));
+    }
+    let views: Vec<(String, TensorView)> = bufs
+        .iter()
+        .map(|(n, s, b, d)| {
+            (
+                n.clone(),
+                TensorView::new(*d, s.clone(), b).expect("shape matches data"),
+            )
+        })
+        .collect();
+    let mut meta = HashMap::new();
+    meta.insert("format".to_string(), FORMAT.to_string());
+    meta.insert("version".to_string(), VERSION.to_string());
+    meta.insert(
+        "config".to_string(),
+        serde_json::to_string(&field.config).expect("config serialises"),
+    );
+    if let Some(o) = occupancy {
+        meta.insert(
+            "occupancy".to_string(),
+            serde_json::json!({"threshold": o.threshold, "decay": o.decay}).to_string(),
+        );
+    }
+    safetensors::serialize(views, Some(meta)).map_err(|e| FieldError::Format {
+        path: "(memory)".into(),
+        message: e.to_string(),
+    })
+}
+
+/// Writes atomically (temporary file beside it, then rename).
+pub fn save(
+    path: &Path,
+    field: &Field,
+    occupancy: Option<&OccupancyGrid>,
+) -> Result<(), FieldError> {
+    let bytes = to_bytes(field, occupancy)?;
+    let tmp = path.with_file_name(format!(
+        ".{}.tmp-{}",
+        path.file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+        std::process::id()
+    ));
+    let io = |e| FieldError::Io {
+        path: path.to_path_buf(),
+        source: e,
+    };
+    std::fs::write(&tmp, &bytes).map_err(io)?;
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        FieldError::Io {
+            path: path.to_path_buf(),
+            source: e,
+        }
+    })
+}
+
+pub fn load(path: &Path) -> Result<(Field, Option<OccupancyGrid>), FieldError> {
+    let bytes = std::fs::read(path).map_err(|e| FieldError::Io {
+        path: path.to_path_buf(),
+        source: e,
+    })?;
+    from_bytes(path, &bytes)
+}
+
+/// Parses and validates; `path` names the file in errors.
+pub fn from_bytes(path: &Path, bytes: &[u8]) -> Result<(Field, Option<OccupancyGrid>), FieldError> {
+    let (_, meta) = safetensors::SafeTensors::read_metadata(bytes)
+        .map_err(|e| fmt_err(path, format!("not a valid safetensors file: {e}")))?;
+    let st = safetensors::SafeTensors::deserialize(bytes)
+        .map_err(|e| fmt_err(path, format!("not a valid safetensors file: {e}")))?;
+    let md = meta.metadata().clone().unwrap_or_default();
+    match md.get("format").map(String::as_str) {
+        Some(FORMAT) => {}
+        other => {
+            return Err(fmt_err(
+                path,
+                format!("metadata.format: expected {FORMAT:?}, got {other:?}"),
+            ));
+        }
+    }
+    match md.get("version").map(String::as_str) {
+        Some(VERSION) => {}
+        other => {
+            return Err(fmt_err(
+                path,
+                format!(
+                    "metadata.version: expected {VERSION:?} (this build reads version {VERSION}), got {other:?}"
+                ),
+            ));
+        }
+    }
+    let cfg_text = md
+        .get("config")
+        .ok_or_else(|| fmt_err(path, "metadata.config: missing"))?;
+    let cfg: FieldConfig = serde_json::from_str(cfg_text)
+        .map_err(|e| fmt_err(path, format!("metadata.config: {e}")))?;
+    cfg.validate()
+        .map_err(|e| fmt_err(path, format!("metadata.config: {e}")))?;
+    let mut field = Field::new(cfg, 0).map_err(|e| fmt_err(path, e.to_string()))?;
+    let groups = field.layout.groups(&field.config);
+    let mut expected: Vec<&str> = groups.iter().map(|g| g.0.as_str()).collect();
+    expected.push("occupancy.density");
+    for name in st.names() {
+        if !expected.contains(&&*name.to_string()) {
+            return Err(fmt_err(
+                path,
+                format!(
+                    "tensor {name:?}: not part of an assist field (expected {})",
+                    groups
+                        .iter()
+                        .map(|g| g.0.clone())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            ));
+        }
+    }
+    for (name, start, len) in &groups {
+        let t = st
+            .tensor(name)
+            .map_err(|_| fmt_err(path, format!("tensor {name:?}: missing")))?;
+        let shape = shape_of(&field, name, *len);
+        if t.dtype() != Dtype::F32 {
+            return Err(fmt_err(
+                path,
+                format!("tensor {name:?}: dtype {:?}, expected F32", t.dtype()),
+            ));
+        }
+        if t.shape() != shape.as_slice() {
+            return Err(fmt_err(
+                path,
+                format!("tensor {name:?}: shape {:?}, expected {shape:?}", t.shape()),
+            ));
+        }
+        for (dst, src) in field.params[*start..*start + *len]
+            .iter_mut()
+            .zip(t.data().chunks_exact(4))
+        {
+            *dst = f32::from_le_bytes([src[0], src[1], src[2], src[3]]);
+        }
+        if let Some(bad) = field.params[*start..*start + *len]
+            .iter()
+            .position(|v| !v.is_finite())
+        {
+            return Err(fmt_err(
+                path,
+                format!("tensor {name:?}: element {bad} is not finite"),
+            ));
+        }
+    }
+    let occupancy = match st.tensor("occupancy.density") {
+        Ok(t) => {
+            let s = t.shape();
+            if t.dtype() != Dtype::F32 || s.len() != 3 || s[0] != s[1] || s[1] != s[2] || s[0] == 0
+            {
+                return Err(fmt_err(
+                    path,
+                    format!(
+                        "tensor \"occupancy.density\": expected F32 of shape [r, r, r], got {:?} {s:?}",
+                        t.dtype()
+                    ),
+                ));
+            }
+            let mut g = OccupancyGrid::new(s[0] as u32);
+            if let Some(o) = md
+                .get("occupancy")
+                .and_then(|t| serde_json::from_str::<serde_json::Value>(t).ok())
+            {
+                g.threshold = o["threshold"].as_f64().unwrap_or(g.threshold as f64) as f32;
+                g.decay = o["decay"].as_f64().unwrap_or(g.decay as f64) as f32;
+            }
+            let d: Vec<f32> = t
+                .data()
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect();
+            g.density = vec![f32::INFINITY; d.len()];
+            g.update_from(&d);
+            g.density = d;
+            Some(g)
+        }
+        Err(_) => None,
+    };
+    Ok((field, occupancy))
+}

@@ -1,0 +1,27 @@
+//! assist-field: the neural radiance field of a scene node, on CPU.
+//!
+//! A multiresolution hash grid (instant-NGP) feeding Nerfacto's tiny MLPs, with
+//! hand-written forward and backward passes over batches of samples in structure-of-arrays
+//! and chunk-blocked layouts, an Adam kernel over the flat parameter vector, an occupancy
+//! grid with empty-space-skipping ray marching, and safetensors serialisation.
+//!
+//! Speed: level-major encoding (one level's table in cache at a time), backward split per
+//! level (no atomics), MLP products through `assist-simd`'s runtime-dispatched GEMM, rayon
+//! across cores, buffers reused across steps. The CPU implementation is the reference
+//! behind the `Field` API, where a GPU backend can be added later.
+
+pub mod adam;
+pub mod config;
+pub mod error;
+pub mod field;
+pub mod hashgrid;
+pub mod io;
+pub mod mlp;
+pub mod occupancy;
+pub mod sh;
+
+pub use adam::Adam;
+pub use config::FieldConfig;
+pub use error::FieldError;
+pub use field::{Field, ParamLayout, PhaseTimes, Samples, Tape};
+pub use occupancy::OccupancyGrid;

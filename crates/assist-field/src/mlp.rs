@@ -1,0 +1,143 @@
+//! Linear layers of the tiny MLPs over chunks of samples in feature-major layout
+//! (`[feature][lane]`, `CHUNK` lanes), with forward and backward side by side. Products go
+//! through `assist_simd::gemm` (runtime-dispatched AVX-512 / AVX2 / scalar).
+
+use assist_simd::gemm::{Gemm, gemm};
+
+use crate::hashgrid::CHUNK;
+
+/// A dense layer `y = W x + b`. `W` is `out × inp_pad` row-major at `w` in the parameter
+/// vector; input columns beyond `inp` are padding (always zero inputs, so their weights
+/// stay zero and get zero gradient).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Linear {
+    pub out: usize,
+    pub inp: usize,
+    pub inp_pad: usize,
+    pub w: usize,
+    pub b: usize,
+}
+
+pub fn pad16(n: usize) -> usize {
+    n.div_ceil(16) * 16
+}
+
+impl Linear {
+    pub fn new(out: usize, inp: usize, offset: &mut usize) -> Self {
+        let inp_pad = pad16(inp);
+        let w = *offset;
+        let b = w + out * inp_pad;
+        *offset = b + out;
+        Linear {
+            out,
+            inp,
+            inp_pad,
+            w,
+            b,
+        }
+    }
+    pub fn param_count(&self) -> usize {
+        self.out * self.inp_pad + self.out
+    }
+
+    /// `y[out][CHUNK] = W x[inp_pad][CHUNK] + b`, then ReLU if `relu`.
+    #[inline(always)]
+    pub fn forward(&self, params: &[f32], x: &[f32], y: &mut [f32], relu: bool) {
+        let w = &params[self.w..self.w + self.out * self.inp_pad];
+        gemm(
+            &Gemm {
+                m: self.out,
+                n: CHUNK,
+                k: self.inp_pad,
+                a: w,
+                lda: self.inp_pad,
+                b: x,
+                ldb: CHUNK,
+                ldc: CHUNK,
+                accumulate: false,
+            },
+            y,
+        );
+        let bias = &params[self.b..self.b + self.out];
+        for (o, row) in y[..self.out * CHUNK].chunks_exact_mut(CHUNK).enumerate() {
+            let bo = bias[o];
+            if relu {
+                for v in row {
+                    *v = (*v + bo).max(0.0);
+                }
+            } else {
+                for v in row {
+                    *v += bo;
+                }
+            }
+        }
+    }
+
+    /// Given `dy` (gradient at the pre-activation, `[out][CHUNK]`) and the input `x`,
+    /// accumulates `dW += dy xᵀ` and `db += Σ dy` into `grad` (the parameter layout from
+    /// offset `base` on: `grad[0]` is parameter `base`), and
+    /// writes `dx = Wᵀ dy` when `dx` is given. `wt` is `Wᵀ` (`inp_pad × out`) and
+    /// `xt` scratch of `CHUNK × inp_pad`.
+    #[inline(always)]
+    pub fn backward(
+        &self,
+        wt: &[f32],
+        x: &[f32],
+        dy: &[f32],
+        grad: &mut [f32],
+        base: usize,
+        dx: Option<&mut [f32]>,
+        xt: &mut [f32],
+    ) {
+        let k = self.inp_pad;
+        assist_simd::transpose::transpose(x, k, CHUNK, CHUNK, xt, k);
+        let (w0, b0) = (self.w - base, self.b - base);
+        let gw = &mut grad[w0..w0 + self.out * k];
+        gemm(
+            &Gemm {
+                m: self.out,
+                n: k,
+                k: CHUNK,
+                a: dy,
+                lda: CHUNK,
+                b: xt,
+                ldb: k,
+                ldc: k,
+                accumulate: true,
+            },
+            gw,
+        );
+        let gb = &mut grad[b0..b0 + self.out];
+        for (o, row) in dy[..self.out * CHUNK].chunks_exact(CHUNK).enumerate() {
+            gb[o] += row.iter().sum::<f32>();
+        }
+        if let Some(dx) = dx {
+            gemm(
+                &Gemm {
+                    m: k,
+                    n: CHUNK,
+                    k: self.out,
+                    a: wt,
+                    lda: self.out,
+                    b: dy,
+                    ldb: CHUNK,
+                    ldc: CHUNK,
+                    accumulate: false,
+                },
+                dx,
+            );
+        }
+    }
+
+    /// `Wᵀ` (`inp_pad × out`), for the input-gradient products.
+    pub fn transposed(&self, params: &[f32]) -> Vec<f32> {
+        let k = self.inp_pad;
+        let mut t = vec![0.0; k * self.out];
+        for o in 0..self.out {
+            for i in 0..k {
+                t[i * self.out + o] = params[self.w + o * k + i];
+            }
+        }
+        t
+    }
+}

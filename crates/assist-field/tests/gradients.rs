@@ -1,0 +1,194 @@
+//! Backward against central finite differences, for every parameter group of the field
+//! (each hash-grid level, every MLP weight and bias, the appearance codes). All failures are
+//! collected and reported together.
+
+use assist_core::Rng;
+use assist_field::{Field, FieldConfig, Samples, Tape};
+
+fn small_config() -> FieldConfig {
+    FieldConfig {
+        levels: 4,
+        features_per_level: 2,
+        log2_table_size: 8,
+        base_resolution: 3,
+        max_resolution: 24,
+        hidden: 16,
+        geo_features: 7,
+        color_hidden: 16,
+        color_layers: 2,
+        sh_degree: 4,
+        appearance_dim: 4,
+        num_images: 3,
+    }
+}
+
+struct Batch {
+    pos: [Vec<f32>; 3],
+    dir: [Vec<f32>; 3],
+    image: Vec<u32>,
+    a: Vec<f32>,
+    b: Vec<f32>,
+}
+
+impl Batch {
+    fn new(n: usize, rng: &mut Rng) -> Self {
+        let mut pos = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
+        let mut dir = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
+        for i in 0..n {
+            let d = [rng.normal(), rng.normal(), rng.normal()];
+            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            for k in 0..3 {
+                pos[k][i] = rng.f32();
+                dir[k][i] = (d[k] / len) as f32;
+            }
+        }
+        // Some samples use the average appearance code (u32::MAX).
+        let image = (0..n)
+            .map(|i| {
+                if i % 5 == 4 {
+                    u32::MAX
+                } else {
+                    rng.below(3) as u32
+                }
+            })
+            .collect();
+        let a = (0..n).map(|_| rng.f32() - 0.5).collect();
+        let b = (0..3 * n).map(|_| rng.f32() - 0.5).collect();
+        Batch {
+            pos,
+            dir,
+            image,
+            a,
+            b,
+        }
+    }
+    fn samples(&self) -> Samples<'_> {
+        Samples {
+            pos: [&self.pos[0], &self.pos[1], &self.pos[2]],
+            dir: [&self.dir[0], &self.dir[1], &self.dir[2]],
+            image: &self.image,
+        }
+    }
+    /// L = Σ a·σ + Σ b·rgb, accumulated in f64.
+    fn loss(&self, field: &Field) -> f64 {
+        let n = self.pos[0].len();
+        let (mut sig, mut rgb) = (vec![0.0; n], vec![0.0; 3 * n]);
+        field.forward(&self.samples(), &mut sig, &mut rgb);
+        sig.iter()
+            .zip(&self.a)
+            .map(|(s, a)| *s as f64 * *a as f64)
+            .sum::<f64>()
+            + rgb
+                .iter()
+                .zip(&self.b)
+                .map(|(c, b)| *c as f64 * *b as f64)
+                .sum::<f64>()
+    }
+}
+
+#[test]
+fn every_parameter_group_matches_central_differences() {
+    let mut rng = Rng::new(42);
+    let mut field = Field::new(small_config(), 7).unwrap();
+    // Larger table values than the default init, so the encoding matters to the output.
+    let grid_len = field.layout.grid.param_count();
+    for p in &mut field.params[..grid_len] {
+        *p = rng.f32() - 0.5;
+    }
+    let batch = Batch::new(150, &mut rng); // not a multiple of the chunk size
+    let s = batch.samples();
+    let n = s.len();
+    let mut tape = Tape::default();
+    let (mut sig, mut rgb) = (vec![0.0; n], vec![0.0; 3 * n]);
+    field.forward_train(&s, &mut tape, &mut sig, &mut rgb);
+    // forward_train and forward agree.
+    let (mut sig2, mut rgb2) = (vec![0.0; n], vec![0.0; 3 * n]);
+    field.forward(&s, &mut sig2, &mut rgb2);
+    assert_eq!(sig, sig2);
+    assert_eq!(rgb, rgb2);
+    eprintln!(
+        "sigma max {} mean {}",
+        sig.iter().cloned().fold(0.0f32, f32::max),
+        sig.iter().sum::<f32>() / n as f32
+    );
+    let mut grad = vec![0.0f32; field.param_count()];
+    field.backward(&s, &mut tape, &batch.a, &batch.b, &mut grad);
+
+    let eps = 1e-4f32;
+    let mut failures = Vec::new();
+    let mut checked = 0;
+    let mut kinks = 0;
+    let groups = field.layout.groups(&field.config);
+    for (name, start, len) in &groups {
+        // Up to 12 entries per group: the largest gradients plus random ones.
+        let mut idx: Vec<usize> = (*start..start + len).collect();
+        idx.sort_by(|&x, &y| grad[y].abs().total_cmp(&grad[x].abs()));
+        let mut pick: Vec<usize> = idx.iter().take(6).copied().collect();
+        for _ in 0..6 {
+            pick.push(start + rng.below(*len as u64) as usize);
+        }
+        let mut nonzero = 0;
+        for &i in &pick {
+            let orig = field.params[i];
+            field.params[i] = orig + eps;
+            let lp = batch.loss(&field);
+            field.params[i] = orig - eps;
+            let lm = batch.loss(&field);
+            field.params[i] = orig;
+            let l0 = batch.loss(&field);
+            let num = (lp - lm) / (2.0 * eps as f64);
+            let ana = grad[i] as f64;
+            if ana.abs() > 1e-6 {
+                nonzero += 1;
+            }
+            checked += 1;
+            let close = |x: f64| (x - ana).abs() <= 2e-2 * x.abs().max(ana.abs()) + 2e-3;
+            if !close(num) {
+                // A ReLU kink inside [−ε, ε] makes the one-sided slopes differ; the
+                // analytic gradient must then equal one of them (a subgradient).
+                let (right, left) = ((lp - l0) / eps as f64, (l0 - lm) / eps as f64);
+                let kink = (right - left).abs() > 2e-2 * right.abs().max(left.abs()) + 2e-3;
+                if kink && (close(right) || close(left)) {
+                    kinks += 1;
+                } else {
+                    failures.push(format!("{name}[{}]: analytic {ana:.6} central {num:.6} (right {right:.6}, left {left:.6})", i - start));
+                }
+            }
+        }
+        // Padding weights (inputs beyond the real width) are the only ones allowed to be
+        // always zero; every real group must receive gradient.
+        if nonzero == 0 {
+            failures.push(format!(
+                "{name}: no non-zero gradient among {} checked entries",
+                pick.len()
+            ));
+        }
+    }
+    eprintln!(
+        "checked {checked} parameters in {} groups; {kinks} straddled a ReLU kink; {} failures",
+        groups.len(),
+        failures.len()
+    );
+    assert!(
+        kinks * 10 < checked,
+        "too many kinks ({kinks}) for a meaningful check"
+    );
+    assert!(
+        failures.is_empty(),
+        "{} of {checked} gradient checks failed:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
+}
+
+#[test]
+fn density_path_matches_full_forward() {
+    let mut rng = Rng::new(3);
+    let field = Field::new(small_config(), 1).unwrap();
+    let batch = Batch::new(97, &mut rng);
+    let (mut sig, mut rgb) = (vec![0.0; 97], vec![0.0; 3 * 97]);
+    field.forward(&batch.samples(), &mut sig, &mut rgb);
+    let mut sig2 = vec![0.0; 97];
+    field.density([&batch.pos[0], &batch.pos[1], &batch.pos[2]], &mut sig2);
+    assert_eq!(sig, sig2);
+}

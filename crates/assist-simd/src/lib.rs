@@ -1,0 +1,101 @@
+//! assist-simd: CPU feature detection, runtime-dispatched SIMD kernels, and the only
+//! `unsafe` code of assist.
+//!
+//! Each kernel has a scalar variant (always compiled, the reference) and variants for
+//! AVX2+FMA and AVX-512F, chosen once at start-up from what the CPU reports
+//! (`is_x86_feature_detected!`). `ASSIST_SIMD=scalar|avx2|avx512` forces a level (lower
+//! than the CPU's only: a level the CPU lacks falls back, loudly). Every variant is tested
+//! against the scalar one on random inputs.
+
+pub mod dispatch;
+pub mod gemm;
+pub mod peak;
+pub mod transpose;
+
+use std::sync::OnceLock;
+
+/// The SIMD level kernels run at.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Level {
+    Scalar,
+    Avx2,
+    Avx512,
+}
+
+impl Level {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Level::Scalar => "scalar",
+            Level::Avx2 => "avx2+fma",
+            Level::Avx512 => "avx512f",
+        }
+    }
+    /// Whether this CPU can run kernels of this level.
+    pub fn supported(&self) -> bool {
+        match self {
+            Level::Scalar => true,
+            #[cfg(target_arch = "x86_64")]
+            Level::Avx2 => {
+                is_x86_feature_detected!("avx2")
+                    && is_x86_feature_detected!("fma")
+                    && is_x86_feature_detected!("f16c")
+                    && is_x86_feature_detected!("bmi1")
+                    && is_x86_feature_detected!("bmi2")
+                    && is_x86_feature_detected!("popcnt")
+            }
+            #[cfg(target_arch = "x86_64")]
+            Level::Avx512 => {
+                Level::Avx2.supported()
+                    && is_x86_feature_detected!("avx512f")
+                    && is_x86_feature_detected!("avx512bw")
+                    && is_x86_feature_detected!("avx512dq")
+                    && is_x86_feature_detected!("avx512vl")
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            _ => false,
+        }
+    }
+    /// Peak single-precision FLOP per cycle per core assumed for this level (two FMA
+    /// pipes of 256 bits; AVX-512 on Zen 4 is double-pumped, so the same).
+    pub fn flops_per_cycle(&self) -> f64 {
+        match self {
+            Level::Scalar => 4.0,
+            Level::Avx2 | Level::Avx512 => 32.0,
+        }
+    }
+}
+
+/// The best level this CPU supports, or the one forced by `ASSIST_SIMD`.
+pub fn level() -> Level {
+    static L: OnceLock<Level> = OnceLock::new();
+    *L.get_or_init(|| {
+        let best = [Level::Avx512, Level::Avx2, Level::Scalar].into_iter().find(|l| l.supported()).unwrap_or(Level::Scalar);
+        match std::env::var("ASSIST_SIMD").ok().as_deref() {
+            None | Some("") | Some("auto") => best,
+            Some(s) => {
+                let want = match s {
+                    "scalar" => Level::Scalar,
+                    "avx2" => Level::Avx2,
+                    "avx512" => Level::Avx512,
+                    other => {
+                        eprintln!("assist: ASSIST_SIMD={other} is not scalar, avx2, avx512 or auto; using {}", best.name());
+                        return best;
+                    }
+                };
+                if want.supported() {
+                    want
+                } else {
+                    eprintln!("assist: ASSIST_SIMD={s} but this CPU lacks it; using {}", best.name());
+                    best
+                }
+            }
+        }
+    })
+}
+
+/// Whether `level` can be exercised on this machine (for tests that skip loudly).
+pub fn available(level: Level) -> bool {
+    level.supported()
+}
+
+pub use dispatch::{WithSimd, dispatch, simd};

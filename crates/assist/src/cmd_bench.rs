@@ -1,0 +1,207 @@
+//! `assist bench field`: training-step and inference throughput of the field engine.
+
+use std::time::Instant;
+
+use assist_core::Rng;
+use assist_field::{Adam, Field, FieldConfig, PhaseTimes, Samples, Tape};
+use clap::{Args, Subcommand};
+use serde_json::{Value, json};
+
+#[derive(Subcommand, Debug)]
+pub enum BenchCommand {
+    /// Field throughput: training step (forward + backward + Adam) and inference, in
+    /// samples/s, at Nerfacto size and at object size, with a time breakdown.
+    Field(FieldBenchArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct FieldBenchArgs {
+    /// Rays per batch (samples = rays × samples-per-ray).
+    #[arg(long, default_value_t = 4096)]
+    pub rays: usize,
+    #[arg(long, default_value_t = 64)]
+    pub samples_per_ray: usize,
+    /// Timed steps (after 2 warm-up steps); the median is reported.
+    #[arg(long, default_value_t = 8)]
+    pub steps: usize,
+    /// Only the Nerfacto-size field.
+    #[arg(long)]
+    pub nerfacto_only: bool,
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(c: BenchCommand) -> anyhow::Result<()> {
+    match c {
+        BenchCommand::Field(a) => field(a),
+    }
+}
+
+/// A training-like batch: rays through the unit box, evenly spaced samples inside it.
+struct Batch {
+    pos: [Vec<f32>; 3],
+    dir: [Vec<f32>; 3],
+    image: Vec<u32>,
+}
+
+fn make_batch(rays: usize, spr: usize, images: usize, rng: &mut Rng) -> Batch {
+    let n = rays * spr;
+    let mut b = Batch {
+        pos: [vec![0.0; n], vec![0.0; n], vec![0.0; n]],
+        dir: [vec![0.0; n], vec![0.0; n], vec![0.0; n]],
+        image: vec![0; n],
+    };
+    for r in 0..rays {
+        // Entry and exit points on the box surface (random points on two random faces).
+        let face_point = |rng: &mut Rng| {
+            let mut p = [rng.f32(), rng.f32(), rng.f32()];
+            p[rng.below(3) as usize] = if rng.f32() < 0.5 { 0.0 } else { 1.0 };
+            p
+        };
+        let (a, e) = (face_point(rng), face_point(rng));
+        let d = [e[0] - a[0], e[1] - a[1], e[2] - a[2]];
+        let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-6);
+        let img = rng.below(images.max(1) as u64) as u32;
+        for k in 0..spr {
+            let t = (k as f32 + rng.f32()) / spr as f32;
+            let i = r * spr + k;
+            for ax in 0..3 {
+                b.pos[ax][i] = a[ax] + d[ax] * t;
+                b.dir[ax][i] = d[ax] / len;
+            }
+            b.image[i] = img;
+        }
+    }
+    b
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn bench_one(
+    name: &str,
+    cfg: FieldConfig,
+    a: &FieldBenchArgs,
+    show: bool,
+) -> anyhow::Result<Value> {
+    let mut rng = Rng::new(1);
+    let images = cfg.num_images;
+    let mut field = Field::new(cfg, 1)?;
+    let b = make_batch(a.rays, a.samples_per_ray, images, &mut rng);
+    let s = Samples {
+        pos: [&b.pos[0], &b.pos[1], &b.pos[2]],
+        dir: [&b.dir[0], &b.dir[1], &b.dir[2]],
+        image: &b.image,
+    };
+    let n = s.len();
+    let d_sigma: Vec<f32> = (0..n).map(|_| (rng.f32() - 0.5) * 1e-3).collect();
+    let d_rgb: Vec<f32> = (0..3 * n).map(|_| (rng.f32() - 0.5) * 1e-3).collect();
+    let (mut sig, mut rgb) = (vec![0.0; n], vec![0.0; 3 * n]);
+    let mut grad = vec![0.0f32; field.param_count()];
+    let mut adam = Adam::new(field.param_count());
+    let mut tape = Tape::default();
+    let (mut step_times, mut adam_times) = (Vec::new(), Vec::new());
+    let mut phases = PhaseTimes::default();
+    for i in 0..a.steps + 2 {
+        tape.times = PhaseTimes::default();
+        let t0 = Instant::now();
+        field.forward_train(&s, &mut tape, &mut sig, &mut rgb);
+        field.backward(&s, &mut tape, &d_sigma, &d_rgb, &mut grad);
+        let t1 = Instant::now();
+        adam.update(1e-2, &mut field.params, &mut grad);
+        let t2 = Instant::now();
+        if i >= 2 {
+            step_times.push((t2 - t0).as_secs_f64());
+            adam_times.push((t2 - t1).as_secs_f64());
+            let t = tape.times;
+            phases.encode_forward += t.encode_forward / a.steps as f64;
+            phases.mlp_forward += t.mlp_forward / a.steps as f64;
+            phases.mlp_backward += t.mlp_backward / a.steps as f64;
+            phases.encode_backward += t.encode_backward / a.steps as f64;
+        }
+    }
+    let mut infer_times = Vec::new();
+    for i in 0..a.steps + 1 {
+        let t0 = Instant::now();
+        field.forward(&s, &mut sig, &mut rgb);
+        if i >= 1 {
+            infer_times.push(t0.elapsed().as_secs_f64());
+        }
+    }
+    let step = median(&mut step_times);
+    let adam_t = median(&mut adam_times);
+    let infer = median(&mut infer_times);
+    let macs = field.mlp_macs_per_sample() as f64;
+    let train_sps = n as f64 / step;
+    let infer_sps = n as f64 / infer;
+    let mlp_train_gflops =
+        3.0 * 2.0 * macs * n as f64 / (phases.mlp_forward + phases.mlp_backward) / 1e9;
+    let v = json!({
+        "field": name,
+        "params": field.param_count(),
+        "batch_samples": n,
+        "train_samples_per_sec": train_sps,
+        "infer_samples_per_sec": infer_sps,
+        "train_step_seconds": step,
+        "infer_seconds": infer,
+        "breakdown_seconds": {
+            "encode_forward": phases.encode_forward,
+            "mlp_forward": phases.mlp_forward,
+            "mlp_backward": phases.mlp_backward,
+            "encode_backward": phases.encode_backward,
+            "adam": adam_t,
+        },
+        "mlp_macs_per_sample": macs,
+        "mlp_train_gflops": mlp_train_gflops,
+        "adam_gbytes_per_sec": 7.0 * 4.0 * field.param_count() as f64 / adam_t / 1e9,
+    });
+    if show {
+        eprintln!(
+            "{name:>9}: train {:.3} M samples/s ({:.1} ms/step of {n}), infer {:.3} M samples/s | encode fwd {:.1} ms, mlp fwd {:.1} ms, mlp bwd {:.1} ms, encode bwd {:.1} ms, adam {:.1} ms | MLP {:.1} GFLOP/s",
+            train_sps / 1e6,
+            step * 1e3,
+            infer_sps / 1e6,
+            phases.encode_forward * 1e3,
+            phases.mlp_forward * 1e3,
+            phases.mlp_backward * 1e3,
+            phases.encode_backward * 1e3,
+            adam_t * 1e3,
+            mlp_train_gflops
+        );
+    }
+    Ok(v)
+}
+
+fn field(a: FieldBenchArgs) -> anyhow::Result<()> {
+    let level = assist_simd::level();
+    let threads = rayon::current_num_threads();
+    let peak_core = assist_simd::peak::fma_gflops(level, 0.3);
+    let show = !a.json;
+    if show {
+        eprintln!(
+            "SIMD {} · {threads} threads · measured FMA peak {peak_core:.1} GFLOP/s per core ({:.1} total)",
+            level.name(),
+            peak_core * threads as f64
+        );
+    }
+    let mut results = vec![bench_one("nerfacto", FieldConfig::nerfacto(100), &a, show)?];
+    if !a.nerfacto_only {
+        results.push(bench_one("object", FieldConfig::object(100), &a, show)?);
+    }
+    let nerf = &results[0];
+    let out = json!({
+        "train_samples_per_sec": nerf["train_samples_per_sec"],
+        "infer_samples_per_sec": nerf["infer_samples_per_sec"],
+        "simd": level.name(),
+        "threads": threads,
+        "peak_gflops_per_core": peak_core,
+        "peak_gflops_total": peak_core * threads as f64,
+        "fields": results,
+    });
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    }
+    Ok(())
+}
