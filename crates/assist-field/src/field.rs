@@ -355,11 +355,28 @@ impl Field {
 
     /// Inference: density and colour (`rgb` interleaved, 3 per sample); keeps nothing.
     pub fn forward(&self, s: &Samples, sigma: &mut [f32], rgb: &mut [f32]) {
+        self.forward_with(s, &mut Tape::default(), sigma, rgb)
+    }
+
+    /// Inference reusing `scratch`'s encoding buffer (no allocation once it is large
+    /// enough); records nothing for backward.
+    pub fn forward_with(
+        &self,
+        s: &Samples,
+        scratch: &mut Tape,
+        sigma: &mut [f32],
+        rgb: &mut [f32],
+    ) {
         let n = s.len();
         assert!(sigma.len() >= n && rgb.len() >= 3 * n);
         let width = self.config.encoding_rows();
-        let mut enc = vec![0.0f32; Layout { width }.len(n)];
-        self.encode(s, &mut enc);
+        let need = Layout { width }.len(n);
+        if scratch.enc.len() < need {
+            scratch.enc.resize(need, 0.0);
+        }
+        scratch.n = 0;
+        let enc = &mut scratch.enc[..need];
+        self.encode(s, enc);
         let rows = self.rows();
         let avg = self.average_code();
         let block = width * CHUNK;

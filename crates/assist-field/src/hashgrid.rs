@@ -256,11 +256,26 @@ fn encode_task<const F: usize>(
                     &pos[1][s0..s0 + lanes],
                     &pos[2][s0..s0 + lanes],
                 );
+                // Pass 1: corners and weights of every lane, prefetching the table entries;
+                // pass 2: gather. The loads of a whole chunk are in flight together.
+                let mut idxs = [[0usize; 8]; CHUNK];
+                let mut ws = [[0f32; 8]; CHUNK];
+                let last = table.len() - 1;
                 for l in 0..lanes {
                     let (idx, w) = corners_local(lv, px[l], py[l], pz[l]);
+                    if !lv.dense {
+                        for &i in &idx {
+                            assist_simd::transpose::prefetch(&table[i.min(last)]);
+                        }
+                    }
+                    idxs[l] = idx;
+                    ws[l] = w;
+                }
+                for l in 0..lanes {
+                    let (idx, w) = (&idxs[l], &ws[l]);
                     let mut acc = [0f32; F];
                     for k in 0..8 {
-                        let e = &table[idx[k].min(table.len() - 1)];
+                        let e = &table[idx[k].min(last)];
                         for f in 0..F {
                             acc[f] += w[k] * e[f];
                         }
@@ -337,6 +352,10 @@ fn backward_level<const F: usize>(
                 &pos[1][s0..s0 + lanes],
                 &pos[2][s0..s0 + lanes],
             );
+            let mut idxs = [[0usize; 8]; CHUNK];
+            let mut ws = [[0f32; 8]; CHUNK];
+            let mut ds = [[0f32; F]; CHUNK];
+            let mut live = 0;
             for l in 0..lanes {
                 let mut d = [0f32; F];
                 let mut any = false;
@@ -348,6 +367,18 @@ fn backward_level<const F: usize>(
                     continue;
                 }
                 let (idx, w) = corners_local(lv, px[l], py[l], pz[l]);
+                if !lv.dense {
+                    for &i in &idx {
+                        assist_simd::transpose::prefetch(&g[i.min(last)]);
+                    }
+                }
+                idxs[live] = idx;
+                ws[live] = w;
+                ds[live] = d;
+                live += 1;
+            }
+            for j in 0..live {
+                let (idx, w, d) = (&idxs[j], &ws[j], &ds[j]);
                 for k in 0..8 {
                     let e = &mut g[idx[k].min(last)];
                     for f in 0..F {

@@ -123,9 +123,10 @@ fn bench_one(
         }
     }
     let mut infer_times = Vec::new();
+    let mut scratch = Tape::default();
     for i in 0..a.steps + 1 {
         let t0 = Instant::now();
-        field.forward(&s, &mut sig, &mut rgb);
+        field.forward_with(&s, &mut scratch, &mut sig, &mut rgb);
         if i >= 1 {
             infer_times.push(t0.elapsed().as_secs_f64());
         }
