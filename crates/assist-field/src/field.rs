@@ -449,7 +449,7 @@ impl Field {
         }
         tape.n = n;
         // Lanes past the end of the last chunk are zeroed so they stay finite.
-        if n % CHUNK != 0 {
+        if !n.is_multiple_of(CHUNK) {
             let last = &mut tape.enc[(nc - 1) * width * CHUNK..nc * width * CHUNK];
             last.fill(0.0);
         }

@@ -45,6 +45,24 @@ unsafe fn run_avx2<W: WithSimd>(w: W) -> W::Output {
     w.run()
 }
 
+/// A closure as a [`WithSimd`] body (the closure is inlined into each variant by the
+/// optimiser when small enough; put large bodies in `#[inline(always)]` functions).
+pub struct Closure<F>(pub F);
+
+impl<R, F: FnOnce() -> R> WithSimd for Closure<F> {
+    type Output = R;
+    #[inline(always)]
+    fn run(self) -> R {
+        (self.0)()
+    }
+}
+
+/// Runs the closure compiled for the dispatched SIMD level.
+#[inline]
+pub fn simd<R>(f: impl FnOnce() -> R) -> R {
+    dispatch(Closure(f))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -64,22 +82,4 @@ mod tests {
         let b: Vec<f32> = (0..1000).map(|i| (i % 5) as f32).collect();
         assert_eq!(dispatch(Dot(&a, &b)), Dot(&a, &b).run());
     }
-}
-
-/// A closure as a [`WithSimd`] body (the closure is inlined into each variant by the
-/// optimiser when small enough; put large bodies in `#[inline(always)]` functions).
-pub struct Closure<F>(pub F);
-
-impl<R, F: FnOnce() -> R> WithSimd for Closure<F> {
-    type Output = R;
-    #[inline(always)]
-    fn run(self) -> R {
-        (self.0)()
-    }
-}
-
-/// Runs the closure compiled for the dispatched SIMD level.
-#[inline]
-pub fn simd<R>(f: impl FnOnce() -> R) -> R {
-    dispatch(Closure(f))
 }
