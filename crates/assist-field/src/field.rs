@@ -116,6 +116,17 @@ pub struct Tape {
     act: Vec<f32>,
     /// Time spent in each phase by the calls on this tape (accumulated; reset at will).
     pub times: PhaseTimes,
+    scratch: Vec<std::sync::Mutex<Scratch>>,
+    scratch_sizes: (usize, usize, usize),
+}
+
+/// Per-thread buffers of the backward pass: the thread's MLP gradient and work rows.
+#[derive(Default)]
+struct Scratch {
+    g: Vec<f32>,
+    da: Vec<f32>,
+    db: Vec<f32>,
+    xt: Vec<f32>,
 }
 
 /// Seconds spent per phase, for benchmarks.
@@ -524,121 +535,131 @@ impl Field {
         let enc = &tape.enc;
         let act = &tape.act;
         let (geo, shw, a) = (cfg.geo_features, cfg.sh_width(), cfg.appearance_dim);
-        let mlp_grad = tape.d_enc[..nc * block]
+        // One scratch set per worker thread, kept in the tape across steps (no allocation
+        // in the hot loop); each holds that thread's share of the MLP gradient.
+        let threads = rayon::current_num_threads().max(1);
+        let sizes = (mlp_len, max_rows * CHUNK, CHUNK * max_in);
+        if tape.scratch.len() != threads || tape.scratch_sizes != sizes {
+            tape.scratch = (0..threads)
+                .map(|_| {
+                    std::sync::Mutex::new(Scratch {
+                        g: vec![0.0; sizes.0],
+                        da: vec![0.0; sizes.1],
+                        db: vec![0.0; sizes.1],
+                        xt: vec![0.0; sizes.2],
+                    })
+                })
+                .collect();
+            tape.scratch_sizes = sizes;
+        }
+        let scratch = &tape.scratch;
+        tape.d_enc[..nc * block]
             .par_chunks_mut(block)
             .enumerate()
-            .fold(
-                || {
-                    (
-                        vec![0.0f32; mlp_len],
-                        vec![0.0f32; max_rows * CHUNK],
-                        vec![0.0f32; max_rows * CHUNK],
-                        vec![0.0f32; CHUNK * max_in],
-                    )
-                },
-                |(mut g, mut da, mut db, mut xt), (c, d_enc)| {
-                    assist_simd::simd(|| {
-                        let act = &act[c * rows.total * CHUNK..(c + 1) * rows.total * CHUNK];
-                        let row = |r: usize, k: usize| &act[r * CHUNK..(r + k) * CHUNK];
-                        let c0 = c * CHUNK;
-                        let lanes = CHUNK.min(n - c0);
-                        // dL/d(rgb pre-activation) into `da` (3 rows).
-                        da[..3 * CHUNK].fill(0.0);
+            .for_each(|(c, d_enc)| {
+                let slot = rayon::current_thread_index().unwrap_or(0) % scratch.len();
+                let mut guard = scratch[slot].lock().unwrap_or_else(|p| p.into_inner());
+                let Scratch { g, da, db, xt } = &mut *guard;
+                let (mut g, mut da, mut db, mut xt) = (
+                    g.as_mut_slice(),
+                    da.as_mut_slice(),
+                    db.as_mut_slice(),
+                    xt.as_mut_slice(),
+                );
+                assist_simd::simd(|| {
+                    let act = &act[c * rows.total * CHUNK..(c + 1) * rows.total * CHUNK];
+                    let row = |r: usize, k: usize| &act[r * CHUNK..(r + k) * CHUNK];
+                    let c0 = c * CHUNK;
+                    let lanes = CHUNK.min(n - c0);
+                    // dL/d(rgb pre-activation) into `da` (3 rows).
+                    da[..3 * CHUNK].fill(0.0);
+                    for l in 0..lanes {
+                        for k in 0..3 {
+                            let y = act[(rows.rgb + k) * CHUNK + l];
+                            da[k * CHUNK + l] = d_rgb[3 * (c0 + l) + k] * y * (1.0 - y);
+                        }
+                    }
+                    // Colour layers, last to first; `da` holds dL/d(pre-activation).
+                    let nl = lay.color.len();
+                    for li in (0..nl).rev() {
+                        let l = &lay.color[li];
+                        let (x, relu_in) = if li == 0 {
+                            (row(rows.cin, l.inp_pad), false)
+                        } else {
+                            (row(rows.color[li - 1], l.inp_pad), true)
+                        };
+                        l.backward(
+                            &wts[2 + li],
+                            x,
+                            &da[..l.out * CHUNK],
+                            &mut g,
+                            mlp0,
+                            Some(&mut db[..l.inp_pad * CHUNK]),
+                            &mut xt,
+                        );
+                        if relu_in {
+                            relu_mask(&mut db[..l.inp_pad * CHUNK], x);
+                        }
+                        std::mem::swap(&mut da, &mut db);
+                    }
+                    // `da` = dL/d(colour input). Appearance codes.
+                    if a > 0 {
+                        let per_image = cfg.num_images;
                         for l in 0..lanes {
-                            for k in 0..3 {
-                                let y = act[(rows.rgb + k) * CHUNK + l];
-                                da[k * CHUNK + l] = d_rgb[3 * (c0 + l) + k] * y * (1.0 - y);
-                            }
-                        }
-                        // Colour layers, last to first; `da` holds dL/d(pre-activation).
-                        let nl = lay.color.len();
-                        for li in (0..nl).rev() {
-                            let l = &lay.color[li];
-                            let (x, relu_in) = if li == 0 {
-                                (row(rows.cin, l.inp_pad), false)
+                            let img = s.image.get(c0 + l).copied().unwrap_or(u32::MAX);
+                            if (img as usize) < per_image {
+                                let o = lay.appearance - mlp0 + img as usize * a;
+                                for k in 0..a {
+                                    g[o + k] += da[(geo + shw + k) * CHUNK + l];
+                                }
                             } else {
-                                (row(rows.color[li - 1], l.inp_pad), true)
-                            };
-                            l.backward(
-                                &wts[2 + li],
-                                x,
-                                &da[..l.out * CHUNK],
-                                &mut g,
-                                mlp0,
-                                Some(&mut db[..l.inp_pad * CHUNK]),
-                                &mut xt,
-                            );
-                            if relu_in {
-                                relu_mask(&mut db[..l.inp_pad * CHUNK], x);
-                            }
-                            std::mem::swap(&mut da, &mut db);
-                        }
-                        // `da` = dL/d(colour input). Appearance codes.
-                        if a > 0 {
-                            let per_image = cfg.num_images;
-                            for l in 0..lanes {
-                                let img = s.image.get(c0 + l).copied().unwrap_or(u32::MAX);
-                                if (img as usize) < per_image {
-                                    let o = lay.appearance - mlp0 + img as usize * a;
+                                for i in 0..per_image {
+                                    let o = lay.appearance - mlp0 + i * a;
                                     for k in 0..a {
-                                        g[o + k] += da[(geo + shw + k) * CHUNK + l];
-                                    }
-                                } else {
-                                    for i in 0..per_image {
-                                        let o = lay.appearance - mlp0 + i * a;
-                                        for k in 0..a {
-                                            g[o + k] +=
-                                                da[(geo + shw + k) * CHUNK + l] / per_image as f32;
-                                        }
+                                        g[o + k] +=
+                                            da[(geo + shw + k) * CHUNK + l] / per_image as f32;
                                     }
                                 }
                             }
                         }
-                        // dL/d(density net output) into `db`: row 0 from σ, rows 1.. from geo.
-                        let d2 = &lay.density[1];
-                        db[..d2.out * CHUNK].fill(0.0);
-                        for l in 0..lanes {
-                            let sig = act[rows.sigma * CHUNK + l];
-                            db[l] = d_sigma[c0 + l] * sig;
-                        }
-                        db[CHUNK..(1 + geo) * CHUNK].copy_from_slice(&da[..geo * CHUNK]);
-                        let hid = row(rows.hidden, d2.inp_pad);
-                        d2.backward(
-                            &wts[1],
-                            hid,
-                            &db[..d2.out * CHUNK],
-                            &mut g,
-                            mlp0,
-                            Some(&mut da[..d2.inp_pad * CHUNK]),
-                            &mut xt,
-                        );
-                        relu_mask(&mut da[..d2.inp_pad * CHUNK], hid);
-                        let d1 = &lay.density[0];
-                        d1.backward(
-                            &wts[0],
-                            &enc[c * block..(c + 1) * block],
-                            &da[..d1.out * CHUNK],
-                            &mut g,
-                            mlp0,
-                            Some(d_enc),
-                            &mut xt,
-                        );
-                    });
-                    (g, da, db, xt)
-                },
-            )
-            .map(|(g, ..)| g)
-            .reduce(
-                || vec![0.0f32; mlp_len],
-                |mut x, y| {
-                    for (a, b) in x.iter_mut().zip(&y) {
-                        *a += *b;
                     }
-                    x
-                },
-            );
-        for (g, m) in grad[mlp0..].iter_mut().zip(&mlp_grad) {
-            *g += *m;
+                    // dL/d(density net output) into `db`: row 0 from σ, rows 1.. from geo.
+                    let d2 = &lay.density[1];
+                    db[..d2.out * CHUNK].fill(0.0);
+                    for l in 0..lanes {
+                        let sig = act[rows.sigma * CHUNK + l];
+                        db[l] = d_sigma[c0 + l] * sig;
+                    }
+                    db[CHUNK..(1 + geo) * CHUNK].copy_from_slice(&da[..geo * CHUNK]);
+                    let hid = row(rows.hidden, d2.inp_pad);
+                    d2.backward(
+                        &wts[1],
+                        hid,
+                        &db[..d2.out * CHUNK],
+                        &mut g,
+                        mlp0,
+                        Some(&mut da[..d2.inp_pad * CHUNK]),
+                        &mut xt,
+                    );
+                    relu_mask(&mut da[..d2.inp_pad * CHUNK], hid);
+                    let d1 = &lay.density[0];
+                    d1.backward(
+                        &wts[0],
+                        &enc[c * block..(c + 1) * block],
+                        &da[..d1.out * CHUNK],
+                        &mut g,
+                        mlp0,
+                        Some(d_enc),
+                        &mut xt,
+                    );
+                });
+            });
+        for sc in scratch {
+            let mut sc = sc.lock().unwrap_or_else(|p| p.into_inner());
+            for (g, m) in grad[mlp0..].iter_mut().zip(sc.g.iter_mut()) {
+                *g += *m;
+                *m = 0.0;
+            }
         }
         let t1 = std::time::Instant::now();
         tape.times.mlp_backward += (t1 - t0).as_secs_f64();
