@@ -34,7 +34,7 @@ fn scalar(iters: u64) -> (f64, f32) {
     let mut acc = [1.0f32; 8];
     for _ in 0..iters {
         for a in &mut acc {
-            *a = a.mul_add(0.999_999, 1e-7);
+            *a = *a * 0.999_999 + 1e-7;
         }
     }
     (iters as f64 * 16.0, acc.iter().sum())

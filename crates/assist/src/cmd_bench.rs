@@ -175,17 +175,48 @@ fn bench_one(
     Ok(v)
 }
 
+/// GFLOP/s of the MLP product kernel on one core (64×64 weights times 64×64 samples, as
+/// in one chunk of a layer), at every SIMD level this CPU has.
+fn gemm_gflops() -> Value {
+    use assist_simd::gemm::{Gemm, gemm_at};
+    let (m, n, k) = (64, 64, 64);
+    let a = vec![0.5f32; m * k];
+    let b = vec![0.25f32; k * n];
+    let mut c = vec![0.0f32; m * n];
+    let mut out = serde_json::Map::new();
+    for level in [assist_simd::Level::Scalar, assist_simd::Level::Avx2, assist_simd::Level::Avx512] {
+        if !level.supported() {
+            continue;
+        }
+        let g = Gemm { m, n, k, a: &a, lda: k, b: &b, ldb: n, ldc: n, accumulate: true };
+        let start = Instant::now();
+        let mut iters = 0u64;
+        while start.elapsed().as_secs_f64() < 0.2 {
+            for _ in 0..100 {
+                gemm_at(level, &g, &mut c);
+            }
+            iters += 100;
+        }
+        let gf = 2.0 * (m * n * k) as f64 * iters as f64 / start.elapsed().as_secs_f64() / 1e9;
+        out.insert(level.name().to_string(), json!(gf));
+    }
+    std::hint::black_box(&c);
+    Value::Object(out)
+}
+
 fn field(a: FieldBenchArgs) -> anyhow::Result<()> {
     let level = assist_simd::level();
     let threads = rayon::current_num_threads();
     let peak_core = assist_simd::peak::fma_gflops(level, 0.3);
     let show = !a.json;
+    let gemm = gemm_gflops();
     if show {
         eprintln!(
             "SIMD {} · {threads} threads · measured FMA peak {peak_core:.1} GFLOP/s per core ({:.1} total)",
             level.name(),
             peak_core * threads as f64
         );
+        eprintln!("MLP product kernel (64×64×64, one core), GFLOP/s: {gemm}");
     }
     let mut results = vec![bench_one("nerfacto", FieldConfig::nerfacto(100), &a, show)?];
     if !a.nerfacto_only {
@@ -199,6 +230,7 @@ fn field(a: FieldBenchArgs) -> anyhow::Result<()> {
         "threads": threads,
         "peak_gflops_per_core": peak_core,
         "peak_gflops_total": peak_core * threads as f64,
+        "gemm_gflops_per_core": gemm,
         "fields": results,
     });
     if a.json {
