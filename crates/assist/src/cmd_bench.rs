@@ -184,11 +184,25 @@ fn gemm_gflops() -> Value {
     let b = vec![0.25f32; k * n];
     let mut c = vec![0.0f32; m * n];
     let mut out = serde_json::Map::new();
-    for level in [assist_simd::Level::Scalar, assist_simd::Level::Avx2, assist_simd::Level::Avx512] {
+    for level in [
+        assist_simd::Level::Scalar,
+        assist_simd::Level::Avx2,
+        assist_simd::Level::Avx512,
+    ] {
         if !level.supported() {
             continue;
         }
-        let g = Gemm { m, n, k, a: &a, lda: k, b: &b, ldb: n, ldc: n, accumulate: true };
+        let g = Gemm {
+            m,
+            n,
+            k,
+            a: &a,
+            lda: k,
+            b: &b,
+            ldb: n,
+            ldc: n,
+            accumulate: true,
+        };
         let start = Instant::now();
         let mut iters = 0u64;
         while start.elapsed().as_secs_f64() < 0.2 {
