@@ -560,7 +560,7 @@ impl Field {
                 let slot = rayon::current_thread_index().unwrap_or(0) % scratch.len();
                 let mut guard = scratch[slot].lock().unwrap_or_else(|p| p.into_inner());
                 let Scratch { g, da, db, xt } = &mut *guard;
-                let (mut g, mut da, mut db, mut xt) = (
+                let (g, mut da, mut db, xt) = (
                     g.as_mut_slice(),
                     da.as_mut_slice(),
                     db.as_mut_slice(),
@@ -592,10 +592,10 @@ impl Field {
                             &wts[2 + li],
                             x,
                             &da[..l.out * CHUNK],
-                            &mut g,
+                            g,
                             mlp0,
                             Some(&mut db[..l.inp_pad * CHUNK]),
-                            &mut xt,
+                            xt,
                         );
                         if relu_in {
                             relu_mask(&mut db[..l.inp_pad * CHUNK], x);
@@ -636,10 +636,10 @@ impl Field {
                         &wts[1],
                         hid,
                         &db[..d2.out * CHUNK],
-                        &mut g,
+                        g,
                         mlp0,
                         Some(&mut da[..d2.inp_pad * CHUNK]),
-                        &mut xt,
+                        xt,
                     );
                     relu_mask(&mut da[..d2.inp_pad * CHUNK], hid);
                     let d1 = &lay.density[0];
@@ -647,10 +647,10 @@ impl Field {
                         &wts[0],
                         &enc[c * block..(c + 1) * block],
                         &da[..d1.out * CHUNK],
-                        &mut g,
+                        g,
                         mlp0,
                         Some(d_enc),
-                        &mut xt,
+                        xt,
                     );
                 });
             });
