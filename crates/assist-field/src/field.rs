@@ -605,19 +605,31 @@ impl Field {
                     // `da` = dL/d(colour input). Appearance codes.
                     if a > 0 {
                         let per_image = cfg.num_images;
-                        for l in 0..lanes {
-                            let img = s.image.get(c0 + l).copied().unwrap_or(u32::MAX);
-                            if (img as usize) < per_image {
-                                let o = lay.appearance - mlp0 + img as usize * a;
-                                for k in 0..a {
-                                    g[o + k] += da[(geo + shw + k) * CHUNK + l];
-                                }
-                            } else {
-                                for i in 0..per_image {
-                                    let o = lay.appearance - mlp0 + i * a;
+                        let images = s.image.get(c0..c0 + lanes).unwrap_or(&[]);
+                        let rows = &da[(geo + shw) * CHUNK..(geo + shw + a) * CHUNK];
+                        let single = images.len() == lanes
+                            && images.iter().all(|&i| i == images[0])
+                            && (images[0] as usize) < per_image;
+                        if single {
+                            // One image for the whole chunk: row sums.
+                            let o = lay.appearance - mlp0 + images[0] as usize * a;
+                            for k in 0..a {
+                                g[o + k] += rows[k * CHUNK..k * CHUNK + lanes].iter().sum::<f32>();
+                            }
+                        } else {
+                            for l in 0..lanes {
+                                let img = images.get(l).copied().unwrap_or(u32::MAX);
+                                if (img as usize) < per_image {
+                                    let o = lay.appearance - mlp0 + img as usize * a;
                                     for k in 0..a {
-                                        g[o + k] +=
-                                            da[(geo + shw + k) * CHUNK + l] / per_image as f32;
+                                        g[o + k] += rows[k * CHUNK + l];
+                                    }
+                                } else {
+                                    for i in 0..per_image {
+                                        let o = lay.appearance - mlp0 + i * a;
+                                        for k in 0..a {
+                                            g[o + k] += rows[k * CHUNK + l] / per_image as f32;
+                                        }
                                     }
                                 }
                             }

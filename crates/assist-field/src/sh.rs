@@ -33,9 +33,88 @@ pub fn sh_encode(degree: usize, x: f32, y: f32, z: f32, out: &mut [f32]) {
     out[15] = 0.590_043_6 * x * (-xx + 3.0 * yy);
 }
 
+/// The same basis for many directions at once: coefficient `k` of lane `l` goes to
+/// `out[k * stride + l]` (the chunk's feature-major rows). Lane loops, so it vectorises.
+#[inline(always)]
+pub fn sh_encode_rows(
+    degree: usize,
+    x: &[f32],
+    y: &[f32],
+    z: &[f32],
+    out: &mut [f32],
+    stride: usize,
+) {
+    let n = x.len().min(y.len()).min(z.len());
+    let (x, y, z) = (&x[..n], &y[..n], &z[..n]);
+    let mut row = |k: usize, f: &dyn Fn(f32, f32, f32) -> f32| {
+        let r = &mut out[k * stride..k * stride + n];
+        for l in 0..n {
+            r[l] = f(x[l], y[l], z[l]);
+        }
+    };
+    row(0, &|_, _, _| 0.282_094_8);
+    if degree <= 1 {
+        return;
+    }
+    row(1, &|_, y, _| -0.488_602_5 * y);
+    row(2, &|_, _, z| 0.488_602_5 * z);
+    row(3, &|x, _, _| -0.488_602_5 * x);
+    if degree <= 2 {
+        return;
+    }
+    row(4, &|x, y, _| 1.092_548_4 * x * y);
+    row(5, &|_, y, z| -1.092_548_4 * y * z);
+    row(6, &|_, _, z| 0.946_174_7 * z * z - 0.315_391_57);
+    row(7, &|x, _, z| -1.092_548_4 * x * z);
+    row(8, &|x, y, _| 0.546_274_2 * (x * x - y * y));
+    if degree <= 3 {
+        return;
+    }
+    row(9, &|x, y, _| 0.590_043_6 * y * (-3.0 * x * x + y * y));
+    row(10, &|x, y, z| 2.890_611_4 * x * y * z);
+    row(11, &|_, y, z| 0.457_045_8 * y * (1.0 - 5.0 * z * z));
+    row(12, &|_, _, z| 0.373_176_33 * z * (5.0 * z * z - 3.0));
+    row(13, &|x, _, z| 0.457_045_8 * x * (1.0 - 5.0 * z * z));
+    row(14, &|x, y, z| 1.445_305_7 * z * (x * x - y * y));
+    row(15, &|x, y, _| 0.590_043_6 * x * (-x * x + 3.0 * y * y));
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn rows_match_per_direction() {
+        let mut rng = assist_core::Rng::new(8);
+        let n = 37;
+        let d: Vec<[f32; 3]> = (0..n)
+            .map(|_| {
+                let v = [
+                    rng.normal() as f32,
+                    rng.normal() as f32,
+                    rng.normal() as f32,
+                ];
+                let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                v.map(|x| x / l)
+            })
+            .collect();
+        let (x, y, z): (Vec<f32>, Vec<f32>, Vec<f32>) = (
+            d.iter().map(|v| v[0]).collect(),
+            d.iter().map(|v| v[1]).collect(),
+            d.iter().map(|v| v[2]).collect(),
+        );
+        for degree in 1..=4 {
+            let mut rows = vec![0f32; 16 * 40];
+            sh_encode_rows(degree, &x, &y, &z, &mut rows, 40);
+            let mut one = [0f32; 16];
+            for l in 0..n {
+                sh_encode(degree, x[l], y[l], z[l], &mut one);
+                for k in 0..degree * degree {
+                    assert!((rows[k * 40 + l] - one[k]).abs() < 1e-6, "{degree} {k}");
+                }
+            }
+        }
+    }
 
     /// The basis is orthonormal on the sphere: Monte-Carlo inner products ≈ identity.
     #[test]
