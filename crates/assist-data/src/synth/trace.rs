@@ -18,6 +18,19 @@ pub struct Hit {
     pub point: DVec3,
 }
 
+/// Outward normal of the box face nearest to `q`, a point in box coordinates scaled so
+/// that the faces are at ±1.
+fn box_face_normal(q: DVec3) -> DVec3 {
+    let a = q.abs();
+    if a.x >= a.y && a.x >= a.z {
+        DVec3::new(q.x.signum(), 0.0, 0.0)
+    } else if a.y >= a.z {
+        DVec3::new(0.0, q.y.signum(), 0.0)
+    } else {
+        DVec3::new(0.0, 0.0, q.z.signum())
+    }
+}
+
 /// Ray–primitive intersection in the object's frame (base centre at the origin, z up).
 fn intersect_shape(shape: &Shape, o: DVec3, d: DVec3, t_max: f64) -> Option<(f64, DVec3)> {
     match *shape {
@@ -29,14 +42,7 @@ fn intersect_shape(shape: &Shape, o: DVec3, d: DVec3, t_max: f64) -> Option<(f64
             let (t0, _) = aabb.intersect(o, d, EPS, t_max)?;
             let p = o + d * t0 - DVec3::new(0.0, 0.0, half.z);
             let q = p / half;
-            let a = q.abs();
-            let n = if a.x >= a.y && a.x >= a.z {
-                DVec3::new(q.x.signum(), 0.0, 0.0)
-            } else if a.y >= a.z {
-                DVec3::new(0.0, q.y.signum(), 0.0)
-            } else {
-                DVec3::new(0.0, 0.0, q.z.signum())
-            };
+            let n = box_face_normal(q);
             Some((t0, n))
         }
         Shape::Sphere { r } => {
@@ -158,14 +164,7 @@ pub fn trace(scene: &Scene, ray: &Ray, t_max: f64) -> Option<Hit> {
             let p = ray.at(t0);
             let c = s.aabb.center();
             let q = (p - c) / (s.aabb.size() * 0.5);
-            let a = q.abs();
-            let n = if a.x >= a.y && a.x >= a.z {
-                DVec3::new(q.x.signum(), 0.0, 0.0)
-            } else if a.y >= a.z {
-                DVec3::new(0.0, q.y.signum(), 0.0)
-            } else {
-                DVec3::new(0.0, 0.0, q.z.signum())
-            };
+            let n = box_face_normal(q);
             limit = t0;
             best = Some(Hit {
                 t: t0,
