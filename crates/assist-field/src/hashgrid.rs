@@ -103,8 +103,8 @@ fn locate(lv: &Level, p: [f32; 3]) -> ([u32; 3], [f32; 3]) {
     (cell, frac)
 }
 
-/// The 8 corner indices (entries) and trilinear weights.
-#[inline(always)]
+/// The 8 corner indices (entries, with the level's offset) and trilinear weights: the
+/// plain reference implementation, against which the optimised `corners_local` is tested.
 pub fn corners(lv: &Level, p: [f32; 3]) -> ([usize; 8], [f32; 8]) {
     let (c, f) = locate(lv, p);
     let mut idx = [0usize; 8];
@@ -404,6 +404,35 @@ mod tests {
         // Dense exactly while (res+1)^3 fits 2^19.
         for lv in &g.levels {
             assert_eq!(lv.dense, ((lv.res as u64 + 1).pow(3)) <= 1 << 19);
+        }
+    }
+
+    #[test]
+    fn optimised_corners_match_reference() {
+        let mut rng = assist_core::Rng::new(6);
+        for cfg in [FieldConfig::nerfacto(1), FieldConfig::object(1)] {
+            let g = GridLayout::new(&cfg);
+            for lv in &g.levels {
+                for i in 0..500 {
+                    // Include the box faces and points outside (clamped).
+                    let p = if i < 8 {
+                        [(i & 1) as f32, ((i >> 1) & 1) as f32, (i >> 2) as f32]
+                    } else {
+                        [rng.f32() * 1.2 - 0.1, rng.f32(), rng.f32()]
+                    };
+                    let (ri, rw) = corners(lv, p);
+                    let (oi, ow) = corners_local(lv, p[0], p[1], p[2]);
+                    for k in 0..8 {
+                        assert_eq!(
+                            ri[k],
+                            oi[k] + lv.offset,
+                            "level res {} point {p:?} corner {k}",
+                            lv.res
+                        );
+                        assert!((rw[k] - ow[k]).abs() < 1e-6);
+                    }
+                }
+            }
         }
     }
 
