@@ -38,10 +38,7 @@ pub fn load(dir: &Path) -> Result<Dataset> {
             let m = fr.req("transform_matrix")?;
             let pose = Pose::from_matrix(m.mat4_rows()?, m.path())
                 .map_err(|e| DataError::core(&file, e))?;
-            let name = image_path
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default();
+            let name = crate::dataset::file_stem(&image_path);
             frames.push(Frame {
                 name,
                 image_path,

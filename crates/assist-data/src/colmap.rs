@@ -228,10 +228,7 @@ pub fn load_dataset(model_dir: &Path, format: Format) -> Result<Dataset> {
             .map_err(|e| DataError::core(&img_file, e))?;
         let image_path = image_dir.join(&im.name);
         frames.push(Frame {
-            name: Path::new(&im.name)
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default(),
+            name: crate::dataset::file_stem(Path::new(&im.name)),
             image_path,
             camera: Camera { intrinsics, pose },
             camera_model: cam.model.clone(),

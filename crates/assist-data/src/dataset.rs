@@ -162,6 +162,13 @@ impl Dataset {
     }
 }
 
+/// The file stem of `p` (the name outputs rendered for a frame are given).
+pub fn file_stem(p: &Path) -> String {
+    p.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
 /// Splits for datasets that do not declare one: every 8th frame (0, 8, 16, …) is held out
 /// for testing, the LLFF/Mip-NeRF convention.
 pub const HOLDOUT_EVERY: usize = 8;

@@ -150,10 +150,7 @@ pub fn load(dir: &Path, factor: Option<u32>) -> Result<Dataset> {
         near = near.min(row[15]);
         far = far.max(row[16]);
         frames.push(Frame {
-            name: img
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default(),
+            name: crate::dataset::file_stem(img),
             image_path: img.clone(),
             camera: Camera {
                 intrinsics: intr,

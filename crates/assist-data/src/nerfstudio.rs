@@ -220,10 +220,7 @@ pub fn load(file: &Path) -> Result<Dataset> {
                 .map(|n| n.str().map(|s| resolve_image_path(&base, s)))
                 .transpose()
         };
-        let name = image_path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default();
+        let name = crate::dataset::file_stem(&image_path);
         frames.push(Frame {
             name,
             image_path,

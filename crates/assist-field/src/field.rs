@@ -360,6 +360,24 @@ impl Field {
         }
     }
 
+    /// Chunk `c`: its MLPs (SIMD-dispatched) and its σ and RGB copied to the outputs.
+    fn chunk_outputs(
+        &self,
+        s: &Samples,
+        c: usize,
+        enc: &[f32],
+        act: &mut [f32],
+        rows: &Rows,
+        avg: &[f32],
+        sig: &mut [f32],
+        col: &mut [f32],
+    ) {
+        assist_simd::simd(|| {
+            self.chunk_forward(s, c * CHUNK, enc, act, rows, avg);
+            write_outputs(act, rows, sig, col);
+        })
+    }
+
     fn rows(&self) -> Rows {
         Rows::new(&self.config, &self.layout)
     }
@@ -398,17 +416,16 @@ impl Field {
             .for_each_init(
                 || vec![0.0f32; rows.total * CHUNK],
                 |act, (c, (sig, col))| {
-                    assist_simd::simd(|| {
-                        self.chunk_forward(
-                            s,
-                            c * CHUNK,
-                            &enc[c * block..(c + 1) * block],
-                            act,
-                            &rows,
-                            &avg,
-                        );
-                        write_outputs(act, &rows, sig, col);
-                    })
+                    self.chunk_outputs(
+                        s,
+                        c,
+                        &enc[c * block..(c + 1) * block],
+                        act,
+                        &rows,
+                        &avg,
+                        sig,
+                        col,
+                    )
                 },
             );
     }
@@ -477,17 +494,16 @@ impl Field {
             .zip(rgb[..3 * n].par_chunks_mut(3 * CHUNK))
             .enumerate()
             .for_each(|(c, ((act, sig), col))| {
-                assist_simd::simd(|| {
-                    self.chunk_forward(
-                        s,
-                        c * CHUNK,
-                        &enc[c * block..(c + 1) * block],
-                        act,
-                        &rows,
-                        &avg,
-                    );
-                    write_outputs(act, &rows, sig, col);
-                })
+                self.chunk_outputs(
+                    s,
+                    c,
+                    &enc[c * block..(c + 1) * block],
+                    act,
+                    &rows,
+                    &avg,
+                    sig,
+                    col,
+                )
             });
         tape.times.mlp_forward += t1.elapsed().as_secs_f64();
     }

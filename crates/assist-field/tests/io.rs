@@ -40,6 +40,18 @@ fn round_trip_with_occupancy() {
     assert!(from_bytes(Path::new("x"), &bytes).unwrap().1.is_none());
 }
 
+/// The metadata a valid file of `small()` carries.
+fn good_metadata() -> std::collections::HashMap<String, String> {
+    let mut md = std::collections::HashMap::new();
+    md.insert("format".to_string(), "assist-field".to_string());
+    md.insert("version".to_string(), "1".to_string());
+    md.insert(
+        "config".to_string(),
+        serde_json::to_string(&small()).unwrap(),
+    );
+    md
+}
+
 fn err(bytes: &[u8]) -> String {
     match from_bytes(Path::new("node.safetensors"), bytes) {
         Ok(_) => panic!("expected an error"),
@@ -73,13 +85,7 @@ fn bad_files_give_clear_errors() {
     let (_, meta) = safetensors::SafeTensors::read_metadata(&good).unwrap();
     let _ = meta;
     let st = safetensors::SafeTensors::deserialize(&mixed).unwrap();
-    let mut md = std::collections::HashMap::new();
-    md.insert("format".to_string(), "assist-field".to_string());
-    md.insert("version".to_string(), "1".to_string());
-    md.insert(
-        "config".to_string(),
-        serde_json::to_string(&small()).unwrap(),
-    );
+    let md = good_metadata();
     let views: Vec<(String, safetensors::tensor::TensorView)> = st.tensors();
     mixed = safetensors::serialize(views, Some(md)).unwrap();
     let e = err(&mixed);
@@ -90,26 +96,14 @@ fn bad_files_give_clear_errors() {
         ("format", "something-else", "metadata.format"),
         ("version", "99", "metadata.version"),
     ] {
-        let mut md = std::collections::HashMap::new();
-        md.insert("format".to_string(), "assist-field".to_string());
-        md.insert("version".to_string(), "1".to_string());
-        md.insert(
-            "config".to_string(),
-            serde_json::to_string(&small()).unwrap(),
-        );
+        let mut md = good_metadata();
         md.insert(k.to_string(), v.to_string());
         let b = safetensors::serialize(st.tensors(), Some(md)).unwrap();
         let e = err(&b);
         assert!(e.contains(needle), "{e}");
     }
     // A missing tensor, and an unknown one.
-    let mut md = std::collections::HashMap::new();
-    md.insert("format".to_string(), "assist-field".to_string());
-    md.insert("version".to_string(), "1".to_string());
-    md.insert(
-        "config".to_string(),
-        serde_json::to_string(&small()).unwrap(),
-    );
+    let md = good_metadata();
     let fewer: Vec<_> = st
         .tensors()
         .into_iter()
