@@ -219,6 +219,21 @@ fn gemm_gflops() -> Value {
 }
 
 fn field(a: FieldBenchArgs) -> anyhow::Result<()> {
+    for (name, v) in [
+        ("--rays", a.rays),
+        ("--samples-per-ray", a.samples_per_ray),
+        ("--steps", a.steps),
+    ] {
+        if v == 0 {
+            anyhow::bail!("{name}: expected a whole number ≥ 1, got 0");
+        }
+    }
+    if a.rays.saturating_mul(a.samples_per_ray) > 1 << 24 {
+        anyhow::bail!(
+            "--rays × --samples-per-ray: expected at most 16,777,216 samples per batch, got {}",
+            a.rays.saturating_mul(a.samples_per_ray)
+        );
+    }
     let level = assist_simd::level();
     let threads = rayon::current_num_threads();
     let peak_core = assist_simd::peak::fma_gflops(level, 0.3);

@@ -327,3 +327,17 @@ fn truncated_colmap_and_npy_are_clear_errors() {
     std::fs::write(f.join("poses_bounds.npy"), &npy2).unwrap();
     expect_error(&f, &["poses_bounds.npy", "row 0", "finite"]);
 }
+
+#[test]
+fn bench_rejects_empty_batches_cleanly() {
+    for args in [
+        ["--steps", "0"],
+        ["--rays", "0"],
+        ["--samples-per-ray", "0"],
+    ] {
+        let out = assist(&["bench", "field", "--nerfacto-only", args[0], args[1]]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(err.contains(args[0]) && !err.contains("panicked"), "{err}");
+    }
+}
