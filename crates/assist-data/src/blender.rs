@@ -53,6 +53,8 @@ pub fn load(dir: &Path) -> Result<Dataset> {
                 instance_mask_path: None,
                 depth_path: None,
                 depth_scale: 1.0,
+                inpaint_path: None,
+                inpaint_depth_path: None,
             });
         }
     }

@@ -238,6 +238,8 @@ pub fn load_dataset(model_dir: &Path, format: Format) -> Result<Dataset> {
             instance_mask_path: None,
             depth_path: None,
             depth_scale: 1.0,
+            inpaint_path: None,
+            inpaint_depth_path: None,
         });
     }
     let mut points: Vec<DVec3> = model.points.values().map(|p| p.xyz).collect();

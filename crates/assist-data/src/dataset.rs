@@ -86,6 +86,12 @@ pub struct Frame {
     /// Z-depth PNG; raw value × `depth_scale` = depth in scene units.
     pub depth_path: Option<PathBuf>,
     pub depth_scale: f64,
+    /// User-supplied background prior: the image with objects inpainted (nerfstudio
+    /// extension `inpaint_path`).
+    pub inpaint_path: Option<PathBuf>,
+    /// User-supplied background depth prior (`inpaint_depth_path`, 16-bit PNG scaled by
+    /// `depth_unit_scale_factor`, or float32 `.npy`), up to scale and shift.
+    pub inpaint_depth_path: Option<PathBuf>,
 }
 
 /// An object instance declared by the dataset.

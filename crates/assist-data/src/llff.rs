@@ -163,6 +163,8 @@ pub fn load(dir: &Path, factor: Option<u32>) -> Result<Dataset> {
             instance_mask_path: None,
             depth_path: None,
             depth_scale: 1.0,
+            inpaint_path: None,
+            inpaint_depth_path: None,
         });
     }
     let depth_range = (near.is_finite() && far > 0.0).then_some((near, far));

@@ -232,6 +232,8 @@ pub fn load(file: &Path) -> Result<Dataset> {
             instance_mask_path: opt_path("instance_mask_path")?,
             depth_path: opt_path("depth_file_path")?,
             depth_scale,
+            inpaint_path: opt_path("inpaint_path")?,
+            inpaint_depth_path: opt_path("inpaint_depth_path")?,
         });
         rel_paths.push(rel);
     }

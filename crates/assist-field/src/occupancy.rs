@@ -71,18 +71,43 @@ impl OccupancyGrid {
     /// Updates the density estimate of every cell from one random point in it
     /// (`ema = max(ema · decay, σ)`), then the bitfield.
     pub fn update(&mut self, field: &Field, rng: &mut assist_core::Rng) {
+        self.update_part(field, rng, 0, 1);
+    }
+
+    /// Like [`update`](Self::update) for the cells `c` with `c % parts == part` only
+    /// (the others keep their estimate): spreads the cost of large grids over several calls.
+    pub fn update_part(
+        &mut self,
+        field: &Field,
+        rng: &mut assist_core::Rng,
+        part: usize,
+        parts: usize,
+    ) {
         let r = self.res as usize;
-        let n = self.cells();
-        let mut pos = [vec![0f32; n], vec![0f32; n], vec![0f32; n]];
-        for c in 0..n {
-            let (x, y, z) = (c % r, (c / r) % r, c / (r * r));
-            pos[0][c] = (x as f32 + rng.f32()) / r as f32;
-            pos[1][c] = (y as f32 + rng.f32()) / r as f32;
-            pos[2][c] = (z as f32 + rng.f32()) / r as f32;
+        let parts = parts.max(1);
+        let cells: Vec<usize> = (part % parts..self.cells()).step_by(parts).collect();
+        const BLOCK: usize = 1 << 16;
+        let mut pos = [vec![0f32; BLOCK], vec![0f32; BLOCK], vec![0f32; BLOCK]];
+        let mut sigma = vec![0f32; BLOCK];
+        for blk in cells.chunks(BLOCK) {
+            for (i, &c) in blk.iter().enumerate() {
+                let (x, y, z) = (c % r, (c / r) % r, c / (r * r));
+                pos[0][i] = (x as f32 + rng.f32()) / r as f32;
+                pos[1][i] = (y as f32 + rng.f32()) / r as f32;
+                pos[2][i] = (z as f32 + rng.f32()) / r as f32;
+            }
+            let m = blk.len();
+            field.density([&pos[0][..m], &pos[1][..m], &pos[2][..m]], &mut sigma[..m]);
+            for (i, &c) in blk.iter().enumerate() {
+                let d = &mut self.density[c];
+                *d = if d.is_finite() {
+                    (*d * self.decay).max(sigma[i])
+                } else {
+                    sigma[i]
+                };
+            }
         }
-        let mut sigma = vec![0f32; n];
-        field.density([&pos[0], &pos[1], &pos[2]], &mut sigma);
-        self.update_from(&sigma);
+        self.refresh_bits();
     }
 
     /// Folds one density value per cell into the estimate and recomputes the bits.
@@ -94,6 +119,11 @@ impl OccupancyGrid {
                 s
             };
         }
+        self.refresh_bits();
+    }
+
+    /// Recomputes the bitfield from the density estimate.
+    pub fn refresh_bits(&mut self) {
         let mean = self.density.iter().map(|&d| d as f64).sum::<f64>() / self.density.len() as f64;
         let thr = self.threshold.min(mean as f32);
         for (w, chunk) in self.bits.iter_mut().zip(self.density.chunks(64)) {
@@ -154,6 +184,58 @@ impl OccupancyGrid {
                     k = steps as u32;
                 }
                 None => k += 1,
+            }
+        }
+    }
+}
+
+impl OccupancyGrid {
+    /// Cone marching: like [`march`](Self::march) but the step grows with distance,
+    /// `dt(t) = max(min_dt, cone · t)` (`t` measured from the ray origin, in the same units
+    /// as `min_dt`), so far regions get fewer samples (a pixel's footprint grows with
+    /// distance). Empty cells are skipped by jumping to where the ray leaves them.
+    pub fn march_cone(
+        &self,
+        o: [f32; 3],
+        d: [f32; 3],
+        t0: f32,
+        t1: f32,
+        min_dt: f32,
+        cone: f32,
+        jitter: f32,
+        max: usize,
+        out: &mut Vec<Step>,
+    ) {
+        let r = self.res as f32;
+        let start = out.len();
+        let step = |t: f32| (cone * t).max(min_dt);
+        let mut t = t0 + jitter * step(t0);
+        while t < t1 && out.len() - start < max {
+            let p = [o[0] + d[0] * t, o[1] + d[1] * t, o[2] + d[2] * t];
+            let dt = step(t);
+            match self.cell_of(p) {
+                Some(c) if !self.is_occupied_cell(c) => {
+                    let mut t_exit = f32::INFINITY;
+                    for a in 0..3 {
+                        if d[a] != 0.0 {
+                            let cell = (p[a] * r).floor().clamp(0.0, r - 1.0);
+                            let face = if d[a] > 0.0 {
+                                (cell + 1.0) / r
+                            } else {
+                                cell / r
+                            };
+                            t_exit = t_exit.min(t + (face - p[a]) / d[a]);
+                        }
+                    }
+                    // Land just past the face, keeping the phase of the step lattice.
+                    let n = ((t_exit - t) / dt).ceil().max(1.0);
+                    t += n * dt;
+                }
+                Some(_) => {
+                    out.push(Step { t, dt });
+                    t += dt;
+                }
+                None => t += dt,
             }
         }
     }

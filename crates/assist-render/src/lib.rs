@@ -1,9 +1,24 @@
-//! assist-render: compositional volume rendering of scene nodes.
+//! assist-render: compositional volume rendering of scene nodes (paper eqs. 1–4).
 //!
-//! This crate holds the compositing of samples along a ray (paper eq. 1–4) with its
-//! backward pass; per-node sampling, depth-sorted merging of nodes, panoptic output and
-//! highlight build on it.
+//! A batch of world rays is sampled per node (`sample`): each ray is moved into the node's
+//! canonical box, clipped to it and marched through the node's occupancy grid; density is
+//! integrated over canonical distance, so a node's opacity does not change when it is moved,
+//! rotated or scaled. Each node's field is queried once per batch, the samples of all nodes
+//! are merged by depth and composited (`batch`), with per-node colour, depth and opacity
+//! and a backward pass into every sample. `render` turns cameras into images (RGB, z-depth,
+//! opacity, panoptic ids, per-node layers, selection highlight); `scene_file` saves and
+//! loads `NAME.assist/` directories.
 
+pub mod batch;
 pub mod composite;
+pub mod node;
+pub mod render;
+pub mod sample;
+pub mod scene_file;
 
+pub use batch::{BatchOutput, CompositeGrad, GradFn, composite_batch};
 pub use composite::{Composite, RaySample, composite, composite_backward};
+pub use node::{NeuralScene, NodeField};
+pub use render::{HIGHLIGHT, NodeLayer, RenderOptions, RenderedImage, render_camera, render_rays};
+pub use sample::{NodeSamples, RayBatch, SampleOptions, Traced, sample_rays};
+pub use scene_file::SceneFileError;

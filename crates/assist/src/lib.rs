@@ -11,7 +11,10 @@ use clap::{Parser, Subcommand};
 mod cmd_bench;
 mod cmd_dataset;
 mod cmd_demo;
+mod cmd_eval;
+mod cmd_render;
 mod cmd_synth;
+mod cmd_train;
 mod progress;
 
 #[derive(Parser, Debug)]
@@ -36,6 +39,12 @@ pub enum Command {
     Synth(cmd_synth::SynthArgs),
     /// Run the main job on the built-in default scene (no downloads).
     Demo(cmd_demo::DemoArgs),
+    /// Train a compositional scene (background + one node per object) from a dataset.
+    Train(cmd_train::TrainArgs),
+    /// Measure a trained scene against a dataset split (PSNR, SSIM, panoptic mIoU, background).
+    Eval(cmd_eval::EvalArgs),
+    /// Render a trained scene from a dataset's cameras into a new labelled dataset.
+    Render(cmd_render::RenderArgs),
     /// Measure the speed of hot paths.
     Bench {
         #[command(subcommand)]
@@ -48,6 +57,9 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Dataset { command } => cmd_dataset::run(command),
         Command::Synth(a) => cmd_synth::run(a),
         Command::Demo(a) => cmd_demo::run(a),
+        Command::Train(a) => cmd_train::run(a),
+        Command::Eval(a) => cmd_eval::run(a),
+        Command::Render(a) => cmd_render::run(a),
         Command::Bench { command } => cmd_bench::run(command),
     }
 }

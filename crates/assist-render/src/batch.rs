@@ -1,0 +1,288 @@
+//! Compositing a traced batch: per ray, the samples of all nodes are merged by depth and
+//! composited together (colour, depth, opacity; paper eq. 1), and each node's samples are
+//! also composited alone (per-node colour, depth and opacity; eqs. 2–4). With a gradient
+//! callback, the backward pass writes dL/dσ and dL/dRGB of every sample.
+
+use rayon::prelude::*;
+
+use crate::composite::Composite;
+use crate::sample::{NodeSamples, Traced};
+
+/// Outputs of one batch. Per-node arrays are ray-major: `nodes[r * n_nodes + k]`.
+#[derive(Debug, Clone, Default)]
+pub struct BatchOutput {
+    pub n_nodes: usize,
+    /// Everything composited together over the background colour.
+    pub rays: Vec<Composite>,
+    /// Each node alone (no background colour).
+    pub nodes: Vec<Composite>,
+    /// Each node's share of the composited weight `Σ_{i∈k} T_i α_i` (for panoptic ids).
+    pub share: Vec<f32>,
+}
+
+impl BatchOutput {
+    /// Panoptic choice per ray: the node with the largest share, or `None` when what is
+    /// left of the transmittance (`1 − O`, the background colour) outweighs every node.
+    pub fn winner(&self, r: usize) -> Option<usize> {
+        let nn = self.n_nodes;
+        let share = &self.share[r * nn..(r + 1) * nn];
+        let mut best = None;
+        let mut best_w = 1.0 - self.rays[r].opacity;
+        for (k, &w) in share.iter().enumerate() {
+            if w > best_w {
+                best_w = w;
+                best = Some(k);
+            }
+        }
+        best
+    }
+}
+
+/// Gradient of the loss with respect to one composite.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct CompositeGrad {
+    pub rgb: [f32; 3],
+    pub depth: f32,
+    pub opacity: f32,
+}
+
+/// Gradient callback: `(ray, composite, per-node composites, d_composite, d_per_node)`.
+pub type GradFn<'a> =
+    dyn Fn(usize, &Composite, &[Composite], &mut CompositeGrad, &mut [CompositeGrad]) + Sync + 'a;
+
+const BLOCK: usize = 64;
+
+/// A block's view of one node: read-only inputs and the writable gradients.
+struct NodeView<'a> {
+    start: &'a [u32],
+    sigma: &'a [f32],
+    rgb: &'a [f32],
+    t: &'a [f32],
+    dt: &'a [f32],
+    d_sigma: &'a mut [f32],
+    d_rgb: &'a mut [f32],
+}
+
+/// Forward (and, with `grad`, backward) compositing of every ray of `traced`; the node
+/// outputs (`sigma`, `rgb`) must be filled; with `grad`, `d_sigma`/`d_rgb` must be sized
+/// and zeroed (`NodeSamples::prepare_outputs(true)`).
+pub fn composite_batch(
+    traced: &mut Traced,
+    background: [f32; 3],
+    out: &mut BatchOutput,
+    grad: Option<&GradFn>,
+) {
+    let n = traced.rays;
+    let nn = traced.nodes.len();
+    out.n_nodes = nn;
+    out.rays.clear();
+    out.rays.resize(n, Composite::default());
+    out.nodes.clear();
+    out.nodes.resize(n * nn, Composite::default());
+    out.share.clear();
+    out.share.resize(n * nn, 0.0);
+    let n_blocks = n.div_ceil(BLOCK);
+    // Split every node's arrays at block boundaries (ray-major storage makes each block's
+    // samples contiguous), then regroup per block.
+    let mut per_block: Vec<Vec<NodeView>> = (0..n_blocks).map(|_| Vec::with_capacity(nn)).collect();
+    for ns in traced.nodes.iter_mut() {
+        let NodeSamples {
+            start,
+            sigma,
+            rgb,
+            t,
+            dt,
+            d_sigma,
+            d_rgb,
+            ..
+        } = ns;
+        let with_grad = grad.is_some();
+        let mut ds: &mut [f32] = if with_grad {
+            d_sigma.as_mut_slice()
+        } else {
+            &mut []
+        };
+        let mut dc: &mut [f32] = if with_grad {
+            d_rgb.as_mut_slice()
+        } else {
+            &mut []
+        };
+        for (b, views) in per_block.iter_mut().enumerate() {
+            let r0 = b * BLOCK;
+            let r1 = ((b + 1) * BLOCK).min(n);
+            let (s0, s1) = (start[r0] as usize, start[r1] as usize);
+            let len = s1 - s0;
+            let (a, rest) = std::mem::take(&mut ds).split_at_mut(if with_grad { len } else { 0 });
+            ds = rest;
+            let (c, rest) =
+                std::mem::take(&mut dc).split_at_mut(if with_grad { 3 * len } else { 0 });
+            dc = rest;
+            views.push(NodeView {
+                start: &start[r0..=r1],
+                sigma: &sigma[s0..s1],
+                rgb: &rgb[3 * s0..3 * s1],
+                t: &t[s0..s1],
+                dt: &dt[s0..s1],
+                d_sigma: a,
+                d_rgb: c,
+            });
+        }
+    }
+    per_block
+        .into_par_iter()
+        .zip(out.rays.par_chunks_mut(BLOCK))
+        .zip(out.nodes.par_chunks_mut(BLOCK * nn))
+        .zip(out.share.par_chunks_mut(BLOCK * nn))
+        .enumerate()
+        .for_each_init(
+            RayScratch::default,
+            |scratch, (b, (((mut views, rays), nodes), share))| {
+                for (i, ray_out) in rays.iter_mut().enumerate() {
+                    let r = b * BLOCK + i;
+                    composite_ray(
+                        r,
+                        i,
+                        &mut views,
+                        background,
+                        ray_out,
+                        &mut nodes[i * nn..(i + 1) * nn],
+                        &mut share[i * nn..(i + 1) * nn],
+                        grad,
+                        scratch,
+                    );
+                }
+            },
+        );
+}
+
+#[derive(Default)]
+struct RayScratch {
+    merged: Vec<(f32, u32, u32)>,
+    w: Vec<f32>,
+    t_next: Vec<f32>,
+    node_grads: Vec<CompositeGrad>,
+}
+
+/// One ray: merge, composite, and optionally backward.
+fn composite_ray(
+    r: usize,
+    i: usize,
+    views: &mut [NodeView],
+    background: [f32; 3],
+    out: &mut Composite,
+    node_out: &mut [Composite],
+    share: &mut [f32],
+    grad: Option<&GradFn>,
+    sc: &mut RayScratch,
+) {
+    // Block-local range of this ray's samples in node k.
+    let range = |v: &NodeView| {
+        let b0 = v.start[0] as usize;
+        (v.start[i] as usize - b0)..(v.start[i + 1] as usize - b0)
+    };
+    sc.merged.clear();
+    for (k, v) in views.iter().enumerate() {
+        for j in range(v) {
+            sc.merged.push((v.t[j], k as u32, j as u32));
+        }
+    }
+    if views.len() > 1 {
+        sc.merged.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+    }
+    // Forward over the merged samples.
+    let m = sc.merged.len();
+    sc.w.clear();
+    sc.w.resize(m, 0.0);
+    sc.t_next.clear();
+    sc.t_next.resize(m, 0.0);
+    let mut acc = Composite::default();
+    let mut log_t = 0.0f32;
+    for (q, &(t, k, j)) in sc.merged.iter().enumerate() {
+        let v = &views[k as usize];
+        let j = j as usize;
+        let tau = v.sigma[j] * v.dt[j];
+        let w = log_t.exp() * (1.0 - (-tau).exp());
+        log_t -= tau;
+        sc.w[q] = w;
+        sc.t_next[q] = log_t.exp();
+        for c in 0..3 {
+            acc.rgb[c] += w * v.rgb[3 * j + c];
+        }
+        acc.depth += w * t;
+        acc.opacity += w;
+        share[k as usize] += w;
+    }
+    for c in 0..3 {
+        acc.rgb[c] += (1.0 - acc.opacity) * background[c];
+    }
+    *out = acc;
+    // Each node alone.
+    for (k, v) in views.iter().enumerate() {
+        let mut a = Composite::default();
+        let mut log_t = 0.0f32;
+        for j in range(v) {
+            let tau = v.sigma[j] * v.dt[j];
+            let w = log_t.exp() * (1.0 - (-tau).exp());
+            log_t -= tau;
+            for c in 0..3 {
+                a.rgb[c] += w * v.rgb[3 * j + c];
+            }
+            a.depth += w * v.t[j];
+            a.opacity += w;
+        }
+        node_out[k] = a;
+    }
+    let Some(grad) = grad else { return };
+    let mut g = CompositeGrad::default();
+    sc.node_grads.clear();
+    sc.node_grads.resize(views.len(), CompositeGrad::default());
+    grad(r, out, node_out, &mut g, &mut sc.node_grads);
+    // Backward through the merged composite:
+    // dL/dσ_i = δ_i (T_{i+1} g_i − Σ_{j>i} w_j g_j), g_i = dL/dw_i.
+    let g_bg = g.opacity
+        - (g.rgb[0] * background[0] + g.rgb[1] * background[1] + g.rgb[2] * background[2]);
+    let mut suffix = 0.0f32;
+    for q in (0..m).rev() {
+        let (t, k, j) = sc.merged[q];
+        let v = &mut views[k as usize];
+        let j = j as usize;
+        let c = &v.rgb[3 * j..3 * j + 3];
+        let gi = g.rgb[0] * c[0] + g.rgb[1] * c[1] + g.rgb[2] * c[2] + g.depth * t + g_bg;
+        v.d_sigma[j] += v.dt[j] * (sc.t_next[q] * gi - suffix);
+        suffix += sc.w[q] * gi;
+        for ch in 0..3 {
+            v.d_rgb[3 * j + ch] += sc.w[q] * g.rgb[ch];
+        }
+    }
+    // Backward through each node alone (no background colour).
+    for (k, v) in views.iter_mut().enumerate() {
+        let ng = sc.node_grads[k];
+        if ng == CompositeGrad::default() {
+            continue;
+        }
+        let rg = range(v);
+        sc.w.clear();
+        sc.t_next.clear();
+        let mut log_t = 0.0f32;
+        for j in rg.clone() {
+            let tau = v.sigma[j] * v.dt[j];
+            sc.w.push(log_t.exp() * (1.0 - (-tau).exp()));
+            log_t -= tau;
+            sc.t_next.push(log_t.exp());
+        }
+        let mut suffix = 0.0f32;
+        for (q, j) in rg.clone().enumerate().rev() {
+            let c = &v.rgb[3 * j..3 * j + 3];
+            let gi = ng.rgb[0] * c[0]
+                + ng.rgb[1] * c[1]
+                + ng.rgb[2] * c[2]
+                + ng.depth * v.t[j]
+                + ng.opacity;
+            v.d_sigma[j] += v.dt[j] * (sc.t_next[q] * gi - suffix);
+            suffix += sc.w[q] * gi;
+            for ch in 0..3 {
+                v.d_rgb[3 * j + ch] += sc.w[q] * ng.rgb[ch];
+            }
+        }
+    }
+}

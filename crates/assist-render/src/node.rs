@@ -1,0 +1,60 @@
+//! A node's forward model as the renderer uses it: the field, its occupancy grid and the
+//! marching step in canonical units; and `NeuralScene`, a scene with its fields.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use assist_core::{DVec3, Scene};
+use assist_field::{Field, OccupancyGrid};
+
+/// Default step growth with distance (instant-NGP's cone angle for large scenes).
+pub const DEFAULT_CONE: f32 = 1.0 / 256.0;
+
+/// Default number of marching steps along the canonical box's diagonal.
+pub const STEPS_PER_DIAGONAL: f32 = 1024.0;
+
+#[derive(Debug, Clone)]
+pub struct NodeField {
+    pub field: Field,
+    pub occupancy: OccupancyGrid,
+    /// Smallest marching step in local distance units.
+    pub step: f32,
+    /// Length of the box diagonal in local units: density is integrated over canonical
+    /// distance measured in box diagonals, so densities have the same scale for a 5 cm
+    /// mug and a 5 m room (as a scene normalised to a unit cube would have).
+    pub unit: f32,
+    /// Step growth with distance from the camera (`dt = max(step, cone · t)`); 0 = fixed.
+    pub cone: f32,
+}
+
+impl NodeField {
+    /// A field for a box with half extents `half_size`: marching step from the diagonal,
+    /// occupancy threshold such that a skipped cell has opacity below 1% per smallest step.
+    pub fn new(field: Field, occupancy: OccupancyGrid, half_size: DVec3) -> Self {
+        let diag = (half_size * 2.0).length() as f32;
+        let step = diag / STEPS_PER_DIAGONAL;
+        let mut occupancy = occupancy;
+        occupancy.threshold = 0.01 * STEPS_PER_DIAGONAL;
+        NodeField {
+            field,
+            occupancy,
+            step,
+            unit: diag,
+            cone: DEFAULT_CONE,
+        }
+    }
+}
+
+/// A scene and the fields its nodes refer to (replicas share one `Arc`).
+#[derive(Debug, Clone)]
+pub struct NeuralScene {
+    pub scene: Scene,
+    pub fields: BTreeMap<String, Arc<NodeField>>,
+}
+
+impl NeuralScene {
+    /// The field of node `index` (every node's key is checked on load).
+    pub fn field_of(&self, index: usize) -> &NodeField {
+        &self.fields[&self.scene.nodes[index].field]
+    }
+}

@@ -1,0 +1,193 @@
+//! Rendering cameras: rays → per-node samples → one field query per node → compositing.
+//! Produces RGB, z-depth, opacity, panoptic ids and, on request, per-node layers; the
+//! selected node is highlighted by adding a colour to its samples (paper §III-B).
+
+use assist_core::{Camera, InstanceId};
+use assist_field::Tape;
+
+use crate::batch::{BatchOutput, composite_batch};
+use crate::node::NeuralScene;
+use crate::sample::{RayBatch, SampleOptions, Traced, sample_rays};
+
+#[derive(Debug, Clone)]
+pub struct RenderOptions {
+    /// Node to highlight and the colour added to its samples.
+    pub highlight: Option<(InstanceId, [f32; 3])>,
+    pub max_per_node: usize,
+    /// Rays traced per batch (bounds memory).
+    pub rays_per_batch: usize,
+    /// Also produce each node's own colour and opacity.
+    pub layers: bool,
+}
+
+impl Default for RenderOptions {
+    fn default() -> Self {
+        RenderOptions {
+            highlight: None,
+            max_per_node: 1024,
+            rays_per_batch: 1 << 14,
+            layers: false,
+        }
+    }
+}
+
+/// The default highlight colour (added to the selected node's samples).
+pub const HIGHLIGHT: [f32; 3] = [0.0, 0.45, 0.25];
+
+/// One node rendered alone.
+#[derive(Debug, Clone)]
+pub struct NodeLayer {
+    pub id: InstanceId,
+    pub rgb: Vec<f32>,
+    pub opacity: Vec<f32>,
+}
+
+#[derive(Debug, Clone)]
+pub struct RenderedImage {
+    pub width: u32,
+    pub height: u32,
+    /// Interleaved RGB in [0, 1].
+    pub rgb: Vec<f32>,
+    /// Z-depth along the camera axis in world units (`D/O`; 0 where nothing is hit).
+    pub depth: Vec<f32>,
+    pub opacity: Vec<f32>,
+    /// Instance id of the node with the largest composited weight; 0 = background.
+    pub panoptic: Vec<u16>,
+    pub layers: Vec<NodeLayer>,
+}
+
+/// Queries every node's field for its samples (inference), adding the highlight colour to
+/// the selected node's samples. `tapes` are reusable scratch buffers, one per node.
+pub fn query_fields(
+    scene: &NeuralScene,
+    traced: &mut Traced,
+    tapes: &mut Vec<Tape>,
+    highlight: Option<(InstanceId, [f32; 3])>,
+) {
+    tapes.resize_with(traced.nodes.len(), Tape::default);
+    for (ns, tape) in traced.nodes.iter_mut().zip(tapes.iter_mut()) {
+        ns.prepare_outputs(false);
+        if ns.is_empty() {
+            continue;
+        }
+        let nf = scene.field_of(ns.node);
+        let mut sigma = std::mem::take(&mut ns.sigma);
+        let mut rgb = std::mem::take(&mut ns.rgb);
+        nf.field
+            .forward_with(&ns.samples(), tape, &mut sigma, &mut rgb);
+        if let Some((id, add)) = highlight
+            && scene.scene.nodes[ns.node].id == id
+        {
+            for px in rgb.chunks_exact_mut(3) {
+                for c in 0..3 {
+                    px[c] = (px[c] + add[c]).min(1.0);
+                }
+            }
+        }
+        ns.sigma = sigma;
+        ns.rgb = rgb;
+    }
+}
+
+/// Reusable buffers for rendering.
+#[derive(Default)]
+pub struct RenderScratch {
+    pub rays: RayBatch,
+    pub traced: Traced,
+    pub tapes: Vec<Tape>,
+    pub out: BatchOutput,
+}
+
+/// Renders a batch of rays (inference).
+pub fn render_rays(scene: &NeuralScene, opts: &RenderOptions, sc: &mut RenderScratch) {
+    let so = SampleOptions {
+        jitter: false,
+        seed: 0,
+        max_per_node: opts.max_per_node,
+    };
+    sample_rays(scene, &sc.rays, &so, &mut sc.traced);
+    query_fields(scene, &mut sc.traced, &mut sc.tapes, opts.highlight);
+    composite_batch(
+        &mut sc.traced,
+        scene.scene.background_color,
+        &mut sc.out,
+        None,
+    );
+}
+
+/// Renders a whole camera; `image` selects the appearance code (`u32::MAX` = average).
+pub fn render_camera(
+    scene: &NeuralScene,
+    camera: &Camera,
+    image: u32,
+    opts: &RenderOptions,
+) -> RenderedImage {
+    let (w, h) = (camera.width(), camera.height());
+    let n = (w * h) as usize;
+    let nn = scene.scene.nodes.len();
+    let mut img = RenderedImage {
+        width: w,
+        height: h,
+        rgb: vec![0.0; 3 * n],
+        depth: vec![0.0; n],
+        opacity: vec![0.0; n],
+        panoptic: vec![0; n],
+        layers: if opts.layers {
+            scene
+                .scene
+                .nodes
+                .iter()
+                .map(|nd| NodeLayer {
+                    id: nd.id,
+                    rgb: vec![0.0; 3 * n],
+                    opacity: vec![0.0; n],
+                })
+                .collect()
+        } else {
+            Vec::new()
+        },
+    };
+    let forward = camera.pose.forward();
+    let mut sc = RenderScratch::default();
+    sc.rays.near = 0.0;
+    let mut cos = Vec::new();
+    let mut pixels = Vec::new();
+    let mut p = 0usize;
+    while p < n {
+        let end = (p + opts.rays_per_batch.max(1)).min(n);
+        sc.rays.clear();
+        cos.clear();
+        pixels.clear();
+        for q in p..end {
+            let (i, j) = ((q as u32) % w, (q as u32) / w);
+            if let Some(ray) = camera.pixel_ray(i, j) {
+                cos.push(ray.dir.dot(forward) as f32);
+                sc.rays.push(&ray, image);
+                pixels.push(q);
+            }
+        }
+        render_rays(scene, opts, &mut sc);
+        for (r, &q) in pixels.iter().enumerate() {
+            let c = sc.out.rays[r];
+            img.rgb[3 * q..3 * q + 3].copy_from_slice(&c.rgb);
+            img.opacity[q] = c.opacity;
+            img.depth[q] = if c.opacity > 1e-3 {
+                c.depth / c.opacity * cos[r]
+            } else {
+                0.0
+            };
+            img.panoptic[q] = sc
+                .out
+                .winner(r)
+                .map(|k| scene.scene.nodes[k].id)
+                .unwrap_or(0);
+            for (k, layer) in img.layers.iter_mut().enumerate() {
+                let a = sc.out.nodes[r * nn + k];
+                layer.rgb[3 * q..3 * q + 3].copy_from_slice(&a.rgb);
+                layer.opacity[q] = a.opacity;
+            }
+        }
+        p = end;
+    }
+    img
+}

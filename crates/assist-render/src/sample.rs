@@ -1,0 +1,238 @@
+//! Per-node sampling of a batch of world rays: each ray is moved into every node's
+//! canonical space, clipped to the node's box and marched through the node's occupancy
+//! grid. The samples of one node are stored ray after ray (structure of arrays), ready
+//! for one batched field query per node.
+
+use assist_core::geometry::intersect_local_box;
+use assist_core::{DVec3, Ray, Rng};
+use rayon::prelude::*;
+
+use crate::node::NeuralScene;
+
+/// World rays (unit directions) and the appearance code each should use.
+#[derive(Debug, Clone, Default)]
+pub struct RayBatch {
+    pub origin: Vec<[f32; 3]>,
+    pub dir: Vec<[f32; 3]>,
+    /// Appearance code per ray; `u32::MAX` = the average code (novel views).
+    pub image: Vec<u32>,
+    /// Samples closer than this (world distance) are ignored.
+    pub near: f32,
+}
+
+impl RayBatch {
+    pub fn len(&self) -> usize {
+        self.origin.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.origin.is_empty()
+    }
+    pub fn clear(&mut self) {
+        self.origin.clear();
+        self.dir.clear();
+        self.image.clear();
+    }
+    pub fn push(&mut self, ray: &Ray, image: u32) {
+        self.origin.push(ray.origin.as_vec3().to_array());
+        self.dir.push(ray.dir.as_vec3().to_array());
+        self.image.push(image);
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+pub struct SampleOptions {
+    /// Stratified jitter of the first sample (training); off = deterministic (rendering).
+    pub jitter: bool,
+    pub seed: u64,
+    /// At most this many samples per ray and node.
+    pub max_per_node: usize,
+}
+
+impl Default for SampleOptions {
+    fn default() -> Self {
+        SampleOptions {
+            jitter: false,
+            seed: 0,
+            max_per_node: 1024,
+        }
+    }
+}
+
+/// The samples of one node for a batch of rays. Ray `r`'s samples are
+/// `start[r]..start[r + 1]`, sorted by `t`.
+#[derive(Debug, Clone, Default)]
+pub struct NodeSamples {
+    /// Index of the node in the scene.
+    pub node: usize,
+    /// Positions in the canonical box scaled to [0, 1]³.
+    pub pos: [Vec<f32>; 3],
+    /// Unit directions in canonical space.
+    pub dir: [Vec<f32>; 3],
+    pub image: Vec<u32>,
+    /// World distance along the ray (for sorting and depth).
+    pub t: Vec<f32>,
+    /// Interval length in canonical distance, in box diagonals (density is integrated
+    /// over it).
+    pub dt: Vec<f32>,
+    pub start: Vec<u32>,
+    /// Field outputs (filled by the caller's query): σ and interleaved RGB.
+    pub sigma: Vec<f32>,
+    pub rgb: Vec<f32>,
+    /// Gradients with respect to σ and RGB (filled by `composite_batch`).
+    pub d_sigma: Vec<f32>,
+    pub d_rgb: Vec<f32>,
+}
+
+impl NodeSamples {
+    pub fn len(&self) -> usize {
+        self.t.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.t.is_empty()
+    }
+    pub fn range(&self, r: usize) -> std::ops::Range<usize> {
+        self.start[r] as usize..self.start[r + 1] as usize
+    }
+    pub fn samples(&self) -> assist_field::Samples<'_> {
+        assist_field::Samples {
+            pos: [&self.pos[0], &self.pos[1], &self.pos[2]],
+            dir: [&self.dir[0], &self.dir[1], &self.dir[2]],
+            image: &self.image,
+        }
+    }
+    fn clear(&mut self) {
+        for a in 0..3 {
+            self.pos[a].clear();
+            self.dir[a].clear();
+        }
+        self.image.clear();
+        self.t.clear();
+        self.dt.clear();
+        self.start.clear();
+    }
+    fn append(&mut self, o: &NodeSamples) {
+        let base = self.t.len() as u32;
+        for a in 0..3 {
+            self.pos[a].extend_from_slice(&o.pos[a]);
+            self.dir[a].extend_from_slice(&o.dir[a]);
+        }
+        self.image.extend_from_slice(&o.image);
+        self.t.extend_from_slice(&o.t);
+        self.dt.extend_from_slice(&o.dt);
+        // `o.start` holds the block-local start of each of its rays (no trailing end).
+        self.start.extend(o.start.iter().map(|s| s + base));
+    }
+    /// Sizes the output and gradient buffers to the sample count (zeroed gradients).
+    pub fn prepare_outputs(&mut self, with_grad: bool) {
+        let n = self.len();
+        self.sigma.resize(n, 0.0);
+        self.rgb.resize(3 * n, 0.0);
+        if with_grad {
+            self.d_sigma.clear();
+            self.d_sigma.resize(n, 0.0);
+            self.d_rgb.clear();
+            self.d_rgb.resize(3 * n, 0.0);
+        }
+    }
+}
+
+/// The samples of every node for one batch.
+#[derive(Debug, Clone, Default)]
+pub struct Traced {
+    pub rays: usize,
+    pub nodes: Vec<NodeSamples>,
+}
+
+impl Traced {
+    pub fn total_samples(&self) -> usize {
+        self.nodes.iter().map(|n| n.len()).sum()
+    }
+}
+
+const BLOCK: usize = 256;
+
+/// Samples every node of `scene` along every ray of `rays` into `out` (buffers reused).
+pub fn sample_rays(scene: &NeuralScene, rays: &RayBatch, opts: &SampleOptions, out: &mut Traced) {
+    let n_nodes = scene.scene.nodes.len();
+    out.rays = rays.len();
+    out.nodes.resize_with(n_nodes, NodeSamples::default);
+    for (k, ns) in out.nodes.iter_mut().enumerate() {
+        ns.node = k;
+        ns.clear();
+        let blocks: Vec<NodeSamples> = (0..rays.len().div_ceil(BLOCK))
+            .into_par_iter()
+            .map(|b| {
+                let mut local = NodeSamples::default();
+                let mut steps = Vec::new();
+                for r in b * BLOCK..((b + 1) * BLOCK).min(rays.len()) {
+                    local.start.push(local.t.len() as u32);
+                    sample_node(scene, k, rays, r, opts, &mut steps, &mut local);
+                }
+                local
+            })
+            .collect();
+        for blk in &blocks {
+            ns.append(blk);
+        }
+        ns.start.push(ns.t.len() as u32);
+    }
+}
+
+fn sample_node(
+    scene: &NeuralScene,
+    k: usize,
+    rays: &RayBatch,
+    r: usize,
+    opts: &SampleOptions,
+    steps: &mut Vec<assist_field::occupancy::Step>,
+    out: &mut NodeSamples,
+) {
+    let node = &scene.scene.nodes[k];
+    let nf = scene.field_of(k);
+    let ray = Ray {
+        origin: DVec3::from(rays.origin[r].map(f64::from)),
+        dir: DVec3::from(rays.dir[r].map(f64::from)),
+    };
+    let Some(hit) = intersect_local_box(
+        &ray,
+        &node.world_from_local,
+        &node.local_aabb(),
+        rays.near as f64,
+        f64::INFINITY,
+    ) else {
+        return;
+    };
+    let size = node.half_size * 2.0;
+    let o = (hit.local_ray.origin / size + 0.5).as_vec3().to_array();
+    let d_unit = hit.local_ray.dir.as_vec3().to_array();
+    let d = (hit.local_ray.dir / size).as_vec3().to_array();
+    let jitter = if opts.jitter {
+        Rng::stream(opts.seed, (r * 1024 + k) as u64).f32()
+    } else {
+        0.5
+    };
+    steps.clear();
+    nf.occupancy.march_cone(
+        o,
+        d,
+        hit.local_t_in as f32,
+        hit.local_t_out as f32,
+        nf.step,
+        nf.cone,
+        jitter,
+        opts.max_per_node,
+        steps,
+    );
+    let inv_k = (1.0 / hit.local_per_world) as f32;
+    let inv_unit = 1.0 / nf.unit;
+    let image = rays.image[r];
+    for s in steps.iter() {
+        for a in 0..3 {
+            out.pos[a].push((o[a] + d[a] * s.t).clamp(0.0, 1.0));
+            out.dir[a].push(d_unit[a]);
+        }
+        out.image.push(image);
+        out.t.push(s.t * inv_k);
+        out.dt.push(s.dt * inv_unit);
+    }
+}

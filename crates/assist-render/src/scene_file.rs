@@ -1,0 +1,292 @@
+//! `NAME.assist/` scene directories: `scene.json` (format, version, up, metres per unit,
+//! background colour, nodes with id, label, box, pose, field key, embedding) and one
+//! safetensors file per field in `fields/` (weights, config, occupancy). Replicas name the
+//! same field key. Saving writes a complete temporary directory and renames it into place;
+//! loading validates everything and names the file and field that is wrong.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use assist_core::{Scene, SceneNode};
+use serde::{Deserialize, Serialize};
+
+use crate::node::{NeuralScene, NodeField};
+
+pub const FORMAT: &str = "assist-scene";
+pub const VERSION: u32 = 1;
+
+#[derive(Debug, thiserror::Error)]
+pub enum SceneFileError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: {field}: {message}")]
+    Invalid {
+        path: PathBuf,
+        field: String,
+        message: String,
+    },
+    #[error("{path} already exists (pass --force to replace it)")]
+    Exists { path: PathBuf },
+    #[error(transparent)]
+    Field(#[from] assist_field::FieldError),
+}
+
+fn invalid(path: &Path, field: impl Into<String>, message: impl Into<String>) -> SceneFileError {
+    SceneFileError::Invalid {
+        path: path.to_path_buf(),
+        field: field.into(),
+        message: message.into(),
+    }
+}
+
+#[derive(Serialize, Deserialize)]
+struct SceneJson {
+    format: String,
+    version: u32,
+    #[serde(flatten)]
+    scene: Scene,
+    /// Free-form provenance (dataset, training statistics).
+    #[serde(default, skip_serializing_if = "serde_json::Value::is_null")]
+    info: serde_json::Value,
+}
+
+/// Path of a field's weights inside a scene directory.
+pub fn field_path(dir: &Path, key: &str) -> PathBuf {
+    dir.join("fields").join(format!("{key}.safetensors"))
+}
+
+fn valid_key(key: &str) -> bool {
+    !key.is_empty()
+        && key
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+}
+
+/// Saves `scene` to `dir` atomically. An existing `dir` is replaced only with `force`.
+pub fn save(
+    dir: &Path,
+    scene: &NeuralScene,
+    info: serde_json::Value,
+    force: bool,
+) -> Result<(), SceneFileError> {
+    if dir.exists() && !force {
+        return Err(SceneFileError::Exists {
+            path: dir.to_path_buf(),
+        });
+    }
+    let io = |p: &Path| {
+        let p = p.to_path_buf();
+        move |e| SceneFileError::Io { path: p, source: e }
+    };
+    let name = dir
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "scene.assist".into());
+    let parent = dir
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    std::fs::create_dir_all(parent).map_err(io(parent))?;
+    let tmp = parent.join(format!(".{name}.tmp-{}", std::process::id()));
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).map_err(io(&tmp))?;
+    }
+    std::fs::create_dir_all(tmp.join("fields")).map_err(io(&tmp))?;
+    let result = (|| {
+        for node in &scene.scene.nodes {
+            if !valid_key(&node.field) {
+                return Err(invalid(
+                    dir,
+                    format!("nodes[id={}].field", node.id),
+                    format!(
+                        "field key {:?} must be letters, digits, '_' or '-'",
+                        node.field
+                    ),
+                ));
+            }
+        }
+        for (key, nf) in &scene.fields {
+            assist_field::io::save(&field_path(&tmp, key), &nf.field, Some(&nf.occupancy))?;
+        }
+        let json = SceneJson {
+            format: FORMAT.into(),
+            version: VERSION,
+            scene: scene.scene.clone(),
+            info,
+        };
+        let text = serde_json::to_string_pretty(&json)
+            .map_err(|e| invalid(dir, "scene.json", format!("cannot serialise: {e}")))?;
+        let p = tmp.join("scene.json");
+        std::fs::write(&p, text).map_err(io(&p))?;
+        // Swap into place: the old directory is moved aside first and removed last.
+        let old = parent.join(format!(".{name}.old-{}", std::process::id()));
+        let had_old = dir.exists();
+        if had_old {
+            std::fs::rename(dir, &old).map_err(io(dir))?;
+        }
+        if let Err(e) = std::fs::rename(&tmp, dir) {
+            if had_old {
+                let _ = std::fs::rename(&old, dir);
+            }
+            return Err(SceneFileError::Io {
+                path: dir.to_path_buf(),
+                source: e,
+            });
+        }
+        if had_old {
+            let _ = std::fs::remove_dir_all(&old);
+        }
+        Ok(())
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
+    result
+}
+
+/// Loads and validates a scene directory (or its `scene.json`).
+pub fn load(path: &Path) -> Result<(NeuralScene, serde_json::Value), SceneFileError> {
+    let (dir, file) = if path.is_dir() {
+        (path.to_path_buf(), path.join("scene.json"))
+    } else {
+        (
+            path.parent().unwrap_or(Path::new(".")).to_path_buf(),
+            path.to_path_buf(),
+        )
+    };
+    let text = std::fs::read_to_string(&file).map_err(|e| SceneFileError::Io {
+        path: file.clone(),
+        source: e,
+    })?;
+    let raw: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
+        invalid(
+            &file,
+            format!("line {} column {}", e.line(), e.column()),
+            e.to_string(),
+        )
+    })?;
+    match raw.get("format").and_then(|v| v.as_str()) {
+        Some(FORMAT) => {}
+        other => {
+            return Err(invalid(
+                &file,
+                "format",
+                format!("expected \"{FORMAT}\", got {other:?}"),
+            ));
+        }
+    }
+    match raw.get("version").and_then(|v| v.as_u64()) {
+        Some(v) if v == VERSION as u64 => {}
+        other => {
+            return Err(invalid(
+                &file,
+                "version",
+                format!("expected {VERSION} (this build's scene format), got {other:?}"),
+            ));
+        }
+    }
+    let json: SceneJson = serde_json::from_value(raw).map_err(|e| {
+        invalid(
+            &file,
+            "scene",
+            format!("does not match the scene format: {e}"),
+        )
+    })?;
+    let scene = json.scene;
+    let mut seen = std::collections::HashSet::new();
+    for (i, n) in scene.nodes.iter().enumerate() {
+        let f = |x: &str| format!("nodes[{i}].{x}");
+        if !seen.insert(n.id) {
+            return Err(invalid(
+                &file,
+                f("id"),
+                format!("id {} is used twice", n.id),
+            ));
+        }
+        if !valid_key(&n.field) {
+            return Err(invalid(
+                &file,
+                f("field"),
+                "expected letters, digits, '_' or '-'",
+            ));
+        }
+        check_node(&file, &f, n)?;
+    }
+    if !(scene.meters_per_unit.is_finite() && scene.meters_per_unit > 0.0) {
+        return Err(invalid(
+            &file,
+            "meters_per_unit",
+            "expected a positive number",
+        ));
+    }
+    let mut fields = BTreeMap::new();
+    for n in &scene.nodes {
+        if fields.contains_key(&n.field) {
+            continue;
+        }
+        let fp = field_path(&dir, &n.field);
+        if !fp.exists() {
+            return Err(invalid(
+                &file,
+                format!("nodes[id={}].field", n.id),
+                format!("field file {} is missing", fp.display()),
+            ));
+        }
+        let (field, occ) = assist_field::io::load(&fp)?;
+        let occ = occ.unwrap_or_else(|| assist_field::OccupancyGrid::new(64));
+        fields.insert(
+            n.field.clone(),
+            Arc::new(NodeField::new(field, occ, n.half_size)),
+        );
+    }
+    Ok((NeuralScene { scene, fields }, json.info))
+}
+
+fn check_node(
+    file: &Path,
+    f: &dyn Fn(&str) -> String,
+    n: &SceneNode,
+) -> Result<(), SceneFileError> {
+    let hs = n.half_size.to_array();
+    if !hs.iter().all(|v| v.is_finite() && *v > 0.0) {
+        return Err(invalid(
+            file,
+            f("half_size"),
+            format!("expected 3 positive numbers, got {hs:?}"),
+        ));
+    }
+    let p = &n.world_from_local;
+    let vals: Vec<f64> = p
+        .rotation
+        .to_array()
+        .into_iter()
+        .chain(p.translation.to_array())
+        .chain(p.scale.to_array())
+        .collect();
+    if !vals.iter().all(|v| v.is_finite()) {
+        return Err(invalid(
+            file,
+            f("world_from_local"),
+            "expected finite numbers",
+        ));
+    }
+    if p.scale.min_element() <= 0.0 {
+        return Err(invalid(
+            file,
+            f("world_from_local.scale"),
+            "expected every factor > 0",
+        ));
+    }
+    if (p.rotation.length() - 1.0).abs() > 1e-3 {
+        return Err(invalid(
+            file,
+            f("world_from_local.rotation"),
+            "expected a unit quaternion",
+        ));
+    }
+    Ok(())
+}

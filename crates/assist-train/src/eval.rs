@@ -1,0 +1,124 @@
+//! Evaluation of a trained scene on a dataset split: PSNR, SSIM, panoptic mIoU against
+//! instance masks, and — where the dataset has `background/` ground truth — background
+//! PSNR over all pixels and over the pixels that objects cover.
+
+use std::path::Path;
+
+use assist_data::{Dataset, Split};
+use assist_render::{NeuralScene, RenderOptions, render_camera};
+use serde::Serialize;
+
+use crate::error::Result;
+use crate::metrics::{IouAccumulator, mse_to_psnr, squared_error, ssim};
+use crate::views::load_view;
+
+#[derive(Debug, Clone, Serialize)]
+pub struct ImageScore {
+    pub name: String,
+    pub psnr: f64,
+    pub ssim: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct EvalReport {
+    pub split: String,
+    pub images: usize,
+    /// Mean of per-image PSNR.
+    pub psnr: f64,
+    pub ssim: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub panoptic_miou: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub background_psnr: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub background_occluded_psnr: Option<f64>,
+    pub per_image: Vec<ImageScore>,
+    pub seconds: f64,
+}
+
+/// Evaluates `scene` on the frames of `split` (every `stride`-th one).
+pub fn evaluate(
+    scene: &NeuralScene,
+    ds: &Dataset,
+    split: Split,
+    stride: usize,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<EvalReport> {
+    let t0 = std::time::Instant::now();
+    let frames: Vec<_> = ds.frames_in(split).step_by(stride.max(1)).collect();
+    let bg_truth = background_dataset(&ds.root)?;
+    let bg_scene = scene
+        .scene
+        .nodes
+        .iter()
+        .position(|n| n.is_background())
+        .map(|k| {
+            let mut s = scene.clone();
+            s.scene.nodes = vec![scene.scene.nodes[k].clone()];
+            s
+        });
+    let opts = RenderOptions::default();
+    let mut per_image = Vec::new();
+    let mut iou = IouAccumulator::default();
+    let mut any_ids = false;
+    let (mut bg_se, mut bg_n, mut occ_se, mut occ_n) = (0.0, 0usize, 0.0, 0usize);
+    for (i, f) in frames.iter().enumerate() {
+        progress(i, frames.len());
+        let v = load_view(f, u32::MAX, scene.scene.background_color)?;
+        let img = render_camera(scene, &f.camera, u32::MAX, &opts);
+        let rgb: Vec<f32> = img.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect();
+        let (se, n) = squared_error(&rgb, &v.rgb, 3, None);
+        per_image.push(ImageScore {
+            name: f.name.clone(),
+            psnr: mse_to_psnr(se / n as f64),
+            ssim: ssim(&rgb, &v.rgb, v.width, v.height, 3),
+        });
+        if let Some(ids) = &v.ids {
+            any_ids = true;
+            iou.add(&img.panoptic, ids);
+        }
+        if let (Some(bt), Some(bs)) = (&bg_truth, &bg_scene)
+            && let Some(bf) = bt.frames.iter().find(|b| b.name == f.name)
+        {
+            let truth = load_view(bf, u32::MAX, scene.scene.background_color)?;
+            let b = render_camera(bs, &f.camera, u32::MAX, &opts);
+            let brgb: Vec<f32> = b.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect();
+            let (se, n) = squared_error(&brgb, &truth.rgb, 3, None);
+            bg_se += se;
+            bg_n += n;
+            if let Some(ids) = &v.ids {
+                let mask: Vec<bool> = ids.iter().map(|&i| i != 0).collect();
+                let (se, n) = squared_error(&brgb, &truth.rgb, 3, Some(&mask));
+                occ_se += se;
+                occ_n += n;
+            }
+        }
+    }
+    progress(frames.len(), frames.len());
+    let m = per_image.len().max(1) as f64;
+    Ok(EvalReport {
+        split: split.name().into(),
+        images: per_image.len(),
+        psnr: per_image.iter().map(|s| s.psnr).sum::<f64>() / m,
+        ssim: per_image.iter().map(|s| s.ssim).sum::<f64>() / m,
+        panoptic_miou: if any_ids { iou.mean() } else { None },
+        background_psnr: (bg_n > 0).then(|| mse_to_psnr(bg_se / bg_n as f64)),
+        background_occluded_psnr: (occ_n > 0).then(|| mse_to_psnr(occ_se / occ_n as f64)),
+        per_image,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// The `background/` ground truth beside a dataset (desk format), when present.
+pub fn background_dataset(root: &Path) -> Result<Option<Dataset>> {
+    let dir = if root.is_dir() {
+        root.to_path_buf()
+    } else {
+        root.parent().unwrap_or(Path::new(".")).to_path_buf()
+    };
+    let b = dir.join("background");
+    if !b.join("transforms.json").exists() {
+        return Ok(None);
+    }
+    Ok(Some(assist_data::load(&b, &Default::default())?))
+}

@@ -1,0 +1,191 @@
+//! Image metrics: PSNR, SSIM (11×11 Gaussian window, σ = 1.5, the standard constants),
+//! and panoptic mean IoU accumulated over a split.
+
+use std::collections::BTreeMap;
+
+/// PSNR in dB of `a` against `b` (values in [0, 1]); `mask` selects pixels (one entry per
+/// pixel, `channels` values each). Infinite when identical; `None` if no pixel selected.
+pub fn psnr(a: &[f32], b: &[f32], channels: usize, mask: Option<&[bool]>) -> Option<f64> {
+    let (se, n) = squared_error(a, b, channels, mask);
+    (n > 0).then(|| mse_to_psnr(se / n as f64))
+}
+
+/// Sum of squared errors and number of values compared.
+pub fn squared_error(a: &[f32], b: &[f32], channels: usize, mask: Option<&[bool]>) -> (f64, usize) {
+    assert_eq!(a.len(), b.len());
+    let mut se = 0.0f64;
+    let mut n = 0usize;
+    for (p, (x, y)) in a.chunks(channels).zip(b.chunks(channels)).enumerate() {
+        if mask.is_some_and(|m| !m[p]) {
+            continue;
+        }
+        for c in 0..channels {
+            let d = (x[c] - y[c]) as f64;
+            se += d * d;
+        }
+        n += channels;
+    }
+    (se, n)
+}
+
+pub fn mse_to_psnr(mse: f64) -> f64 {
+    if mse <= 0.0 {
+        f64::INFINITY
+    } else {
+        -10.0 * mse.log10()
+    }
+}
+
+/// Mean SSIM over all pixels and channels of two interleaved images (values in [0, 1]),
+/// with an 11×11 Gaussian window (σ 1.5), K1 = 0.01, K2 = 0.03, data range 1, computed
+/// over the valid region (no padding), as in the reference implementation.
+pub fn ssim(a: &[f32], b: &[f32], width: usize, height: usize, channels: usize) -> f64 {
+    const R: usize = 5;
+    let g: Vec<f64> = {
+        let w: Vec<f64> = (0..2 * R + 1)
+            .map(|i| {
+                let x = i as f64 - R as f64;
+                (-(x * x) / (2.0 * 1.5 * 1.5)).exp()
+            })
+            .collect();
+        let s: f64 = w.iter().sum();
+        w.into_iter().map(|v| v / s).collect()
+    };
+    if width < 2 * R + 1 || height < 2 * R + 1 {
+        return f64::NAN;
+    }
+    let (c1, c2) = (0.01f64.powi(2), 0.03f64.powi(2));
+    let (ow, oh) = (width - 2 * R, height - 2 * R);
+    let mut total = 0.0;
+    for c in 0..channels {
+        let get = |img: &[f32], x: usize, y: usize| img[(y * width + x) * channels + c] as f64;
+        // Separable filtering of x, y, x², y², xy: horizontal then vertical.
+        let mut h = vec![[0.0f64; 5]; ow * height];
+        for y in 0..height {
+            for x in 0..ow {
+                let mut s = [0.0; 5];
+                for k in 0..2 * R + 1 {
+                    let (p, q) = (get(a, x + k, y), get(b, x + k, y));
+                    let w = g[k];
+                    s[0] += w * p;
+                    s[1] += w * q;
+                    s[2] += w * p * p;
+                    s[3] += w * q * q;
+                    s[4] += w * p * q;
+                }
+                h[y * ow + x] = s;
+            }
+        }
+        for y in 0..oh {
+            for x in 0..ow {
+                let mut s = [0.0; 5];
+                for k in 0..2 * R + 1 {
+                    let v = h[(y + k) * ow + x];
+                    for i in 0..5 {
+                        s[i] += g[k] * v[i];
+                    }
+                }
+                let (mx, my) = (s[0], s[1]);
+                let vx = s[2] - mx * mx;
+                let vy = s[3] - my * my;
+                let cxy = s[4] - mx * my;
+                total += ((2.0 * mx * my + c1) * (2.0 * cxy + c2))
+                    / ((mx * mx + my * my + c1) * (vx + vy + c2));
+            }
+        }
+    }
+    total / (ow * oh * channels) as f64
+}
+
+/// Intersection and union counts per class, accumulated over images.
+#[derive(Debug, Clone, Default)]
+pub struct IouAccumulator {
+    pub classes: BTreeMap<u16, (u64, u64)>,
+}
+
+impl IouAccumulator {
+    pub fn add(&mut self, predicted: &[u16], truth: &[u16]) {
+        assert_eq!(predicted.len(), truth.len());
+        let mut inter: BTreeMap<u16, u64> = BTreeMap::new();
+        let mut count_p: BTreeMap<u16, u64> = BTreeMap::new();
+        let mut count_t: BTreeMap<u16, u64> = BTreeMap::new();
+        for (&p, &t) in predicted.iter().zip(truth) {
+            *count_p.entry(p).or_default() += 1;
+            *count_t.entry(t).or_default() += 1;
+            if p == t {
+                *inter.entry(p).or_default() += 1;
+            }
+        }
+        let keys: std::collections::BTreeSet<u16> =
+            count_p.keys().chain(count_t.keys()).copied().collect();
+        for k in keys {
+            let i = inter.get(&k).copied().unwrap_or(0);
+            let u =
+                count_p.get(&k).copied().unwrap_or(0) + count_t.get(&k).copied().unwrap_or(0) - i;
+            let e = self.classes.entry(k).or_default();
+            e.0 += i;
+            e.1 += u;
+        }
+    }
+    /// IoU per class that appears in the truth or the prediction.
+    pub fn per_class(&self) -> BTreeMap<u16, f64> {
+        self.classes
+            .iter()
+            .filter(|(_, (_, u))| *u > 0)
+            .map(|(&k, &(i, u))| (k, i as f64 / u as f64))
+            .collect()
+    }
+    pub fn mean(&self) -> Option<f64> {
+        let pc = self.per_class();
+        (!pc.is_empty()).then(|| pc.values().sum::<f64>() / pc.len() as f64)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn psnr_of_known_error() {
+        // Every value off by 0.1: MSE 0.01 → 20 dB.
+        let a = vec![0.5f32; 30];
+        let b = vec![0.6f32; 30];
+        assert!((psnr(&a, &b, 3, None).unwrap() - 20.0).abs() < 1e-4);
+        assert_eq!(psnr(&a, &a, 3, None).unwrap(), f64::INFINITY);
+        let mask = vec![false; 10];
+        assert!(psnr(&a, &b, 3, Some(&mask)).is_none());
+    }
+
+    #[test]
+    fn ssim_identical_is_one_and_constant_shift_is_known() {
+        let (w, h) = (24, 20);
+        let a: Vec<f32> = (0..w * h)
+            .map(|i| ((i * 37 % 101) as f32) / 100.0)
+            .collect();
+        assert!((ssim(&a, &a, w, h, 1) - 1.0).abs() < 1e-12);
+        // Constant images x = 0.2, y = 0.4: variances 0, so SSIM = (2·0.08 + c1)/(0.2 + c1).
+        let x = vec![0.2f32; w * h];
+        let y = vec![0.4f32; w * h];
+        let c1 = 1e-4;
+        let expect = (2.0 * 0.2 * 0.4 + c1) / (0.04 + 0.16 + c1);
+        assert!((ssim(&x, &y, w, h, 1) - expect).abs() < 1e-6);
+        // Noise lowers it.
+        let n: Vec<f32> = a
+            .iter()
+            .enumerate()
+            .map(|(i, v)| v + if i % 2 == 0 { 0.1 } else { -0.1 })
+            .collect();
+        let s = ssim(&a, &n, w, h, 1);
+        assert!(s < 0.95 && s > 0.0, "{s}");
+    }
+
+    #[test]
+    fn miou_counts() {
+        let mut acc = IouAccumulator::default();
+        // truth: 0 0 1 1; predicted: 0 1 1 1 → class0 1/2, class1 2/3.
+        acc.add(&[0, 1, 1, 1], &[0, 0, 1, 1]);
+        let pc = acc.per_class();
+        assert!((pc[&0] - 0.5).abs() < 1e-12 && (pc[&1] - 2.0 / 3.0).abs() < 1e-12);
+        assert!((acc.mean().unwrap() - (0.5 + 2.0 / 3.0) / 2.0).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,243 @@
+//! From a dataset to the nodes of a trainable scene: a background node over the scene
+//! bounds (unless the dataset is a Blender object on an empty background), and one object
+//! node per instance — with the dataset's box plus a margin, or a box carved from the
+//! instance masks (visual hull) where the dataset gives none.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use assist_core::{Aabb, DVec3, InstanceId, Obb, Scene, SceneNode, Similarity3};
+use assist_data::{Dataset, Format};
+use assist_field::{Field, FieldConfig, OccupancyGrid};
+use assist_render::{NeuralScene, NodeField};
+use rayon::prelude::*;
+
+use crate::error::{Result, TrainError};
+use crate::views::View;
+
+#[derive(Debug, Clone)]
+pub struct SetupOptions {
+    /// Per-image appearance embeddings.
+    pub appearance: bool,
+    /// Box margin, as a fraction of the box size on each side.
+    pub margin: f64,
+    pub background_grid: u32,
+    pub object_grid: u32,
+    pub seed: u64,
+    /// Boxes given by the user (override the dataset's and the carved ones).
+    pub boxes: BTreeMap<InstanceId, Obb>,
+}
+
+impl Default for SetupOptions {
+    fn default() -> Self {
+        SetupOptions {
+            appearance: false,
+            margin: 0.1,
+            background_grid: 128,
+            object_grid: 64,
+            seed: 0,
+            boxes: BTreeMap::new(),
+        }
+    }
+}
+
+/// Whether the dataset is one object on an empty background (Blender synthetic).
+pub fn is_object_capture(ds: &Dataset) -> bool {
+    ds.format == Format::Blender
+}
+
+/// Background colour the images are composited over (white for Blender objects).
+pub fn background_color(ds: &Dataset) -> [f32; 3] {
+    if is_object_capture(ds) {
+        [1.0; 3]
+    } else {
+        [0.0; 3]
+    }
+}
+
+/// Builds the untrained scene for `ds` from its training `views`.
+pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<NeuralScene> {
+    let n_images = views.len();
+    let app = |mut c: FieldConfig| {
+        if !opts.appearance {
+            c.appearance_dim = 0;
+        }
+        c
+    };
+    let mut nodes = Vec::new();
+    let mut fields = BTreeMap::new();
+    let region = match depth_bounds(views) {
+        Some(b) => b.union(&Aabb::new(ds.bounds.min, ds.bounds.max)),
+        None => Aabb::new(ds.bounds.min, ds.bounds.max),
+    };
+    if !is_object_capture(ds) {
+        let c = region.center();
+        let half = region.size() * 0.5 * 1.05;
+        let node = SceneNode {
+            id: 0,
+            label: "background".into(),
+            embedding: None,
+            field: "background".into(),
+            half_size: half,
+            world_from_local: Similarity3::from_translation(c),
+        };
+        let field = Field::new(app(FieldConfig::nerfacto(n_images)), opts.seed)?;
+        fields.insert(
+            "background".to_string(),
+            Arc::new(NodeField::new(
+                field,
+                OccupancyGrid::new(opts.background_grid),
+                half,
+            )),
+        );
+        nodes.push(node);
+    }
+    // Object ids: declared instances, else whatever the masks contain.
+    let mut ids: Vec<(InstanceId, String, Option<Obb>)> = ds
+        .instances
+        .iter()
+        .map(|i| (i.id, i.label.clone(), i.bbox))
+        .collect();
+    if ids.is_empty() {
+        let mut seen = std::collections::BTreeSet::new();
+        for v in views {
+            if let Some(m) = &v.ids {
+                seen.extend(m.iter().copied().filter(|&i| i != 0));
+            }
+        }
+        let name = ds
+            .root
+            .file_name()
+            .map(|n| n.to_string_lossy().trim_end_matches("_400").to_string())
+            .unwrap_or_else(|| "object".into());
+        for id in seen {
+            let label = if id == 1 && is_object_capture(ds) {
+                name.clone()
+            } else {
+                format!("object {id}")
+            };
+            ids.push((id, label, None));
+        }
+    }
+    for (id, label, bbox) in ids {
+        let obb = match opts.boxes.get(&id).copied().or(bbox) {
+            Some(b) => Obb {
+                half_size: b.half_size * (1.0 + 2.0 * opts.margin),
+                ..b
+            },
+            None => {
+                let carved = carve_box(views, id, &region).ok_or_else(|| {
+                    TrainError::Other(format!(
+                        "instance {id} ({label}): no box in the dataset and none could be carved from the masks (is it visible in the training images?)"
+                    ))
+                })?;
+                let c = carved.center();
+                let half = carved.size() * 0.5 * (1.0 + 2.0 * opts.margin);
+                Obb {
+                    center: c,
+                    half_size: half,
+                    rotation: assist_core::DMat3::IDENTITY,
+                }
+            }
+        };
+        let key = format!("object-{id}");
+        let node = SceneNode::from_obb(id, &label, &key, &obb);
+        let field = Field::new(app(FieldConfig::object(n_images)), opts.seed + id as u64)?;
+        fields.insert(
+            key,
+            Arc::new(NodeField::new(
+                field,
+                OccupancyGrid::new(opts.object_grid),
+                obb.half_size,
+            )),
+        );
+        nodes.push(node);
+    }
+    let scene = Scene {
+        nodes,
+        up: ds.world_up.unwrap_or(DVec3::Z),
+        meters_per_unit: ds.meters_per_unit.unwrap_or(1.0),
+        background_color: background_color(ds),
+    };
+    Ok(NeuralScene { scene, fields })
+}
+
+/// Bounds of what the training depth maps see (0.2nd–99.8th percentile per axis of the
+/// back-projected pixels, every 4th pixel in each direction); `None` without depth.
+pub fn depth_bounds(views: &[View]) -> Option<Aabb> {
+    let pts: Vec<DVec3> = views
+        .par_iter()
+        .flat_map_iter(|v| {
+            let d = v.depth.as_ref();
+            (0..v.height)
+                .step_by(4)
+                .flat_map(move |j| (0..v.width).step_by(4).map(move |i| (i, j)))
+                .filter_map(move |(i, j)| {
+                    let z = *d?.get(j * v.width + i)?;
+                    (z > 0.0)
+                        .then(|| v.camera.unproject(i as f64 + 0.5, j as f64 + 0.5, z as f64))?
+                })
+        })
+        .collect();
+    if pts.len() < 100 {
+        return None;
+    }
+    let mut lo = DVec3::ZERO;
+    let mut hi = DVec3::ZERO;
+    for a in 0..3 {
+        let mut v: Vec<f64> = pts.iter().map(|p| p[a]).collect();
+        v.sort_by(f64::total_cmp);
+        lo[a] = v[v.len() / 500];
+        hi[a] = v[v.len() - 1 - v.len() / 500];
+    }
+    let mut b = Aabb::new(lo, hi);
+    for v in views {
+        b.extend(v.camera.pose.center());
+    }
+    Some(b)
+}
+
+/// Visual hull of instance `id`: voxels of `region` (96³) that project inside the mask in
+/// every view that sees them (allowing 5% disagreeing views for mask noise). Returns the
+/// bounding box of the kept voxels, grown by one voxel.
+pub fn carve_box(views: &[View], id: InstanceId, region: &Aabb) -> Option<Aabb> {
+    const G: usize = 96;
+    let size = region.size();
+    let voxel = size / G as f64;
+    let kept: Vec<DVec3> = (0..G * G * G)
+        .into_par_iter()
+        .filter_map(|c| {
+            let p = region.min
+                + DVec3::new(
+                    (c % G) as f64 + 0.5,
+                    ((c / G) % G) as f64 + 0.5,
+                    (c / (G * G)) as f64 + 0.5,
+                ) * voxel;
+            let (mut inside, mut outside) = (0usize, 0usize);
+            for v in views {
+                let Some(ids) = &v.ids else { continue };
+                let Some((px, _)) = v.camera.project(p) else {
+                    continue;
+                };
+                if px.x < 0.0 || px.y < 0.0 || px.x >= v.width as f64 || px.y >= v.height as f64 {
+                    continue;
+                }
+                if ids[px.y as usize * v.width + px.x as usize] == id {
+                    inside += 1;
+                } else {
+                    outside += 1;
+                }
+            }
+            (inside > 0 && outside * 20 <= inside + outside).then_some(p)
+        })
+        .collect();
+    if kept.is_empty() {
+        return None;
+    }
+    let mut b = Aabb::empty();
+    for p in kept {
+        b.extend(p - voxel);
+        b.extend(p + voxel);
+    }
+    Some(b)
+}

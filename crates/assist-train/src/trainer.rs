@@ -1,0 +1,621 @@
+//! The training loop (paper §III-C): random rays over the training images, compositional
+//! rendering, the five losses
+//! `L = L_comp_rgb + λ1 L_bg_rgb + λ2 L_bg_depth + λ3 L_obj_acc + λ4 L_obj_rgb`,
+//! backward into every node's field, Adam with a learning rate decaying exponentially from
+//! 1e-2 to 1e-4 over the run, occupancy-grid updates, periodic atomic checkpoints, and
+//! divergence detection (a NaN loss stops training; the last good checkpoint is kept).
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+
+use assist_core::Rng;
+use assist_field::{Adam, Tape};
+use assist_render::{
+    BatchOutput, Composite, CompositeGrad, NeuralScene, RayBatch, SampleOptions, Traced,
+    composite_batch, sample_rays,
+};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::error::{Result, TrainError};
+use crate::views::View;
+
+/// Loss weights. Defaults: λ1 = 0.5 (bg colour), λ2 = 0.1 (bg depth, in units of the
+/// scene's extent), λ3 = 0.1 (object opacity), λ4 = 0.5 (object colour). The paper calls
+/// them "normalising constants" and gives no values; these were chosen on the synth scene.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Lambdas {
+    pub bg_rgb: f32,
+    pub bg_depth: f32,
+    pub obj_acc: f32,
+    pub obj_rgb: f32,
+}
+
+impl Default for Lambdas {
+    fn default() -> Self {
+        Lambdas {
+            bg_rgb: 0.5,
+            bg_depth: 0.1,
+            obj_acc: 0.1,
+            obj_rgb: 0.5,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct TrainOptions {
+    pub iters: usize,
+    /// Stop after this many seconds (the schedule then runs on time).
+    pub max_time: Option<f64>,
+    /// Target number of samples per step; the ray count adapts to it.
+    pub batch_samples: usize,
+    pub lr_start: f32,
+    pub lr_end: f32,
+    pub lambdas: Lambdas,
+    pub occupancy_every: usize,
+    pub seed: u64,
+    /// Checkpoint directory and interval in seconds.
+    pub checkpoint: Option<PathBuf>,
+    pub checkpoint_every: f64,
+    /// Fraction of each batch drawn from pixels on or near objects (when masks exist).
+    pub object_ray_fraction: f64,
+    /// Testing aid: poison one parameter with NaN at this iteration (exercises divergence
+    /// detection).
+    #[serde(skip)]
+    pub poison_at: Option<usize>,
+}
+
+impl Default for TrainOptions {
+    fn default() -> Self {
+        TrainOptions {
+            iters: 5000,
+            max_time: None,
+            batch_samples: 1 << 18,
+            lr_start: 1e-2,
+            lr_end: 1e-4,
+            lambdas: Lambdas::default(),
+            occupancy_every: 16,
+            seed: 0,
+            checkpoint: None,
+            checkpoint_every: 60.0,
+            object_ray_fraction: 0.5,
+            poison_at: None,
+        }
+    }
+}
+
+/// One step's figures (losses are batch means, before the λ weights).
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct StepStats {
+    pub iteration: usize,
+    pub loss: f64,
+    pub comp_rgb: f64,
+    pub bg_rgb: f64,
+    pub bg_depth: f64,
+    pub obj_acc: f64,
+    pub obj_rgb: f64,
+    /// PSNR of the composite colour on this batch.
+    pub psnr: f64,
+    pub rays: usize,
+    pub samples: usize,
+    pub lr: f32,
+    pub elapsed: f64,
+    /// Fraction of the run done (iterations or time).
+    pub progress: f64,
+    /// Seconds in each phase: ray drawing + sampling, field forward, compositing and
+    /// losses, field backward, Adam + occupancy.
+    pub phase: [f64; 5],
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct TrainReport {
+    pub iterations: usize,
+    pub seconds: f64,
+    pub final_stats: StepStats,
+    pub rays_per_sec: f64,
+    pub samples_per_sec: f64,
+    pub depth_scale_shift: [f32; 2],
+}
+
+/// What each ray is supervised with.
+#[derive(Debug, Clone, Copy)]
+struct Target {
+    rgb: [f32; 3],
+    /// Node index of the object this ray first hits (`u32::MAX`: none).
+    mask_node: u32,
+    /// Whether the view has instance masks (object losses apply).
+    masked: bool,
+    inpaint: Option<[f32; 3]>,
+    /// Prior depth as distance along the ray, in units of the scene extent.
+    depth: Option<f32>,
+}
+
+pub struct Trainer {
+    pub scene: NeuralScene,
+    pub views: Vec<View>,
+    pub opts: TrainOptions,
+    pub iteration: usize,
+    /// Learnable scale and shift of the background depth prior.
+    pub depth_wq: [f32; 2],
+    adams: BTreeMap<String, Adam>,
+    grads: BTreeMap<String, Vec<f32>>,
+    tapes: Vec<Tape>,
+    wq_adam: Adam,
+    rays_per_batch: usize,
+    extent: f32,
+    node_of_id: BTreeMap<u16, u32>,
+    background: Option<usize>,
+    rays: RayBatch,
+    traced: Traced,
+    out: BatchOutput,
+    targets: Vec<Target>,
+    pixel_count: usize,
+    /// Pixels on or near objects (view, pixel), drawn with probability
+    /// `object_ray_fraction` so that small objects get enough rays.
+    object_pixels: Vec<(u32, u32)>,
+    elapsed_before: f64,
+}
+
+impl Trainer {
+    pub fn new(scene: NeuralScene, views: Vec<View>, opts: TrainOptions) -> Result<Self> {
+        if views.is_empty() {
+            return Err(TrainError::Other("no training images".into()));
+        }
+        let keys: std::collections::BTreeSet<&String> =
+            scene.scene.nodes.iter().map(|n| &n.field).collect();
+        if keys.len() != scene.scene.nodes.len() {
+            return Err(TrainError::Other(
+                "every node must have its own field to be trained (replicas share one)".into(),
+            ));
+        }
+        let adams = scene
+            .fields
+            .iter()
+            .map(|(k, f)| (k.clone(), Adam::new(f.field.layout.total)))
+            .collect();
+        let grads = scene
+            .fields
+            .iter()
+            .map(|(k, f)| (k.clone(), vec![0.0; f.field.layout.total]))
+            .collect();
+        let mut ext = assist_core::Aabb::empty();
+        for n in &scene.scene.nodes {
+            for c in n.world_corners() {
+                ext.extend(c);
+            }
+        }
+        let extent = ext.size().length().max(1e-6) as f32;
+        let node_of_id = scene
+            .scene
+            .nodes
+            .iter()
+            .enumerate()
+            .filter(|(_, n)| !n.is_background())
+            .map(|(k, n)| (n.id, k as u32))
+            .collect();
+        let background = scene.scene.nodes.iter().position(|n| n.is_background());
+        let pixel_count = views.iter().map(|v| v.width * v.height).sum();
+        let object_pixels: Vec<(u32, u32)> = views
+            .par_iter()
+            .enumerate()
+            .flat_map_iter(|(vi, v)| {
+                let near: Vec<bool> = match &v.ids {
+                    Some(ids) => {
+                        let m: Vec<bool> = ids.iter().map(|&i| i != 0).collect();
+                        crate::prior::dilate(&m, v.width, v.height, 2)
+                    }
+                    None => Vec::new(),
+                };
+                near.into_iter()
+                    .enumerate()
+                    .filter(|(_, m)| *m)
+                    .map(move |(p, _)| (vi as u32, p as u32))
+            })
+            .collect();
+        Ok(Trainer {
+            scene,
+            views,
+            opts,
+            iteration: 0,
+            depth_wq: [1.0, 0.0],
+            adams,
+            grads,
+            tapes: Vec::new(),
+            wq_adam: Adam::new(2),
+            rays_per_batch: 512,
+            extent,
+            node_of_id,
+            background,
+            rays: RayBatch::default(),
+            traced: Traced::default(),
+            out: BatchOutput::default(),
+            targets: Vec::new(),
+            pixel_count,
+            object_pixels,
+            elapsed_before: 0.0,
+        })
+    }
+
+    /// Continue a run: the iteration count and the time already spent (for the schedule).
+    pub fn resume_from(&mut self, iteration: usize, elapsed: f64, depth_wq: [f32; 2]) {
+        self.iteration = iteration;
+        self.elapsed_before = elapsed;
+        self.depth_wq = depth_wq;
+    }
+
+    fn progress(&self, elapsed: f64) -> f64 {
+        let by_iter = self.iteration as f64 / self.opts.iters.max(1) as f64;
+        let by_time = self
+            .opts
+            .max_time
+            .map(|t| elapsed / t.max(1e-9))
+            .unwrap_or(0.0);
+        by_iter.max(by_time).min(1.0)
+    }
+
+    fn draw_rays(&mut self) {
+        let n = self.rays_per_batch;
+        let seed = self.opts.seed ^ (self.iteration as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        let views = &self.views;
+        let total = self.pixel_count as u64;
+        let node_of_id = &self.node_of_id;
+        let extent = self.extent;
+        let objects = &self.object_pixels;
+        let object_fraction = self.opts.object_ray_fraction;
+        let drawn: Vec<Option<(assist_core::Ray, u32, Target)>> = (0..n)
+            .into_par_iter()
+            .map(|r| {
+                let mut rng = Rng::stream(seed, r as u64);
+                let (vi, p) = if !objects.is_empty() && rng.f64() < object_fraction {
+                    let (vi, p) = objects[rng.below(objects.len() as u64) as usize];
+                    (vi as usize, p as usize)
+                } else {
+                    let mut p = rng.below(total) as usize;
+                    let mut vi = 0;
+                    while p >= views[vi].width * views[vi].height {
+                        p -= views[vi].width * views[vi].height;
+                        vi += 1;
+                    }
+                    (vi, p)
+                };
+                let v = &views[vi];
+                let (i, j) = ((p % v.width) as u32, (p / v.width) as u32);
+                let ray = v.camera.pixel_ray(i, j)?;
+                let rgb = [v.rgb[3 * p], v.rgb[3 * p + 1], v.rgb[3 * p + 2]];
+                let (masked, mask_node) = match &v.ids {
+                    Some(ids) => (true, node_of_id.get(&ids[p]).copied().unwrap_or(u32::MAX)),
+                    None => (false, u32::MAX),
+                };
+                let inpaint = v
+                    .inpaint
+                    .as_ref()
+                    .map(|im| [im[3 * p], im[3 * p + 1], im[3 * p + 2]]);
+                let cos = ray.dir.dot(v.camera.pose.forward()) as f32;
+                let depth = v
+                    .inpaint_depth
+                    .as_ref()
+                    .map(|d| d[p])
+                    .filter(|&z| z > 0.0 && cos > 1e-3)
+                    .map(|z| z / cos / extent);
+                Some((
+                    ray,
+                    v.image_index,
+                    Target {
+                        rgb,
+                        mask_node,
+                        masked,
+                        inpaint,
+                        depth,
+                    },
+                ))
+            })
+            .collect();
+        self.rays.clear();
+        self.rays.near = 0.0;
+        self.targets.clear();
+        for (ray, img, t) in drawn.into_iter().flatten() {
+            self.rays.push(&ray, img);
+            self.targets.push(t);
+        }
+    }
+
+    /// One training step.
+    pub fn step(&mut self, elapsed: f64) -> Result<StepStats> {
+        let progress = self.progress(elapsed);
+        let lr = self.opts.lr_start * (self.opts.lr_end / self.opts.lr_start).powf(progress as f32);
+        let tp = Instant::now();
+        let mut phase = [0.0f64; 5];
+        self.draw_rays();
+        let so = SampleOptions {
+            jitter: true,
+            seed: self.opts.seed.wrapping_add(self.iteration as u64 * 7919),
+            max_per_node: 1024,
+        };
+        sample_rays(&self.scene, &self.rays, &so, &mut self.traced);
+        let nn = self.traced.nodes.len();
+        phase[0] = tp.elapsed().as_secs_f64();
+        self.tapes.resize_with(nn, Tape::default);
+        for (ns, tape) in self.traced.nodes.iter_mut().zip(self.tapes.iter_mut()) {
+            ns.prepare_outputs(true);
+            if ns.is_empty() {
+                continue;
+            }
+            let nf = &self.scene.fields[&self.scene.scene.nodes[ns.node].field];
+            let mut sigma = std::mem::take(&mut ns.sigma);
+            let mut rgb = std::mem::take(&mut ns.rgb);
+            nf.field
+                .forward_train(&ns.samples(), tape, &mut sigma, &mut rgb);
+            ns.sigma = sigma;
+            ns.rgb = rgb;
+        }
+        phase[1] = tp.elapsed().as_secs_f64();
+        let lam = self.opts.lambdas;
+        let n_rays = self.targets.len().max(1) as f32;
+        let targets = &self.targets;
+        let bg = self.background;
+        let wq = self.depth_wq;
+        let extent = self.extent;
+        let is_object: Vec<bool> = self
+            .scene
+            .scene
+            .nodes
+            .iter()
+            .map(|n| !n.is_background())
+            .collect();
+        let grad_fn = |r: usize,
+                       c: &Composite,
+                       per: &[Composite],
+                       g: &mut CompositeGrad,
+                       gn: &mut [CompositeGrad]| {
+            let t = &targets[r];
+            for ch in 0..3 {
+                g.rgb[ch] = 2.0 * (c.rgb[ch] - t.rgb[ch]) / (3.0 * n_rays);
+            }
+            if t.masked {
+                for (k, pk) in per.iter().enumerate() {
+                    if !is_object[k] {
+                        continue;
+                    }
+                    let m = if t.mask_node == k as u32 { 1.0 } else { 0.0 };
+                    gn[k].opacity += lam.obj_acc * 2.0 * (pk.opacity - m) / n_rays;
+                    if m > 0.0 {
+                        for ch in 0..3 {
+                            gn[k].rgb[ch] +=
+                                lam.obj_rgb * 2.0 * (pk.rgb[ch] - t.rgb[ch]) / (3.0 * n_rays);
+                        }
+                    }
+                }
+            }
+            if let Some(b) = bg {
+                if let Some(inp) = t.inpaint {
+                    for ch in 0..3 {
+                        gn[b].rgb[ch] +=
+                            lam.bg_rgb * 2.0 * (per[b].rgb[ch] - inp[ch]) / (3.0 * n_rays);
+                    }
+                }
+                if let Some(d) = t.depth {
+                    let e = wq[0] * per[b].depth / extent + wq[1] - d;
+                    gn[b].depth += lam.bg_depth * 2.0 * e * wq[0] / extent / n_rays;
+                }
+            }
+        };
+        composite_batch(
+            &mut self.traced,
+            self.scene.scene.background_color,
+            &mut self.out,
+            Some(&grad_fn),
+        );
+        // Loss values and the depth scale/shift gradient.
+        let mut s = StepStats {
+            iteration: self.iteration,
+            rays: self.targets.len(),
+            samples: self.traced.total_samples(),
+            lr,
+            elapsed,
+            progress,
+            ..Default::default()
+        };
+        let mut g_wq = [0.0f32; 2];
+        for (r, t) in self.targets.iter().enumerate() {
+            let c = &self.out.rays[r];
+            let per = &self.out.nodes[r * nn..(r + 1) * nn];
+            s.comp_rgb += (0..3)
+                .map(|ch| ((c.rgb[ch] - t.rgb[ch]) as f64).powi(2))
+                .sum::<f64>()
+                / 3.0;
+            if t.masked {
+                for (k, pk) in per.iter().enumerate() {
+                    if is_object[k] {
+                        let m = if t.mask_node == k as u32 { 1.0 } else { 0.0 };
+                        s.obj_acc += ((pk.opacity - m) as f64).powi(2);
+                        if m > 0.0 {
+                            s.obj_rgb += (0..3)
+                                .map(|ch| ((pk.rgb[ch] - t.rgb[ch]) as f64).powi(2))
+                                .sum::<f64>()
+                                / 3.0;
+                        }
+                    }
+                }
+            }
+            if let Some(b) = bg {
+                if let Some(inp) = t.inpaint {
+                    s.bg_rgb += (0..3)
+                        .map(|ch| ((per[b].rgb[ch] - inp[ch]) as f64).powi(2))
+                        .sum::<f64>()
+                        / 3.0;
+                }
+                if let Some(d) = t.depth {
+                    let x = per[b].depth / self.extent;
+                    let e = self.depth_wq[0] * x + self.depth_wq[1] - d;
+                    s.bg_depth += (e as f64).powi(2);
+                    g_wq[0] += lam.bg_depth * 2.0 * e * x / n_rays;
+                    g_wq[1] += lam.bg_depth * 2.0 * e / n_rays;
+                }
+            }
+        }
+        let nr = self.targets.len().max(1) as f64;
+        s.comp_rgb /= nr;
+        s.obj_acc /= nr;
+        s.obj_rgb /= nr;
+        s.bg_rgb /= nr;
+        s.bg_depth /= nr;
+        s.loss = s.comp_rgb
+            + lam.bg_rgb as f64 * s.bg_rgb
+            + lam.bg_depth as f64 * s.bg_depth
+            + lam.obj_acc as f64 * s.obj_acc
+            + lam.obj_rgb as f64 * s.obj_rgb;
+        s.psnr = crate::metrics::mse_to_psnr(s.comp_rgb);
+        if !s.loss.is_finite() {
+            return Err(TrainError::Diverged {
+                iteration: self.iteration,
+                message: format!("the loss became {}", s.loss),
+                checkpoint: None,
+            });
+        }
+        phase[2] = tp.elapsed().as_secs_f64();
+        // Backward into each field, then Adam.
+        for (ns, tape) in self.traced.nodes.iter().zip(self.tapes.iter_mut()) {
+            if ns.is_empty() {
+                continue;
+            }
+            let key = &self.scene.scene.nodes[ns.node].field;
+            let nf = &self.scene.fields[key];
+            let grad = self.grads.get_mut(key).expect("grad buffer per field");
+            nf.field
+                .backward(&ns.samples(), tape, &ns.d_sigma, &ns.d_rgb, grad);
+        }
+        phase[3] = tp.elapsed().as_secs_f64();
+        for (key, nf) in self.scene.fields.iter_mut() {
+            let nf = Arc::make_mut(nf);
+            let grad = self.grads.get_mut(key).expect("grad buffer per field");
+            self.adams
+                .get_mut(key)
+                .expect("adam per field")
+                .update(lr, &mut nf.field.params, grad);
+        }
+        if bg.is_some() && lam.bg_depth > 0.0 {
+            self.wq_adam.update(1e-3, &mut self.depth_wq, &mut g_wq);
+        }
+        if self.opts.poison_at == Some(self.iteration) {
+            for nf in self.scene.fields.values_mut() {
+                Arc::make_mut(nf).field.params[0] = f32::NAN;
+            }
+        }
+        self.iteration += 1;
+        if self
+            .iteration
+            .is_multiple_of(self.opts.occupancy_every.max(1))
+        {
+            self.update_occupancy();
+        }
+        phase[4] = tp.elapsed().as_secs_f64();
+        for i in (1..5).rev() {
+            phase[i] -= phase[i - 1];
+        }
+        s.phase = phase;
+        // Adapt the ray count towards the target sample count.
+        let per_ray = s.samples as f64 / s.rays.max(1) as f64;
+        let want = (self.opts.batch_samples as f64 / per_ray.max(1.0)) as usize;
+        self.rays_per_batch = ((self.rays_per_batch + want) / 2).clamp(256, 1 << 16);
+        Ok(s)
+    }
+
+    /// Refreshes every field's occupancy grid from its density.
+    pub fn update_occupancy(&mut self) {
+        let seed = self.opts.seed ^ self.iteration as u64;
+        let round = self.iteration / self.opts.occupancy_every.max(1);
+        for (i, nf) in self.scene.fields.values_mut().enumerate() {
+            let nf = Arc::make_mut(nf);
+            let mut rng = Rng::stream(seed, i as u64);
+            // Large grids are refreshed a part at a time (each cell every `parts` rounds).
+            let parts = (nf.occupancy.cells() >> 19).max(1);
+            nf.occupancy
+                .update_part(&nf.field, &mut rng, round % parts, parts);
+        }
+    }
+
+    /// Occupied fraction of each field's grid (by field key).
+    pub fn occupancy(&self) -> Vec<(String, f64)> {
+        self.scene
+            .fields
+            .iter()
+            .map(|(k, f)| (k.clone(), f.occupancy.occupied_fraction()))
+            .collect()
+    }
+
+    /// Whether every parameter is finite (checked before checkpoints).
+    pub fn is_finite(&self) -> bool {
+        self.scene
+            .fields
+            .values()
+            .all(|f| f.field.params.par_iter().all(|v| v.is_finite()))
+    }
+
+    /// Training information written into the scene file (`info`).
+    pub fn info(&self, elapsed: f64) -> serde_json::Value {
+        serde_json::json!({
+            "iteration": self.iteration,
+            "elapsed_seconds": elapsed,
+            "depth_scale_shift": self.depth_wq,
+            "options": self.opts,
+        })
+    }
+
+    /// Runs until the iteration or time budget is spent, calling `on_step` after each
+    /// step; checkpoints atomically every `checkpoint_every` seconds when configured.
+    pub fn run(&mut self, mut on_step: impl FnMut(&StepStats, &Trainer)) -> Result<TrainReport> {
+        let start = Instant::now();
+        let mut last_ckpt = Instant::now();
+        let mut last = StepStats::default();
+        let (mut rays, mut samples) = (0usize, 0usize);
+        let mut saved: Option<PathBuf> = None;
+        let it0 = self.iteration;
+        loop {
+            let elapsed = self.elapsed_before + start.elapsed().as_secs_f64();
+            if self.iteration >= self.opts.iters || self.opts.max_time.is_some_and(|t| elapsed >= t)
+            {
+                break;
+            }
+            match self.step(elapsed) {
+                Ok(s) => {
+                    rays += s.rays;
+                    samples += s.samples;
+                    last = s;
+                    on_step(&s, self);
+                }
+                Err(TrainError::Diverged {
+                    iteration, message, ..
+                }) => {
+                    return Err(TrainError::Diverged {
+                        iteration,
+                        message,
+                        checkpoint: saved,
+                    });
+                }
+                Err(e) => return Err(e),
+            }
+            if let Some(dir) = &self.opts.checkpoint
+                && last_ckpt.elapsed().as_secs_f64() >= self.opts.checkpoint_every
+            {
+                if self.is_finite() {
+                    let el = self.elapsed_before + start.elapsed().as_secs_f64();
+                    assist_render::scene_file::save(dir, &self.scene, self.info(el), true)?;
+                    saved = Some(dir.clone());
+                }
+                last_ckpt = Instant::now();
+            }
+        }
+        let secs = start.elapsed().as_secs_f64();
+        let _ = it0;
+        Ok(TrainReport {
+            iterations: self.iteration,
+            seconds: self.elapsed_before + secs,
+            final_stats: last,
+            rays_per_sec: rays as f64 / secs.max(1e-9),
+            samples_per_sec: samples as f64 / secs.max(1e-9),
+            depth_scale_shift: self.depth_wq,
+        })
+    }
+}

@@ -1,0 +1,58 @@
+//! `assist eval NAME.assist --data DATA`: image quality and panoptic accuracy on a split.
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+
+use anyhow::Context;
+use assist_data::{LoadOptions, Split};
+use clap::Args;
+
+#[derive(Args, Debug)]
+pub struct EvalArgs {
+    /// Trained scene directory.
+    pub scene: PathBuf,
+    /// Dataset with the cameras and ground truth.
+    #[arg(long)]
+    pub data: PathBuf,
+    #[arg(long, default_value = "test")]
+    pub split: String,
+    /// Evaluate every N-th frame of the split.
+    #[arg(long, default_value_t = 1)]
+    pub stride: usize,
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(a: EvalArgs) -> anyhow::Result<()> {
+    let split = Split::parse(&a.split)
+        .with_context(|| format!("--split: expected train, val or test, got {:?}", a.split))?;
+    let (scene, _) = assist_render::scene_file::load(&a.scene)
+        .with_context(|| format!("loading scene {}", a.scene.display()))?;
+    let ds = assist_data::load(&a.data, &LoadOptions::default())
+        .with_context(|| format!("loading dataset {}", a.data.display()))?;
+    let bar = crate::progress::bar(!a.json && std::io::stderr().is_terminal(), "eval");
+    let r = assist_train::eval::evaluate(&scene, &ds, split, a.stride, |i, n| {
+        bar.set_length(n as u64);
+        bar.set_position(i as u64);
+    })?;
+    bar.finish_and_clear();
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+    } else {
+        println!(
+            "{} images of split {} in {:.1} s",
+            r.images, r.split, r.seconds
+        );
+        println!("PSNR {:.2} dB  SSIM {:.4}", r.psnr, r.ssim);
+        if let Some(m) = r.panoptic_miou {
+            println!("panoptic mIoU {m:.4}");
+        }
+        if let Some(b) = r.background_psnr {
+            println!("background PSNR {b:.2} dB (all pixels)");
+        }
+        if let Some(b) = r.background_occluded_psnr {
+            println!("background PSNR {b:.2} dB (pixels covered by objects)");
+        }
+    }
+    Ok(())
+}
