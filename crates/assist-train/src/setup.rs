@@ -126,7 +126,7 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
                 ..b
             },
             None => {
-                let carved = carve_box(views, id, &region).ok_or_else(|| {
+                let carved = carve_box(views, id, &carve_region(views, &region)).ok_or_else(|| {
                     TrainError::Other(format!(
                         "instance {id} ({label}): no box in the dataset and none could be carved from the masks (is it visible in the training images?)"
                     ))
@@ -197,13 +197,45 @@ pub fn depth_bounds(views: &[View]) -> Option<Aabb> {
     Some(b)
 }
 
-/// Visual hull of instance `id`: voxels of `region` (96³) that project inside the mask in
-/// every view that sees them (allowing 5% disagreeing views for mask noise). Returns the
+/// Where to carve: the scene region united with a cube around the point the cameras look
+/// at (least-squares intersection of their optical axes) reaching the median camera
+/// distance — for object captures whose cameras all sit on one side of the object.
+pub fn carve_region(views: &[View], region: &Aabb) -> Aabb {
+    let mut a = assist_core::DMat3::ZERO;
+    let mut b = DVec3::ZERO;
+    for v in views {
+        let c = v.camera.pose.center();
+        let d = v.camera.pose.forward().normalize();
+        let m =
+            assist_core::DMat3::IDENTITY - assist_core::DMat3::from_cols(d * d.x, d * d.y, d * d.z);
+        a += m;
+        b += m * c;
+    }
+    if a.determinant().abs() < 1e-9 {
+        return *region;
+    }
+    let focus = a.inverse() * b;
+    let mut dist: Vec<f64> = views
+        .iter()
+        .map(|v| (v.camera.pose.center() - focus).length())
+        .collect();
+    dist.sort_by(f64::total_cmp);
+    let r = dist[dist.len() / 2];
+    region.union(&Aabb::new(focus - DVec3::splat(r), focus + DVec3::splat(r)))
+}
+
+/// Visual hull of instance `id`: voxels of `region` (96³) seen by at least a quarter of the
+/// masked views that project inside the mask in every view that sees them (allowing 5%
+/// disagreeing views for mask noise). Returns the
 /// bounding box of the kept voxels, grown by one voxel.
 pub fn carve_box(views: &[View], id: InstanceId, region: &Aabb) -> Option<Aabb> {
     const G: usize = 96;
     let size = region.size();
     let voxel = size / G as f64;
+    // A voxel must be seen by a quarter of the masked views: regions only a few cameras see
+    // (e.g. right in front of one camera) are not constrained enough to be kept.
+    let masked = views.iter().filter(|v| v.ids.is_some()).count();
+    let min_seen = (masked / 4).max(2);
     let kept: Vec<DVec3> = (0..G * G * G)
         .into_par_iter()
         .filter_map(|c| {
@@ -228,7 +260,8 @@ pub fn carve_box(views: &[View], id: InstanceId, region: &Aabb) -> Option<Aabb> 
                     outside += 1;
                 }
             }
-            (inside > 0 && outside * 20 <= inside + outside).then_some(p)
+            let seen = inside + outside;
+            (seen >= min_seen && outside * 20 <= seen).then_some(p)
         })
         .collect();
     if kept.is_empty() {
