@@ -197,7 +197,7 @@ fn rotating_a_node_rotates_its_view_dependence() {
     let intr = Intrinsics::from_fov_x(9, 9, 0.3);
     let eye = center + DVec3::new(3.0, 1.0, 0.5);
     let cam = Camera {
-        intrinsics: intr.clone(),
+        intrinsics: intr,
         pose: Pose::look_at(eye, center, DVec3::Z).unwrap(),
     };
     let rot = DQuat::from_rotation_z(1.1) * DQuat::from_rotation_x(0.4);
@@ -348,7 +348,7 @@ fn batch_backward_matches_finite_differences() {
                 } else {
                     traced.nodes[k].d_rgb[3 * i + which - 1]
                 };
-                let mut eval = |delta: f32| {
+                let eval = |delta: f32| {
                     let mut t = traced.clone();
                     if which == 0 {
                         t.nodes[k].sigma[i] += delta;
