@@ -12,6 +12,11 @@ pub struct Adam {
     /// L2 weight decay (added to the gradient) for parameters in `decay_range`.
     pub weight_decay: f32,
     pub decay_range: std::ops::Range<usize>,
+    /// Parameters in this range whose gradient is exactly zero are left alone (moments
+    /// included), as instant-NGP does for hash-table entries: a rarely touched entry then
+    /// does not keep drifting on stale momentum after each hit, which made large tables
+    /// diverge in training.
+    pub sparse_range: std::ops::Range<usize>,
     pub step: u32,
     pub m: Vec<f32>,
     pub v: Vec<f32>,
@@ -26,6 +31,7 @@ impl Adam {
             eps: 1e-15,
             weight_decay: 0.0,
             decay_range: 0..0,
+            sparse_range: 0..0,
             step: 0,
             m: vec![0.0; n],
             v: vec![0.0; n],
@@ -46,6 +52,7 @@ impl Adam {
         let step_size = lr / c1;
         let inv_sqrt_c2 = 1.0 / c2.sqrt();
         let (wd, dr) = (self.weight_decay, self.decay_range.clone());
+        let sr = self.sparse_range.clone();
         const BLOCK: usize = 1 << 14;
         params
             .par_chunks_mut(BLOCK)
@@ -57,6 +64,23 @@ impl Adam {
                 assist_simd::simd(|| {
                     let base = bi * BLOCK;
                     let decays = wd != 0.0 && dr.start < base + p.len() && dr.end > base;
+                    let sparse = sr.start <= base && base + p.len() <= sr.end;
+                    let partly = !sparse && sr.start < base + p.len() && sr.end > base;
+                    if sparse || partly {
+                        for i in 0..p.len() {
+                            let gi = g[i];
+                            if gi == 0.0 && (sparse || sr.contains(&(base + i))) {
+                                continue;
+                            }
+                            let mi = b1 * m[i] + (1.0 - b1) * gi;
+                            let vi = b2 * v[i] + (1.0 - b2) * gi * gi;
+                            m[i] = mi;
+                            v[i] = vi;
+                            p[i] -= step_size * mi / (vi.sqrt() * inv_sqrt_c2 + eps);
+                            g[i] = 0.0;
+                        }
+                        return;
+                    }
                     for i in 0..p.len() {
                         let mut gi = g[i];
                         if decays && dr.contains(&(base + i)) {
@@ -77,6 +101,20 @@ impl Adam {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sparse_range_leaves_untouched_entries_alone() {
+        let mut adam = Adam::new(4);
+        adam.sparse_range = 0..2;
+        let mut p = vec![1.0f32; 4];
+        adam.update(0.1, &mut p, &mut [1.0; 4]);
+        let after_first = p.clone();
+        // Zero gradients: entries 0..2 (sparse) stay, 2..4 keep moving on momentum.
+        adam.update(0.1, &mut p, &mut [0.0; 4]);
+        assert_eq!(&p[..2], &after_first[..2]);
+        assert!(p[2] < after_first[2] && p[3] < after_first[3]);
+        assert_eq!(adam.m[0], adam.m[0]);
+    }
 
     /// Against a direct transcription of the Adam paper's algorithm, in f64.
     #[test]

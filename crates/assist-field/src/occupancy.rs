@@ -89,6 +89,15 @@ impl OccupancyGrid {
         const BLOCK: usize = 1 << 16;
         let mut pos = [vec![0f32; BLOCK], vec![0f32; BLOCK], vec![0f32; BLOCK]];
         let mut sigma = vec![0f32; BLOCK];
+        // Every cell decays each call, so stale estimates fade at the same rate whatever
+        // `parts` is; the sampled cells are then refreshed below.
+        if parts > 1 {
+            for (c, d) in self.density.iter_mut().enumerate() {
+                if c % parts != part % parts && d.is_finite() {
+                    *d *= self.decay;
+                }
+            }
+        }
         for blk in cells.chunks(BLOCK) {
             for (i, &c) in blk.iter().enumerate() {
                 let (x, y, z) = (c % r, (c / r) % r, c / (r * r));

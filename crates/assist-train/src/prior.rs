@@ -100,7 +100,7 @@ fn pull(img: &[f32], wt: &[f32], w: usize, h: usize, c: usize) -> Vec<f32> {
 /// Exemplar fill after push–pull: hole pixels are synthesised onion-peel order (from the
 /// border inwards), each copying the centre of the best-matching fully known `patch`×`patch`
 /// patch, compared on the already known/filled pixels of its neighbourhood. Candidate
-/// patches are searched on a stride-2 grid within `search` pixels.
+/// patches are searched within `search` pixels.
 pub fn exemplar_fill(
     img: &mut [f32],
     w: usize,
@@ -188,9 +188,9 @@ pub fn exemplar_fill(
                                     }
                                 }
                             }
-                            sx += 2;
+                            sx += 1;
                         }
-                        sy += 2;
+                        sy += 1;
                     }
                     (p, img[best.1 * c..(best.1 + 1) * c].to_vec())
                 })

@@ -72,7 +72,7 @@ impl Default for TrainOptions {
         TrainOptions {
             iters: 5000,
             max_time: None,
-            batch_samples: 1 << 18,
+            batch_samples: 1 << 16,
             lr_start: 1e-2,
             lr_end: 1e-4,
             lambdas: Lambdas::default(),
@@ -107,6 +107,8 @@ pub struct StepStats {
     /// Seconds in each phase: ray drawing + sampling, field forward, compositing and
     /// losses, field backward, Adam + occupancy.
     pub phase: [f64; 5],
+    /// Mean samples per ray of the first nodes (background first when present).
+    pub samples_per_ray: [f32; 4],
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -173,7 +175,11 @@ impl Trainer {
         let adams = scene
             .fields
             .iter()
-            .map(|(k, f)| (k.clone(), Adam::new(f.field.layout.total)))
+            .map(|(k, f)| {
+                let mut a = Adam::new(f.field.layout.total);
+                a.sparse_range = 0..f.field.layout.mlp_start();
+                (k.clone(), a)
+            })
             .collect();
         let grads = scene
             .fields
@@ -500,7 +506,9 @@ impl Trainer {
         }
         if self.opts.poison_at == Some(self.iteration) {
             for nf in self.scene.fields.values_mut() {
-                Arc::make_mut(nf).field.params[0] = f32::NAN;
+                let f = &mut Arc::make_mut(nf).field;
+                let b = f.layout.color.last().expect("colour layers").b;
+                f.params[b] = f32::NAN;
             }
         }
         self.iteration += 1;
@@ -515,6 +523,9 @@ impl Trainer {
             phase[i] -= phase[i - 1];
         }
         s.phase = phase;
+        for (k, ns) in self.traced.nodes.iter().take(4).enumerate() {
+            s.samples_per_ray[k] = ns.len() as f32 / s.rays.max(1) as f32;
+        }
         // Adapt the ray count towards the target sample count.
         let per_ray = s.samples as f64 / s.rays.max(1) as f64;
         let want = (self.opts.batch_samples as f64 / per_ray.max(1.0)) as usize;

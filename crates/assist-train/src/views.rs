@@ -159,7 +159,7 @@ pub fn fill_prior(v: &mut View, kind: PriorKind) {
         let mut img = v.rgb.clone();
         match kind {
             PriorKind::PushPull => prior::push_pull(&mut img, w, h, 3, &hole),
-            PriorKind::Exemplar => prior::exemplar_fill(&mut img, w, h, 3, &hole, 7, 40),
+            PriorKind::Exemplar => prior::exemplar_fill(&mut img, w, h, 3, &hole, 7, 24),
             PriorKind::None => {}
         }
         v.inpaint = Some(img);

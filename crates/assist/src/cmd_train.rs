@@ -26,7 +26,7 @@ pub struct TrainArgs {
     #[arg(long)]
     pub max_time: Option<f64>,
     /// Samples per training step (the ray count adapts).
-    #[arg(long, default_value_t = 1 << 18)]
+    #[arg(long, default_value_t = 1 << 16)]
     pub batch_samples: usize,
     /// Background prior: exemplar, push-pull or none (none also sets λ1 = λ2 = 0).
     #[arg(long, default_value = "push-pull")]
@@ -199,7 +199,8 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
                 .map(|(k, f)| format!("{k} {:.1}%", f * 100.0))
                 .collect();
             eprintln!(
-                "         terms: comp {:.5} bg_rgb {:.5} bg_depth {:.5} obj_acc {:.5} obj_rgb {:.5}; occupied: {}",
+                "         samples/ray {:.1?} terms: comp {:.5} bg_rgb {:.5} bg_depth {:.5} obj_acc {:.5} obj_rgb {:.5}; occupied: {}",
+                s.samples_per_ray,
                 s.comp_rgb,
                 s.bg_rgb,
                 s.bg_depth,
