@@ -268,6 +268,21 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<Dataset> {
     Ok(ds)
 }
 
+/// The box spanning the `per_mille`-th to the `(1000 − per_mille)`-th per-mille of
+/// `points` on each axis (robust to stray points). `points` must not be empty.
+pub fn percentile_aabb(points: &[DVec3], per_mille: usize) -> Aabb {
+    let n = points.len();
+    let mut lo = DVec3::ZERO;
+    let mut hi = DVec3::ZERO;
+    for a in 0..3 {
+        let mut v: Vec<f64> = points.iter().map(|p| p[a]).collect();
+        v.sort_by(f64::total_cmp);
+        lo[a] = v[n * per_mille / 1000];
+        hi[a] = v[(n * (1000 - per_mille) / 1000).min(n - 1)];
+    }
+    Aabb::new(lo, hi)
+}
+
 /// Bounds from content (points, boxes or a depth range) united with the camera centres,
 /// and the normalisation that maps them into [−1, 1]³.
 pub fn compute_bounds(
@@ -280,15 +295,7 @@ pub fn compute_bounds(
     let mut sources = Vec::new();
     if !points.is_empty() {
         // Robust: 1st–99th percentile per axis, so stray points do not blow up the box.
-        let mut lo = DVec3::ZERO;
-        let mut hi = DVec3::ZERO;
-        for a in 0..3 {
-            let mut v: Vec<f64> = points.iter().map(|p| p[a]).collect();
-            v.sort_by(f64::total_cmp);
-            lo[a] = v[v.len() / 100];
-            hi[a] = v[(v.len() * 99 / 100).min(v.len() - 1)];
-        }
-        aabb = aabb.union(&Aabb::new(lo, hi));
+        aabb = aabb.union(&percentile_aabb(points, 10));
         sources.push("sparse points (1st-99th percentile)");
     }
     let boxes: Vec<&Obb> = instances.iter().filter_map(|i| i.bbox.as_ref()).collect();

@@ -146,6 +146,26 @@ impl OccupancyGrid {
         }
     }
 
+    /// Where the ray `o + t·d` at parameter `t` (point `p`) leaves its current cell: the
+    /// smallest `t` at which any axis crosses a cell face.
+    #[inline]
+    fn cell_exit(&self, p: [f32; 3], d: [f32; 3], t: f32) -> f32 {
+        let r = self.res as f32;
+        let mut t_exit = f32::INFINITY;
+        for a in 0..3 {
+            if d[a] != 0.0 {
+                let cell = (p[a] * r).floor().clamp(0.0, r - 1.0);
+                let face = if d[a] > 0.0 {
+                    (cell + 1.0) / r
+                } else {
+                    cell / r
+                };
+                t_exit = t_exit.min(t + (face - p[a]) / d[a]);
+            }
+        }
+        t_exit
+    }
+
     /// Marches `o + t·d` (in [0, 1]³ coordinates, `d` unit) over `[t0, t1]` with step `dt`;
     /// the first sample is at `t0 + jitter·dt` (`jitter` in [0, 1) stratifies training
     /// samples). Samples in occupied cells are appended to `out`; at most `max` are taken.
@@ -160,7 +180,6 @@ impl OccupancyGrid {
         max: usize,
         out: &mut Vec<Step>,
     ) {
-        let r = self.res as f32;
         let start = out.len();
         let mut k = 0u32;
         let base = t0 + jitter * dt;
@@ -176,19 +195,7 @@ impl OccupancyGrid {
                     k += 1;
                 }
                 Some(_) => {
-                    // Leave the empty cell: the smallest t at which any axis crosses a face.
-                    let mut t_exit = f32::INFINITY;
-                    for a in 0..3 {
-                        if d[a] != 0.0 {
-                            let cell = (p[a] * r).floor().clamp(0.0, r - 1.0);
-                            let face = if d[a] > 0.0 {
-                                (cell + 1.0) / r
-                            } else {
-                                cell / r
-                            };
-                            t_exit = t_exit.min(t + (face - p[a]) / d[a]);
-                        }
-                    }
+                    let t_exit = self.cell_exit(p, d, t);
                     let steps = ((t_exit - base) / dt).ceil().max(k as f32 + 1.0);
                     k = steps as u32;
                 }
@@ -215,7 +222,6 @@ impl OccupancyGrid {
         max: usize,
         out: &mut Vec<Step>,
     ) {
-        let r = self.res as f32;
         let start = out.len();
         let step = |t: f32| (cone * t).max(min_dt);
         let mut t = t0 + jitter * step(t0);
@@ -224,18 +230,7 @@ impl OccupancyGrid {
             let dt = step(t);
             match self.cell_of(p) {
                 Some(c) if !self.is_occupied_cell(c) => {
-                    let mut t_exit = f32::INFINITY;
-                    for a in 0..3 {
-                        if d[a] != 0.0 {
-                            let cell = (p[a] * r).floor().clamp(0.0, r - 1.0);
-                            let face = if d[a] > 0.0 {
-                                (cell + 1.0) / r
-                            } else {
-                                cell / r
-                            };
-                            t_exit = t_exit.min(t + (face - p[a]) / d[a]);
-                        }
-                    }
+                    let t_exit = self.cell_exit(p, d, t);
                     // Land just past the face, keeping the phase of the step lattice.
                     let n = ((t_exit - t) / dt).ceil().max(1.0);
                     t += n * dt;

@@ -182,15 +182,7 @@ pub fn depth_bounds(views: &[View]) -> Option<Aabb> {
     if pts.len() < 100 {
         return None;
     }
-    let mut lo = DVec3::ZERO;
-    let mut hi = DVec3::ZERO;
-    for a in 0..3 {
-        let mut v: Vec<f64> = pts.iter().map(|p| p[a]).collect();
-        v.sort_by(f64::total_cmp);
-        lo[a] = v[v.len() / 500];
-        hi[a] = v[v.len() - 1 - v.len() / 500];
-    }
-    let mut b = Aabb::new(lo, hi);
+    let mut b = assist_data::dataset::percentile_aabb(&pts, 2);
     for v in views {
         b.extend(v.camera.pose.center());
     }

@@ -582,7 +582,6 @@ impl Trainer {
         let mut last = StepStats::default();
         let (mut rays, mut samples) = (0usize, 0usize);
         let mut saved: Option<PathBuf> = None;
-        let it0 = self.iteration;
         loop {
             let elapsed = self.elapsed_before + start.elapsed().as_secs_f64();
             if self.iteration >= self.opts.iters || self.opts.max_time.is_some_and(|t| elapsed >= t)
@@ -619,7 +618,6 @@ impl Trainer {
             }
         }
         let secs = start.elapsed().as_secs_f64();
-        let _ = it0;
         Ok(TrainReport {
             iterations: self.iteration,
             seconds: self.elapsed_before + secs,

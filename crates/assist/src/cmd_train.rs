@@ -175,11 +175,8 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
     let report = trainer.run(|s, t| {
         bar.set_position((s.progress * 1000.0) as u64);
         bar.set_message(format!(
-            "it {} loss {:.5} psnr {:.2} rays/s {:.0}",
-            s.iteration,
-            s.loss,
-            s.psnr,
-            s.rays as f64 / 1.0
+            "it {} loss {:.5} psnr {:.2} rays {}",
+            s.iteration, s.loss, s.psnr, s.rays
         ));
         if verbose && last_log.elapsed().as_secs_f64() > 10.0 {
             eprintln!(
