@@ -46,6 +46,12 @@ pub fn evaluate(
 ) -> Result<EvalReport> {
     let t0 = std::time::Instant::now();
     let frames: Vec<_> = ds.frames_in(split).step_by(stride.max(1)).collect();
+    if frames.is_empty() {
+        return Err(crate::error::TrainError::Input {
+            path: ds.root.clone(),
+            message: format!("the dataset has no frames in split {:?}", split.name()),
+        });
+    }
     let bg_truth = background_dataset(&ds.root)?;
     let bg_scene = scene
         .scene

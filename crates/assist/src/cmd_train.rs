@@ -75,6 +75,9 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
     })?;
     let ds = assist_data::load(&a.data, &LoadOptions::default())
         .with_context(|| format!("loading dataset {}", a.data.display()))?;
+    if ds.count(Split::Train) == 0 {
+        bail!("{}: the dataset has no training frames", a.data.display());
+    }
     let bgc = background_color(&ds);
     let show = !a.json && std::io::stderr().is_terminal();
     if !a.json {
