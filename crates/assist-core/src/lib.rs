@@ -9,16 +9,22 @@
 //! (+x right, +y up, looking along −z); pixel centres sit at +0.5; transforms are named
 //! `x_from_y`. Geometry is computed in `f64`; the renderer converts to `f32` batches.
 
+pub mod action;
 pub mod camera;
 pub mod distortion;
+pub mod edit;
 pub mod error;
 pub mod geometry;
 pub mod rng;
 pub mod scene;
 pub mod similarity;
 
+pub use action::{
+    Action, ActionConfig, ActionError, AxisSpec, Edit, NodeRef, Operation, SceneSource,
+};
 pub use camera::{Camera, Intrinsics, Pose};
 pub use distortion::Distortion;
+pub use edit::History;
 pub use error::CoreError;
 pub use geometry::{Aabb, BoxHit, Obb, Ray};
 pub use glam;

@@ -66,6 +66,9 @@ pub struct Scene {
     pub meters_per_unit: f64,
     /// Colour behind everything (what a ray that hits nothing shows).
     pub background_color: [f32; 3],
+    /// The selected (highlighted) node, if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub selected: Option<InstanceId>,
 }
 
 impl Scene {
@@ -114,6 +117,7 @@ mod tests {
             up: DVec3::Z,
             meters_per_unit: 1.0,
             background_color: [0.0; 3],
+            selected: None,
         };
         assert_eq!(s.fresh_id(), 1);
     }

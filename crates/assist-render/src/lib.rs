@@ -7,10 +7,12 @@
 //! are merged by depth and composited (`batch`), with per-node colour, depth and opacity
 //! and a backward pass into every sample. `render` turns cameras into images (RGB, z-depth,
 //! opacity, panoptic ids, per-node layers, selection highlight); `scene_file` saves and
-//! loads `NAME.assist/` directories.
+//! loads `NAME.assist/` directories; `edit` applies actions (assist-core) with their weights
+//! and keeps the undo history.
 
 pub mod batch;
 pub mod composite;
+pub mod edit;
 pub mod node;
 pub mod render;
 pub mod sample;
@@ -18,6 +20,7 @@ pub mod scene_file;
 
 pub use batch::{BatchOutput, CompositeGrad, GradFn, composite_batch};
 pub use composite::{Composite, RaySample, composite, composite_backward};
+pub use edit::{EditError, Editor, SceneFiles};
 pub use node::{NeuralScene, NodeField};
 pub use render::{HIGHLIGHT, NodeLayer, RenderOptions, RenderedImage, render_camera, render_rays};
 pub use sample::{NodeSamples, RayBatch, SampleOptions, Traced, sample_rays};

@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use assist_core::{Scene, SceneNode};
+use assist_core::{History, Scene, SceneNode};
 use serde::{Deserialize, Serialize};
 
 use crate::node::{NeuralScene, NodeField};
@@ -73,6 +73,18 @@ pub fn save(
     info: serde_json::Value,
     force: bool,
 ) -> Result<(), SceneFileError> {
+    save_with_history(dir, scene, &History::default(), info, force)
+}
+
+/// Saves `scene` and its edit history (`history.json`, only when not empty). The fields
+/// written are those the scene or its history refer to.
+pub fn save_with_history(
+    dir: &Path,
+    scene: &NeuralScene,
+    history: &History,
+    info: serde_json::Value,
+    force: bool,
+) -> Result<(), SceneFileError> {
     if dir.exists() && !force {
         return Err(SceneFileError::Exists {
             path: dir.to_path_buf(),
@@ -109,8 +121,23 @@ pub fn save(
                 ));
             }
         }
-        for (key, nf) in &scene.fields {
+        let mut keys = history.field_keys();
+        keys.extend(scene.scene.nodes.iter().map(|n| n.field.clone()));
+        for key in &keys {
+            let nf = scene.fields.get(key).ok_or_else(|| {
+                invalid(
+                    dir,
+                    "fields",
+                    format!("no weights loaded for field key {key:?}"),
+                )
+            })?;
             assist_field::io::save(&field_path(&tmp, key), &nf.field, Some(&nf.occupancy))?;
+        }
+        if !history.is_empty() {
+            let text = serde_json::to_string(history)
+                .map_err(|e| invalid(dir, "history.json", format!("cannot serialise: {e}")))?;
+            let p = tmp.join("history.json");
+            std::fs::write(&p, text).map_err(io(&p))?;
         }
         let json = SceneJson {
             format: FORMAT.into(),
@@ -150,14 +177,110 @@ pub fn save(
 
 /// Loads and validates a scene directory (or its `scene.json`).
 pub fn load(path: &Path) -> Result<(NeuralScene, serde_json::Value), SceneFileError> {
-    let (dir, file) = if path.is_dir() {
+    let (scene, _, info) = load_with_history(path)?;
+    Ok((scene, info))
+}
+
+/// Reads and validates only `scene.json` (nodes, units; no weights): what an `add` from
+/// another scene needs to find and place a node.
+pub fn load_scene_json(path: &Path) -> Result<(Scene, serde_json::Value), SceneFileError> {
+    let (_, file) = locate(path);
+    read_scene_json(&file)
+}
+
+fn locate(path: &Path) -> (PathBuf, PathBuf) {
+    if path.is_dir() {
         (path.to_path_buf(), path.join("scene.json"))
     } else {
         (
             path.parent().unwrap_or(Path::new(".")).to_path_buf(),
             path.to_path_buf(),
         )
+    }
+}
+
+/// Loads a scene directory with its edit history (empty when it has none).
+pub fn load_with_history(
+    path: &Path,
+) -> Result<(NeuralScene, History, serde_json::Value), SceneFileError> {
+    let (dir, file) = locate(path);
+    let (scene, info) = read_scene_json(&file)?;
+    let hist_path = dir.join("history.json");
+    let history: History = if hist_path.exists() {
+        let text = std::fs::read_to_string(&hist_path).map_err(|e| SceneFileError::Io {
+            path: hist_path.clone(),
+            source: e,
+        })?;
+        serde_json::from_str(&text).map_err(|e| {
+            invalid(
+                &hist_path,
+                format!("line {} column {}", e.line(), e.column()),
+                format!("not an edit history: {e}"),
+            )
+        })?
+    } else {
+        History::default()
     };
+    let mut fields = BTreeMap::new();
+    let keys: Vec<(String, String)> = scene
+        .nodes
+        .iter()
+        .map(|n| (n.field.clone(), format!("nodes[id={}].field", n.id)))
+        .chain(
+            history
+                .field_keys()
+                .into_iter()
+                .map(|k| (k, "history.json".to_string())),
+        )
+        .collect();
+    for (key, what) in keys {
+        if fields.contains_key(&key) {
+            continue;
+        }
+        let half = scene
+            .nodes
+            .iter()
+            .chain(
+                history
+                    .undo
+                    .iter()
+                    .chain(&history.redo)
+                    .flat_map(|s| &s.nodes),
+            )
+            .find(|n| n.field == key)
+            .map(|n| n.half_size)
+            .expect("key comes from a node");
+        fields.insert(
+            key.clone(),
+            Arc::new(load_field(&file, &dir, &key, &what, half)?),
+        );
+    }
+    Ok((NeuralScene { scene, fields }, history, info))
+}
+
+/// Loads field `key` of the scene directory `dir` for a node box of half extents `half`.
+pub fn load_field(
+    file: &Path,
+    dir: &Path,
+    key: &str,
+    what: &str,
+    half: assist_core::DVec3,
+) -> Result<NodeField, SceneFileError> {
+    let fp = field_path(dir, key);
+    if !fp.exists() {
+        return Err(invalid(
+            file,
+            what,
+            format!("field file {} is missing", fp.display()),
+        ));
+    }
+    let (field, occ) = assist_field::io::load(&fp)?;
+    let occ = occ.unwrap_or_else(|| assist_field::OccupancyGrid::new(64));
+    Ok(NodeField::new(field, occ, half))
+}
+
+fn read_scene_json(file: &Path) -> Result<(Scene, serde_json::Value), SceneFileError> {
+    let file = file.to_path_buf();
     let text = std::fs::read_to_string(&file).map_err(|e| SceneFileError::Io {
         path: file.clone(),
         source: e,
@@ -223,27 +346,7 @@ pub fn load(path: &Path) -> Result<(NeuralScene, serde_json::Value), SceneFileEr
             "expected a positive number",
         ));
     }
-    let mut fields = BTreeMap::new();
-    for n in &scene.nodes {
-        if fields.contains_key(&n.field) {
-            continue;
-        }
-        let fp = field_path(&dir, &n.field);
-        if !fp.exists() {
-            return Err(invalid(
-                &file,
-                format!("nodes[id={}].field", n.id),
-                format!("field file {} is missing", fp.display()),
-            ));
-        }
-        let (field, occ) = assist_field::io::load(&fp)?;
-        let occ = occ.unwrap_or_else(|| assist_field::OccupancyGrid::new(64));
-        fields.insert(
-            n.field.clone(),
-            Arc::new(NodeField::new(field, occ, n.half_size)),
-        );
-    }
-    Ok((NeuralScene { scene, fields }, json.info))
+    Ok((scene, json.info))
 }
 
 fn check_node(

@@ -77,6 +77,7 @@ fn scene(nodes: Vec<SceneNode>, fields: Vec<(&str, Field)>, cone: f32) -> Neural
             up: DVec3::Z,
             meters_per_unit: 1.0,
             background_color: [0.0, 0.0, 1.0],
+            selected: None,
         },
         fields: map,
     }

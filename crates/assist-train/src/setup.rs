@@ -158,6 +158,7 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
         up: ds.world_up.unwrap_or(DVec3::Z),
         meters_per_unit: ds.meters_per_unit.unwrap_or(1.0),
         background_color: background_color(ds),
+        selected: None,
     };
     Ok(NeuralScene { scene, fields })
 }

@@ -1,0 +1,575 @@
+//! Stage two: raw commands → validated actions for one scene. Objects are found by id,
+//! label (`names`), pronoun or "the copy"; quantities become configs; every action is
+//! validated by assist-core against the scene as the previous actions left it, so an
+//! instruction either yields actions that apply or an error saying what is wrong.
+
+use std::collections::BTreeSet;
+
+use assist_core::action::{ActionConfig, NodeRef, describe_nodes};
+use assist_core::{Action, DMat3, DVec3, InstanceId, Operation, Scene, SceneSource};
+
+use crate::LangError;
+use crate::grammar::{Direction, ObjectRef, RawCommand, SizeWord, Unit};
+use crate::names::{Found, NotFound, TextEmbedder, find};
+
+/// What the parser may know besides the text.
+#[derive(Default)]
+pub struct ParseOptions<'a> {
+    /// Camera-to-world rotation of the view the user looks through: left/right/forward/back
+    /// are then relative to it (projected onto the floor); without it they are world axes.
+    pub camera: Option<DMat3>,
+    /// What "it" means before any object is named (e.g. the selected node).
+    pub last: Option<InstanceId>,
+    pub embedder: Option<&'a dyn TextEmbedder>,
+}
+
+struct State {
+    scene: Scene,
+    last: Vec<InstanceId>,
+    created: Option<InstanceId>,
+}
+
+/// World direction of a direction word.
+pub fn direction_vector(d: Direction, up: DVec3, camera: Option<DMat3>) -> DVec3 {
+    let up = up.normalize();
+    let flat = |v: DVec3| {
+        let f = v - up * v.dot(up);
+        (f.length() > 1e-6).then(|| f.normalize())
+    };
+    let (right, forward) = match camera {
+        Some(r) => {
+            let right = flat(r * DVec3::X).unwrap_or_else(|| default_right(up));
+            let forward = flat(r * DVec3::NEG_Z)
+                .or_else(|| flat(r * DVec3::Y))
+                .unwrap_or_else(|| up.cross(right));
+            (right, forward)
+        }
+        None => {
+            let right = default_right(up);
+            (right, up.cross(right))
+        }
+    };
+    match d {
+        Direction::Left => -right,
+        Direction::Right => right,
+        Direction::Up => up,
+        Direction::Down => -up,
+        Direction::Forward => forward,
+        Direction::Back => -forward,
+    }
+}
+
+fn default_right(up: DVec3) -> DVec3 {
+    let x = if up.x.abs() > 0.9 { DVec3::Y } else { DVec3::X };
+    (x - up * x.dot(up)).normalize()
+}
+
+fn clause_err(cmd: &RawCommand, what: &str, message: impl Into<String>) -> LangError {
+    LangError::BadValue {
+        what: what.into(),
+        clause: cmd.text.clone(),
+        message: message.into(),
+    }
+}
+
+fn candidates(scene: &Scene, ids: &[InstanceId]) -> String {
+    ids.iter()
+        .filter_map(|id| scene.node(*id))
+        .map(|n| format!("{} {:?}", n.id, n.label))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+impl State {
+    fn objects(
+        &self,
+        r: &ObjectRef,
+        cmd: &RawCommand,
+        embedder: Option<&dyn TextEmbedder>,
+    ) -> Result<Vec<InstanceId>, LangError> {
+        match r {
+            ObjectRef::Id(id) => {
+                if self.scene.node(*id).is_none() {
+                    return Err(LangError::UnknownObject {
+                        phrase: format!("object {id}"),
+                        candidates: describe_nodes(&self.scene),
+                    });
+                }
+                Ok(vec![*id])
+            }
+            ObjectRef::Last => {
+                if self.last.is_empty() {
+                    Err(LangError::NoAntecedent {
+                        clause: cmd.text.clone(),
+                    })
+                } else {
+                    Ok(self.last.clone())
+                }
+            }
+            ObjectRef::Created => {
+                self.created
+                    .map(|c| vec![c])
+                    .ok_or_else(|| LangError::NoAntecedent {
+                        clause: cmd.text.clone(),
+                    })
+            }
+            ObjectRef::Phrase(words) => phrase_in(words, &self.scene, embedder),
+        }
+    }
+}
+
+fn phrase_in(
+    words: &[String],
+    scene: &Scene,
+    embedder: Option<&dyn TextEmbedder>,
+) -> Result<Vec<InstanceId>, LangError> {
+    match find(words, scene, embedder) {
+        Ok(Found::One(id)) => Ok(vec![id]),
+        Ok(Found::Many(ids)) => Ok(ids),
+        Err(NotFound::Unknown) => Err(LangError::UnknownObject {
+            phrase: words.join(" "),
+            candidates: describe_nodes(scene),
+        }),
+        Err(NotFound::Ambiguous(ids)) => Err(LangError::Ambiguous {
+            phrase: words.join(" "),
+            candidates: candidates(scene, &ids),
+        }),
+    }
+}
+
+/// The distance of a translate: the first length (or unitless number = metres).
+fn distance(cmd: &RawCommand) -> Result<Option<f64>, LangError> {
+    for &(v, u) in &cmd.params.quantities {
+        match u {
+            None => return Ok(Some(v)),
+            Some(Unit::Length(m)) => return Ok(Some(v * m)),
+            Some(Unit::Degrees | Unit::Radians) => {
+                return Err(clause_err(cmd, "distance", "an angle is not a distance"));
+            }
+            Some(_) => {
+                return Err(clause_err(
+                    cmd,
+                    "distance",
+                    "expected a length such as 10 cm",
+                ));
+            }
+        }
+    }
+    Ok(None)
+}
+
+/// The offset of a translate or replicate, in metres (None when none was given).
+fn offset(
+    cmd: &RawCommand,
+    st: &State,
+    opts: &ParseOptions,
+) -> Result<Option<ActionConfig>, LangError> {
+    let p = &cmd.params;
+    let lengths: Vec<f64> = p
+        .quantities
+        .iter()
+        .filter_map(|&(v, u)| match u {
+            None => Some(v),
+            Some(Unit::Length(m)) => Some(v * m),
+            _ => None,
+        })
+        .collect();
+    if lengths.len() == 3 && p.direction.is_none() && p.axis.is_none() {
+        return Ok(Some(ActionConfig {
+            vector: Some([lengths[0], lengths[1], lengths[2]]),
+            unit: Some("m".into()),
+            frame: p.frame_object.then(|| "object".into()),
+            ..Default::default()
+        }));
+    }
+    let d = distance(cmd)?;
+    match (d, p.direction, &p.axis) {
+        (None, None, None) => Ok(None),
+        (Some(d), None, Some(axis)) => Ok(Some(ActionConfig {
+            axis: Some(assist_core::AxisSpec::Name(axis.clone())),
+            distance: Some(d),
+            unit: Some("m".into()),
+            frame: p.frame_object.then(|| "object".into()),
+            ..Default::default()
+        })),
+        (Some(d), Some(dir), None) => {
+            let v = direction_vector(dir, st.scene.up, opts.camera) * d;
+            Ok(Some(ActionConfig {
+                vector: Some(v.to_array()),
+                unit: Some("m".into()),
+                ..Default::default()
+            }))
+        }
+        (Some(_), Some(_), Some(_)) => Err(clause_err(
+            cmd,
+            "direction",
+            "give either an axis or a direction word, not both",
+        )),
+        (Some(_), None, None) => Err(clause_err(
+            cmd,
+            "direction",
+            "which way? give an axis (x, y, z) or a direction (left, right, up, down, forward, back)",
+        )),
+        (None, _, _) => Err(clause_err(
+            cmd,
+            "distance",
+            "how far? give a distance such as 10 cm",
+        )),
+    }
+}
+
+fn angle(cmd: &RawCommand) -> Result<f64, LangError> {
+    let p = &cmd.params;
+    let mut a = None;
+    for &(v, u) in &p.quantities {
+        a = Some(match u {
+            None | Some(Unit::Degrees) => v,
+            Some(Unit::Radians) => v.to_degrees(),
+            Some(Unit::Length(_)) => {
+                return Err(clause_err(cmd, "angle", "a length is not an angle"));
+            }
+            Some(_) => {
+                return Err(clause_err(
+                    cmd,
+                    "angle",
+                    "expected an angle such as 90 degrees",
+                ));
+            }
+        });
+        break;
+    }
+    let a = a.or(p.turn).ok_or_else(|| {
+        clause_err(
+            cmd,
+            "angle",
+            "by how much? give an angle such as 90 degrees",
+        )
+    })?;
+    Ok(if p.clockwise == Some(true) { -a } else { a })
+}
+
+fn factor(cmd: &RawCommand) -> Result<f64, LangError> {
+    let p = &cmd.params;
+    let q = p
+        .quantities
+        .iter()
+        .find(|(_, u)| !matches!(u, Some(Unit::Length(_) | Unit::Degrees | Unit::Radians)));
+    let f = match (q, p.fraction) {
+        (Some(&(v, Some(Unit::Percent))), _) => {
+            let pct = v / 100.0;
+            match p.size {
+                _ if p.to => pct,
+                Some(SizeWord::Bigger) => 1.0 + pct,
+                Some(SizeWord::Smaller) => 1.0 - pct,
+                None => pct,
+            }
+        }
+        (Some(&(v, _)), _) => match p.size {
+            Some(SizeWord::Smaller) if v > 1.0 => 1.0 / v,
+            Some(SizeWord::Smaller) if p.by && !p.to && v < 1.0 => 1.0 - v,
+            Some(SizeWord::Bigger) if p.by && !p.to && v < 1.0 => 1.0 + v,
+            _ => v,
+        },
+        (None, Some(f)) => match p.size {
+            Some(SizeWord::Bigger) if !p.as_ && !p.to => 1.0 + f,
+            _ => f,
+        },
+        (None, None) => {
+            return Err(clause_err(
+                cmd,
+                "factor",
+                "by how much? give a factor such as 2, 'twice as big' or 50%",
+            ));
+        }
+    };
+    Ok(f)
+}
+
+/// Resolves raw commands against `scene`; every action is validated in order.
+pub fn resolve(
+    cmds: &[RawCommand],
+    scene: &Scene,
+    opts: &ParseOptions,
+    sources: &mut dyn SceneSource,
+) -> Result<Vec<Action>, LangError> {
+    let mut st = State {
+        scene: scene.clone(),
+        last: opts.last.into_iter().collect(),
+        created: None,
+    };
+    let mut out = Vec::new();
+    for cmd in cmds {
+        let mut actions: Vec<Action> = Vec::new();
+        let p = &cmd.params;
+        let mut named: Vec<InstanceId> = Vec::new();
+        match cmd.op {
+            Operation::Add => {
+                let path = p.path.clone().ok_or_else(|| {
+                    clause_err(
+                        cmd,
+                        "scene",
+                        "add what from where? e.g. 'add the mic from ../other.assist'",
+                    )
+                })?;
+                let src = sources
+                    .load_scene(&path)
+                    .map_err(|message| LangError::Action {
+                        clause: cmd.text.clone(),
+                        source: assist_core::ActionError::Source {
+                            path: path.clone(),
+                            message,
+                        },
+                    })?;
+                let which = match cmd.targets.as_slice() {
+                    [ObjectRef::Phrase(w)] => phrase_in(w, &src, opts.embedder)?,
+                    [ObjectRef::Id(i)] => vec![*i],
+                    _ => {
+                        return Err(clause_err(
+                            cmd,
+                            "object",
+                            "name one object of the other scene to add",
+                        ));
+                    }
+                };
+                for src_id in which {
+                    let mut c = ActionConfig {
+                        scene: Some(path.clone()),
+                        node: Some(NodeRef::Id(src_id)),
+                        ..Default::default()
+                    };
+                    if let Some((pos, u)) = p.position {
+                        c.position = Some(pos);
+                        c.unit = Some(unit_name(u, cmd)?);
+                    }
+                    actions.push(Action::new(0, Operation::Add, c));
+                }
+            }
+            Operation::Swap => {
+                let mut refs: Vec<&ObjectRef> = cmd.targets.iter().chain(&cmd.partners).collect();
+                if refs.len() != 2 {
+                    return Err(clause_err(
+                        cmd,
+                        "objects",
+                        format!("swap needs two objects, got {}", refs.len()),
+                    ));
+                }
+                let b_ref = refs.pop().expect("two");
+                let a = one(&st, refs[0], cmd, opts)?;
+                let c = if let Some(path) = &p.path {
+                    let src = sources
+                        .load_scene(path)
+                        .map_err(|message| LangError::Action {
+                            clause: cmd.text.clone(),
+                            source: assist_core::ActionError::Source {
+                                path: path.clone(),
+                                message,
+                            },
+                        })?;
+                    let b = match b_ref {
+                        ObjectRef::Phrase(w) => {
+                            single(phrase_in(w, &src, opts.embedder)?, w, &src)?
+                        }
+                        ObjectRef::Id(i) => *i,
+                        _ => {
+                            return Err(clause_err(cmd, "object", "name the other scene's object"));
+                        }
+                    };
+                    ActionConfig {
+                        with: Some(NodeRef::Id(b)),
+                        scene: Some(path.clone()),
+                        new_id: Some(st.scene.fresh_id()),
+                        ..Default::default()
+                    }
+                } else {
+                    let b = one(&st, b_ref, cmd, opts)?;
+                    named.push(b);
+                    ActionConfig {
+                        with: Some(NodeRef::Id(b)),
+                        ..Default::default()
+                    }
+                };
+                named.insert(0, a);
+                actions.push(Action::new(a, Operation::Swap, c));
+            }
+            op => {
+                let mut ids = Vec::new();
+                for r in &cmd.targets {
+                    ids.extend(st.objects(r, cmd, opts.embedder)?);
+                }
+                if !cmd.partners.is_empty() {
+                    return Err(clause_err(
+                        cmd,
+                        "with",
+                        format!("{op} takes no second object"),
+                    ));
+                }
+                named = ids.clone();
+                for id in ids {
+                    match op {
+                        Operation::Select | Operation::Delete => {
+                            actions.push(Action::new(id, op, ActionConfig::default()))
+                        }
+                        Operation::Translate => {
+                            let c = match p.position {
+                                Some((pos, u)) => {
+                                    let m = unit_metres(u);
+                                    let node = st.scene.node(id).expect("resolved");
+                                    let target = DVec3::from_array(pos) * m / st.scene.meters_per_unit;
+                                    let v = target - node.world_from_local.translation;
+                                    ActionConfig { vector: Some(v.to_array()), unit: Some("units".into()), ..Default::default() }
+                                }
+                                None => offset(cmd, &st, opts)?.ok_or_else(|| clause_err(cmd, "distance", "how far and which way? e.g. '10 cm along x' or '5 cm left'"))?,
+                            };
+                            actions.push(Action::new(id, op, c));
+                        }
+                        Operation::Rotate => {
+                            let c = ActionConfig {
+                                angle: Some(angle(cmd)?),
+                                unit: Some("deg".into()),
+                                axis: p.axis.clone().map(assist_core::AxisSpec::Name),
+                                frame: p.frame_object.then(|| "object".into()),
+                                ..Default::default()
+                            };
+                            actions.push(Action::new(id, op, c));
+                        }
+                        Operation::Scale => {
+                            let c = ActionConfig {
+                                factor: Some(factor(cmd)?),
+                                axis: p.axis.clone().map(assist_core::AxisSpec::Name),
+                                frame: p.frame_object.then(|| "object".into()),
+                                ..Default::default()
+                            };
+                            actions.push(Action::new(id, op, c));
+                        }
+                        Operation::Replicate => {
+                            let bare_count = matches!(p.quantities.as_slice(), [(_, None)])
+                                && p.direction.is_none()
+                                && p.axis.is_none();
+                            let placed = if bare_count {
+                                None
+                            } else {
+                                offset(cmd, &st, opts)?
+                            };
+                            // "make 3 copies of the mug": a bare count.
+                            let count = match (&placed, p.quantities.as_slice()) {
+                                (None, [(n, None)])
+                                    if n.fract() == 0.0 && *n >= 1.0 && *n <= 100.0 =>
+                                {
+                                    *n as usize
+                                }
+                                (None, [(n, None)]) => {
+                                    return Err(clause_err(
+                                        cmd,
+                                        "count",
+                                        format!(
+                                            "expected a number of copies from 1 to 100, got {n}"
+                                        ),
+                                    ));
+                                }
+                                _ => 1,
+                            };
+                            for _ in 0..count {
+                                let mut c = placed.clone().unwrap_or_default();
+                                c.axis = None;
+                                if let Some(cfg) = &placed
+                                    && cfg.axis.is_some()
+                                {
+                                    let dir = assist_core::action::axis_direction(
+                                        cfg.axis.as_ref().expect("axis"),
+                                        st.scene.up,
+                                    )
+                                    .map_err(|m| clause_err(cmd, "axis", m))?;
+                                    c.vector = Some((dir * cfg.distance.unwrap_or(0.0)).to_array());
+                                    c.distance = None;
+                                    c.frame = None;
+                                }
+                                actions.push(Action::new(id, op, c));
+                            }
+                        }
+                        Operation::Add | Operation::Swap => unreachable!("handled above"),
+                    }
+                }
+            }
+        }
+        // Validate each against the scene as it stands, then apply to it.
+        let mut created = None;
+        for mut a in actions {
+            match a.operation {
+                Operation::Replicate => a.config.new_id = Some(st.scene.fresh_id()),
+                Operation::Add => a.instance_id = st.scene.fresh_id(),
+                _ => {}
+            }
+            let edit = a
+                .validate(&st.scene, sources, &BTreeSet::new())
+                .map_err(|source| LangError::Action {
+                    clause: cmd.text.clone(),
+                    source,
+                })?;
+            assist_core::edit::apply(&mut st.scene, &edit).map_err(|source| LangError::Action {
+                clause: cmd.text.clone(),
+                source,
+            })?;
+            if let Some(c) = edit.created() {
+                created = Some(c);
+            }
+            out.push(a);
+        }
+        if let Some(c) = created {
+            st.created = Some(c);
+            st.last = vec![c];
+        } else if !named.is_empty() {
+            st.last = named
+                .into_iter()
+                .filter(|id| st.scene.node(*id).is_some())
+                .collect();
+        }
+    }
+    Ok(out)
+}
+
+fn single(ids: Vec<InstanceId>, words: &[String], scene: &Scene) -> Result<InstanceId, LangError> {
+    match ids.as_slice() {
+        [one] => Ok(*one),
+        _ => Err(LangError::Ambiguous {
+            phrase: words.join(" "),
+            candidates: candidates(scene, &ids),
+        }),
+    }
+}
+
+fn one(
+    st: &State,
+    r: &ObjectRef,
+    cmd: &RawCommand,
+    opts: &ParseOptions,
+) -> Result<InstanceId, LangError> {
+    let ids = st.objects(r, cmd, opts.embedder)?;
+    match ids.as_slice() {
+        [one] => Ok(*one),
+        _ => Err(LangError::Ambiguous {
+            phrase: format!("{r:?}"),
+            candidates: candidates(&st.scene, &ids),
+        }),
+    }
+}
+
+fn unit_metres(u: Option<Unit>) -> f64 {
+    match u {
+        Some(Unit::Length(m)) => m,
+        _ => 1.0,
+    }
+}
+
+fn unit_name(u: Option<Unit>, cmd: &RawCommand) -> Result<String, LangError> {
+    match u {
+        None => Ok("m".into()),
+        Some(Unit::Length(m)) if m == 1.0 => Ok("m".into()),
+        Some(Unit::Length(m)) if m == 0.01 => Ok("cm".into()),
+        Some(Unit::Length(m)) if m == 0.001 => Ok("mm".into()),
+        _ => Err(clause_err(
+            cmd,
+            "position",
+            "expected a position in m, cm or mm",
+        )),
+    }
+}

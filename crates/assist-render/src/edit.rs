@@ -1,0 +1,168 @@
+//! Editing a scene with its weights: validates actions (assist-core), brings in the fields
+//! of nodes added from other scenes, applies the edits and keeps the undo/redo history.
+//!
+//! Replicas share one `Arc<NodeField>`: duplicating a node allocates no weights. A field
+//! imported from another scene is loaded once and stored under a key unique in this scene.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use assist_core::{Action, ActionError, Edit, History, Scene, SceneSource};
+
+use crate::node::NeuralScene;
+use crate::scene_file::{self, SceneFileError};
+
+#[derive(Debug, thiserror::Error)]
+pub enum EditError {
+    #[error("action {index}: {source}")]
+    Action {
+        /// 1-based position in the list of actions.
+        index: usize,
+        source: ActionError,
+    },
+    #[error(transparent)]
+    File(#[from] SceneFileError),
+}
+
+/// Other scenes read from disk (`scene.json` only; weights are loaded when a node is added),
+/// each read once. Relative paths are taken as given (relative to the working directory).
+#[derive(Default)]
+pub struct SceneFiles {
+    cache: BTreeMap<String, Scene>,
+}
+
+impl SceneFiles {
+    pub fn dir_of(path: &str) -> PathBuf {
+        let p = Path::new(path);
+        if p.is_file() {
+            p.parent().unwrap_or(Path::new(".")).to_path_buf()
+        } else {
+            p.to_path_buf()
+        }
+    }
+}
+
+impl SceneSource for SceneFiles {
+    fn load_scene(&mut self, path: &str) -> Result<Scene, String> {
+        if let Some(s) = self.cache.get(path) {
+            return Ok(s.clone());
+        }
+        let (scene, _) = scene_file::load_scene_json(Path::new(path)).map_err(|e| e.to_string())?;
+        self.cache.insert(path.to_string(), scene.clone());
+        Ok(scene)
+    }
+}
+
+/// A scene being edited.
+pub struct Editor {
+    pub scene: NeuralScene,
+    pub history: History,
+    pub info: serde_json::Value,
+    pub sources: SceneFiles,
+}
+
+impl Editor {
+    pub fn new(scene: NeuralScene) -> Self {
+        Editor {
+            scene,
+            history: History::default(),
+            info: serde_json::Value::Null,
+            sources: SceneFiles::default(),
+        }
+    }
+
+    /// Opens a scene directory with its history.
+    pub fn open(path: &Path) -> Result<Self, SceneFileError> {
+        let (scene, history, info) = scene_file::load_with_history(path)?;
+        Ok(Editor {
+            scene,
+            history,
+            info,
+            sources: SceneFiles::default(),
+        })
+    }
+
+    /// Field keys an imported node must not take.
+    fn taken(&self) -> BTreeSet<String> {
+        let mut t = self.history.field_keys();
+        t.extend(self.scene.fields.keys().cloned());
+        t
+    }
+
+    /// Validates `actions` in order against the evolving scene without touching weights or
+    /// history: the edits that `apply_all` would make.
+    pub fn plan(&mut self, actions: &[Action]) -> Result<Vec<Edit>, EditError> {
+        let mut scene = self.scene.scene.clone();
+        let mut taken = self.taken();
+        let mut edits = Vec::with_capacity(actions.len());
+        for (i, a) in actions.iter().enumerate() {
+            let wrap = |source| EditError::Action {
+                index: i + 1,
+                source,
+            };
+            let e = a
+                .validate(&scene, &mut self.sources, &taken)
+                .map_err(wrap)?;
+            assist_core::edit::apply(&mut scene, &e).map_err(wrap)?;
+            if let Some(im) = imported(&e) {
+                taken.insert(im.node.field.clone());
+            }
+            edits.push(e);
+        }
+        Ok(edits)
+    }
+
+    /// Validates and applies `actions` in order; all or nothing (on error the scene and
+    /// history are as before).
+    pub fn apply_all(&mut self, actions: &[Action]) -> Result<Vec<Edit>, EditError> {
+        let edits = self.plan(actions)?;
+        // Load every imported field before changing anything.
+        let mut new_fields = Vec::new();
+        for (i, e) in edits.iter().enumerate() {
+            if let Some(im) = imported(e) {
+                let dir = SceneFiles::dir_of(&im.source);
+                let nf = scene_file::load_field(
+                    &dir.join("scene.json"),
+                    &dir,
+                    &im.source_field,
+                    &format!("action {}: node {} field", i + 1, im.source_id),
+                    im.node.half_size,
+                )?;
+                new_fields.push((im.node.field.clone(), Arc::new(nf)));
+            }
+        }
+        for (k, f) in new_fields {
+            self.scene.fields.insert(k, f);
+        }
+        for (i, e) in edits.iter().enumerate() {
+            self.history
+                .apply(&mut self.scene.scene, e)
+                .map_err(|source| EditError::Action {
+                    index: i + 1,
+                    source,
+                })?;
+        }
+        Ok(edits)
+    }
+
+    pub fn undo(&mut self) -> bool {
+        self.history.undo(&mut self.scene.scene)
+    }
+
+    pub fn redo(&mut self) -> bool {
+        self.history.redo(&mut self.scene.scene)
+    }
+
+    /// Saves scene, fields and history atomically (`force` to replace `dir`).
+    pub fn save(&self, dir: &Path, force: bool) -> Result<(), SceneFileError> {
+        scene_file::save_with_history(dir, &self.scene, &self.history, self.info.clone(), force)
+    }
+}
+
+fn imported(e: &Edit) -> Option<&assist_core::action::Imported> {
+    match e {
+        Edit::Add { imported } | Edit::SwapIn { imported, .. } => Some(imported),
+        _ => None,
+    }
+}
