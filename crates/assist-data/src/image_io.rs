@@ -190,9 +190,12 @@ fn png_err(path: &Path, e: image::ImageError) -> DataError {
     }
 }
 
-/// 8-bit RGB PNG from floats in [0, 1] (clamped, rounded).
+/// 8-bit RGB (3 channels) or RGBA (4 channels) PNG from floats in [0, 1] (clamped, rounded).
 pub fn write_rgb_png(path: &Path, img: &ImageF32) -> Result<()> {
-    assert_eq!(img.channels, 3, "write_rgb_png takes 3-channel images");
+    assert!(
+        img.channels == 3 || img.channels == 4,
+        "write_rgb_png takes 3- or 4-channel images"
+    );
     let bytes: Vec<u8> = img
         .data
         .iter()
@@ -202,7 +205,11 @@ pub fn write_rgb_png(path: &Path, img: &ImageF32) -> Result<()> {
         img.width,
         img.height,
         &bytes,
-        image::ExtendedColorType::Rgb8,
+        if img.channels == 4 {
+            image::ExtendedColorType::Rgba8
+        } else {
+            image::ExtendedColorType::Rgb8
+        },
     )
     .map_err(|e| png_err(path, e))?;
     write_atomic(path, &png)

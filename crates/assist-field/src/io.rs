@@ -80,10 +80,31 @@ pub fn to_bytes(field: &Field, occupancy: Option<&OccupancyGrid>) -> Result<Vec<
             serde_json::json!({"threshold": o.threshold, "decay": o.decay}).to_string(),
         );
     }
-    safetensors::serialize(views, Some(meta)).map_err(|e| FieldError::Format {
+    let bytes = safetensors::serialize(views, Some(meta)).map_err(|e| FieldError::Format {
         path: "(memory)".into(),
         message: e.to_string(),
-    })
+    })?;
+    Ok(canonical_header(bytes))
+}
+
+/// Rewrites the safetensors header with sorted keys: the writer emits `__metadata__` in
+/// hash-map order, which differs between runs, so the same field would give different
+/// bytes. Offsets are relative to the data, so only the header changes; it stays padded
+/// with spaces to a multiple of 8 bytes as the format asks.
+fn canonical_header(bytes: Vec<u8>) -> Vec<u8> {
+    let n = u64::from_le_bytes(bytes[..8].try_into().expect("8-byte length")) as usize;
+    let header: serde_json::Value =
+        serde_json::from_slice(&bytes[8..8 + n]).expect("safetensors wrote valid JSON");
+    // serde_json's map is ordered by key (no `preserve_order`), so this output is sorted.
+    let mut text = serde_json::to_string(&header).expect("JSON value serialises");
+    while !(8 + text.len()).is_multiple_of(8) {
+        text.push(' ');
+    }
+    let mut out = Vec::with_capacity(8 + text.len() + bytes.len() - 8 - n);
+    out.extend_from_slice(&(text.len() as u64).to_le_bytes());
+    out.extend_from_slice(text.as_bytes());
+    out.extend_from_slice(&bytes[8 + n..]);
+    out
 }
 
 /// Writes atomically (temporary file beside it, then rename).

@@ -536,17 +536,15 @@ fn parse_clause(toks: &[Tok], out: &mut Vec<RawCommand>) -> Result<(), LangError
                 );
                 // Three numbers in a row after "at"/"to": a position.
                 let prev = i.checked_sub(1).and_then(|j| toks.get(j)).and_then(word);
-                if matches!(prev, Some("at" | "to"))
-                    || (prev == Some("position") && op == Some(Translate))
-                {
-                    if let (Some(Tok::Num(b)), Some(Tok::Num(c))) =
+                if (matches!(prev, Some("at" | "to"))
+                    || (prev == Some("position") && op == Some(Translate)))
+                    && let (Some(Tok::Num(b)), Some(Tok::Num(c))) =
                         (toks.get(i + 1), toks.get(i + 2))
-                    {
-                        let unit = toks.get(i + 3).and_then(word).and_then(unit_word);
-                        p.position = Some(([*n, *b, *c], unit));
-                        i += 3 + usize::from(unit.is_some());
-                        continue;
-                    }
+                {
+                    let unit = toks.get(i + 3).and_then(word).and_then(unit_word);
+                    p.position = Some(([*n, *b, *c], unit));
+                    i += 3 + usize::from(unit.is_some());
+                    continue;
                 }
                 match next.and_then(unit_word) {
                     Some(u) => {

@@ -139,7 +139,7 @@ fn phrase_in(
 
 /// The distance of a translate: the first length (or unitless number = metres).
 fn distance(cmd: &RawCommand) -> Result<Option<f64>, LangError> {
-    for &(v, u) in &cmd.params.quantities {
+    if let Some(&(v, u)) = cmd.params.quantities.first() {
         match u {
             None => return Ok(Some(v)),
             Some(Unit::Length(m)) => return Ok(Some(v * m)),
@@ -220,9 +220,9 @@ fn offset(
 
 fn angle(cmd: &RawCommand) -> Result<f64, LangError> {
     let p = &cmd.params;
-    let mut a = None;
-    for &(v, u) in &p.quantities {
-        a = Some(match u {
+    let a = match p.quantities.first() {
+        None => None,
+        Some(&(v, u)) => Some(match u {
             None | Some(Unit::Degrees) => v,
             Some(Unit::Radians) => v.to_degrees(),
             Some(Unit::Length(_)) => {
@@ -235,9 +235,8 @@ fn angle(cmd: &RawCommand) -> Result<f64, LangError> {
                     "expected an angle such as 90 degrees",
                 ));
             }
-        });
-        break;
-    }
+        }),
+    };
     let a = a.or(p.turn).ok_or_else(|| {
         clause_err(
             cmd,
@@ -563,9 +562,9 @@ fn unit_metres(u: Option<Unit>) -> f64 {
 fn unit_name(u: Option<Unit>, cmd: &RawCommand) -> Result<String, LangError> {
     match u {
         None => Ok("m".into()),
-        Some(Unit::Length(m)) if m == 1.0 => Ok("m".into()),
-        Some(Unit::Length(m)) if m == 0.01 => Ok("cm".into()),
-        Some(Unit::Length(m)) if m == 0.001 => Ok("mm".into()),
+        Some(Unit::Length(1.0)) => Ok("m".into()),
+        Some(Unit::Length(0.01)) => Ok("cm".into()),
+        Some(Unit::Length(0.001)) => Ok("mm".into()),
         _ => Err(clause_err(
             cmd,
             "position",

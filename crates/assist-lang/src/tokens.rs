@@ -39,10 +39,7 @@ const NUMBER_WORDS: [(&str, f64); 21] = [
 /// A path without the sentence punctuation around it.
 fn path_core(t: &str) -> &str {
     let mut core = t.trim_start_matches(['(', '"', '\'']);
-    loop {
-        let Some((idx, last)) = core.char_indices().last() else {
-            break;
-        };
+    while let Some((idx, last)) = core.char_indices().last() {
         let before = core[..idx].chars().last();
         let strip = matches!(last, ',' | ';' | '!' | '?' | ')' | '"' | '\'')
             || (last == '.' && before.is_some_and(|b| b != '.' && b != '/'));

@@ -11,6 +11,7 @@ use clap::{Parser, Subcommand};
 mod cmd_bench;
 mod cmd_dataset;
 mod cmd_demo;
+mod cmd_edit;
 mod cmd_eval;
 mod cmd_render;
 mod cmd_synth;
@@ -43,6 +44,8 @@ pub enum Command {
     Train(cmd_train::TrainArgs),
     /// Measure a trained scene against a dataset split (PSNR, SSIM, panoptic mIoU, background).
     Eval(cmd_eval::EvalArgs),
+    /// Edit a trained scene: plain-language instructions, action scripts, undo/redo.
+    Edit(cmd_edit::EditArgs),
     /// Render a trained scene from a dataset's cameras into a new labelled dataset.
     Render(cmd_render::RenderArgs),
     /// Measure the speed of hot paths.
@@ -59,6 +62,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Demo(a) => cmd_demo::run(a),
         Command::Train(a) => cmd_train::run(a),
         Command::Eval(a) => cmd_eval::run(a),
+        Command::Edit(a) => cmd_edit::run(a),
         Command::Render(a) => cmd_render::run(a),
         Command::Bench { command } => cmd_bench::run(command),
     }

@@ -1,0 +1,408 @@
+//! Editing scene nodes, checked by rendering: masks move by the projected offset, identity
+//! edits change nothing, delete reveals the background, replicas share weights, nodes come
+//! in from other scenes where placed, swaps exchange masks, undo restores the file exactly.
+
+mod common;
+
+use std::path::Path;
+use std::sync::Arc;
+
+use assist_core::{Action, Camera, DVec3, Intrinsics, Pose, Similarity3};
+use assist_render::{Editor, NeuralScene, RenderOptions, RenderedImage, render_camera, scene_file};
+use common::{constant_field, node, scene};
+
+const GREY: [f32; 3] = [0.5, 0.5, 0.5];
+const W: u32 = 128;
+
+/// A grey floor (the background node, top face at z = −0.2) with a red cube (id 1) and a
+/// view-dependent cube (id 2) standing on it.
+fn base() -> NeuralScene {
+    let bg = node(
+        0,
+        "bg",
+        2.0,
+        Similarity3::from_translation(DVec3::new(0.0, 0.0, -2.2)),
+    );
+    let a = node(
+        1,
+        "red",
+        0.25,
+        Similarity3::from_translation(DVec3::new(-0.6, 0.0, 0.05)),
+    );
+    let b = node(
+        2,
+        "shiny",
+        0.25,
+        Similarity3::from_translation(DVec3::new(0.6, 0.0, 0.05)),
+    );
+    scene(
+        vec![bg, a, b],
+        vec![
+            ("bg", constant_field(200.0, GREY, false, 1)),
+            ("red", constant_field(200.0, [0.9, 0.1, 0.1], false, 2)),
+            ("shiny", constant_field(200.0, [0.0; 3], true, 3)),
+        ],
+        0.0,
+    )
+}
+
+fn camera() -> Camera {
+    Camera {
+        intrinsics: Intrinsics::from_fov_x(W, W, 10f64.to_radians()),
+        pose: Pose::look_at(DVec3::new(0.0, 0.0, 20.0), DVec3::ZERO, DVec3::Y).unwrap(),
+    }
+}
+
+fn render(s: &NeuralScene) -> RenderedImage {
+    render_camera(s, &camera(), u32::MAX, &RenderOptions::default())
+}
+
+fn act(json: &str) -> Action {
+    serde_json::from_str(json).unwrap()
+}
+
+/// Mean pixel position and pixel count of instance `id`.
+fn centroid(img: &RenderedImage, id: u16) -> (f64, f64, usize) {
+    let (mut x, mut y, mut n) = (0.0, 0.0, 0usize);
+    for (k, &p) in img.panoptic.iter().enumerate() {
+        if p == id {
+            x += (k % img.width as usize) as f64 + 0.5;
+            y += (k / img.width as usize) as f64 + 0.5;
+            n += 1;
+        }
+    }
+    (x / n.max(1) as f64, y / n.max(1) as f64, n)
+}
+
+fn max_rgb_diff(a: &RenderedImage, b: &RenderedImage) -> f32 {
+    a.rgb
+        .iter()
+        .zip(&b.rgb)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn translating_moves_the_mask_by_the_projected_offset() {
+    let mut ed = Editor::new(base());
+    let before = render(&ed.scene);
+    let (x0, y0, n0) = centroid(&before, 1);
+    assert!(n0 > 100, "cube 1 covers {n0} pixels");
+    ed.apply_all(&[act(r#"{"instance_id":1,"operation":"translate","config":{"vector":[0.4,0.25,0],"unit":"units"}}"#)])
+        .unwrap();
+    let after = render(&ed.scene);
+    let (x1, y1, n1) = centroid(&after, 1);
+    let cam = camera();
+    let p0 = cam.project(DVec3::new(-0.6, 0.0, 0.05)).unwrap().0;
+    let p1 = cam.project(DVec3::new(-0.2, 0.25, 0.05)).unwrap().0;
+    let (dx, dy) = (x1 - x0, y1 - y0);
+    let (ex, ey) = (p1.x - p0.x, p1.y - p0.y);
+    assert!(
+        (dx - ex).abs() < 0.6 && (dy - ey).abs() < 0.6,
+        "mask moved ({dx:.2}, {dy:.2}) px, projected offset ({ex:.2}, {ey:.2}) px"
+    );
+    assert!(
+        ex.abs() > 5.0 && ey.abs() > 3.0,
+        "the offset must be visible"
+    );
+    assert!((n1 as f64 - n0 as f64).abs() < 0.1 * n0 as f64);
+}
+
+#[test]
+fn full_turns_and_unit_scales_change_nothing() {
+    let mut ed = Editor::new(base());
+    let before = render(&ed.scene);
+    ed.apply_all(&[
+        act(r#"{"instance_id":2,"operation":"rotate","config":{"axis":"z","degrees":360}}"#),
+        act(r#"{"instance_id":2,"operation":"rotate","config":{"axis":[1,1,0],"angle":6.283185307179586,"unit":"rad"}}"#),
+        act(r#"{"instance_id":2,"operation":"scale","config":{"factor":1}}"#),
+        act(r#"{"instance_id":1,"operation":"scale","config":{"factors":[1,1,1]}}"#),
+    ])
+    .unwrap();
+    let after = render(&ed.scene);
+    assert!(
+        max_rgb_diff(&before, &after) < 1e-4,
+        "diff {}",
+        max_rgb_diff(&before, &after)
+    );
+    assert_eq!(before.panoptic, after.panoptic);
+    // The same check can fail: a quarter turn of the view-dependent cube changes its colours.
+    ed.apply_all(&[act(
+        r#"{"instance_id":2,"operation":"rotate","config":{"axis":"x","degrees":90}}"#,
+    )])
+    .unwrap();
+    assert!(max_rgb_diff(&before, &render(&ed.scene)) > 1e-2);
+}
+
+#[test]
+fn delete_removes_the_mask_and_reveals_the_background() {
+    let mut ed = Editor::new(base());
+    let before = render(&ed.scene);
+    ed.apply_all(&[act(r#"{"instance_id":1,"operation":"delete","config":{}}"#)])
+        .unwrap();
+    let after = render(&ed.scene);
+    assert_eq!(centroid(&after, 1).2, 0);
+    let mut revealed = 0;
+    for (k, &p) in before.panoptic.iter().enumerate() {
+        if p == 1 {
+            assert_eq!(after.panoptic[k], 0, "pixel {k}");
+            for c in 0..3 {
+                assert!(
+                    (after.rgb[k * 3 + c] - GREY[c]).abs() < 0.02,
+                    "pixel {k} is not background"
+                );
+            }
+            revealed += 1;
+        }
+    }
+    assert!(revealed > 100);
+}
+
+#[test]
+fn replicate_adds_a_mask_with_a_new_id_and_no_new_weights() {
+    let mut ed = Editor::new(base());
+    let fields_before = ed.scene.fields.len();
+    let original = Arc::clone(&ed.scene.fields["shiny"]);
+    let edits = ed
+        .apply_all(&[act(
+            r#"{"instance_id":2,"operation":"replicate","config":{}}"#,
+        )])
+        .unwrap();
+    let new_id = edits[0].created().unwrap();
+    assert_eq!(new_id, 3);
+    assert_eq!(ed.scene.fields.len(), fields_before, "no new field");
+    let copy = ed.scene.scene.node(3).unwrap();
+    assert_eq!(copy.field, "shiny");
+    assert!(Arc::ptr_eq(&original, &ed.scene.fields["shiny"]));
+    // Both strong counts: the editor's map and `original` — nothing else holds a copy.
+    assert_eq!(Arc::strong_count(&original), 2);
+    let img = render(&ed.scene);
+    let (_, _, n2) = centroid(&img, 2);
+    let (_, _, n3) = centroid(&img, 3);
+    assert!(
+        n2 > 100 && n3 > 100,
+        "masks: original {n2} px, copy {n3} px"
+    );
+}
+
+#[test]
+fn swap_exchanges_masks() {
+    let mut ed = Editor::new(base());
+    let before = render(&ed.scene);
+    ed.apply_all(&[act(
+        r#"{"instance_id":1,"operation":"swap","config":{"with":2}}"#,
+    )])
+    .unwrap();
+    let after = render(&ed.scene);
+    let mut wrong = 0;
+    let mut counted = 0;
+    for (k, &p) in before.panoptic.iter().enumerate() {
+        let want = match p {
+            1 => 2,
+            2 => 1,
+            o => o,
+        };
+        counted += usize::from(p != 0);
+        wrong += usize::from(after.panoptic[k] != want);
+    }
+    assert!(counted > 200);
+    assert!(
+        wrong * 100 <= counted,
+        "{wrong} of {counted} object pixels did not swap"
+    );
+}
+
+/// A second scene, in units of half a metre, holding a cube labelled "mic".
+fn other_scene(dir: &Path) {
+    let mut mic = node(
+        1,
+        "mic",
+        0.25,
+        Similarity3::from_translation(DVec3::new(2.0, 2.0, 2.0)),
+    );
+    mic.label = "mic".into();
+    let mut s = scene(
+        vec![mic],
+        vec![("mic", constant_field(200.0, [0.1, 0.2, 0.9], false, 9))],
+        0.0,
+    );
+    s.scene.meters_per_unit = 0.5;
+    scene_file::save(dir, &s, serde_json::Value::Null, true).unwrap();
+}
+
+#[test]
+fn cross_scene_add_renders_the_node_where_placed() {
+    let tmp = assist_testkit::TempDir::new("edit-add");
+    let other = tmp.path().join("other.assist");
+    other_scene(&other);
+    let mut ed = Editor::new(base());
+    let path = other.to_string_lossy().to_string();
+    let a: Action = serde_json::from_value(serde_json::json!({
+        "instance_id": 0, "operation": "add",
+        "config": {"scene": path, "node": "mic", "position": [0.0, 0.7, 0.0], "unit": "m"}
+    }))
+    .unwrap();
+    let edits = ed.apply_all(&[a]).unwrap();
+    let id = edits[0].created().unwrap();
+    let n = ed.scene.scene.node(id).unwrap().clone();
+    // Re-expressed in this scene's metres: the 0.4-unit cube is 0.2 m here.
+    assert!((n.world_from_local.scale - DVec3::splat(0.5)).length() < 1e-12);
+    let img = render(&ed.scene);
+    let (x, y, count) = centroid(&img, id);
+    let p = camera().project(DVec3::new(0.0, 0.7, 0.0)).unwrap().0;
+    assert!(
+        (x - p.x).abs() < 0.6 && (y - p.y).abs() < 0.6,
+        "at ({x:.1}, {y:.1}), placed at ({:.1}, {:.1})",
+        p.x,
+        p.y
+    );
+    let (_, _, red) = centroid(&img, 1);
+    let ratio = count as f64 / red as f64;
+    assert!(
+        (ratio - 0.25).abs() < 0.06,
+        "area ratio {ratio} (expected about 1/4)"
+    );
+    // Its colour comes from the other scene's weights.
+    let k = (y as usize) * W as usize + x as usize;
+    assert!(
+        img.rgb[k * 3 + 2] > 0.8 && img.rgb[k * 3] < 0.2,
+        "{:?}",
+        &img.rgb[k * 3..k * 3 + 3]
+    );
+}
+
+fn read_dir_files(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut v: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.is_file())
+        .map(|p| {
+            (
+                p.file_name().unwrap().to_string_lossy().to_string(),
+                std::fs::read(&p).unwrap(),
+            )
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn undo_restores_the_exact_scene_file_and_redo_the_edit() {
+    let tmp = assist_testkit::TempDir::new("edit-undo");
+    let (d1, d2, d3, d4) = (
+        tmp.path().join("a.assist"),
+        tmp.path().join("b.assist"),
+        tmp.path().join("c.assist"),
+        tmp.path().join("d.assist"),
+    );
+    let other = tmp.path().join("other.assist");
+    other_scene(&other);
+    scene_file::save(&d1, &base(), serde_json::json!({"note": "original"}), false).unwrap();
+    let mut ed = Editor::open(&d1).unwrap();
+    let script = format!(
+        r#"{{"instance_id":1,"operation":"translate","config":{{"axis":"x","distance":12,"unit":"cm"}}}}
+{{"instance_id":2,"operation":"rotate","config":{{"axis":"z","angle":30}}}}
+{{"instance_id":2,"operation":"replicate","config":{{}}}}
+{{"instance_id":0,"operation":"add","config":{{"scene":{:?},"node":1}}}}
+{{"instance_id":2,"operation":"delete","config":{{}}}}"#,
+        other.to_string_lossy()
+    );
+    let actions: Vec<Action> = script
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    ed.apply_all(&actions).unwrap();
+    ed.save(&d2, false).unwrap();
+    let mut ed = Editor::open(&d2).unwrap();
+    assert_eq!(ed.history.undo.len(), 5);
+    for _ in 0..5 {
+        assert!(ed.undo());
+    }
+    assert!(!ed.undo(), "nothing more to undo");
+    ed.save(&d3, false).unwrap();
+    assert_eq!(
+        std::fs::read(d1.join("scene.json")).unwrap(),
+        std::fs::read(d3.join("scene.json")).unwrap(),
+        "undo must restore scene.json byte for byte"
+    );
+    for (name, bytes) in read_dir_files(&d1.join("fields")) {
+        let restored = std::fs::read(d3.join("fields").join(&name)).unwrap();
+        let first_diff = bytes.iter().zip(&restored).position(|(a, b)| a != b);
+        assert!(
+            restored == bytes,
+            "fields/{name}: {} vs {} bytes, first difference at {first_diff:?}: {:?} vs {:?}",
+            bytes.len(),
+            restored.len(),
+            String::from_utf8_lossy(&bytes[..300.min(bytes.len())]),
+            String::from_utf8_lossy(&restored[..300.min(restored.len())])
+        );
+    }
+    for _ in 0..5 {
+        assert!(ed.redo());
+    }
+    ed.save(&d4, false).unwrap();
+    assert_eq!(
+        std::fs::read(d2.join("scene.json")).unwrap(),
+        std::fs::read(d4.join("scene.json")).unwrap()
+    );
+}
+
+#[test]
+fn bad_actions_are_refused_and_change_nothing() {
+    let tmp = assist_testkit::TempDir::new("edit-bad");
+    let mut ed = Editor::new(base());
+    let before = ed.scene.scene.clone();
+    let missing = tmp.path().join("missing.assist");
+    let cases = [
+        (
+            serde_json::json!({"instance_id": 0, "operation": "add", "config": {"scene": missing.to_string_lossy(), "node": 1}}),
+            "missing.assist",
+        ),
+        (
+            serde_json::json!({"instance_id": 42, "operation": "delete", "config": {}}),
+            "instance_id 42: no such node",
+        ),
+        (
+            serde_json::json!({"instance_id": 1, "operation": "scale", "config": {"factor": 0.0}}),
+            "factor > 0",
+        ),
+        (
+            serde_json::json!({"instance_id": 1, "operation": "translate", "config": {"axis": "x"}}),
+            "distance",
+        ),
+        (
+            serde_json::json!({"instance_id": 0, "operation": "delete", "config": {}}),
+            "background",
+        ),
+    ];
+    for (json, want) in cases {
+        let a: Action = serde_json::from_value(json.clone()).unwrap();
+        // A valid edit first: all or nothing means it must not stay applied either.
+        let ok = act(r#"{"instance_id":1,"operation":"translate","config":{"vector":[1,0,0]}}"#);
+        let e = ed.apply_all(&[ok, a]).unwrap_err().to_string();
+        assert!(
+            e.contains(want),
+            "{json}: error {e:?} does not say {want:?}"
+        );
+        assert_eq!(ed.scene.scene, before, "{json}: the scene changed");
+        assert!(ed.history.is_empty());
+    }
+    // Another format version.
+    let other = tmp.path().join("v99.assist");
+    other_scene(&other);
+    let text = std::fs::read_to_string(other.join("scene.json"))
+        .unwrap()
+        .replace("\"version\": 1", "\"version\": 99");
+    std::fs::write(other.join("scene.json"), text).unwrap();
+    let a: Action = serde_json::from_value(serde_json::json!({"instance_id": 0, "operation": "add", "config": {"scene": other.to_string_lossy(), "node": 1}})).unwrap();
+    let e = ed.apply_all(&[a]).unwrap_err().to_string();
+    assert!(e.contains("version") && e.contains("99"), "{e}");
+    // Unknown fields are refused when the JSON is read.
+    let e = serde_json::from_str::<Action>(
+        r#"{"instance_id":1,"operation":"translate","config":{"distanse":1}}"#,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("distanse"), "{e}");
+}

@@ -1,0 +1,215 @@
+//! `assist edit SCENE (--do TEXT | --actions FILE.jsonl | --undo N | --redo N) --out NEW`:
+//! applies actions (from plain language, an edit script, or an LLM), or steps through the
+//! scene's edit history, and saves the result atomically. `--dry-run --json` prints the
+//! resolved actions and touches nothing.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use assist_core::Action;
+use assist_lang::ParseOptions;
+use assist_render::Editor;
+use clap::Args;
+
+#[derive(Args, Debug)]
+pub struct EditArgs {
+    /// Scene directory to edit.
+    pub scene: PathBuf,
+    /// A plain-language instruction, e.g. "move the mug 10 cm left and rotate it 90 degrees".
+    #[arg(long = "do", value_name = "TEXT")]
+    pub text: Option<String>,
+    /// An edit script: JSON Lines of actions (or one JSON array / object).
+    #[arg(long, value_name = "FILE")]
+    pub actions: Option<PathBuf>,
+    /// Undo this many earlier edits (from the scene's history).
+    #[arg(long, value_name = "N")]
+    pub undo: Option<usize>,
+    /// Redo this many undone edits.
+    #[arg(long, value_name = "N")]
+    pub redo: Option<usize>,
+    /// Where to save the edited scene.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Print the resolved actions; write nothing.
+    #[arg(long)]
+    pub dry_run: bool,
+    #[arg(long)]
+    pub json: bool,
+    /// Replace --out if it exists.
+    #[arg(long)]
+    pub force: bool,
+    /// Interpret left/right/forward/back relative to this dataset's camera (with --frame).
+    #[arg(long, value_name = "DATA")]
+    pub camera: Option<PathBuf>,
+    /// The camera's frame name in --camera.
+    #[arg(long, value_name = "NAME")]
+    pub frame: Option<String>,
+    /// Ask the LLM provider set by ASSIST_LLM_URL / ASSIST_LLM_MODEL / ASSIST_LLM_API_KEY
+    /// instead of the built-in parser (its answer is validated the same way).
+    #[arg(long)]
+    pub llm: bool,
+}
+
+/// Reads an edit script: JSON Lines (blank lines and `#` comments skipped), a JSON array,
+/// or a single (possibly pretty-printed) JSON object. Errors name the file and line.
+pub fn read_actions(path: &Path) -> anyhow::Result<Vec<Action>> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("reading actions file {}", path.display()))?;
+    let t = text.trim_start();
+    if t.starts_with('[') {
+        return serde_json::from_str(&text).map_err(|e| {
+            anyhow::anyhow!(
+                "{} line {} column {}: not a JSON array of actions {{instance_id, operation, config}}: {e}",
+                path.display(),
+                e.line(),
+                e.column()
+            )
+        });
+    }
+    let mut out = Vec::new();
+    for (n, line) in text.lines().enumerate() {
+        let l = line.trim();
+        if l.is_empty() || l.starts_with('#') {
+            continue;
+        }
+        match serde_json::from_str::<Action>(l) {
+            Ok(a) => out.push(a),
+            Err(e) => {
+                // A single pretty-printed object is not JSON Lines but is unambiguous.
+                if out.is_empty()
+                    && let Ok(a) = serde_json::from_str::<Action>(&text)
+                {
+                    return Ok(vec![a]);
+                }
+                bail!(
+                    "{} line {}: not an action {{instance_id, operation, config}}: {e}",
+                    path.display(),
+                    n + 1
+                );
+            }
+        }
+    }
+    if out.is_empty() {
+        bail!("{}: no actions in the file", path.display());
+    }
+    Ok(out)
+}
+
+fn camera_rotation(a: &EditArgs) -> anyhow::Result<Option<assist_core::DMat3>> {
+    let Some(data) = &a.camera else {
+        if a.frame.is_some() {
+            bail!("--frame needs --camera DATA");
+        }
+        return Ok(None);
+    };
+    let ds = assist_data::load(data, &assist_data::LoadOptions::default())
+        .with_context(|| format!("--camera: loading {}", data.display()))?;
+    let name = a.frame.as_deref().context("--camera needs --frame NAME")?;
+    let f = ds.frames.iter().find(|f| f.name == name).with_context(|| {
+        format!(
+            "--frame: no frame named {name:?} in {} (e.g. {})",
+            data.display(),
+            ds.frames
+                .iter()
+                .take(3)
+                .map(|f| f.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    })?;
+    Ok(Some(f.camera.pose.rotation()))
+}
+
+pub fn run(a: EditArgs) -> anyhow::Result<()> {
+    let sources = [
+        a.text.is_some(),
+        a.actions.is_some(),
+        a.undo.is_some() || a.redo.is_some(),
+    ];
+    if sources.iter().filter(|s| **s).count() != 1 {
+        bail!("give exactly one of --do TEXT, --actions FILE, or --undo/--redo N");
+    }
+    let mut ed =
+        Editor::open(&a.scene).with_context(|| format!("loading scene {}", a.scene.display()))?;
+    let actions: Vec<Action> = if let Some(text) = &a.text {
+        if a.llm {
+            let p = assist_lang::llm::LlmProvider::from_env()
+                .context("--llm: set ASSIST_LLM_URL (and ASSIST_LLM_MODEL, ASSIST_LLM_API_KEY) to an OpenAI-compatible endpoint")?;
+            p.parse(text, &ed.scene.scene, &mut ed.sources)?
+        } else {
+            let opts = ParseOptions {
+                camera: camera_rotation(&a)?,
+                last: ed.scene.scene.selected,
+                embedder: None,
+            };
+            assist_lang::parse(text, &ed.scene.scene, &opts, &mut ed.sources)?
+        }
+    } else if let Some(f) = &a.actions {
+        read_actions(f)?
+    } else {
+        Vec::new()
+    };
+    let mpu = ed.scene.scene.meters_per_unit;
+    if a.dry_run {
+        let edits = ed.plan(&actions)?;
+        let resolved: Vec<Action> = edits.iter().map(|e| e.to_action(mpu)).collect();
+        if a.json {
+            println!("{}", serde_json::to_string_pretty(&resolved)?);
+        } else {
+            for r in &resolved {
+                println!("{}", serde_json::to_string(r)?);
+            }
+        }
+        return Ok(());
+    }
+    let out = a
+        .out
+        .as_ref()
+        .context("--out NEW.assist is required (or --dry-run)")?;
+    if out.exists() && !a.force {
+        bail!("{} exists (pass --force to replace it)", out.display());
+    }
+    let mut resolved = Vec::new();
+    if let Some(n) = a.undo {
+        for i in 0..n {
+            if !ed.undo() {
+                bail!("--undo {n}: the scene has only {i} edit(s) to undo");
+            }
+        }
+    } else if let Some(n) = a.redo {
+        for i in 0..n {
+            if !ed.redo() {
+                bail!("--redo {n}: the scene has only {i} undone edit(s) to redo");
+            }
+        }
+    } else {
+        let edits = ed.apply_all(&actions)?;
+        resolved = edits.iter().map(|e| e.to_action(mpu)).collect();
+    }
+    ed.save(out, a.force)
+        .with_context(|| format!("saving {}", out.display()))?;
+    if a.json {
+        println!(
+            "{}",
+            serde_json::json!({
+                "out": out,
+                "actions": resolved,
+                "nodes": ed.scene.scene.nodes.len(),
+                "undo": ed.history.undo.len(),
+                "redo": ed.history.redo.len(),
+            })
+        );
+    } else {
+        for r in &resolved {
+            eprintln!("applied {}", serde_json::to_string(r)?);
+        }
+        eprintln!(
+            "saved {} ({} nodes; {} edit(s) to undo, {} to redo)",
+            out.display(),
+            ed.scene.scene.nodes.len(),
+            ed.history.undo.len(),
+            ed.history.redo.len()
+        );
+    }
+    Ok(())
+}
