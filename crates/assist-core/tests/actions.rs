@@ -1,0 +1,321 @@
+//! Actions: JSON shape, validation against a scene, units and frames, composition of
+//! cascaded edits, resting placement for swaps, and undo/redo.
+
+use std::collections::BTreeSet;
+
+use assist_core::action::NoSources;
+use assist_core::edit::{History, apply, world_aabb};
+use assist_core::{Action, DMat3, DQuat, DVec3, Edit, Obb, Scene, SceneNode};
+
+fn scene() -> Scene {
+    let n = |id: u16, at: [f64; 3], half: [f64; 3], yaw: f64| {
+        SceneNode::from_obb(
+            id,
+            &format!("object {id}"),
+            &format!("f{id}"),
+            &Obb::new(
+                DVec3::from_array(at),
+                DVec3::from_array(half) * 2.0,
+                DMat3::from_rotation_z(yaw),
+            ),
+        )
+    };
+    Scene {
+        nodes: vec![
+            n(0, [0.0, 0.0, 0.0], [2.0, 2.0, 1.0], 0.0),
+            n(1, [0.0, 0.0, 0.8], [0.05, 0.05, 0.05], 0.3),
+            n(2, [0.5, 0.0, 0.9], [0.05, 0.05, 0.15], 0.0),
+        ],
+        up: DVec3::Z,
+        meters_per_unit: 0.5,
+        background_color: [0.0; 3],
+        selected: None,
+    }
+}
+
+fn validate(s: &Scene, json: &str) -> Result<Edit, String> {
+    let a: Action = serde_json::from_str(json).map_err(|e| e.to_string())?;
+    a.validate(s, &mut NoSources, &BTreeSet::new())
+        .map_err(|e| e.to_string())
+}
+
+fn run(s: &mut Scene, json: &str) {
+    let e = validate(s, json).unwrap();
+    apply(s, &e).unwrap();
+}
+
+#[test]
+fn json_shape_is_exactly_instance_id_operation_config() {
+    let a: Action = serde_json::from_str(
+        r#"{"instance_id": 3, "operation": "translate", "config": {"offset": [-0.17, 0.12, 0.0]}}"#,
+    )
+    .unwrap();
+    let v = serde_json::to_value(&a).unwrap();
+    let keys: Vec<&String> = v.as_object().unwrap().keys().collect();
+    assert_eq!(keys, ["config", "instance_id", "operation"]);
+    assert_eq!(
+        v["config"],
+        serde_json::json!({"offset": [-0.17, 0.12, 0.0]})
+    );
+    assert!(
+        serde_json::from_str::<Action>(r#"{"instance_id": 1, "operation": "fly", "config": {}}"#)
+            .is_err()
+    );
+    assert!(
+        serde_json::from_str::<Action>(
+            r#"{"instance_id": 1, "operation": "delete", "config": {}, "extra": 1}"#
+        )
+        .is_err()
+    );
+}
+
+#[test]
+fn units_are_converted_through_meters_per_unit() {
+    // One world unit is half a metre: 10 cm is 0.2 units.
+    let s = scene();
+    match validate(&s, r#"{"instance_id":1,"operation":"translate","config":{"axis":"x","distance":10,"unit":"cm"}}"#).unwrap() {
+        Edit::Translate { offset, .. } => assert!((offset - DVec3::new(0.2, 0.0, 0.0)).length() < 1e-12),
+        e => panic!("{e:?}"),
+    }
+    match validate(
+        &s,
+        r#"{"instance_id":1,"operation":"translate","config":{"vector":[1,2,3],"unit":"units"}}"#,
+    )
+    .unwrap()
+    {
+        Edit::Translate { offset, .. } => assert_eq!(offset, DVec3::new(1.0, 2.0, 3.0)),
+        e => panic!("{e:?}"),
+    }
+    match validate(
+        &s,
+        r#"{"instance_id":1,"operation":"rotate","config":{"axis":"z","angle":1.5,"unit":"rad"}}"#,
+    )
+    .unwrap()
+    {
+        Edit::Rotate { angle, .. } => assert_eq!(angle, 1.5),
+        e => panic!("{e:?}"),
+    }
+}
+
+#[test]
+fn object_frame_axes_follow_the_node() {
+    let s = scene();
+    // Node 1 is yawed by 0.3 rad: its own x axis is (cos 0.3, sin 0.3, 0).
+    match validate(&s, r#"{"instance_id":1,"operation":"translate","config":{"axis":"x","distance":1,"unit":"units","frame":"object"}}"#).unwrap() {
+        Edit::Translate { offset, .. } => {
+            assert!((offset - DVec3::new(0.3f64.cos(), 0.3f64.sin(), 0.0)).length() < 1e-12)
+        }
+        e => panic!("{e:?}"),
+    }
+    // A world axis 17° off the node's axes is refused for per-axis scaling (it would shear).
+    assert!(
+        validate(
+            &s,
+            r#"{"instance_id":1,"operation":"scale","config":{"axis":"x","factor":2}}"#
+        )
+        .is_ok()
+    );
+    let mut s2 = s.clone();
+    run(
+        &mut s2,
+        r#"{"instance_id":1,"operation":"rotate","config":{"degrees":30}}"#,
+    );
+    let e = validate(
+        &s2,
+        r#"{"instance_id":1,"operation":"scale","config":{"axis":"x","factor":2}}"#,
+    )
+    .unwrap_err();
+    assert!(e.contains("shear"), "{e}");
+}
+
+#[test]
+fn invalid_values_are_refused_with_the_field_named() {
+    let s = scene();
+    let cases = [
+        (
+            r#"{"instance_id":1,"operation":"scale","config":{"factor":0}}"#,
+            "config.factor",
+        ),
+        (
+            r#"{"instance_id":1,"operation":"scale","config":{"factors":[1,-1,1]}}"#,
+            "config.factors",
+        ),
+        (
+            r#"{"instance_id":1,"operation":"translate","config":{"axis":"w","distance":1}}"#,
+            "config.axis",
+        ),
+        (
+            r#"{"instance_id":1,"operation":"translate","config":{"axis":"x","distance":1,"unit":"furlong"}}"#,
+            "config.unit",
+        ),
+        (
+            r#"{"instance_id":1,"operation":"translate","config":{"axis":"x","distance":1,"vector":[1,0,0]}}"#,
+            "not both",
+        ),
+        (
+            r#"{"instance_id":1,"operation":"rotate","config":{"axis":[0,0,0],"degrees":5}}"#,
+            "non-zero",
+        ),
+        (
+            r#"{"instance_id":1,"operation":"rotate","config":{"degrees":5,"radians":1}}"#,
+            "only one",
+        ),
+        (
+            r#"{"instance_id":1,"operation":"delete","config":{"factor":2}}"#,
+            "not a field of delete",
+        ),
+        (
+            r#"{"instance_id":1,"operation":"swap","config":{"with":1}}"#,
+            "two different",
+        ),
+        (
+            r#"{"instance_id":1,"operation":"replicate","config":{"new_id":2}}"#,
+            "already used",
+        ),
+        (
+            r#"{"instance_id":7,"operation":"select","config":{}}"#,
+            "instance_id 7: no such node",
+        ),
+        (
+            r#"{"instance_id":0,"operation":"add","config":{"scene":"x.assist","node":1}}"#,
+            "x.assist",
+        ),
+    ];
+    for (json, want) in cases {
+        let e = validate(&s, json).unwrap_err();
+        assert!(e.contains(want), "{json}: {e:?} does not say {want:?}");
+    }
+}
+
+#[test]
+fn cascaded_edits_compose() {
+    // scale ×2, move +x, rotate 90° about z: the box's corners follow the product.
+    let mut s = scene();
+    let before = s.node(2).unwrap().clone();
+    run(
+        &mut s,
+        r#"{"instance_id":2,"operation":"scale","config":{"factor":2}}"#,
+    );
+    run(
+        &mut s,
+        r#"{"instance_id":2,"operation":"translate","config":{"vector":[0.5,0,0],"unit":"units"}}"#,
+    );
+    run(
+        &mut s,
+        r#"{"instance_id":2,"operation":"rotate","config":{"axis":"z","degrees":90}}"#,
+    );
+    let after = s.node(2).unwrap();
+    let q = DQuat::from_rotation_z(std::f64::consts::FRAC_PI_2);
+    let centre = before.world_from_local.translation + DVec3::new(0.5, 0.0, 0.0);
+    for (p, c) in before
+        .local_aabb()
+        .corners()
+        .iter()
+        .zip(after.world_corners())
+    {
+        let want = centre + q * (before.world_from_local.rotation * (*p * 2.0));
+        assert!((want - c).length() < 1e-12, "{want} vs {c}");
+    }
+    // A pivot other than the centre moves the centre around it.
+    let mut s = scene();
+    run(
+        &mut s,
+        r#"{"instance_id":2,"operation":"rotate","config":{"axis":"z","degrees":180,"center":[0,0,0.9]}}"#,
+    );
+    assert!(
+        (s.node(2).unwrap().world_from_local.translation - DVec3::new(-0.5, 0.0, 0.9)).length()
+            < 1e-12
+    );
+}
+
+#[test]
+fn swap_rests_each_where_the_other_stood() {
+    let mut s = scene();
+    let (a, b) = (s.node(1).unwrap().clone(), s.node(2).unwrap().clone());
+    run(
+        &mut s,
+        r#"{"instance_id":1,"operation":"swap","config":{"with":2}}"#,
+    );
+    let (a2, b2) = (s.node(1).unwrap(), s.node(2).unwrap());
+    // Across the floor: exchanged. Bottoms: each at the other's bottom height.
+    let xy = |n: &SceneNode| n.world_from_local.translation.truncate();
+    assert!((xy(a2) - xy(&b)).length() < 1e-12 && (xy(b2) - xy(&a)).length() < 1e-12);
+    assert!((world_aabb(a2).min.z - world_aabb(&b).min.z).abs() < 1e-12);
+    assert!((world_aabb(b2).min.z - world_aabb(&a).min.z).abs() < 1e-12);
+}
+
+#[test]
+fn replicate_finds_a_free_spot_and_to_action_round_trips() {
+    let mut s = scene();
+    let e = validate(
+        &s,
+        r#"{"instance_id":1,"operation":"replicate","config":{}}"#,
+    )
+    .unwrap();
+    apply(&mut s, &e).unwrap();
+    let copy = world_aabb(s.node(3).unwrap());
+    for id in [1, 2] {
+        let o = world_aabb(s.node(id).unwrap());
+        let overlap = (copy.min.cmplt(o.max) & o.min.cmplt(copy.max)).all();
+        assert!(!overlap, "the copy overlaps node {id}");
+    }
+    // Every edit written back as an action validates to the same edit.
+    let s0 = scene();
+    for json in [
+        r#"{"instance_id":1,"operation":"translate","config":{"axis":"y","distance":3,"unit":"cm"}}"#,
+        r#"{"instance_id":1,"operation":"rotate","config":{"axis":[1,1,0],"degrees":33}}"#,
+        r#"{"instance_id":2,"operation":"scale","config":{"factors":[1,2,3]}}"#,
+        r#"{"instance_id":1,"operation":"replicate","config":{}}"#,
+        r#"{"instance_id":2,"operation":"swap","config":{"with":1}}"#,
+    ] {
+        let e = validate(&s0, json).unwrap();
+        let back = serde_json::to_string(&e.to_action(s0.meters_per_unit)).unwrap();
+        let e2 = validate(&s0, &back).unwrap();
+        match (&e, &e2) {
+            (Edit::Translate { offset: a, .. }, Edit::Translate { offset: b, .. })
+            | (Edit::Replicate { offset: a, .. }, Edit::Replicate { offset: b, .. }) => {
+                assert!((*a - *b).length() < 1e-12, "{json} → {back}")
+            }
+            (
+                Edit::Rotate {
+                    axis: a, angle: x, ..
+                },
+                Edit::Rotate {
+                    axis: b, angle: y, ..
+                },
+            ) => {
+                assert!(
+                    (*a - *b).length() < 1e-12 && (x - y).abs() < 1e-12,
+                    "{json} → {back}"
+                )
+            }
+            _ => assert_eq!(e, e2, "{json} → {back}"),
+        }
+    }
+}
+
+#[test]
+fn history_undoes_and_redoes_exactly() {
+    let mut s = scene();
+    let original = s.clone();
+    let mut h = History::default();
+    for json in [
+        r#"{"instance_id":1,"operation":"translate","config":{"vector":[0.1,0.2,0.3]}}"#,
+        r#"{"instance_id":2,"operation":"delete","config":{}}"#,
+        r#"{"instance_id":1,"operation":"select","config":{}}"#,
+    ] {
+        let e = validate(&s, json).unwrap();
+        h.apply(&mut s, &e).unwrap();
+    }
+    let edited = s.clone();
+    assert_eq!(s.selected, Some(1));
+    while h.undo(&mut s) {}
+    assert_eq!(s, original);
+    while h.redo(&mut s) {}
+    assert_eq!(s, edited);
+    // A new edit after undo drops the redo list.
+    h.undo(&mut s);
+    let e = validate(&s, r#"{"instance_id":1,"operation":"delete","config":{}}"#).unwrap();
+    h.apply(&mut s, &e).unwrap();
+    assert!(!h.redo(&mut s));
+}
