@@ -36,20 +36,27 @@ pub struct EvalReport {
     pub seconds: f64,
 }
 
-/// Evaluates `scene` on the frames of `split` (every `stride`-th one).
+/// Evaluates `scene` on the frames of `split` (every `stride`-th one; `None` = all frames,
+/// e.g. for a folder of edit renders).
 pub fn evaluate(
     scene: &NeuralScene,
     ds: &Dataset,
-    split: Split,
+    split: Option<Split>,
     stride: usize,
     mut progress: impl FnMut(usize, usize),
 ) -> Result<EvalReport> {
     let t0 = std::time::Instant::now();
-    let frames: Vec<_> = ds.frames_in(split).step_by(stride.max(1)).collect();
+    let split_name = split.map_or("all", |s| s.name());
+    let frames: Vec<_> = ds
+        .frames
+        .iter()
+        .filter(|f| split.is_none_or(|s| f.split == s))
+        .step_by(stride.max(1))
+        .collect();
     if frames.is_empty() {
         return Err(crate::error::TrainError::Input {
             path: ds.root.clone(),
-            message: format!("the dataset has no frames in split {:?}", split.name()),
+            message: format!("the dataset has no frames in split {split_name:?}"),
         });
     }
     let bg_truth = background_dataset(&ds.root)?;
@@ -103,7 +110,7 @@ pub fn evaluate(
     progress(frames.len(), frames.len());
     let m = per_image.len().max(1) as f64;
     Ok(EvalReport {
-        split: split.name().into(),
+        split: split_name.into(),
         images: per_image.len(),
         psnr: per_image.iter().map(|s| s.psnr).sum::<f64>() / m,
         ssim: per_image.iter().map(|s| s.ssim).sum::<f64>() / m,

@@ -39,7 +39,7 @@ fn synth_scene_trains_to_stated_quality() {
     t.opts.iters = 350;
     let start = std::time::Instant::now();
     let report = t.run(|_, _| {}).unwrap();
-    let r = assist_train::eval::evaluate(&t.scene, &ds, Split::Test, 1, |_, _| {}).unwrap();
+    let r = assist_train::eval::evaluate(&t.scene, &ds, Some(Split::Test), 1, |_, _| {}).unwrap();
     eprintln!(
         "synth: {} iterations in {:.1} s; test PSNR {:.2} dB, SSIM {:.3}, panoptic mIoU {:?}, background {:?} / occluded {:?}",
         report.iterations,

@@ -1,15 +1,20 @@
-//! `assist demo`: the main job on the built-in default scene, with no downloads.
+//! `assist demo`: the main job on the built-in default, with no downloads.
 //!
-//! Generates a synth scene into `./assist-demo/scene`, validates it as any dataset, checks
-//! multi-view depth consistency, and writes a contact sheet of a test view (RGB, depth,
-//! instance masks, the background without objects, and each edit).
+//! Generates two synthetic tabletop scenes (perfect ground truth), trains the first (about
+//! two minutes on 2 cores) and the second briefly, edits the first with plain-language
+//! instructions — move, rotate, duplicate, delete, and insert an object from the second
+//! scene — and renders test views before and after (RGB, depth, panoptic ids) into
+//! `./assist-demo/`, with a contact sheet.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use assist_data::image_io::{ImageF32, read_depth_png, read_ids, read_rgb, write_rgb_png};
+use assist_core::{Scene, SceneNode};
+use assist_data::image_io::{ImageF32, write_rgb_png};
 use assist_data::synth::SynthConfig;
 use assist_data::{LoadOptions, Split};
+use assist_lang::ParseOptions;
+use assist_render::{Editor, RenderOptions, RenderedImage, render_camera};
 use clap::Args;
 
 #[derive(Args, Debug)]
@@ -19,12 +24,75 @@ pub struct DemoArgs {
     pub out: PathBuf,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Training time of the main scene, seconds.
+    #[arg(long, default_value_t = 110.0)]
+    pub train_seconds: f64,
+    /// Training time of the second scene (the source of the inserted object), seconds.
+    #[arg(long, default_value_t = 30.0)]
+    pub other_seconds: f64,
     /// Replace an output folder that was not written by a previous demo.
     #[arg(long)]
     pub force: bool,
 }
 
 const MARKER: &str = ".assist-demo";
+
+fn train(data: &Path, out: &Path, seconds: f64, seed: u64) -> anyhow::Result<()> {
+    crate::cmd_train::run(crate::cmd_train::TrainArgs {
+        data: data.to_path_buf(),
+        out: out.to_path_buf(),
+        iters: 1_000_000,
+        max_time: Some(seconds),
+        batch_samples: 1 << 16,
+        prior: "push-pull".into(),
+        lambda_bg_rgb: None,
+        lambda_bg_depth: None,
+        lambda_obj_acc: None,
+        lambda_obj_rgb: None,
+        appearance: "off".into(),
+        seed,
+        checkpoint_every: 1e9,
+        resume: false,
+        force: true,
+        json: false,
+        poison_at: None,
+    })
+}
+
+fn objects(scene: &Scene) -> Vec<&SceneNode> {
+    let mut v: Vec<&SceneNode> = scene.nodes.iter().filter(|n| !n.is_background()).collect();
+    v.sort_by_key(|n| n.id);
+    v
+}
+
+/// The instruction the demo gives, naming objects by their labels.
+fn instruction(scene: &Scene, other: &Scene, other_path: &str) -> anyhow::Result<String> {
+    let o = objects(scene);
+    let src = objects(other);
+    if o.len() < 4 || src.is_empty() {
+        bail!("the demo scenes need at least 4 objects and 1 object to insert");
+    }
+    // The inserted object stands where the deleted one stood, resting on the table.
+    let gone = o[3];
+    let corners = gone.world_corners();
+    let table = corners
+        .iter()
+        .map(|c| c.dot(scene.up))
+        .fold(f64::INFINITY, f64::min);
+    let ins = src[0];
+    let ins_bottom = ins
+        .world_corners()
+        .iter()
+        .map(|c| c.dot(other.up))
+        .fold(f64::INFINITY, f64::min);
+    let half_height = ins.world_from_local.translation.dot(other.up) - ins_bottom;
+    let at = gone.world_from_local.translation;
+    let p = at - scene.up * at.dot(scene.up) + scene.up * (table + half_height);
+    Ok(format!(
+        "move the {} 8 cm to the left, rotate the {} by 60 degrees, duplicate the {} and move the copy 10 cm forward, delete the {}, then add the {} from {} at {:.4} {:.4} {:.4}",
+        o[0].label, o[1].label, o[2].label, gone.label, ins.label, other_path, p.x, p.y, p.z
+    ))
+}
 
 pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     let out = &a.out;
@@ -42,61 +110,182 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     std::fs::write(out.join(MARKER), "written by assist demo\n")
         .with_context(|| format!("writing {}", out.join(MARKER).display()))?;
-    let scene_dir = out.join("scene");
+    let t0 = std::time::Instant::now();
+    let (data_a, data_b) = (out.join("scene"), out.join("other"));
     let cfg = SynthConfig {
         seed: a.seed,
         ..SynthConfig::default()
     };
     eprintln!(
-        "1/3 generating the built-in scene ({} views at {}x{}, {} objects)",
+        "1/6 generating two built-in scenes ({} views at {}x{}, {} objects each)",
         cfg.views, cfg.width, cfg.height, cfg.objects
     );
-    let summary = crate::cmd_synth::synth(&cfg, &scene_dir, true, true)?;
-
-    eprintln!("2/3 reading it back as a dataset and validating every file");
-    let ds = assist_data::load(&scene_dir, &LoadOptions::default())?;
+    crate::cmd_synth::synth(&cfg, &data_a, true, false)?;
+    let cfg_b = SynthConfig {
+        seed: a.seed.wrapping_add(1),
+        ..cfg
+    };
+    crate::cmd_synth::synth(&cfg_b, &data_b, true, false)?;
+    let ds = assist_data::load(&data_a, &LoadOptions::default())?;
     let report = assist_data::validate::validate(&ds);
     if let Some(e) = report.errors.first() {
         bail!("generated scene failed validation: {e}");
     }
+
+    let (scene_a, scene_b) = (out.join("scene.assist"), out.join("other.assist"));
+    eprintln!("2/6 training the scene for {:.0} s", a.train_seconds);
+    train(&data_a, &scene_a, a.train_seconds, a.seed)?;
+    eprintln!(
+        "3/6 training the second scene for {:.0} s (the object to insert comes from it)",
+        a.other_seconds
+    );
+    train(&data_b, &scene_b, a.other_seconds, a.seed)?;
+
+    eprintln!("4/6 measuring the trained scene on its test views");
+    let (trained, _) = assist_render::scene_file::load(&scene_a)?;
+    let r = assist_train::eval::evaluate(&trained, &ds, Some(Split::Test), 1, |_, _| {})?;
+    eprintln!(
+        "    test PSNR {:.2} dB, SSIM {:.3}, panoptic mIoU {:.3} ({} views)",
+        r.psnr,
+        r.ssim,
+        r.panoptic_miou.unwrap_or(f64::NAN),
+        r.images
+    );
+
+    eprintln!("5/6 editing with plain language");
+    let mut ed = Editor::open(&scene_a)?;
+    let (other, _) = assist_render::scene_file::load_scene_json(&scene_b)?;
+    let text = instruction(&ed.scene.scene, &other, &scene_b.to_string_lossy())?;
+    eprintln!("    \"{text}\"");
+    let actions = assist_lang::parse(
+        &text,
+        &ed.scene.scene,
+        &ParseOptions::default(),
+        &mut ed.sources,
+    )?;
+    let edits = ed.apply_all(&actions)?;
+    let mut log = String::new();
+    for e in &edits {
+        let line = serde_json::to_string(&e.to_action(ed.scene.scene.meters_per_unit))?;
+        eprintln!("    {line}");
+        log.push_str(&line);
+        log.push('\n');
+    }
+    assist_data::image_io::write_atomic(&out.join("edits.jsonl"), log.as_bytes())?;
+    let edited = out.join("edited.assist");
+    ed.save(&edited, true)?;
+
+    eprintln!("6/6 rendering test views before and after");
     let test: Vec<usize> = (0..ds.frames.len())
         .filter(|&i| ds.frames[i].split == Split::Test)
         .collect();
-    let (a_idx, b_idx) = (test[0], nearest_view(&ds, test[0]));
-    let r = assist_data::consistency::reproject(&ds, a_idx, b_idx, 1, None)?;
-    eprintln!(
-        "    {} files decode at the declared size; view {a_idx} -> {b_idx}: {:.1}% of reprojected pixels depth-consistent, median colour difference {:.2}/255",
-        report.files_checked,
-        100.0 * r.consistent_fraction(),
-        r.median_abs_rgb * 255.0
-    );
-
-    eprintln!("3/3 writing the contact sheet");
+    let picks = [test[0], test[test.len() / 2]];
+    let mut tiles = Vec::new();
+    for &i in &picks {
+        let f = &ds.frames[i];
+        for (tag, s) in [("before", &trained), ("after", &ed.scene)] {
+            let img = render_camera(s, &f.camera, u32::MAX, &RenderOptions::default());
+            write_outputs(
+                &out.join("render").join(tag),
+                &f.name,
+                &img,
+                s.scene.meters_per_unit,
+            )?;
+            tiles.push(rgb_of(&img));
+            tiles.push(depth_to_rgb(&ImageF32 {
+                width: img.width,
+                height: img.height,
+                channels: 1,
+                data: img.depth.clone(),
+            }));
+            tiles.push(ids_image(img.width, img.height, &img.panoptic));
+        }
+    }
+    let tiles: Vec<ImageF32> = tiles.iter().map(|t| upscale(t, 2)).collect();
     let sheet = out.join("contact_sheet.png");
-    contact_sheet(&scene_dir, &ds.frames[a_idx].name, &summary.edits, &sheet)?;
-    println!("Done. Look at:");
+    write_rgb_png(&sheet, &tile(&tiles, 6))?;
+    println!("Done in {:.0} s. Look at:", t0.elapsed().as_secs_f64());
     println!(
-        "  {}   (test view: RGB | depth | instances | background; then each edit)",
+        "  {}   (each row: before RGB | depth | panoptic, after RGB | depth | panoptic)",
         sheet.display()
     );
     println!(
-        "  {}/            (the dataset: images, depth, instances, background/, edits/)",
-        scene_dir.display()
+        "  {}/   (before/ and after/: images, depth, panoptic of two test views)",
+        out.join("render").display()
     );
-    println!("  assist dataset info {}", scene_dir.display());
+    println!(
+        "  {}   (the resolved actions; replay with assist edit --actions)",
+        out.join("edits.jsonl").display()
+    );
+    println!(
+        "  {} and {}   (trained and edited scenes)",
+        scene_a.display(),
+        edited.display()
+    );
+    println!(
+        "Try: assist edit {} --do \"swap the ... and the ...\" --out swapped.assist",
+        edited.display()
+    );
     Ok(())
 }
 
-fn nearest_view(ds: &assist_data::Dataset, a: usize) -> usize {
-    let c = ds.frames[a].camera.pose.center();
-    (0..ds.frames.len())
-        .filter(|&b| b != a)
-        .min_by(|&x, &y| {
-            (ds.frames[x].camera.pose.center() - c)
-                .length()
-                .total_cmp(&(ds.frames[y].camera.pose.center() - c).length())
-        })
-        .unwrap_or(a)
+fn rgb_of(img: &RenderedImage) -> ImageF32 {
+    ImageF32 {
+        width: img.width,
+        height: img.height,
+        channels: 3,
+        data: img.rgb.clone(),
+    }
+}
+
+fn write_outputs(dir: &Path, name: &str, img: &RenderedImage, mpu: f64) -> anyhow::Result<()> {
+    use assist_data::image_io::write_gray16_png;
+    for d in ["images", "depth", "panoptic"] {
+        std::fs::create_dir_all(dir.join(d))?;
+    }
+    write_rgb_png(
+        &dir.join("images").join(format!("{name}.png")),
+        &rgb_of(img),
+    )?;
+    let mm: Vec<u16> = img
+        .depth
+        .iter()
+        .map(|&z| (z as f64 * mpu * 1000.0).round().clamp(0.0, 65535.0) as u16)
+        .collect();
+    write_gray16_png(
+        &dir.join("depth").join(format!("{name}.png")),
+        img.width,
+        img.height,
+        &mm,
+    )?;
+    write_gray16_png(
+        &dir.join("panoptic").join(format!("{name}.png")),
+        img.width,
+        img.height,
+        &img.panoptic,
+    )?;
+    Ok(())
+}
+
+fn ids_image(w: u32, h: u32, ids: &[u16]) -> ImageF32 {
+    let mut out = ImageF32::new(w, h, 3);
+    for (k, &v) in ids.iter().enumerate() {
+        out.data[k * 3..k * 3 + 3].copy_from_slice(&id_color(v));
+    }
+    out
+}
+
+/// Nearest-neighbour enlargement by an integer factor.
+fn upscale(img: &ImageF32, f: u32) -> ImageF32 {
+    let mut out = ImageF32::new(img.width * f, img.height * f, 3);
+    for y in 0..out.height {
+        for x in 0..out.width {
+            let src = img.pixel(x / f, y / f);
+            let k = ((y * out.width + x) * 3) as usize;
+            out.data[k..k + 3].copy_from_slice(&src[..3]);
+        }
+    }
+    out
 }
 
 /// Distinct colours for instance ids (0 = black).
@@ -139,15 +328,6 @@ fn depth_to_rgb(d: &ImageF32) -> ImageF32 {
     out
 }
 
-fn ids_to_rgb(p: &Path) -> anyhow::Result<ImageF32> {
-    let ids = read_ids(p)?;
-    let mut out = ImageF32::new(ids.width, ids.height, 3);
-    for (k, &v) in ids.data.iter().enumerate() {
-        out.data[k * 3..k * 3 + 3].copy_from_slice(&id_color(v));
-    }
-    Ok(out)
-}
-
 /// Tiles equally sized images into rows of `cols`.
 pub fn tile(images: &[ImageF32], cols: usize) -> ImageF32 {
     let (w, h) = (images[0].width, images[0].height);
@@ -166,27 +346,4 @@ pub fn tile(images: &[ImageF32], cols: usize) -> ImageF32 {
         }
     }
     out
-}
-
-fn contact_sheet(scene: &Path, name: &str, edits: &[String], out: &Path) -> anyhow::Result<()> {
-    let file = format!("{name}.png");
-    let mut tiles = vec![
-        read_rgb(&scene.join("images").join(&file), [0.0; 3])?.0,
-        depth_to_rgb(&read_depth_png(&scene.join("depth").join(&file), 0.001)?),
-        ids_to_rgb(&scene.join("instances").join(&file))?,
-        read_rgb(&scene.join("background/images").join(&file), [0.0; 3])?.0,
-    ];
-    for e in edits {
-        let d = scene.join("edits").join(e);
-        tiles.push(read_rgb(&d.join("images").join(&file), [0.0; 3])?.0);
-        tiles.push(ids_to_rgb(&d.join("instances").join(&file))?);
-    }
-    while tiles.len() % 4 != 0 {
-        let (w, h) = (tiles[0].width, tiles[0].height);
-        let mut blank = ImageF32::new(w, h, 3);
-        blank.data.fill(1.0);
-        tiles.push(blank);
-    }
-    write_rgb_png(out, &tile(&tiles, 4))?;
-    Ok(())
 }

@@ -24,8 +24,16 @@ pub struct EvalArgs {
 }
 
 pub fn run(a: EvalArgs) -> anyhow::Result<()> {
-    let split = Split::parse(&a.split)
-        .with_context(|| format!("--split: expected train, val or test, got {:?}", a.split))?;
+    let split = if a.split == "all" {
+        None
+    } else {
+        Some(Split::parse(&a.split).with_context(|| {
+            format!(
+                "--split: expected train, val, test or all, got {:?}",
+                a.split
+            )
+        })?)
+    };
     let (scene, _) = assist_render::scene_file::load(&a.scene)
         .with_context(|| format!("loading scene {}", a.scene.display()))?;
     let ds = assist_data::load(&a.data, &LoadOptions::default())

@@ -1,0 +1,75 @@
+//! A small scene on disk (random weights) and a way to run the built binary.
+#![allow(dead_code)]
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::process::Command;
+use std::sync::Arc;
+
+use assist_core::{DMat3, DVec3, Obb, Scene, SceneNode};
+use assist_field::{Field, FieldConfig, OccupancyGrid};
+use assist_render::{NeuralScene, NodeField};
+
+pub fn small_field(seed: u64) -> Field {
+    let mut cfg = FieldConfig::object(0);
+    cfg.appearance_dim = 0;
+    cfg.log2_table_size = 10;
+    cfg.levels = 2;
+    Field::new(cfg, seed).unwrap()
+}
+
+/// A scene with a duck (1) and a mug (3) on a background, saved to `dir`.
+pub fn write_scene(dir: &Path) {
+    let n = |id: u16, label: &str, key: &str, at: [f64; 3]| {
+        SceneNode::from_obb(
+            id,
+            label,
+            key,
+            &Obb::new(DVec3::from_array(at), DVec3::splat(0.05), DMat3::IDENTITY),
+        )
+    };
+    let nodes = vec![
+        n(0, "background", "background", [0.0, 0.0, 0.5]),
+        n(1, "yellow rubber duck", "duck", [0.2, 0.0, 0.8]),
+        n(3, "red ceramic mug", "mug", [-0.2, 0.0, 0.8]),
+    ];
+    let mut fields = BTreeMap::new();
+    for (i, k) in ["background", "duck", "mug"].iter().enumerate() {
+        let half = nodes.iter().find(|n| n.field == *k).unwrap().half_size;
+        fields.insert(
+            k.to_string(),
+            Arc::new(NodeField::new(
+                small_field(i as u64),
+                OccupancyGrid::new(8),
+                half,
+            )),
+        );
+    }
+    let s = NeuralScene {
+        scene: Scene {
+            nodes,
+            up: DVec3::Z,
+            meters_per_unit: 1.0,
+            background_color: [0.0; 3],
+            selected: None,
+        },
+        fields,
+    };
+    assist_render::scene_file::save(dir, &s, serde_json::Value::Null, false).unwrap();
+}
+
+pub fn assist(args: &[&str]) -> (bool, String, String) {
+    let o = Command::new(env!("CARGO_BIN_EXE_assist"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        o.status.success(),
+        String::from_utf8_lossy(&o.stdout).into(),
+        String::from_utf8_lossy(&o.stderr).into(),
+    )
+}
+
+pub fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}

@@ -1,0 +1,125 @@
+//! `assist render` writes a dataset others can read back, with every requested output;
+//! `assist demo` runs end to end (briefly trained).
+
+mod common;
+
+use common::{assist, s, write_scene};
+
+#[test]
+fn render_orbit_writes_every_output_as_a_readable_dataset() {
+    let tmp = assist_testkit::TempDir::new("cli-render");
+    let scene = tmp.path().join("a.assist");
+    write_scene(&scene);
+    // Replicate the duck so two nodes share a label (one semantic class, two instances).
+    let edited = tmp.path().join("b.assist");
+    let (ok, _, err) = assist(&[
+        "edit",
+        s(&scene),
+        "--do",
+        "duplicate the duck, then select the mug",
+        "--out",
+        s(&edited),
+    ]);
+    assert!(ok, "{err}");
+    let out = tmp.path().join("out");
+    let (ok, _, err) = assist(&[
+        "render",
+        s(&edited),
+        "--out",
+        s(&out),
+        "--cameras",
+        "orbit",
+        "--frames",
+        "3",
+        "--size",
+        "40x30",
+        "--outputs",
+        "rgb,depth,panoptic,semantic,objects,background",
+    ]);
+    assert!(ok, "{err}");
+    for k in 0..3 {
+        let name = format!("orbit_{k:03}");
+        for f in [
+            format!("images/{name}.png"),
+            format!("depth/{name}.png"),
+            format!("depth/{name}.npy"),
+            format!("panoptic/{name}.png"),
+            format!("semantic/{name}.png"),
+            format!("background/{name}.png"),
+            format!("objects/1/{name}.png"),
+            format!("objects/4/{name}.png"),
+        ] {
+            assert!(out.join(&f).is_file(), "missing {f}");
+        }
+    }
+    let legend: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("panoptic_legend.json")).unwrap()).unwrap();
+    assert_eq!(legend["4"], "yellow rubber duck");
+    let sem: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("semantic_legend.json")).unwrap()).unwrap();
+    assert_eq!(
+        sem.as_object().unwrap().len(),
+        3,
+        "background, duck, mug: {sem}"
+    );
+    // The output reads back as a dataset with the rendered cameras.
+    let ds = assist_data::load(&out, &assist_data::LoadOptions::default()).unwrap();
+    assert_eq!(ds.frames.len(), 3);
+    assert_eq!(ds.frames[0].camera.width(), 40);
+    let report = assist_data::validate::validate(&ds);
+    assert!(report.errors.is_empty(), "{:?}", report.errors);
+    // Bad options are clear errors.
+    let (ok, _, err) = assist(&[
+        "render",
+        s(&edited),
+        "--out",
+        s(&tmp.path().join("x")),
+        "--outputs",
+        "rgb,normals",
+    ]);
+    assert!(!ok && err.contains("unknown output \"normals\""), "{err}");
+    let (ok, _, err) = assist(&["render", s(&edited), "--out", s(&out), "--frames", "1"]);
+    assert!(!ok && err.contains("--force"), "{err}");
+}
+
+#[test]
+fn demo_runs_end_to_end() {
+    let tmp = assist_testkit::TempDir::new("cli-demo");
+    let out = tmp.path().join("demo");
+    let (ok, stdout, err) = assist(&[
+        "demo",
+        "--out",
+        s(&out),
+        "--train-seconds",
+        "6",
+        "--other-seconds",
+        "3",
+    ]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("contact_sheet.png"), "{stdout}");
+    assert!(out.join("contact_sheet.png").is_file());
+    let log = std::fs::read_to_string(out.join("edits.jsonl")).unwrap();
+    let ops: Vec<String> = log
+        .lines()
+        .map(|l| {
+            serde_json::from_str::<serde_json::Value>(l).unwrap()["operation"]
+                .as_str()
+                .unwrap()
+                .to_string()
+        })
+        .collect();
+    assert_eq!(
+        ops,
+        [
+            "translate",
+            "rotate",
+            "replicate",
+            "translate",
+            "delete",
+            "add"
+        ]
+    );
+    let (edited, _) = assist_render::scene_file::load(&out.join("edited.assist")).unwrap();
+    // 5 objects + background, one deleted, one copy, one inserted.
+    assert_eq!(edited.scene.nodes.len(), 7);
+}
