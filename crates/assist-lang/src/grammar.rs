@@ -2,9 +2,14 @@
 //! quantities and words that configure it), knowing nothing about any scene.
 
 use assist_core::Operation;
+use assist_core::Operation::*;
 
 use crate::LangError;
 use crate::tokens::Tok;
+use crate::words::{
+    CREATED, FILLER, GENERIC, GROW, PRONOUNS, SHRINK, axis_word, direction_word, unit_word,
+    verb_at, word,
+};
 
 /// An object as the text names it.
 #[derive(Debug, Clone, PartialEq)]
@@ -86,319 +91,41 @@ pub struct RawCommand {
     pub text: String,
 }
 
-struct Verb {
-    words: &'static [&'static str],
-    op: Operation,
-    direction: Option<Direction>,
-    factor: Option<f64>,
+/// Object phrases being read: the current phrase, and the objects named so far as targets
+/// or (after "with") partners.
+#[derive(Default)]
+struct Refs {
+    phrase: Vec<String>,
+    /// A generic noun ("the object") was read: it names the last object.
+    generic: bool,
+    in_partner: bool,
+    targets: Vec<ObjectRef>,
+    partners: Vec<ObjectRef>,
 }
 
-const fn v(words: &'static [&'static str], op: Operation) -> Verb {
-    Verb {
-        words,
-        op,
-        direction: None,
-        factor: None,
-    }
-}
-
-use Operation::*;
-
-/// Verbs, longest phrases first where they share a first word.
-const VERBS: &[Verb] = &[
-    v(&["get", "rid", "of"], Delete),
-    v(&["take", "away"], Delete),
-    v(&["take", "out"], Delete),
-    v(&["make", "a", "copy", "of"], Replicate),
-    v(&["make", "another"], Replicate),
-    v(&["make", "copies", "of"], Replicate),
-    v(&["bring", "in"], Add),
-    v(&["move"], Translate),
-    v(&["translate"], Translate),
-    v(&["shift"], Translate),
-    v(&["slide"], Translate),
-    v(&["push"], Translate),
-    v(&["pull"], Translate),
-    v(&["nudge"], Translate),
-    v(&["drag"], Translate),
-    v(&["displace"], Translate),
-    v(&["relocate"], Translate),
-    v(&["carry"], Translate),
-    v(&["put"], Translate),
-    v(&["place"], Translate),
-    v(&["position"], Translate),
-    v(&["bring"], Translate),
-    Verb {
-        words: &["raise"],
-        op: Translate,
-        direction: Some(Direction::Up),
-        factor: None,
-    },
-    Verb {
-        words: &["lift"],
-        op: Translate,
-        direction: Some(Direction::Up),
-        factor: None,
-    },
-    Verb {
-        words: &["elevate"],
-        op: Translate,
-        direction: Some(Direction::Up),
-        factor: None,
-    },
-    Verb {
-        words: &["lower"],
-        op: Translate,
-        direction: Some(Direction::Down),
-        factor: None,
-    },
-    Verb {
-        words: &["drop"],
-        op: Translate,
-        direction: Some(Direction::Down),
-        factor: None,
-    },
-    v(&["rotate"], Rotate),
-    v(&["turn"], Rotate),
-    v(&["spin"], Rotate),
-    v(&["twist"], Rotate),
-    v(&["revolve"], Rotate),
-    v(&["pivot"], Rotate),
-    v(&["swivel"], Rotate),
-    v(&["yaw"], Rotate),
-    v(&["scale"], Scale),
-    v(&["rescale"], Scale),
-    v(&["resize"], Scale),
-    v(&["make"], Scale),
-    v(&["stretch"], Scale),
-    Verb {
-        words: &["enlarge"],
-        op: Scale,
-        direction: None,
-        factor: None,
-    },
-    v(&["grow"], Scale),
-    v(&["expand"], Scale),
-    v(&["shrink"], Scale),
-    v(&["reduce"], Scale),
-    v(&["squash"], Scale),
-    v(&["squeeze"], Scale),
-    v(&["compress"], Scale),
-    Verb {
-        words: &["double"],
-        op: Scale,
-        direction: None,
-        factor: Some(2.0),
-    },
-    Verb {
-        words: &["triple"],
-        op: Scale,
-        direction: None,
-        factor: Some(3.0),
-    },
-    Verb {
-        words: &["halve"],
-        op: Scale,
-        direction: None,
-        factor: Some(0.5),
-    },
-    v(&["delete"], Delete),
-    v(&["remove"], Delete),
-    v(&["erase"], Delete),
-    v(&["eliminate"], Delete),
-    v(&["discard"], Delete),
-    v(&["destroy"], Delete),
-    v(&["duplicate"], Replicate),
-    v(&["copy"], Replicate),
-    v(&["replicate"], Replicate),
-    v(&["clone"], Replicate),
-    v(&["swap"], Swap),
-    v(&["exchange"], Swap),
-    v(&["switch"], Swap),
-    v(&["interchange"], Swap),
-    v(&["trade"], Swap),
-    v(&["add"], Add),
-    v(&["insert"], Add),
-    v(&["import"], Add),
-    v(&["load"], Add),
-    v(&["select"], Select),
-    v(&["highlight"], Select),
-    v(&["pick"], Select),
-    v(&["choose"], Select),
-    v(&["mark"], Select),
-    v(&["focus"], Select),
-];
-
-const SHRINK: &[&str] = &["shrink", "reduce", "squash", "squeeze", "compress"];
-const GROW: &[&str] = &["enlarge", "grow", "expand"];
-
-fn word(t: &Tok) -> Option<&str> {
-    match t {
-        Tok::Word(w) => Some(w),
-        _ => None,
-    }
-}
-
-/// The verb starting at `i`, with its length in tokens.
-fn verb_at(toks: &[Tok], i: usize) -> Option<(&'static Verb, usize)> {
-    for verb in VERBS {
-        let n = verb.words.len();
-        if i + n <= toks.len()
-            && verb
-                .words
-                .iter()
-                .zip(&toks[i..i + n])
-                .all(|(w, t)| word(t) == Some(w))
-        {
-            return Some((verb, n));
+impl Refs {
+    fn push(&mut self, r: ObjectRef) {
+        if self.in_partner {
+            self.partners.push(r)
+        } else {
+            self.targets.push(r)
         }
     }
-    None
-}
-
-fn length_unit(w: &str) -> Option<f64> {
-    Some(match w {
-        "m" | "meter" | "meters" | "metre" | "metres" => 1.0,
-        "cm" | "centimeter" | "centimeters" | "centimetre" | "centimetres" | "cms" => 0.01,
-        "mm" | "millimeter" | "millimeters" | "millimetre" | "millimetres" => 0.001,
-        "in" | "inch" | "inches" => 0.0254,
-        "ft" | "foot" | "feet" => 0.3048,
-        _ => return None,
-    })
-}
-
-fn unit_word(w: &str) -> Option<Unit> {
-    if let Some(m) = length_unit(w) {
-        return Some(Unit::Length(m));
+    /// Closes the phrase being read into the current role.
+    fn close(&mut self) {
+        let r = if !self.phrase.is_empty() {
+            Some(ObjectRef::Phrase(std::mem::take(&mut self.phrase)))
+        } else if self.generic {
+            Some(ObjectRef::Last)
+        } else {
+            None
+        };
+        self.generic = false;
+        if let Some(r) = r {
+            self.push(r);
+        }
     }
-    Some(match w {
-        "degree" | "degrees" | "deg" | "degs" => Unit::Degrees,
-        "radian" | "radians" | "rad" | "rads" => Unit::Radians,
-        "percent" | "pct" => Unit::Percent,
-        "times" | "x" | "fold" => Unit::Times,
-        _ => return None,
-    })
 }
-
-fn direction_word(w: &str) -> Option<Direction> {
-    Some(match w {
-        "left" | "leftward" | "leftwards" => Direction::Left,
-        "right" | "rightward" | "rightwards" => Direction::Right,
-        "up" | "upward" | "upwards" | "higher" => Direction::Up,
-        "down" | "downward" | "downwards" => Direction::Down,
-        "forward" | "forwards" | "ahead" | "away" | "further" | "farther" => Direction::Forward,
-        "back" | "backward" | "backwards" | "closer" | "nearer" => Direction::Back,
-        _ => return None,
-    })
-}
-
-fn axis_word(w: &str) -> Option<&'static str> {
-    Some(match w {
-        "x" | "+x" => "x",
-        "y" | "+y" => "y",
-        "z" | "+z" => "z",
-        "-x" => "-x",
-        "-y" => "-y",
-        "-z" => "-z",
-        "vertical" | "vertically" => "up",
-        _ => return None,
-    })
-}
-
-/// Words that carry no meaning for the parser.
-const FILLER: &[&str] = &[
-    "the",
-    "a",
-    "an",
-    "please",
-    "now",
-    "also",
-    "just",
-    "can",
-    "could",
-    "would",
-    "will",
-    "you",
-    "kindly",
-    "i",
-    "we",
-    "want",
-    "wanna",
-    "like",
-    "lets",
-    "let",
-    "us",
-    "go",
-    "of",
-    "its",
-    "their",
-    "my",
-    "our",
-    "so",
-    "that",
-    "is",
-    "it's",
-    "be",
-    "some",
-    "bit",
-    "little",
-    "slightly",
-    "amount",
-    "distance",
-    "axis",
-    "axes",
-    "direction",
-    "size",
-    "factor",
-    "degrees",
-    "should",
-    "position",
-    "positions",
-    "places",
-    "place",
-    "spot",
-    "spots",
-    "around",
-    "about",
-    "along",
-    "over",
-    "in",
-    "on",
-    "onto",
-    "into",
-    "towards",
-    "toward",
-    "across",
-    "through",
-    "same",
-    "scene",
-    "much",
-    "than",
-    "original",
-    "current",
-    "instead",
-    "please",
-    "too",
-    "then",
-    "next",
-    "finally",
-    "afterwards",
-    "after",
-    "first",
-    "there",
-    "here",
-    "way",
-    "side",
-];
-
-/// Generic nouns: "the object", "the thing" mean the last object named.
-const GENERIC: &[&str] = &[
-    "object", "thing", "item", "one", "node", "instance", "objects", "things", "items",
-];
-const PRONOUNS: &[&str] = &[
-    "it", "them", "this", "that", "these", "those", "itself", "him", "her",
-];
-const CREATED: &[&str] = &["copy", "duplicate", "clone", "replica", "new"];
 
 /// Splits `toks` into clauses and parses each.
 pub fn parse_raw(toks: &[Tok]) -> Result<Vec<RawCommand>, LangError> {
@@ -455,11 +182,7 @@ fn parse_clause(toks: &[Tok], out: &mut Vec<RawCommand>) -> Result<(), LangError
     let text = render(toks);
     let verb = (0..toks.len()).find_map(|i| verb_at(toks, i).map(|(v, n)| (i, v, n)));
     let mut p = RawParams::default();
-    let mut targets: Vec<ObjectRef> = Vec::new();
-    let mut partners: Vec<ObjectRef> = Vec::new();
-    let mut phrase: Vec<String> = Vec::new();
-    let mut in_partner = false;
-    let mut generic = false;
+    let mut refs = Refs::default();
     let mut after_from = false;
     let (vi, vn) = verb.map(|(i, _, n)| (i, n)).unwrap_or((usize::MAX, 0));
     let mut op = verb.map(|(_, v, _)| v.op);
@@ -474,38 +197,6 @@ fn parse_clause(toks: &[Tok], out: &mut Vec<RawCommand>) -> Result<(), LangError
             p.size = Some(SizeWord::Bigger);
         }
     }
-    // Closes the phrase being read into the current role.
-    let close = |phrase: &mut Vec<String>,
-                 generic: &mut bool,
-                 in_partner: bool,
-                 targets: &mut Vec<ObjectRef>,
-                 partners: &mut Vec<ObjectRef>| {
-        let r = if !phrase.is_empty() {
-            Some(ObjectRef::Phrase(std::mem::take(phrase)))
-        } else if *generic {
-            Some(ObjectRef::Last)
-        } else {
-            None
-        };
-        *generic = false;
-        if let Some(r) = r {
-            if in_partner {
-                partners.push(r)
-            } else {
-                targets.push(r)
-            }
-        }
-    };
-    let push_ref = |r: ObjectRef,
-                    in_partner: bool,
-                    targets: &mut Vec<ObjectRef>,
-                    partners: &mut Vec<ObjectRef>| {
-        if in_partner {
-            partners.push(r)
-        } else {
-            targets.push(r)
-        }
-    };
     let mut i = 0;
     while i < toks.len() {
         if i == vi {
@@ -517,23 +208,11 @@ fn parse_clause(toks: &[Tok], out: &mut Vec<RawCommand>) -> Result<(), LangError
         match t {
             Tok::Sep => {}
             Tok::Path(path) => {
-                close(
-                    &mut phrase,
-                    &mut generic,
-                    in_partner,
-                    &mut targets,
-                    &mut partners,
-                );
+                refs.close();
                 p.path = Some(path.clone());
             }
             Tok::Num(n) => {
-                close(
-                    &mut phrase,
-                    &mut generic,
-                    in_partner,
-                    &mut targets,
-                    &mut partners,
-                );
+                refs.close();
                 // Three numbers in a row after "at"/"to": a position.
                 let prev = i.checked_sub(1).and_then(|j| toks.get(j)).and_then(word);
                 if (matches!(prev, Some("at" | "to"))
@@ -560,13 +239,7 @@ fn parse_clause(toks: &[Tok], out: &mut Vec<RawCommand>) -> Result<(), LangError
                 if w == "one"
                     && let Some(u) = next.and_then(unit_word)
                 {
-                    close(
-                        &mut phrase,
-                        &mut generic,
-                        in_partner,
-                        &mut targets,
-                        &mut partners,
-                    );
+                    refs.close();
                     p.quantities.push((1.0, Some(u)));
                     i += 2;
                     continue;
@@ -582,13 +255,7 @@ fn parse_clause(toks: &[Tok], out: &mut Vec<RawCommand>) -> Result<(), LangError
                 let is_id_word =
                     matches!(w, "object" | "node" | "instance" | "id" | "number" | "no");
                 if is_id_word && let Some(Tok::Num(n)) = toks.get(i + 1) {
-                    close(
-                        &mut phrase,
-                        &mut generic,
-                        in_partner,
-                        &mut targets,
-                        &mut partners,
-                    );
+                    refs.close();
                     if *n < 0.0 || n.fract() != 0.0 || *n > u16::MAX as f64 {
                         return Err(LangError::BadValue {
                             what: "object id".into(),
@@ -596,12 +263,7 @@ fn parse_clause(toks: &[Tok], out: &mut Vec<RawCommand>) -> Result<(), LangError
                             message: format!("expected a whole number, got {n}"),
                         });
                     }
-                    push_ref(
-                        ObjectRef::Id(*n as u16),
-                        in_partner,
-                        &mut targets,
-                        &mut partners,
-                    );
+                    refs.push(ObjectRef::Id(*n as u16));
                     i += 2;
                     continue;
                 }
@@ -628,13 +290,7 @@ fn parse_clause(toks: &[Tok], out: &mut Vec<RawCommand>) -> Result<(), LangError
                     i += 2;
                     continue;
                 } else if let Some(a) = axis_word(w) {
-                    close(
-                        &mut phrase,
-                        &mut generic,
-                        in_partner,
-                        &mut targets,
-                        &mut partners,
-                    );
+                    refs.close();
                     p.axis = Some(a.to_string());
                 } else if w == "times" {
                     // "2 times": the unit of the number before.
@@ -690,13 +346,7 @@ fn parse_clause(toks: &[Tok], out: &mut Vec<RawCommand>) -> Result<(), LangError
                         | "wider"
                         | "longer"
                 ) {
-                    close(
-                        &mut phrase,
-                        &mut generic,
-                        in_partner,
-                        &mut targets,
-                        &mut partners,
-                    );
+                    refs.close();
                     p.size = Some(SizeWord::Bigger);
                     if matches!(w, "taller" | "tall") && p.axis.is_none() {
                         p.axis = Some("up".into());
@@ -712,91 +362,37 @@ fn parse_clause(toks: &[Tok], out: &mut Vec<RawCommand>) -> Result<(), LangError
                         | "narrower"
                         | "thinner"
                 ) {
-                    close(
-                        &mut phrase,
-                        &mut generic,
-                        in_partner,
-                        &mut targets,
-                        &mut partners,
-                    );
+                    refs.close();
                     p.size = Some(SizeWord::Smaller);
                     if matches!(w, "shorter" | "short") && p.axis.is_none() {
                         p.axis = Some("up".into());
                     }
                 } else if w == "as" {
-                    close(
-                        &mut phrase,
-                        &mut generic,
-                        in_partner,
-                        &mut targets,
-                        &mut partners,
-                    );
+                    refs.close();
                     p.as_ = true;
                 } else if w == "by" {
-                    close(
-                        &mut phrase,
-                        &mut generic,
-                        in_partner,
-                        &mut targets,
-                        &mut partners,
-                    );
+                    refs.close();
                     p.by = true;
                 } else if w == "to" {
-                    close(
-                        &mut phrase,
-                        &mut generic,
-                        in_partner,
-                        &mut targets,
-                        &mut partners,
-                    );
+                    refs.close();
                     p.to = true;
                 } else if w == "at" {
-                    close(
-                        &mut phrase,
-                        &mut generic,
-                        in_partner,
-                        &mut targets,
-                        &mut partners,
-                    );
+                    refs.close();
                 } else if w == "from" {
-                    close(
-                        &mut phrase,
-                        &mut generic,
-                        in_partner,
-                        &mut targets,
-                        &mut partners,
-                    );
+                    refs.close();
                     after_from = true;
                 } else if w == "with" || w == "for" {
-                    close(
-                        &mut phrase,
-                        &mut generic,
-                        in_partner,
-                        &mut targets,
-                        &mut partners,
-                    );
-                    in_partner = true;
+                    refs.close();
+                    refs.in_partner = true;
                 } else if w == "and" || w == "&" || w == "plus" {
-                    close(
-                        &mut phrase,
-                        &mut generic,
-                        in_partner,
-                        &mut targets,
-                        &mut partners,
-                    );
+                    refs.close();
                 } else if w == "around"
                     && op == Some(Rotate)
                     && !toks[i + 1..].iter().any(|t| {
                         matches!(t, Tok::Num(_)) || word(t).is_some_and(|w| axis_word(w).is_some())
                     })
                 {
-                    close(
-                        &mut phrase,
-                        &mut generic,
-                        in_partner,
-                        &mut targets,
-                        &mut partners,
-                    );
+                    refs.close();
                     p.turn.get_or_insert(180.0);
                 } else if matches!(w, "another" | "more" | "second" | "extra") {
                     p.another = true;
@@ -804,37 +400,19 @@ fn parse_clause(toks: &[Tok], out: &mut Vec<RawCommand>) -> Result<(), LangError
                         op = Some(Replicate);
                     }
                 } else if let Some(d) = direction_word(w).filter(|_| op != Some(Select)) {
-                    close(
-                        &mut phrase,
-                        &mut generic,
-                        in_partner,
-                        &mut targets,
-                        &mut partners,
-                    );
+                    refs.close();
                     p.direction = Some(d);
                 } else if PRONOUNS.contains(&w) && !(w == "that" || w == "this") {
-                    close(
-                        &mut phrase,
-                        &mut generic,
-                        in_partner,
-                        &mut targets,
-                        &mut partners,
-                    );
-                    push_ref(ObjectRef::Last, in_partner, &mut targets, &mut partners);
+                    refs.close();
+                    refs.push(ObjectRef::Last);
                 } else if (w == "that" || w == "this")
                     && matches!(
                         next,
                         None | Some("one" | "object" | "thing" | "to" | "by" | "and" | "with")
                     )
                 {
-                    close(
-                        &mut phrase,
-                        &mut generic,
-                        in_partner,
-                        &mut targets,
-                        &mut partners,
-                    );
-                    push_ref(ObjectRef::Last, in_partner, &mut targets, &mut partners);
+                    refs.close();
+                    refs.push(ObjectRef::Last);
                     if next == Some("one") {
                         i += 1;
                     }
@@ -847,48 +425,35 @@ fn parse_clause(toks: &[Tok], out: &mut Vec<RawCommand>) -> Result<(), LangError
                     && !(w == "new"
                         && next.is_some_and(|n| !GENERIC.contains(&n) && !CREATED.contains(&n)))
                 {
-                    close(
-                        &mut phrase,
-                        &mut generic,
-                        in_partner,
-                        &mut targets,
-                        &mut partners,
-                    );
-                    push_ref(ObjectRef::Created, in_partner, &mut targets, &mut partners);
+                    refs.close();
+                    refs.push(ObjectRef::Created);
                     if w == "new" && next.is_some() {
                         i += 1;
                     }
                 } else if GENERIC.contains(&w) {
-                    generic = true;
+                    refs.generic = true;
                 } else if after_from
                     && matches!(w, "scene" | "table" | "desk" | "room" | "floor")
-                    && phrase.is_empty()
+                    && refs.phrase.is_empty()
                 {
                     // "remove the duck from the scene"
                 } else if FILLER.contains(&w) {
-                    if !phrase.is_empty() && !matches!(w, "the" | "a" | "an") {
-                        close(
-                            &mut phrase,
-                            &mut generic,
-                            in_partner,
-                            &mut targets,
-                            &mut partners,
-                        );
+                    if !refs.phrase.is_empty() && !matches!(w, "the" | "a" | "an") {
+                        refs.close();
                     }
                 } else {
-                    phrase.push(w.to_string());
+                    refs.phrase.push(w.to_string());
                 }
             }
         }
         i += 1;
     }
-    close(
-        &mut phrase,
-        &mut generic,
-        in_partner,
-        &mut targets,
-        &mut partners,
-    );
+    refs.close();
+    let Refs {
+        mut targets,
+        partners,
+        ..
+    } = refs;
     let Some(mut op) = op else {
         // No verb: a continuation of the previous command.
         let Some(prev) = out.last().cloned() else {

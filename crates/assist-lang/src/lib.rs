@@ -17,6 +17,7 @@ pub mod llm;
 pub mod names;
 pub mod resolve;
 pub mod tokens;
+pub mod words;
 
 use assist_core::{Action, ActionError, Scene, SceneSource};
 
