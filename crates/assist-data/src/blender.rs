@@ -38,23 +38,13 @@ pub fn load(dir: &Path) -> Result<Dataset> {
             let m = fr.req("transform_matrix")?;
             let pose = Pose::from_matrix(m.mat4_rows()?, m.path())
                 .map_err(|e| DataError::core(&file, e))?;
-            let name = crate::dataset::file_stem(&image_path);
+            let camera = Camera {
+                intrinsics: Intrinsics::from_fov_x(w, h, angle),
+                pose,
+            };
             frames.push(Frame {
-                name,
-                image_path,
-                camera: Camera {
-                    intrinsics: Intrinsics::from_fov_x(w, h, angle),
-                    pose,
-                },
-                camera_model: "PINHOLE".into(),
-                split,
-                mask_path: None,
                 alpha_is_mask: true,
-                instance_mask_path: None,
-                depth_path: None,
-                depth_scale: 1.0,
-                inpaint_path: None,
-                inpaint_depth_path: None,
+                ..Frame::new(image_path, camera, "PINHOLE", split)
             });
         }
     }

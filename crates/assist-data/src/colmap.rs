@@ -228,18 +228,15 @@ pub fn load_dataset(model_dir: &Path, format: Format) -> Result<Dataset> {
             .map_err(|e| DataError::core(&img_file, e))?;
         let image_path = image_dir.join(&im.name);
         frames.push(Frame {
+            // The frame is named after the image as COLMAP names it (the resolved file may
+            // differ, e.g. a downscaled folder).
             name: crate::dataset::file_stem(Path::new(&im.name)),
-            image_path,
-            camera: Camera { intrinsics, pose },
-            camera_model: cam.model.clone(),
-            split: holdout_split(i),
-            mask_path: None,
-            alpha_is_mask: false,
-            instance_mask_path: None,
-            depth_path: None,
-            depth_scale: 1.0,
-            inpaint_path: None,
-            inpaint_depth_path: None,
+            ..Frame::new(
+                image_path,
+                Camera { intrinsics, pose },
+                &cam.model,
+                holdout_split(i),
+            )
         });
     }
     let mut points: Vec<DVec3> = model.points.values().map(|p| p.xyz).collect();

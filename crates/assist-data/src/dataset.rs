@@ -94,6 +94,26 @@ pub struct Frame {
     pub inpaint_depth_path: Option<PathBuf>,
 }
 
+impl Frame {
+    /// A frame named after its image's file stem, with no masks, depth or priors.
+    pub fn new(image_path: PathBuf, camera: Camera, camera_model: &str, split: Split) -> Self {
+        Frame {
+            name: file_stem(&image_path),
+            image_path,
+            camera,
+            camera_model: camera_model.to_string(),
+            split,
+            mask_path: None,
+            alpha_is_mask: false,
+            instance_mask_path: None,
+            depth_path: None,
+            depth_scale: 1.0,
+            inpaint_path: None,
+            inpaint_depth_path: None,
+        }
+    }
+}
+
 /// An object instance declared by the dataset.
 #[derive(Debug, Clone, Serialize)]
 pub struct InstanceInfo {

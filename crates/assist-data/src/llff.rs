@@ -149,23 +149,11 @@ pub fn load(dir: &Path, factor: Option<u32>) -> Result<Dataset> {
         };
         near = near.min(row[15]);
         far = far.max(row[16]);
-        frames.push(Frame {
-            name: crate::dataset::file_stem(img),
-            image_path: img.clone(),
-            camera: Camera {
-                intrinsics: intr,
-                pose,
-            },
-            camera_model: "PINHOLE".into(),
-            split: holdout_split(i),
-            mask_path: None,
-            alpha_is_mask: false,
-            instance_mask_path: None,
-            depth_path: None,
-            depth_scale: 1.0,
-            inpaint_path: None,
-            inpaint_depth_path: None,
-        });
+        let camera = Camera {
+            intrinsics: intr,
+            pose,
+        };
+        frames.push(Frame::new(img.clone(), camera, "PINHOLE", holdout_split(i)));
     }
     let depth_range = (near.is_finite() && far > 0.0).then_some((near, far));
     let (bounds, normalization) = compute_bounds(&frames, &[], &[], depth_range);

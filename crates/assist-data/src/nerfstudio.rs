@@ -220,20 +220,19 @@ pub fn load(file: &Path) -> Result<Dataset> {
                 .map(|n| n.str().map(|s| resolve_image_path(&base, s)))
                 .transpose()
         };
-        let name = crate::dataset::file_stem(&image_path);
         frames.push(Frame {
-            name,
-            image_path,
-            camera: Camera { intrinsics, pose },
-            camera_model: model,
-            split: Split::Train,
             mask_path: opt_path("mask_path")?,
-            alpha_is_mask: false,
             instance_mask_path: opt_path("instance_mask_path")?,
             depth_path: opt_path("depth_file_path")?,
             depth_scale,
             inpaint_path: opt_path("inpaint_path")?,
             inpaint_depth_path: opt_path("inpaint_depth_path")?,
+            ..Frame::new(
+                image_path,
+                Camera { intrinsics, pose },
+                &model,
+                Split::Train,
+            )
         });
         rel_paths.push(rel);
     }

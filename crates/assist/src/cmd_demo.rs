@@ -14,8 +14,13 @@ use assist_data::image_io::{ImageF32, write_rgb_png};
 use assist_data::synth::SynthConfig;
 use assist_data::{LoadOptions, Split};
 use assist_lang::ParseOptions;
-use assist_render::{Editor, RenderOptions, RenderedImage, render_camera};
+use assist_render::{Editor, RenderOptions, render_camera};
 use clap::Args;
+
+use crate::cmd_render::{Output, View, create_dirs, rgb_image, write_view};
+
+/// What the demo writes for each rendered view.
+const OUTPUTS: [Output; 3] = [Output::Rgb, Output::Depth, Output::Panoptic];
 
 #[derive(Args, Debug)]
 pub struct DemoArgs {
@@ -185,13 +190,14 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         let f = &ds.frames[i];
         for (tag, s) in [("before", &trained), ("after", &ed.scene)] {
             let img = render_camera(s, &f.camera, u32::MAX, &RenderOptions::default());
-            write_outputs(
-                &out.join("render").join(tag),
-                &f.name,
-                &img,
-                s.scene.meters_per_unit,
-            )?;
-            tiles.push(rgb_of(&img));
+            let dir = out.join("render").join(tag);
+            create_dirs(&dir, &OUTPUTS)?;
+            let view = View {
+                name: f.name.clone(),
+                camera: f.camera,
+            };
+            write_view(&dir, &view, &img, None, &OUTPUTS, s, &Default::default())?;
+            tiles.push(rgb_image(img.width, img.height, img.rgb.clone()));
             tiles.push(depth_to_rgb(&ImageF32 {
                 width: img.width,
                 height: img.height,
@@ -226,44 +232,6 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         "Try: assist edit {} --do \"swap the ... and the ...\" --out swapped.assist",
         edited.display()
     );
-    Ok(())
-}
-
-fn rgb_of(img: &RenderedImage) -> ImageF32 {
-    ImageF32 {
-        width: img.width,
-        height: img.height,
-        channels: 3,
-        data: img.rgb.clone(),
-    }
-}
-
-fn write_outputs(dir: &Path, name: &str, img: &RenderedImage, mpu: f64) -> anyhow::Result<()> {
-    use assist_data::image_io::write_gray16_png;
-    for d in ["images", "depth", "panoptic"] {
-        std::fs::create_dir_all(dir.join(d))?;
-    }
-    write_rgb_png(
-        &dir.join("images").join(format!("{name}.png")),
-        &rgb_of(img),
-    )?;
-    let mm: Vec<u16> = img
-        .depth
-        .iter()
-        .map(|&z| (z as f64 * mpu * 1000.0).round().clamp(0.0, 65535.0) as u16)
-        .collect();
-    write_gray16_png(
-        &dir.join("depth").join(format!("{name}.png")),
-        img.width,
-        img.height,
-        &mm,
-    )?;
-    write_gray16_png(
-        &dir.join("panoptic").join(format!("{name}.png")),
-        img.width,
-        img.height,
-        &img.panoptic,
-    )?;
     Ok(())
 }
 

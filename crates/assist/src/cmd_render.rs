@@ -58,7 +58,7 @@ pub struct RenderArgs {
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
-enum Output {
+pub(crate) enum Output {
     Rgb,
     Depth,
     Panoptic,
@@ -240,7 +240,7 @@ fn semantic_classes(scene: &Scene) -> (BTreeMap<u16, u16>, Vec<String>) {
     (of_id, names)
 }
 
-fn rgb_image(w: u32, h: u32, data: Vec<f32>) -> ImageF32 {
+pub(crate) fn rgb_image(w: u32, h: u32, data: Vec<f32>) -> ImageF32 {
     ImageF32 {
         width: w,
         height: h,
@@ -249,7 +249,8 @@ fn rgb_image(w: u32, h: u32, data: Vec<f32>) -> ImageF32 {
     }
 }
 
-fn write_view(
+/// Writes the requested outputs of one rendered view (the folders must exist).
+pub(crate) fn write_view(
     out: &Path,
     v: &View,
     img: &RenderedImage,
@@ -315,6 +316,25 @@ fn write_view(
     Ok(())
 }
 
+/// Creates the folders the outputs are written to.
+pub(crate) fn create_dirs(out: &Path, outputs: &[Output]) -> anyhow::Result<()> {
+    let dirs: &[(Output, &str)] = &[
+        (Output::Rgb, "images"),
+        (Output::Depth, "depth"),
+        (Output::Panoptic, "panoptic"),
+        (Output::Semantic, "semantic"),
+        (Output::Objects, "objects"),
+        (Output::Background, "background"),
+    ];
+    for (o, d) in dirs {
+        if outputs.contains(o) {
+            std::fs::create_dir_all(out.join(d))
+                .with_context(|| format!("creating {}", out.join(d).display()))?;
+        }
+    }
+    Ok(())
+}
+
 pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     if a.out.exists() && std::fs::read_dir(&a.out)?.next().is_some() && !a.force {
         bail!(
@@ -336,20 +356,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         bail!("--select: no node with id {id} in {}", a.scene.display());
     }
     let views = views(&a, &scene.scene)?;
-    let dirs: &[(Output, &str)] = &[
-        (Output::Rgb, "images"),
-        (Output::Depth, "depth"),
-        (Output::Panoptic, "panoptic"),
-        (Output::Semantic, "semantic"),
-        (Output::Objects, "objects"),
-        (Output::Background, "background"),
-    ];
-    for (o, d) in dirs {
-        if outputs.contains(o) {
-            std::fs::create_dir_all(a.out.join(d))
-                .with_context(|| format!("creating {}", a.out.join(d).display()))?;
-        }
-    }
+    create_dirs(&a.out, &outputs)?;
     let opts = RenderOptions {
         highlight: highlight.map(|id| (id, assist_render::HIGHLIGHT)),
         layers: outputs.contains(&Output::Objects),

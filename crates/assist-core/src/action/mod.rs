@@ -277,11 +277,7 @@ impl Edit {
     /// and default offsets filled in); validating it again gives the same edit.
     pub fn to_action(&self, meters_per_unit: f64) -> Action {
         // (`+ 0.0` turns −0 into 0 so printed configs read cleanly.)
-        let m = |v: DVec3| {
-            (v * meters_per_unit + DVec3::ZERO)
-                .to_array()
-                .map(|x| x + 0.0)
-        };
+        let m = |v: DVec3| (v * meters_per_unit).to_array().map(|x| x + 0.0);
         let metres = Some("m".to_string());
         let (id, op, config) = match self {
             Edit::Select { id } => (*id, Operation::Select, ActionConfig::default()),
