@@ -11,8 +11,8 @@ use rayon::prelude::*;
 
 use crate::config::FieldConfig;
 use crate::hashgrid::{CHUNK, GridLayout, Layout, encode, encode_backward};
-use crate::mlp::Linear;
-use crate::sh::sh_encode;
+use crate::mlp::{Linear, bias_act};
+use crate::sh::sh_encode_rows;
 
 /// Largest raw density fed to `exp` (σ ≤ e^15); the gradient uses the same clamp
 /// (`trunc_exp` as in Nerfacto).
@@ -117,7 +117,7 @@ pub struct Tape {
     /// Time spent in each phase by the calls on this tape (accumulated; reset at will).
     pub times: PhaseTimes,
     scratch: Vec<std::sync::Mutex<Scratch>>,
-    scratch_sizes: (usize, usize, usize),
+    scratch_sizes: (usize, usize, usize, usize),
 }
 
 /// Per-thread buffers of the backward pass: the thread's MLP gradient and work rows.
@@ -127,6 +127,8 @@ struct Scratch {
     da: Vec<f32>,
     db: Vec<f32>,
     xt: Vec<f32>,
+    /// Σ dL/d(first colour layer pre-activation) per appearance code (`code_biases` rows).
+    code_sums: Vec<f32>,
 }
 
 /// Seconds spent per phase, for benchmarks.
@@ -207,7 +209,7 @@ fn relu_mask(d: &mut [f32], x: &[f32]) {
 
 #[inline(always)]
 fn sigmoid(x: f32) -> f32 {
-    1.0 / (1.0 + (-x).exp())
+    assist_simd::math::sigmoid(x)
 }
 
 impl Field {
@@ -244,13 +246,17 @@ impl Field {
     }
 
     /// Multiply-adds of the MLPs per sample (forward), for GFLOP/s figures.
+    /// Multiply-adds of the forward MLP products per sample (the first colour layer
+    /// without its appearance columns, which act as a per-image bias).
     pub fn mlp_macs_per_sample(&self) -> usize {
+        let c0 = &self.layout.color[0];
         self.layout
             .density
             .iter()
-            .chain(&self.layout.color)
+            .chain(&self.layout.color[1..])
             .map(|l| l.out * l.inp)
-            .sum()
+            .sum::<usize>()
+            + c0.out * self.code_col()
     }
 
     fn average_code(&self) -> Vec<f32> {
@@ -269,49 +275,101 @@ impl Field {
         avg
     }
 
-    /// Fills the colour-net input rows of one chunk: geometry feature, SH, appearance.
+    /// Fills the colour-net input rows of one chunk that go through the product: geometry
+    /// feature and SH. (The appearance code enters as a per-code bias; see `code_biases`.)
     #[inline(always)]
-    fn color_input(&self, s: &Samples, c0: usize, dens: &[f32], cin: &mut [f32], avg: &[f32]) {
+    fn color_input(&self, s: &Samples, c0: usize, dens: &[f32], cin: &mut [f32]) {
         let cfg = &self.config;
-        let (geo, shw, a) = (cfg.geo_features, cfg.sh_width(), cfg.appearance_dim);
+        let (geo, shw) = (cfg.geo_features, cfg.sh_width());
         cin[..geo * CHUNK].copy_from_slice(&dens[CHUNK..(1 + geo) * CHUNK]);
-        let n = s.len();
-        let mut sh = [0f32; 16];
-        for l in 0..CHUNK {
-            let i = c0 + l;
-            if i < n {
-                sh_encode(
-                    cfg.sh_degree,
-                    s.dir[0][i],
-                    s.dir[1][i],
-                    s.dir[2][i],
-                    &mut sh,
-                );
-            } else {
-                sh.fill(0.0);
-            }
+        let lanes = CHUNK.min(s.len() - c0);
+        let d = |a: usize| &s.dir[a][c0..c0 + lanes];
+        sh_encode_rows(
+            cfg.sh_degree,
+            d(0),
+            d(1),
+            d(2),
+            &mut cin[geo * CHUNK..],
+            CHUNK,
+        );
+        if lanes < CHUNK {
             for k in 0..shw {
-                cin[(geo + k) * CHUNK + l] = sh[k];
-            }
-            if a > 0 {
-                let img = if i < n {
-                    s.image.get(i).copied().unwrap_or(u32::MAX)
-                } else {
-                    u32::MAX
-                };
-                let code: &[f32] = if (img as usize) < cfg.num_images {
-                    let o = self.layout.appearance + img as usize * a;
-                    &self.params[o..o + a]
-                } else {
-                    avg
-                };
-                for k in 0..a {
-                    cin[(geo + shw + k) * CHUNK + l] = code[k];
-                }
+                cin[(geo + k) * CHUNK + lanes..(geo + k + 1) * CHUNK].fill(0.0);
             }
         }
-        let used = geo + shw + a;
-        cin[used * CHUNK..].fill(0.0);
+        // Rows up to the product's padded width are zero (their columns are appearance
+        // weights, which act through the bias).
+        cin[(geo + shw) * CHUNK..self.product_cols() * CHUNK].fill(0.0);
+    }
+
+    /// Inputs of the first colour layer that go through the product: geometry + SH,
+    /// padded to 16 for the kernels with zero rows (see `color_input`).
+    fn product_cols(&self) -> usize {
+        let real = self.config.geo_features + self.config.sh_width();
+        crate::mlp::pad16(real).min(self.layout.color[0].inp_pad)
+    }
+
+    /// First column of the appearance code in the first colour layer's weights.
+    fn code_col(&self) -> usize {
+        self.config.geo_features + self.config.sh_width()
+    }
+
+    /// The first colour layer's bias for every appearance code, `out` floats each:
+    /// `b + W_app · code` for each image, then the average code (novel views) last. The
+    /// code is constant over the samples of an image, so its part of the product is folded
+    /// into the bias once per call instead of being multiplied per sample.
+    fn code_biases(&self) -> Vec<f32> {
+        let l = &self.layout.color[0];
+        let (a, k0) = (self.config.appearance_dim, self.code_col());
+        let b = &self.params[l.b..l.b + l.out];
+        if a == 0 {
+            return b.to_vec();
+        }
+        let avg = self.average_code();
+        let mut out = Vec::with_capacity((self.config.num_images + 1) * l.out);
+        for i in 0..=self.config.num_images {
+            let code = if i < self.config.num_images {
+                let o = self.layout.appearance + i * a;
+                &self.params[o..o + a]
+            } else {
+                &avg[..]
+            };
+            for o in 0..l.out {
+                let w = &self.params[l.w + o * l.inp_pad + k0..l.w + o * l.inp_pad + k0 + a];
+                out.push(b[o] + w.iter().zip(code).map(|(w, c)| w * c).sum::<f32>());
+            }
+        }
+        out
+    }
+
+    /// Which row of `code_biases` sample `i` uses.
+    #[inline(always)]
+    fn code_slot(&self, s: &Samples, i: usize) -> usize {
+        let cfg = &self.config;
+        if cfg.appearance_dim == 0 {
+            return 0;
+        }
+        let img = s.image.get(i).copied().unwrap_or(u32::MAX) as usize;
+        img.min(cfg.num_images)
+    }
+
+    /// Slots of the lanes of the chunk at `c0` (lanes past the end repeat the first), and
+    /// whether they are all the same.
+    #[inline(always)]
+    fn chunk_slots(&self, s: &Samples, c0: usize, slots: &mut [u32; CHUNK]) -> bool {
+        let lanes = CHUNK.min(s.len() - c0);
+        let first = self.code_slot(s, c0);
+        let mut same = true;
+        for l in 0..CHUNK {
+            let v = if l < lanes {
+                self.code_slot(s, c0 + l)
+            } else {
+                first
+            };
+            same &= v == first;
+            slots[l] = v as u32;
+        }
+        same
     }
 
     /// Runs the MLPs of one chunk, writing activations into `act` (one chunk's rows).
@@ -323,7 +381,7 @@ impl Field {
         enc: &[f32],
         act: &mut [f32],
         rows: &Rows,
-        avg: &[f32],
+        biases: &[f32],
     ) {
         let lay = &self.layout;
         let p = &self.params;
@@ -332,7 +390,7 @@ impl Field {
         let (dens, rest) = rest.split_at_mut((rows.cin - rows.dens) * CHUNK);
         lay.density[1].forward(p, h, dens, false);
         let (cin, rest) = rest.split_at_mut((rows.color[0] - rows.cin) * CHUNK);
-        self.color_input(s, c0, dens, cin, avg);
+        self.color_input(s, c0, dens, cin);
         // Colour layers: cin → hidden… → rgb (pre-activation into the rgb rows).
         let nl = lay.color.len();
         let mut prev: &[f32] = cin;
@@ -344,7 +402,27 @@ impl Field {
                 rows.sigma - rows.rgb
             };
             let (out, r2) = rest.split_at_mut(width * CHUNK);
-            l.forward(p, prev, out, li + 1 < nl);
+            if li == 0 {
+                // Geometry + SH through the product; the appearance code as a bias.
+                l.product(p, prev, out, self.product_cols());
+                let mut slots = [0u32; CHUNK];
+                let out = &mut out[..l.out * CHUNK];
+                if self.chunk_slots(s, c0, &mut slots) {
+                    let b = slots[0] as usize * l.out;
+                    bias_act(out, &biases[b..b + l.out], nl > 1);
+                } else {
+                    for (o, row) in out.chunks_exact_mut(CHUNK).enumerate() {
+                        for (v, &sl) in row.iter_mut().zip(&slots) {
+                            *v += biases[sl as usize * l.out + o];
+                        }
+                    }
+                    if nl > 1 {
+                        out.iter_mut().for_each(|v| *v = v.max(0.0));
+                    }
+                }
+            } else {
+                l.forward(p, prev, out, li + 1 < nl);
+            }
             prev = out;
             rest = r2;
         }
@@ -356,7 +434,7 @@ impl Field {
         let sig = rows.sigma * CHUNK;
         for l in 0..CHUNK {
             let raw = act[rows.dens * CHUNK + l];
-            act[sig + l] = raw.min(MAX_RAW_DENSITY).exp();
+            act[sig + l] = assist_simd::math::exp(raw.min(MAX_RAW_DENSITY));
         }
     }
 
@@ -368,12 +446,12 @@ impl Field {
         enc: &[f32],
         act: &mut [f32],
         rows: &Rows,
-        avg: &[f32],
+        biases: &[f32],
         sig: &mut [f32],
         col: &mut [f32],
     ) {
         assist_simd::simd(|| {
-            self.chunk_forward(s, c * CHUNK, enc, act, rows, avg);
+            self.chunk_forward(s, c * CHUNK, enc, act, rows, biases);
             write_outputs(act, rows, sig, col);
         })
     }
@@ -407,7 +485,7 @@ impl Field {
         let enc = &mut scratch.enc[..need];
         self.encode(s, enc);
         let rows = self.rows();
-        let avg = self.average_code();
+        let biases = self.code_biases();
         let block = width * CHUNK;
         sigma[..n]
             .par_chunks_mut(CHUNK)
@@ -422,7 +500,7 @@ impl Field {
                         &enc[c * block..(c + 1) * block],
                         act,
                         &rows,
-                        &avg,
+                        &biases,
                         sig,
                         col,
                     )
@@ -444,7 +522,7 @@ impl Field {
                 d1.forward(&self.params, &enc[c * block..(c + 1) * block], h, true);
                 d2.forward(&self.params, h, o, false);
                 for l in 0..sig.len() {
-                    sig[l] = o[l].min(MAX_RAW_DENSITY).exp();
+                    sig[l] = assist_simd::math::exp(o[l].min(MAX_RAW_DENSITY));
                 }
             },
         );
@@ -485,7 +563,7 @@ impl Field {
         encode(&self.layout.grid, &self.params, s.pos, width, &mut tape.enc);
         let t1 = std::time::Instant::now();
         tape.times.encode_forward += (t1 - t0).as_secs_f64();
-        let avg = self.average_code();
+        let biases = self.code_biases();
         let block = width * CHUNK;
         let enc = &tape.enc;
         tape.act[..nc * rows.total * CHUNK]
@@ -500,12 +578,56 @@ impl Field {
                     &enc[c * block..(c + 1) * block],
                     act,
                     &rows,
-                    &avg,
+                    &biases,
                     sig,
                     col,
                 )
             });
         tape.times.mlp_forward += t1.elapsed().as_secs_f64();
+    }
+
+    /// The appearance part of the first colour layer, from `sums` (per code, Σ of dL/dy
+    /// over its samples): `dW_app += s codeᵀ` and `d code += W_appᵀ s`; the average code
+    /// spreads its gradient evenly over every image's code.
+    fn code_backward(&self, sums: &[f32], grad: &mut [f32]) {
+        let (cfg, l) = (&self.config, &self.layout.color[0]);
+        let (a, k0, ni) = (cfg.appearance_dim, self.code_col(), cfg.num_images);
+        let avg = self.average_code();
+        for (slot, sm) in sums.chunks_exact(l.out).enumerate() {
+            if sm.iter().all(|&v| v == 0.0) {
+                continue;
+            }
+            let code_at = |k: usize| {
+                if slot < ni {
+                    self.params[self.layout.appearance + slot * a + k]
+                } else {
+                    avg[k]
+                }
+            };
+            let mut dcode = vec![0.0f32; a];
+            for (o, &so) in sm.iter().enumerate() {
+                let w0 = l.w + o * l.inp_pad + k0;
+                for k in 0..a {
+                    grad[w0 + k] += so * code_at(k);
+                    dcode[k] += self.params[w0 + k] * so;
+                }
+            }
+            if slot < ni {
+                let o = self.layout.appearance + slot * a;
+                grad[o..o + a]
+                    .iter_mut()
+                    .zip(&dcode)
+                    .for_each(|(g, d)| *g += d);
+            } else {
+                for i in 0..ni {
+                    let o = self.layout.appearance + i * a;
+                    grad[o..o + a]
+                        .iter_mut()
+                        .zip(&dcode)
+                        .for_each(|(g, d)| *g += d / ni as f32);
+                }
+            }
+        }
     }
 
     /// Backward: given dL/dσ and dL/drgb (interleaved) for the samples of the last
@@ -550,11 +672,18 @@ impl Field {
         let max_rows = rows.total;
         let enc = &tape.enc;
         let act = &tape.act;
-        let (geo, shw, a) = (cfg.geo_features, cfg.sh_width(), cfg.appearance_dim);
+        let (geo, a) = (cfg.geo_features, cfg.appearance_dim);
         // One scratch set per worker thread, kept in the tape across steps (no allocation
         // in the hot loop); each holds that thread's share of the MLP gradient.
         let threads = rayon::current_num_threads().max(1);
-        let sizes = (mlp_len, max_rows * CHUNK, CHUNK * max_in);
+        let k0 = self.product_cols();
+        let code_rows = if a > 0 { cfg.num_images + 1 } else { 0 };
+        let sizes = (
+            mlp_len,
+            max_rows * CHUNK,
+            CHUNK * max_in,
+            code_rows * lay.color[0].out,
+        );
         if tape.scratch.len() != threads || tape.scratch_sizes != sizes {
             tape.scratch = (0..threads)
                 .map(|_| {
@@ -563,6 +692,7 @@ impl Field {
                         da: vec![0.0; sizes.1],
                         db: vec![0.0; sizes.1],
                         xt: vec![0.0; sizes.2],
+                        code_sums: vec![0.0; sizes.3],
                     })
                 })
                 .collect();
@@ -575,7 +705,13 @@ impl Field {
             .for_each(|(c, d_enc)| {
                 let slot = rayon::current_thread_index().unwrap_or(0) % scratch.len();
                 let mut guard = scratch[slot].lock().unwrap_or_else(|p| p.into_inner());
-                let Scratch { g, da, db, xt } = &mut *guard;
+                let Scratch {
+                    g,
+                    da,
+                    db,
+                    xt,
+                    code_sums,
+                } = &mut *guard;
                 let (g, mut da, mut db, xt) = (
                     g.as_mut_slice(),
                     da.as_mut_slice(),
@@ -597,13 +733,9 @@ impl Field {
                     }
                     // Colour layers, last to first; `da` holds dL/d(pre-activation).
                     let nl = lay.color.len();
-                    for li in (0..nl).rev() {
+                    for li in (1..nl).rev() {
                         let l = &lay.color[li];
-                        let (x, relu_in) = if li == 0 {
-                            (row(rows.cin, l.inp_pad), false)
-                        } else {
-                            (row(rows.color[li - 1], l.inp_pad), true)
-                        };
+                        let x = row(rows.color[li - 1], l.inp_pad);
                         l.backward(
                             &wts[2 + li],
                             x,
@@ -613,44 +745,42 @@ impl Field {
                             Some(&mut db[..l.inp_pad * CHUNK]),
                             xt,
                         );
-                        if relu_in {
-                            relu_mask(&mut db[..l.inp_pad * CHUNK], x);
-                        }
+                        relu_mask(&mut db[..l.inp_pad * CHUNK], x);
                         std::mem::swap(&mut da, &mut db);
                     }
-                    // `da` = dL/d(colour input). Appearance codes.
+                    // First colour layer: the product's columns (geometry + SH), dx for the
+                    // geometry rows only (SH has no parameters), and the appearance part
+                    // summed per code: Σ dy over a code's lanes gives both its weight
+                    // gradient and its code gradient (after the loop over chunks).
+                    let l0 = &lay.color[0];
+                    l0.backward_part(
+                        &wts[2],
+                        row(rows.cin, l0.inp_pad),
+                        &da[..l0.out * CHUNK],
+                        g,
+                        mlp0,
+                        // (16 rows rather than the 15 geometry ones: the fast kernel.)
+                        Some(&mut db[..crate::mlp::pad16(geo).min(l0.inp_pad) * CHUNK]),
+                        xt,
+                        k0,
+                    );
                     if a > 0 {
-                        let per_image = cfg.num_images;
-                        let images = s.image.get(c0..c0 + lanes).unwrap_or(&[]);
-                        let rows = &da[(geo + shw) * CHUNK..(geo + shw + a) * CHUNK];
-                        let single = images.len() == lanes
-                            && images.iter().all(|&i| i == images[0])
-                            && (images[0] as usize) < per_image;
-                        if single {
-                            // One image for the whole chunk: row sums.
-                            let o = lay.appearance - mlp0 + images[0] as usize * a;
-                            for k in 0..a {
-                                g[o + k] += rows[k * CHUNK..k * CHUNK + lanes].iter().sum::<f32>();
+                        let mut slots = [0u32; CHUNK];
+                        let dy = &da[..l0.out * CHUNK];
+                        if self.chunk_slots(s, c0, &mut slots) {
+                            let sum = &mut code_sums[slots[0] as usize * l0.out..][..l0.out];
+                            for (o, r) in dy.chunks_exact(CHUNK).enumerate() {
+                                sum[o] += r[..lanes].iter().sum::<f32>();
                             }
                         } else {
-                            for l in 0..lanes {
-                                let img = images.get(l).copied().unwrap_or(u32::MAX);
-                                if (img as usize) < per_image {
-                                    let o = lay.appearance - mlp0 + img as usize * a;
-                                    for k in 0..a {
-                                        g[o + k] += rows[k * CHUNK + l];
-                                    }
-                                } else {
-                                    for i in 0..per_image {
-                                        let o = lay.appearance - mlp0 + i * a;
-                                        for k in 0..a {
-                                            g[o + k] += rows[k * CHUNK + l] / per_image as f32;
-                                        }
-                                    }
+                            for (o, r) in dy.chunks_exact(CHUNK).enumerate() {
+                                for (&v, &sl) in r[..lanes].iter().zip(&slots) {
+                                    code_sums[sl as usize * l0.out + o] += v;
                                 }
                             }
                         }
                     }
+                    std::mem::swap(&mut da, &mut db);
                     // dL/d(density net output) into `db`: row 0 from σ, rows 1.. from geo.
                     let d2 = &lay.density[1];
                     db[..d2.out * CHUNK].fill(0.0);
@@ -682,12 +812,20 @@ impl Field {
                     );
                 });
             });
+        let mut sums = vec![0.0f32; sizes.3];
         for sc in scratch {
             let mut sc = sc.lock().unwrap_or_else(|p| p.into_inner());
             for (g, m) in grad[mlp0..].iter_mut().zip(sc.g.iter_mut()) {
                 *g += *m;
                 *m = 0.0;
             }
+            for (t, m) in sums.iter_mut().zip(sc.code_sums.iter_mut()) {
+                *t += *m;
+                *m = 0.0;
+            }
+        }
+        if a > 0 {
+            self.code_backward(&sums, grad);
         }
         let t1 = std::time::Instant::now();
         tape.times.mlp_backward += (t1 - t0).as_secs_f64();

@@ -10,6 +10,8 @@
 
 use rayon::prelude::*;
 
+use assist_simd::grid::{self, GridLevel};
+
 use crate::config::FieldConfig;
 
 /// Samples per chunk of the chunk-blocked feature layout (see [`Layout`]).
@@ -34,6 +36,17 @@ pub struct GridLayout {
     pub levels: Vec<Level>,
     pub features: usize,
     pub entries: usize,
+}
+
+impl Level {
+    /// The level as the SIMD kernels take it.
+    pub fn grid(&self) -> GridLevel {
+        GridLevel {
+            res: self.res,
+            size: self.size,
+            dense: self.dense,
+        }
+    }
 }
 
 impl GridLayout {
@@ -77,17 +90,6 @@ impl GridLayout {
     }
 }
 
-#[inline(always)]
-fn corner_index(lv: &Level, x: u32, y: u32, z: u32) -> usize {
-    if lv.dense {
-        let s = lv.res + 1;
-        (x + s * (y + s * z)) as usize
-    } else {
-        let h = x ^ y.wrapping_mul(2_654_435_761) ^ z.wrapping_mul(805_459_861);
-        (h & (lv.size - 1)) as usize
-    }
-}
-
 /// Cell corner and trilinear fractions of a position at a level.
 #[inline(always)]
 fn locate(lv: &Level, p: [f32; 3]) -> ([u32; 3], [f32; 3]) {
@@ -111,7 +113,15 @@ pub fn corners(lv: &Level, p: [f32; 3]) -> ([usize; 8], [f32; 8]) {
     let mut w = [0f32; 8];
     for k in 0..8 {
         let (dx, dy, dz) = ((k & 1) as u32, ((k >> 1) & 1) as u32, ((k >> 2) & 1) as u32);
-        idx[k] = lv.offset + corner_index(lv, c[0] + dx, c[1] + dy, c[2] + dz);
+        let (x, y, z) = (c[0] + dx, c[1] + dy, c[2] + dz);
+        idx[k] = lv.offset
+            + if lv.dense {
+                let s = lv.res + 1;
+                (x + s * (y + s * z)) as usize
+            } else {
+                let h = x ^ y.wrapping_mul(2_654_435_761) ^ z.wrapping_mul(805_459_861);
+                (h & (lv.size - 1)) as usize
+            };
         let wx = if dx == 1 { f[0] } else { 1.0 - f[0] };
         let wy = if dy == 1 { f[1] } else { 1.0 - f[1] };
         let wz = if dz == 1 { f[2] } else { 1.0 - f[2] };
@@ -141,55 +151,8 @@ impl Layout {
 /// Corner indices (within the level's table) and trilinear weights of one position.
 #[inline(always)]
 fn corners_local(lv: &Level, x: f32, y: f32, z: f32) -> ([usize; 8], [f32; 8]) {
-    let r = lv.res as f32;
-    let cell = |v: f32| {
-        let p = v.clamp(0.0, 1.0) * r;
-        let c = (p as u32).min(lv.res - 1); // p ≥ 0, so `as` is floor
-        (c, p - c as f32)
-    };
-    let ((cx, fx), (cy, fy), (cz, fz)) = (cell(x), cell(y), cell(z));
-    let wxy = [
-        (1.0 - fx) * (1.0 - fy),
-        fx * (1.0 - fy),
-        (1.0 - fx) * fy,
-        fx * fy,
-    ];
-    let w = [
-        wxy[0] * (1.0 - fz),
-        wxy[1] * (1.0 - fz),
-        wxy[2] * (1.0 - fz),
-        wxy[3] * (1.0 - fz),
-        wxy[0] * fz,
-        wxy[1] * fz,
-        wxy[2] * fz,
-        wxy[3] * fz,
-    ];
-    let mut idx = [0usize; 8];
-    if lv.dense {
-        let s = lv.res + 1;
-        let (ix, iy, iz) = (cx, cy * s, cz * s * s);
-        let (ox, oy, oz) = (1, s, s * s);
-        for k in 0..8 {
-            idx[k] = (ix
-                + if k & 1 != 0 { ox } else { 0 }
-                + iy
-                + if k & 2 != 0 { oy } else { 0 }
-                + iz
-                + if k & 4 != 0 { oz } else { 0 }) as usize;
-        }
-    } else {
-        let mask = lv.size - 1;
-        let hy0 = cy.wrapping_mul(2_654_435_761);
-        let hy1 = hy0.wrapping_add(2_654_435_761);
-        let hz0 = cz.wrapping_mul(805_459_861);
-        let hz1 = hz0.wrapping_add(805_459_861);
-        let hy = [hy0, hy1];
-        let hz = [hz0, hz1];
-        for k in 0..8 {
-            idx[k] = (((cx + (k & 1) as u32) ^ hy[(k >> 1) & 1] ^ hz[k >> 2]) & mask) as usize;
-        }
-    }
-    (idx, w)
+    let (i, w) = grid::corners_one(&lv.grid(), x, y, z);
+    (i.map(|i| i as usize), w)
 }
 
 /// Encodes `n` positions (structure of arrays, in [0, 1]) into `out`, chunk-blocked with
@@ -198,10 +161,40 @@ fn corners_local(lv: &Level, x: f32, y: f32, z: f32) -> ([usize; 8], [f32; 8]) {
 pub fn encode(grid: &GridLayout, params: &[f32], pos: [&[f32]; 3], width: usize, out: &mut [f32]) {
     match grid.features {
         1 => encode_f::<1>(grid, params, pos, width, out),
-        2 => encode_f::<2>(grid, params, pos, width, out),
+        2 => encode2(grid, params, pos, width, out),
         4 => encode_f::<4>(grid, params, pos, width, out),
         8 => encode_f::<8>(grid, params, pos, width, out),
         f => panic!("unsupported features per level {f}"),
+    }
+}
+
+/// F = 2 (Nerfacto's), through the vectorised interpolation kernel; same order of work as
+/// `encode_f`.
+fn encode2(grid: &GridLayout, params: &[f32], pos: [&[f32]; 3], width: usize, out: &mut [f32]) {
+    let n = pos[0].len();
+    assert!(width >= grid.levels.len() * 2 && pos[1].len() == n && pos[2].len() == n);
+    let block = width * CHUNK;
+    let nc = n.div_ceil(CHUNK);
+    assert!(out.len() >= nc * block);
+    let (table_all, _) = params.as_chunks::<2>();
+    let simd = assist_simd::level();
+    let chunks_per_task = 16;
+    for (li, lv) in grid.levels.iter().enumerate() {
+        let table = &table_all[lv.offset..lv.offset + lv.size as usize];
+        let glv = lv.grid();
+        out[..nc * block]
+            .par_chunks_mut(block * chunks_per_task)
+            .enumerate()
+            .for_each(|(t, dst)| {
+                for (ci, chunk) in dst.chunks_mut(block).enumerate() {
+                    let s0 = (t * chunks_per_task + ci) * CHUNK;
+                    let s1 = (s0 + CHUNK).min(n);
+                    let (f0, rest) =
+                        chunk[li * 2 * CHUNK..(li + 1) * 2 * CHUNK].split_at_mut(CHUNK);
+                    let p = [&pos[0][s0..s1], &pos[1][s0..s1], &pos[2][s0..s1]];
+                    grid::interp2(simd, &glv, table, p, f0, rest);
+                }
+            });
     }
 }
 
@@ -341,49 +334,42 @@ fn backward_level<const F: usize>(
     block: usize,
     d_out: &[f32],
 ) {
-    {
-        let last = g.len() - 1;
-        for c in 0..n.div_ceil(CHUNK) {
-            let s0 = c * CHUNK;
-            let lanes = CHUNK.min(n - s0);
-            let rows = &d_out[c * block + li * F * CHUNK..c * block + (li + 1) * F * CHUNK];
-            let (px, py, pz) = (
-                &pos[0][s0..s0 + lanes],
-                &pos[1][s0..s0 + lanes],
-                &pos[2][s0..s0 + lanes],
-            );
-            let mut idxs = [[0usize; 8]; CHUNK];
-            let mut ws = [[0f32; 8]; CHUNK];
-            let mut ds = [[0f32; F]; CHUNK];
-            let mut live = 0;
-            for l in 0..lanes {
-                let mut d = [0f32; F];
-                let mut any = false;
-                for f in 0..F {
-                    d[f] = rows[f * CHUNK + l];
-                    any |= d[f] != 0.0;
-                }
-                if !any {
-                    continue;
-                }
-                let (idx, w) = corners_local(lv, px[l], py[l], pz[l]);
+    let last = g.len() - 1;
+    let glv = lv.grid();
+    let simd = assist_simd::level();
+    let mut idx = [0u32; 8 * CHUNK];
+    let mut w = [0f32; 8 * CHUNK];
+    let mut live = [0u8; CHUNK];
+    for c in 0..n.div_ceil(CHUNK) {
+        let s0 = c * CHUNK;
+        let s1 = (s0 + CHUNK).min(n);
+        let rows = &d_out[c * block + li * F * CHUNK..c * block + (li + 1) * F * CHUNK];
+        let p = [&pos[0][s0..s1], &pos[1][s0..s1], &pos[2][s0..s1]];
+        // Corners of every lane (vectorised), then the lanes with a gradient: prefetch
+        // their entries, then add.
+        grid::corners(simd, &glv, p, &mut idx, &mut w, CHUNK);
+        let mut nlive = 0;
+        for l in 0..s1 - s0 {
+            if (0..F).any(|f| rows[f * CHUNK + l] != 0.0) {
+                live[nlive] = l as u8;
+                nlive += 1;
                 if !lv.dense {
-                    for &i in &idx {
-                        assist_simd::transpose::prefetch(&g[i.min(last)]);
+                    for k in 0..8 {
+                        assist_simd::transpose::prefetch(
+                            &g[(idx[k * CHUNK + l] as usize).min(last)],
+                        );
                     }
                 }
-                idxs[live] = idx;
-                ws[live] = w;
-                ds[live] = d;
-                live += 1;
             }
-            for j in 0..live {
-                let (idx, w, d) = (&idxs[j], &ws[j], &ds[j]);
-                for k in 0..8 {
-                    let e = &mut g[idx[k].min(last)];
-                    for f in 0..F {
-                        e[f] += w[k] * d[f];
-                    }
+        }
+        for &l in &live[..nlive] {
+            let l = l as usize;
+            let d: [f32; F] = std::array::from_fn(|f| rows[f * CHUNK + l]);
+            for k in 0..8 {
+                let wk = w[k * CHUNK + l];
+                let e = &mut g[(idx[k * CHUNK + l] as usize).min(last)];
+                for f in 0..F {
+                    e[f] += wk * d[f];
                 }
             }
         }

@@ -43,12 +43,25 @@ impl Linear {
     /// `y[out][CHUNK] = W x[inp_pad][CHUNK] + b`, then ReLU if `relu`.
     #[inline(always)]
     pub fn forward(&self, params: &[f32], x: &[f32], y: &mut [f32], relu: bool) {
+        self.product(params, x, y, self.inp_pad);
+        bias_act(
+            &mut y[..self.out * CHUNK],
+            &params[self.b..self.b + self.out],
+            relu,
+        );
+    }
+
+    /// `y[out][CHUNK] = W[:, ..cols] x[..cols][CHUNK]`: the product over the first `cols`
+    /// inputs only (no bias).
+    #[inline(always)]
+    pub fn product(&self, params: &[f32], x: &[f32], y: &mut [f32], cols: usize) {
+        assert!(cols <= self.inp_pad);
         let w = &params[self.w..self.w + self.out * self.inp_pad];
         gemm(
             &Gemm {
                 m: self.out,
                 n: CHUNK,
-                k: self.inp_pad,
+                k: cols,
                 a: w,
                 lda: self.inp_pad,
                 b: x,
@@ -58,19 +71,6 @@ impl Linear {
             },
             y,
         );
-        let bias = &params[self.b..self.b + self.out];
-        for (o, row) in y[..self.out * CHUNK].chunks_exact_mut(CHUNK).enumerate() {
-            let bo = bias[o];
-            if relu {
-                for v in row {
-                    *v = (*v + bo).max(0.0);
-                }
-            } else {
-                for v in row {
-                    *v += bo;
-                }
-            }
-        }
     }
 
     /// Given `dy` (gradient at the pre-activation, `[out][CHUNK]`) and the input `x`,
@@ -89,19 +89,37 @@ impl Linear {
         dx: Option<&mut [f32]>,
         xt: &mut [f32],
     ) {
+        self.backward_part(wt, x, dy, grad, base, dx, xt, self.inp_pad)
+    }
+
+    /// `backward` over the first `cols` inputs: `dW[:, ..cols]` only, and `dx` for as many
+    /// input rows as it holds (`dx.len() / CHUNK` ≤ `inp_pad`).
+    #[inline(always)]
+    pub fn backward_part(
+        &self,
+        wt: &[f32],
+        x: &[f32],
+        dy: &[f32],
+        grad: &mut [f32],
+        base: usize,
+        dx: Option<&mut [f32]>,
+        xt: &mut [f32],
+        cols: usize,
+    ) {
+        assert!(cols <= self.inp_pad);
         let k = self.inp_pad;
-        assist_simd::transpose::transpose(x, k, CHUNK, CHUNK, xt, k);
+        assist_simd::transpose::transpose(x, cols, CHUNK, CHUNK, xt, cols);
         let (w0, b0) = (self.w - base, self.b - base);
         let gw = &mut grad[w0..w0 + self.out * k];
         gemm(
             &Gemm {
                 m: self.out,
-                n: k,
+                n: cols,
                 k: CHUNK,
                 a: dy,
                 lda: CHUNK,
                 b: xt,
-                ldb: k,
+                ldb: cols,
                 ldc: k,
                 accumulate: true,
             },
@@ -112,9 +130,11 @@ impl Linear {
             gb[o] += row.iter().sum::<f32>();
         }
         if let Some(dx) = dx {
+            let rows = dx.len() / CHUNK;
+            assert!(rows <= k && dx.len() == rows * CHUNK);
             gemm(
                 &Gemm {
-                    m: k,
+                    m: rows,
                     n: CHUNK,
                     k: self.out,
                     a: wt,
@@ -139,5 +159,21 @@ impl Linear {
             }
         }
         t
+    }
+}
+
+/// Adds `bias[o]` to row `o` of `y` (`[out][CHUNK]`), then ReLU if `relu`.
+#[inline(always)]
+pub fn bias_act(y: &mut [f32], bias: &[f32], relu: bool) {
+    for (row, &bo) in y.chunks_exact_mut(CHUNK).zip(bias) {
+        if relu {
+            for v in row {
+                *v = (*v + bo).max(0.0);
+            }
+        } else {
+            for v in row {
+                *v += bo;
+            }
+        }
     }
 }

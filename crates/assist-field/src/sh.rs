@@ -46,37 +46,43 @@ pub fn sh_encode_rows(
 ) {
     let n = x.len().min(y.len()).min(z.len());
     let (x, y, z) = (&x[..n], &y[..n], &z[..n]);
-    let mut row = |k: usize, f: &dyn Fn(f32, f32, f32) -> f32| {
-        let r = &mut out[k * stride..k * stride + n];
-        for l in 0..n {
+    // Generic (not `dyn`), so each row's loop is inlined and vectorised.
+    #[inline(always)]
+    fn fill(r: &mut [f32], x: &[f32], y: &[f32], z: &[f32], f: impl Fn(f32, f32, f32) -> f32) {
+        for l in 0..r.len() {
             r[l] = f(x[l], y[l], z[l]);
         }
-    };
-    row(0, &|_, _, _| 0.282_094_8);
+    }
+    macro_rules! row {
+        ($k:expr, $f:expr) => {
+            fill(&mut out[$k * stride..$k * stride + n], x, y, z, $f)
+        };
+    }
+    row!(0, |_, _, _| 0.282_094_8);
     if degree <= 1 {
         return;
     }
-    row(1, &|_, y, _| -0.488_602_5 * y);
-    row(2, &|_, _, z| 0.488_602_5 * z);
-    row(3, &|x, _, _| -0.488_602_5 * x);
+    row!(1, |_, y, _| -0.488_602_5 * y);
+    row!(2, |_, _, z| 0.488_602_5 * z);
+    row!(3, |x, _, _| -0.488_602_5 * x);
     if degree <= 2 {
         return;
     }
-    row(4, &|x, y, _| 1.092_548_4 * x * y);
-    row(5, &|_, y, z| -1.092_548_4 * y * z);
-    row(6, &|_, _, z| 0.946_174_7 * z * z - 0.315_391_57);
-    row(7, &|x, _, z| -1.092_548_4 * x * z);
-    row(8, &|x, y, _| 0.546_274_2 * (x * x - y * y));
+    row!(4, |x, y, _| 1.092_548_4 * x * y);
+    row!(5, |_, y, z| -1.092_548_4 * y * z);
+    row!(6, |_, _, z| 0.946_174_7 * z * z - 0.315_391_57);
+    row!(7, |x, _, z| -1.092_548_4 * x * z);
+    row!(8, |x, y, _| 0.546_274_2 * (x * x - y * y));
     if degree <= 3 {
         return;
     }
-    row(9, &|x, y, _| 0.590_043_6 * y * (-3.0 * x * x + y * y));
-    row(10, &|x, y, z| 2.890_611_4 * x * y * z);
-    row(11, &|_, y, z| 0.457_045_8 * y * (1.0 - 5.0 * z * z));
-    row(12, &|_, _, z| 0.373_176_33 * z * (5.0 * z * z - 3.0));
-    row(13, &|x, _, z| 0.457_045_8 * x * (1.0 - 5.0 * z * z));
-    row(14, &|x, y, z| 1.445_305_7 * z * (x * x - y * y));
-    row(15, &|x, y, _| 0.590_043_6 * x * (-x * x + 3.0 * y * y));
+    row!(9, |x, y, _| 0.590_043_6 * y * (-3.0 * x * x + y * y));
+    row!(10, |x, y, z| 2.890_611_4 * x * y * z);
+    row!(11, |_, y, z| 0.457_045_8 * y * (1.0 - 5.0 * z * z));
+    row!(12, |_, _, z| 0.373_176_33 * z * (5.0 * z * z - 3.0));
+    row!(13, |x, _, z| 0.457_045_8 * x * (1.0 - 5.0 * z * z));
+    row!(14, |x, y, z| 1.445_305_7 * z * (x * x - y * y));
+    row!(15, |x, y, _| 0.590_043_6 * x * (-x * x + 3.0 * y * y));
 }
 
 #[cfg(test)]

@@ -31,7 +31,10 @@ struct Batch {
 }
 
 impl Batch {
-    fn new(n: usize, rng: &mut Rng) -> Self {
+    /// `uniform`: one image per chunk of 64 samples (the fast path of the appearance code,
+    /// as in training batches), the last chunk the average code; otherwise images mixed
+    /// within chunks, one sample in five with the average code.
+    fn new(n: usize, rng: &mut Rng, uniform: bool) -> Self {
         let mut pos = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
         let mut dir = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
         for i in 0..n {
@@ -45,7 +48,13 @@ impl Batch {
         // Some samples use the average appearance code (u32::MAX).
         let image = (0..n)
             .map(|i| {
-                if i % 5 == 4 {
+                if uniform {
+                    if i / 64 < 2 {
+                        (i / 64) as u32
+                    } else {
+                        u32::MAX
+                    }
+                } else if i % 5 == 4 {
                     u32::MAX
                 } else {
                     rng.below(3) as u32
@@ -88,14 +97,29 @@ impl Batch {
 
 #[test]
 fn every_parameter_group_matches_central_differences() {
-    let mut rng = Rng::new(42);
+    check_every_group(false, 42);
+}
+
+#[test]
+fn every_parameter_group_matches_central_differences_one_image_per_chunk() {
+    check_every_group(true, 42);
+}
+
+fn check_every_group(uniform: bool, seed: u64) {
+    let mut rng = Rng::new(seed);
     let mut field = Field::new(small_config(), 7).unwrap();
     // Larger table values than the default init, so the encoding matters to the output.
     let grid_len = field.layout.grid.param_count();
     for p in &mut field.params[..grid_len] {
         *p = rng.f32() - 0.5;
     }
-    let batch = Batch::new(150, &mut rng); // not a multiple of the chunk size
+    // Likewise larger appearance codes, so that their gradients stand above the f32 noise
+    // of the central differences.
+    let app = field.layout.appearance;
+    for p in &mut field.params[app..] {
+        *p = 4.0 * (rng.f32() - 0.5);
+    }
+    let batch = Batch::new(150, &mut rng, uniform); // not a multiple of the chunk size
     let s = batch.samples();
     let n = s.len();
     let mut tape = Tape::default();
@@ -128,6 +152,7 @@ fn every_parameter_group_matches_central_differences() {
             pick.push(start + rng.below(*len as u64) as usize);
         }
         let mut nonzero = 0;
+        eprintln!("{name}: largest |gradient| {:.2e}", grad[idx[0]].abs());
         for &i in &pick {
             let orig = field.params[i];
             field.params[i] = orig + eps;
@@ -185,7 +210,7 @@ fn every_parameter_group_matches_central_differences() {
 fn density_path_matches_full_forward() {
     let mut rng = Rng::new(3);
     let field = Field::new(small_config(), 1).unwrap();
-    let batch = Batch::new(97, &mut rng);
+    let batch = Batch::new(97, &mut rng, false);
     let (mut sig, mut rgb) = (vec![0.0; 97], vec![0.0; 3 * 97]);
     field.forward(&batch.samples(), &mut sig, &mut rgb);
     let mut sig2 = vec![0.0; 97];

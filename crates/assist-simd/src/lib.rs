@@ -9,6 +9,8 @@
 
 pub mod dispatch;
 pub mod gemm;
+pub mod grid;
+pub mod math;
 pub mod peak;
 pub mod transpose;
 

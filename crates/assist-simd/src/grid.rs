@@ -1,0 +1,607 @@
+//! Hash-grid kernels (instant-NGP encoding): the 8 corner indices and trilinear weights of
+//! a batch of positions at one level, and the gather-and-interpolate of F = 2 features that
+//! dominates the encoding's forward pass.
+//!
+//! The vector variants compute 16 (AVX-512) or 8 (AVX2) lanes at a time — cell, fractions,
+//! weights, dense or hashed indices — and gather the table with hardware gathers; the
+//! scalar variant is the reference and handles the lanes left over.
+
+use crate::Level;
+
+/// One level of the grid, as the kernels need it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GridLevel {
+    /// Cells per axis (grid points per axis are `res + 1`).
+    pub res: u32,
+    /// Entries in the level's table; a power of two when hashed.
+    pub size: u32,
+    /// Indexed directly rather than hashed.
+    pub dense: bool,
+}
+
+/// The spatial hash's primes for y and z (x uses 1).
+pub const PRIME_Y: u32 = 2_654_435_761;
+pub const PRIME_Z: u32 = 805_459_861;
+
+/// Corner indices (within the level's table) and trilinear weights of one position in
+/// [0, 1]³ (outside values and NaN are clamped into it): the scalar reference. Corner `k`
+/// is offset by `(k & 1, k >> 1 & 1, k >> 2)` cells.
+#[inline(always)]
+pub fn corners_one(lv: &GridLevel, x: f32, y: f32, z: f32) -> ([u32; 8], [f32; 8]) {
+    let r = lv.res as f32;
+    let cell = |v: f32| {
+        // `max` first: NaN.max(0) is 0, as in the vector variants (`clamp` keeps NaN).
+        #[allow(clippy::manual_clamp)]
+        let p = v.max(0.0).min(1.0) * r;
+        let c = (p as u32).min(lv.res - 1); // p ≥ 0, so `as` is floor
+        (c, p - c as f32)
+    };
+    let ((cx, fx), (cy, fy), (cz, fz)) = (cell(x), cell(y), cell(z));
+    let wxy = [
+        (1.0 - fx) * (1.0 - fy),
+        fx * (1.0 - fy),
+        (1.0 - fx) * fy,
+        fx * fy,
+    ];
+    let mut w = [0f32; 8];
+    for k in 0..4 {
+        w[k] = wxy[k] * (1.0 - fz);
+        w[k + 4] = wxy[k] * fz;
+    }
+    let mut idx = [0u32; 8];
+    if lv.dense {
+        let s = lv.res + 1;
+        let base = cx + cy * s + cz * s * s;
+        for (k, i) in idx.iter_mut().enumerate() {
+            *i = base
+                + (k & 1) as u32
+                + if k & 2 != 0 { s } else { 0 }
+                + if k & 4 != 0 { s * s } else { 0 };
+        }
+    } else {
+        let mask = lv.size - 1;
+        let hy0 = cy.wrapping_mul(PRIME_Y);
+        let hz0 = cz.wrapping_mul(PRIME_Z);
+        let hy = [hy0, hy0.wrapping_add(PRIME_Y)];
+        let hz = [hz0, hz0.wrapping_add(PRIME_Z)];
+        for (k, i) in idx.iter_mut().enumerate() {
+            *i = ((cx + (k & 1) as u32) ^ hy[(k >> 1) & 1] ^ hz[k >> 2]) & mask;
+        }
+    }
+    (idx, w)
+}
+
+fn check(lv: &GridLevel, pos: [&[f32]; 3]) -> usize {
+    let n = pos[0].len();
+    assert!(
+        pos[1].len() == n && pos[2].len() == n,
+        "grid: position lengths"
+    );
+    assert!(lv.res >= 1, "grid: resolution 0");
+    if lv.dense {
+        let s = lv.res as u64 + 1;
+        assert!(
+            s * s * s <= lv.size as u64,
+            "grid: dense level larger than its table"
+        );
+    } else {
+        assert!(
+            lv.size.is_power_of_two(),
+            "grid: hashed table size not a power of two"
+        );
+    }
+    n
+}
+
+/// Corner indices and weights of `n = pos[0].len()` positions, corner-major:
+/// `idx[k * stride + l]`, `w[k * stride + l]` for corner `k` of lane `l`.
+pub fn corners(
+    level: Level,
+    lv: &GridLevel,
+    pos: [&[f32]; 3],
+    idx: &mut [u32],
+    w: &mut [f32],
+    stride: usize,
+) {
+    let n = check(lv, pos);
+    if n == 0 {
+        return;
+    }
+    assert!(stride >= n && idx.len() >= 7 * stride + n && w.len() >= 7 * stride + n);
+    let done = match level {
+        #[cfg(target_arch = "x86_64")]
+        Level::Avx512 if level.supported() => {
+            // SAFETY: AVX-512F/AVX2 are present (checked above); lengths were checked, and
+            // the kernel touches lanes below `n` only.
+            unsafe { x86::corners_avx512(lv, pos, idx, w, stride) }
+        }
+        #[cfg(target_arch = "x86_64")]
+        Level::Avx2 if level.supported() => {
+            // SAFETY: AVX2 is present; lengths as above.
+            unsafe { x86::corners_avx2(lv, pos, idx, w, stride) }
+        }
+        _ => 0,
+    };
+    for l in done..n {
+        let (i, wk) = corners_one(lv, pos[0][l], pos[1][l], pos[2][l]);
+        for k in 0..8 {
+            idx[k * stride + l] = i[k];
+            w[k * stride + l] = wk[k];
+        }
+    }
+}
+
+/// Interpolates the two features of every position from `table` (the level's entries):
+/// feature 0 into `out0[l]`, feature 1 into `out1[l]`.
+pub fn interp2(
+    level: Level,
+    lv: &GridLevel,
+    table: &[[f32; 2]],
+    pos: [&[f32]; 3],
+    out0: &mut [f32],
+    out1: &mut [f32],
+) {
+    let n = check(lv, pos);
+    assert!(
+        table.len() >= lv.size as usize,
+        "grid: table shorter than the level"
+    );
+    assert!(out0.len() >= n && out1.len() >= n);
+    assert!(
+        lv.size <= i32::MAX as u32 / 2,
+        "grid: table too large for 32-bit gathers"
+    );
+    let done = match level {
+        #[cfg(target_arch = "x86_64")]
+        Level::Avx512 if level.supported() => {
+            // SAFETY: AVX-512F is present; every index is < `lv.size` ≤ table.len() (the
+            // kernel clamps them), and lanes below `n` only are read or written.
+            unsafe { x86::interp2_avx512(lv, table, pos, out0, out1) }
+        }
+        #[cfg(target_arch = "x86_64")]
+        Level::Avx2 if level.supported() => {
+            // SAFETY: AVX2 is present; indices and lanes as above.
+            unsafe { x86::interp2_avx2(lv, table, pos, out0, out1) }
+        }
+        _ => 0,
+    };
+    for l in done..n {
+        let (i, w) = corners_one(lv, pos[0][l], pos[1][l], pos[2][l]);
+        let (mut a, mut b) = (0f32, 0f32);
+        for k in 0..8 {
+            let e = table[i[k] as usize];
+            a += w[k] * e[0];
+            b += w[k] * e[1];
+        }
+        out0[l] = a;
+        out1[l] = b;
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    use super::{GridLevel, PRIME_Y, PRIME_Z};
+    use std::arch::x86_64::*;
+
+    /// Cells, weights and indices of 16 lanes at `p + l` (l < 16).
+    ///
+    /// # Safety
+    /// AVX-512F; 16 floats readable at each of `x`, `y`, `z`.
+    #[inline]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn corners16(
+        lv: &GridLevel,
+        x: *const f32,
+        y: *const f32,
+        z: *const f32,
+    ) -> ([__m512i; 8], [__m512; 8]) {
+        let r = _mm512_set1_ps(lv.res as f32);
+        let rm1 = _mm512_set1_epi32((lv.res - 1) as i32);
+        let (zero, one) = (_mm512_setzero_ps(), _mm512_set1_ps(1.0));
+        let cell = |p: *const f32| {
+            // SAFETY: 16 floats are readable at p (the caller's contract).
+            let v = unsafe { _mm512_loadu_ps(p) };
+            // max(v, 0) returns 0 for NaN v (the second operand).
+            let t = _mm512_mul_ps(_mm512_min_ps(_mm512_max_ps(v, zero), one), r);
+            let c = _mm512_min_epu32(_mm512_cvttps_epu32(t), rm1);
+            (c, _mm512_sub_ps(t, _mm512_cvtepu32_ps(c)))
+        };
+        let ((cx, fx), (cy, fy), (cz, fz)) = (cell(x), cell(y), cell(z));
+        let (gx, gy, gz) = (
+            _mm512_sub_ps(one, fx),
+            _mm512_sub_ps(one, fy),
+            _mm512_sub_ps(one, fz),
+        );
+        let wxy = [
+            _mm512_mul_ps(gx, gy),
+            _mm512_mul_ps(fx, gy),
+            _mm512_mul_ps(gx, fy),
+            _mm512_mul_ps(fx, fy),
+        ];
+        let w: [__m512; 8] =
+            std::array::from_fn(|k| _mm512_mul_ps(wxy[k & 3], if k < 4 { gz } else { fz }));
+        let idx: [__m512i; 8] = if lv.dense {
+            let s = lv.res + 1;
+            let (vs, vs2) = (
+                _mm512_set1_epi32(s as i32),
+                _mm512_set1_epi32((s * s) as i32),
+            );
+            let base = _mm512_add_epi32(
+                cx,
+                _mm512_add_epi32(_mm512_mullo_epi32(cy, vs), _mm512_mullo_epi32(cz, vs2)),
+            );
+            std::array::from_fn(|k| {
+                let off = (k & 1) as u32
+                    + if k & 2 != 0 { s } else { 0 }
+                    + if k & 4 != 0 { s * s } else { 0 };
+                _mm512_add_epi32(base, _mm512_set1_epi32(off as i32))
+            })
+        } else {
+            let mask = _mm512_set1_epi32((lv.size - 1) as i32);
+            let (py, pz) = (
+                _mm512_set1_epi32(PRIME_Y as i32),
+                _mm512_set1_epi32(PRIME_Z as i32),
+            );
+            let hy0 = _mm512_mullo_epi32(cy, py);
+            let hz0 = _mm512_mullo_epi32(cz, pz);
+            let hy = [hy0, _mm512_add_epi32(hy0, py)];
+            let hz = [hz0, _mm512_add_epi32(hz0, pz)];
+            let xs = [cx, _mm512_add_epi32(cx, _mm512_set1_epi32(1))];
+            std::array::from_fn(|k| {
+                let h = _mm512_xor_si512(xs[k & 1], _mm512_xor_si512(hy[(k >> 1) & 1], hz[k >> 2]));
+                _mm512_and_si512(h, mask)
+            })
+        };
+        // Never past the table, whatever the arithmetic above produced.
+        let last = _mm512_set1_epi32((lv.size - 1) as i32);
+        (idx.map(|i| _mm512_min_epu32(i, last)), w)
+    }
+
+    /// # Safety
+    /// AVX-512F; `pos` lengths equal, `idx`/`w` hold `7 * stride + n` with `stride ≥ n`.
+    #[target_feature(enable = "avx512f")]
+    pub unsafe fn corners_avx512(
+        lv: &GridLevel,
+        pos: [&[f32]; 3],
+        idx: &mut [u32],
+        w: &mut [f32],
+        stride: usize,
+    ) -> usize {
+        let n16 = pos[0].len() / 16 * 16;
+        for l in (0..n16).step_by(16) {
+            // SAFETY: lanes l..l+16 ≤ n of every input and of every corner row of the outputs.
+            unsafe {
+                let (i, wk) = corners16(
+                    lv,
+                    pos[0].as_ptr().add(l),
+                    pos[1].as_ptr().add(l),
+                    pos[2].as_ptr().add(l),
+                );
+                for k in 0..8 {
+                    _mm512_storeu_si512(idx.as_mut_ptr().add(k * stride + l).cast(), i[k]);
+                    _mm512_storeu_ps(w.as_mut_ptr().add(k * stride + l), wk[k]);
+                }
+            }
+        }
+        n16
+    }
+
+    /// # Safety
+    /// AVX-512F; `table` holds at least `lv.size` entries; outputs hold `n` lanes.
+    #[target_feature(enable = "avx512f")]
+    pub unsafe fn interp2_avx512(
+        lv: &GridLevel,
+        table: &[[f32; 2]],
+        pos: [&[f32]; 3],
+        out0: &mut [f32],
+        out1: &mut [f32],
+    ) -> usize {
+        let n16 = pos[0].len() / 16 * 16;
+        let base = table.as_ptr().cast::<f32>();
+        let dup_lo = _mm512_setr_epi32(0, 0, 1, 1, 2, 2, 3, 3, 4, 4, 5, 5, 6, 6, 7, 7);
+        let dup_hi = _mm512_add_epi32(dup_lo, _mm512_set1_epi32(8));
+        let even = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
+        let odd = _mm512_add_epi32(even, _mm512_set1_epi32(1));
+        for l in (0..n16).step_by(16) {
+            // SAFETY: lanes l..l+16 ≤ n; every gathered index is < lv.size ≤ table.len(), so
+            // entry `i` (floats 2i and 2i+1, scale 8 bytes) is inside the table.
+            unsafe {
+                let (i, w) = corners16(
+                    lv,
+                    pos[0].as_ptr().add(l),
+                    pos[1].as_ptr().add(l),
+                    pos[2].as_ptr().add(l),
+                );
+                // Each entry is one 64-bit pair: 8 lanes per gather, features interleaved;
+                // weights are duplicated to match, and the sums split apart at the end.
+                let mut lo = _mm512_setzero_ps();
+                let mut hi = _mm512_setzero_ps();
+                for k in 0..8 {
+                    let i_lo = _mm512_castsi512_si256(i[k]);
+                    let i_hi = _mm512_extracti64x4_epi64::<1>(i[k]);
+                    let e_lo = _mm512_castpd_ps(_mm512_i32gather_pd::<8>(i_lo, base.cast()));
+                    let e_hi = _mm512_castpd_ps(_mm512_i32gather_pd::<8>(i_hi, base.cast()));
+                    lo = _mm512_fmadd_ps(_mm512_permutexvar_ps(dup_lo, w[k]), e_lo, lo);
+                    hi = _mm512_fmadd_ps(_mm512_permutexvar_ps(dup_hi, w[k]), e_hi, hi);
+                }
+                let a = _mm512_permutex2var_ps(lo, even, hi);
+                let b = _mm512_permutex2var_ps(lo, odd, hi);
+                _mm512_storeu_ps(out0.as_mut_ptr().add(l), a);
+                _mm512_storeu_ps(out1.as_mut_ptr().add(l), b);
+            }
+        }
+        n16
+    }
+
+    /// The AVX2 counterpart of `corners16` over 8 lanes.
+    ///
+    /// # Safety
+    /// AVX2; 8 floats readable at each of `x`, `y`, `z`.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn corners8(
+        lv: &GridLevel,
+        x: *const f32,
+        y: *const f32,
+        z: *const f32,
+    ) -> ([__m256i; 8], [__m256; 8]) {
+        let r = _mm256_set1_ps(lv.res as f32);
+        let rm1 = _mm256_set1_epi32((lv.res - 1) as i32);
+        let (zero, one) = (_mm256_setzero_ps(), _mm256_set1_ps(1.0));
+        let cell = |p: *const f32| {
+            // SAFETY: 8 floats are readable at p (the caller's contract).
+            let v = unsafe { _mm256_loadu_ps(p) };
+            let t = _mm256_mul_ps(_mm256_min_ps(_mm256_max_ps(v, zero), one), r);
+            // t ∈ [0, res] < 2^31, so the signed conversion is the floor.
+            let c = _mm256_min_epu32(_mm256_cvttps_epi32(t), rm1);
+            (c, _mm256_sub_ps(t, _mm256_cvtepi32_ps(c)))
+        };
+        let ((cx, fx), (cy, fy), (cz, fz)) = (cell(x), cell(y), cell(z));
+        let (gx, gy, gz) = (
+            _mm256_sub_ps(one, fx),
+            _mm256_sub_ps(one, fy),
+            _mm256_sub_ps(one, fz),
+        );
+        let wxy = [
+            _mm256_mul_ps(gx, gy),
+            _mm256_mul_ps(fx, gy),
+            _mm256_mul_ps(gx, fy),
+            _mm256_mul_ps(fx, fy),
+        ];
+        let w: [__m256; 8] =
+            std::array::from_fn(|k| _mm256_mul_ps(wxy[k & 3], if k < 4 { gz } else { fz }));
+        let idx: [__m256i; 8] = if lv.dense {
+            let s = lv.res + 1;
+            let (vs, vs2) = (
+                _mm256_set1_epi32(s as i32),
+                _mm256_set1_epi32((s * s) as i32),
+            );
+            let base = _mm256_add_epi32(
+                cx,
+                _mm256_add_epi32(_mm256_mullo_epi32(cy, vs), _mm256_mullo_epi32(cz, vs2)),
+            );
+            std::array::from_fn(|k| {
+                let off = (k & 1) as u32
+                    + if k & 2 != 0 { s } else { 0 }
+                    + if k & 4 != 0 { s * s } else { 0 };
+                _mm256_add_epi32(base, _mm256_set1_epi32(off as i32))
+            })
+        } else {
+            let mask = _mm256_set1_epi32((lv.size - 1) as i32);
+            let (py, pz) = (
+                _mm256_set1_epi32(PRIME_Y as i32),
+                _mm256_set1_epi32(PRIME_Z as i32),
+            );
+            let hy0 = _mm256_mullo_epi32(cy, py);
+            let hz0 = _mm256_mullo_epi32(cz, pz);
+            let hy = [hy0, _mm256_add_epi32(hy0, py)];
+            let hz = [hz0, _mm256_add_epi32(hz0, pz)];
+            let xs = [cx, _mm256_add_epi32(cx, _mm256_set1_epi32(1))];
+            std::array::from_fn(|k| {
+                let h = _mm256_xor_si256(xs[k & 1], _mm256_xor_si256(hy[(k >> 1) & 1], hz[k >> 2]));
+                _mm256_and_si256(h, mask)
+            })
+        };
+        let last = _mm256_set1_epi32((lv.size - 1) as i32);
+        (idx.map(|i| _mm256_min_epu32(i, last)), w)
+    }
+
+    /// # Safety
+    /// AVX2; as `corners_avx512`.
+    #[target_feature(enable = "avx2,fma")]
+    pub unsafe fn corners_avx2(
+        lv: &GridLevel,
+        pos: [&[f32]; 3],
+        idx: &mut [u32],
+        w: &mut [f32],
+        stride: usize,
+    ) -> usize {
+        let n8 = pos[0].len() / 8 * 8;
+        for l in (0..n8).step_by(8) {
+            // SAFETY: lanes l..l+8 ≤ n of every input and of every corner row of the outputs.
+            unsafe {
+                let (i, wk) = corners8(
+                    lv,
+                    pos[0].as_ptr().add(l),
+                    pos[1].as_ptr().add(l),
+                    pos[2].as_ptr().add(l),
+                );
+                for k in 0..8 {
+                    _mm256_storeu_si256(idx.as_mut_ptr().add(k * stride + l).cast(), i[k]);
+                    _mm256_storeu_ps(w.as_mut_ptr().add(k * stride + l), wk[k]);
+                }
+            }
+        }
+        n8
+    }
+
+    /// # Safety
+    /// AVX2; as `interp2_avx512`.
+    #[target_feature(enable = "avx2,fma")]
+    pub unsafe fn interp2_avx2(
+        lv: &GridLevel,
+        table: &[[f32; 2]],
+        pos: [&[f32]; 3],
+        out0: &mut [f32],
+        out1: &mut [f32],
+    ) -> usize {
+        let n8 = pos[0].len() / 8 * 8;
+        let base = table.as_ptr().cast::<f32>();
+        for l in (0..n8).step_by(8) {
+            // SAFETY: as in `interp2_avx512`.
+            unsafe {
+                let (i, w) = corners8(
+                    lv,
+                    pos[0].as_ptr().add(l),
+                    pos[1].as_ptr().add(l),
+                    pos[2].as_ptr().add(l),
+                );
+                let mut a = _mm256_mul_ps(w[0], _mm256_i32gather_ps::<8>(base, i[0]));
+                let mut b = _mm256_mul_ps(w[0], _mm256_i32gather_ps::<8>(base.add(1), i[0]));
+                for k in 1..8 {
+                    a = _mm256_fmadd_ps(w[k], _mm256_i32gather_ps::<8>(base, i[k]), a);
+                    b = _mm256_fmadd_ps(w[k], _mm256_i32gather_ps::<8>(base.add(1), i[k]), b);
+                }
+                _mm256_storeu_ps(out0.as_mut_ptr().add(l), a);
+                _mm256_storeu_ps(out1.as_mut_ptr().add(l), b);
+            }
+        }
+        n8
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn levels() -> Vec<GridLevel> {
+        vec![
+            GridLevel {
+                res: 16,
+                size: 17 * 17 * 17,
+                dense: true,
+            },
+            GridLevel {
+                res: 1,
+                size: 8,
+                dense: true,
+            },
+            GridLevel {
+                res: 79,
+                size: 1 << 19,
+                dense: true,
+            },
+            GridLevel {
+                res: 2048,
+                size: 1 << 19,
+                dense: false,
+            },
+            GridLevel {
+                res: 300,
+                size: 1 << 12,
+                dense: false,
+            },
+        ]
+    }
+
+    fn positions(n: usize, seed: u64) -> [Vec<f32>; 3] {
+        let mut s = seed;
+        let mut next = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((s >> 40) as f32 / (1u64 << 24) as f32) * 1.4 - 0.2
+        };
+        let mut p = [vec![0f32; n], vec![0f32; n], vec![0f32; n]];
+        for l in 0..n {
+            for a in 0..3 {
+                p[a][l] = next();
+            }
+        }
+        // Faces, corners, NaN and infinities among the lanes.
+        let special = [0.0, 1.0, f32::NAN, f32::INFINITY, -f32::INFINITY, 0.5];
+        for (l, &v) in special.iter().enumerate().take(n) {
+            p[l % 3][l] = v;
+        }
+        p
+    }
+
+    /// Every level of SIMD against the scalar reference: indices equal, weights and
+    /// interpolated features within rounding, over lane counts that leave tails.
+    #[test]
+    fn simd_matches_scalar() {
+        let mut failures = Vec::new();
+        for level in [Level::Avx2, Level::Avx512] {
+            if !level.supported() {
+                eprintln!("!!! SKIP grid level {}: this CPU lacks it", level.name());
+                continue;
+            }
+            for lv in levels() {
+                let table: Vec<[f32; 2]> = (0..lv.size)
+                    .map(|i| [(i as f32 * 0.37).sin(), (i as f32 * 0.11).cos()])
+                    .collect();
+                for n in [1usize, 7, 16, 37, 64] {
+                    let p = positions(n, n as u64 + lv.res as u64);
+                    let pos = [&p[0][..], &p[1][..], &p[2][..]];
+                    let stride = n + 3;
+                    let (mut ri, mut rw) = (vec![0u32; 8 * stride], vec![0f32; 8 * stride]);
+                    let (mut si, mut sw) = (ri.clone(), rw.clone());
+                    corners(Level::Scalar, &lv, pos, &mut ri, &mut rw, stride);
+                    corners(level, &lv, pos, &mut si, &mut sw, stride);
+                    if ri != si || rw.iter().zip(&sw).any(|(a, b)| (a - b).abs() > 1e-6) {
+                        failures.push(format!("{} corners res {} n {n}", level.name(), lv.res));
+                    }
+                    let (mut r0, mut r1) = (vec![0f32; n], vec![0f32; n]);
+                    let (mut s0, mut s1) = (vec![0f32; n], vec![0f32; n]);
+                    interp2(Level::Scalar, &lv, &table, pos, &mut r0, &mut r1);
+                    interp2(level, &lv, &table, pos, &mut s0, &mut s1);
+                    let worst = r0
+                        .iter()
+                        .zip(&s0)
+                        .chain(r1.iter().zip(&s1))
+                        .map(|(a, b)| (a - b).abs())
+                        .fold(0f32, f32::max);
+                    if worst > 1e-5 || r0.iter().chain(&r1).any(|v| !v.is_finite()) {
+                        failures.push(format!(
+                            "{} interp2 res {} n {n}: max err {worst}",
+                            level.name(),
+                            lv.res
+                        ));
+                    }
+                }
+            }
+        }
+        assert!(failures.is_empty(), "{failures:#?}");
+    }
+
+    /// The reference's hash and dense indexing, spelled out for a few corners.
+    #[test]
+    fn reference_indices() {
+        let dense = GridLevel {
+            res: 4,
+            size: 125,
+            dense: true,
+        };
+        let (i, w) = corners_one(&dense, 0.3, 0.6, 0.9);
+        // cells (1, 2, 3) with fractions (0.2, 0.4, 0.6) of a 5-point-per-axis grid.
+        assert_eq!(i[0], 1 + 2 * 5 + 3 * 25);
+        assert_eq!(i[7], 2 + 3 * 5 + 4 * 25);
+        assert!((w[7] - 0.2 * 0.4 * 0.6).abs() < 1e-6);
+        assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-6);
+        let hashed = GridLevel {
+            res: 100,
+            size: 1 << 10,
+            dense: false,
+        };
+        let (i, _) = corners_one(&hashed, 0.505, 0.0, 1.0);
+        let (cx, cy, cz) = (50u32, 0u32, 99u32);
+        let h =
+            |x: u32, y: u32, z: u32| (x ^ y.wrapping_mul(PRIME_Y) ^ z.wrapping_mul(PRIME_Z)) & 1023;
+        assert_eq!(i[0], h(cx, cy, cz));
+        assert_eq!(i[5], h(cx + 1, cy, cz + 1));
+        // NaN lands on the low corner.
+        let (i, w) = corners_one(&dense, f32::NAN, 0.0, 0.0);
+        assert_eq!(i[0], 0);
+        assert!((w[0] - 1.0).abs() < 1e-6);
+    }
+}
