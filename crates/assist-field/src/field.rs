@@ -11,8 +11,31 @@ use rayon::prelude::*;
 
 use crate::config::FieldConfig;
 use crate::hashgrid::{CHUNK, GridLayout, Layout, encode, encode_backward};
+use assist_simd::bf16::{self, PackedA};
+
 use crate::mlp::{Linear, bias_act};
 use crate::sh::sh_encode_rows;
+
+/// Arithmetic of the MLP products at inference.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Precision {
+    /// f32 throughout: what training computes.
+    F32,
+    /// bf16 weights and activations in the products, f32 sums (AVX-512 BF16 only; f32
+    /// elsewhere). About 3 significant digits per product operand; for rendering.
+    Bf16,
+}
+
+impl Precision {
+    /// The fastest precision this machine runs (`ASSIST_PRECISION=f32` forces f32).
+    pub fn fastest() -> Self {
+        if bf16::available() {
+            Precision::Bf16
+        } else {
+            Precision::F32
+        }
+    }
+}
 
 /// Largest raw density fed to `exp` (σ ≤ e^15); the gradient uses the same clamp
 /// (`trunc_exp` as in Nerfacto).
@@ -382,13 +405,29 @@ impl Field {
         act: &mut [f32],
         rows: &Rows,
         biases: &[f32],
+        fast: Option<(&[PackedA], &mut [u32])>,
     ) {
         let lay = &self.layout;
         let p = &self.params;
+        // Product `y = W[:, ..cols] x` of layer `i` (density 0, 1, then colour layers), in
+        // f32 or through the bf16 kernel (activations packed into `bp` first).
+        let simd = assist_simd::level();
+        let mut fast = fast;
+        let mut product =
+            |i: usize, l: &Linear, x: &[f32], y: &mut [f32], cols: usize| match fast.as_mut() {
+                Some((packed, bp)) => {
+                    bf16::pack_b(simd, x, cols, CHUNK, CHUNK, bp);
+                    bf16::gemm(simd, &packed[i], bp, CHUNK, y, CHUNK);
+                }
+                None => l.product(p, x, y, cols),
+            };
         let (h, rest) = act.split_at_mut(rows.dens * CHUNK);
-        lay.density[0].forward(p, enc, h, true);
+        let (d0, d1) = (&lay.density[0], &lay.density[1]);
+        product(0, d0, enc, h, d0.inp_pad);
+        bias_act(&mut h[..d0.out * CHUNK], &p[d0.b..d0.b + d0.out], true);
         let (dens, rest) = rest.split_at_mut((rows.cin - rows.dens) * CHUNK);
-        lay.density[1].forward(p, h, dens, false);
+        product(1, d1, h, dens, d1.inp_pad);
+        bias_act(&mut dens[..d1.out * CHUNK], &p[d1.b..d1.b + d1.out], false);
         let (cin, rest) = rest.split_at_mut((rows.color[0] - rows.cin) * CHUNK);
         self.color_input(s, c0, dens, cin);
         // Colour layers: cin → hidden… → rgb (pre-activation into the rgb rows).
@@ -404,7 +443,7 @@ impl Field {
             let (out, r2) = rest.split_at_mut(width * CHUNK);
             if li == 0 {
                 // Geometry + SH through the product; the appearance code as a bias.
-                l.product(p, prev, out, self.product_cols());
+                product(2, l, prev, out, self.product_cols());
                 let mut slots = [0u32; CHUNK];
                 let out = &mut out[..l.out * CHUNK];
                 if self.chunk_slots(s, c0, &mut slots) {
@@ -421,7 +460,8 @@ impl Field {
                     }
                 }
             } else {
-                l.forward(p, prev, out, li + 1 < nl);
+                product(2 + li, l, prev, out, l.inp_pad);
+                bias_act(&mut out[..l.out * CHUNK], &p[l.b..l.b + l.out], li + 1 < nl);
             }
             prev = out;
             rest = r2;
@@ -447,11 +487,12 @@ impl Field {
         act: &mut [f32],
         rows: &Rows,
         biases: &[f32],
+        fast: Option<(&[PackedA], &mut [u32])>,
         sig: &mut [f32],
         col: &mut [f32],
     ) {
         assist_simd::simd(|| {
-            self.chunk_forward(s, c * CHUNK, enc, act, rows, biases);
+            self.chunk_forward(s, c * CHUNK, enc, act, rows, biases, fast);
             write_outputs(act, rows, sig, col);
         })
     }
@@ -466,9 +507,38 @@ impl Field {
     }
 
     /// Inference reusing `scratch`'s encoding buffer (no allocation once it is large
-    /// enough); records nothing for backward.
+    /// enough); records nothing for backward. Exact f32 (see `forward_at`).
     pub fn forward_with(
         &self,
+        s: &Samples,
+        scratch: &mut Tape,
+        sigma: &mut [f32],
+        rgb: &mut [f32],
+    ) {
+        self.forward_at(Precision::F32, s, scratch, sigma, rgb)
+    }
+
+    /// The MLP weights packed for the bf16 kernel, in product order: density 0 and 1,
+    /// then the colour layers (the first without its appearance columns).
+    fn packed_bf16(&self) -> Vec<PackedA> {
+        let lay = &self.layout;
+        let p = &self.params;
+        let pack = |l: &Linear, cols: usize| PackedA::new(&p[l.w..], l.out, cols, l.inp_pad);
+        let mut v = vec![
+            pack(&lay.density[0], lay.density[0].inp_pad),
+            pack(&lay.density[1], lay.density[1].inp_pad),
+            pack(&lay.color[0], self.product_cols()),
+        ];
+        v.extend(lay.color[1..].iter().map(|l| pack(l, l.inp_pad)));
+        v
+    }
+
+    /// Inference at a given precision of the MLP products (the encoding, biases and
+    /// activations are f32 either way). `Precision::Bf16` falls back to f32 where the CPU
+    /// lacks AVX-512 BF16.
+    pub fn forward_at(
+        &self,
+        precision: Precision,
         s: &Samples,
         scratch: &mut Tape,
         sigma: &mut [f32],
@@ -486,14 +556,24 @@ impl Field {
         self.encode(s, enc);
         let rows = self.rows();
         let biases = self.code_biases();
+        let packed =
+            (precision == Precision::Bf16 && bf16::available()).then(|| self.packed_bf16());
+        let max_in = self.max_inputs();
         let block = width * CHUNK;
         sigma[..n]
             .par_chunks_mut(CHUNK)
             .zip(rgb[..3 * n].par_chunks_mut(3 * CHUNK))
             .enumerate()
             .for_each_init(
-                || vec![0.0f32; rows.total * CHUNK],
-                |act, (c, (sig, col))| {
+                || {
+                    let bp = if packed.is_some() {
+                        max_in.div_ceil(2) * CHUNK
+                    } else {
+                        0
+                    };
+                    (vec![0.0f32; rows.total * CHUNK], vec![0u32; bp])
+                },
+                |(act, bp), (c, (sig, col))| {
                     self.chunk_outputs(
                         s,
                         c,
@@ -501,11 +581,23 @@ impl Field {
                         act,
                         &rows,
                         &biases,
+                        packed.as_deref().map(|p| (p, bp.as_mut_slice())),
                         sig,
                         col,
                     )
                 },
             );
+    }
+
+    /// The widest layer input (padded).
+    fn max_inputs(&self) -> usize {
+        let lay = &self.layout;
+        lay.density
+            .iter()
+            .chain(&lay.color)
+            .map(|l| l.inp_pad)
+            .max()
+            .unwrap_or(0)
     }
 
     /// Density only (for occupancy-grid updates): encoding and the density net.
@@ -579,6 +671,7 @@ impl Field {
                     act,
                     &rows,
                     &biases,
+                    None,
                     sig,
                     col,
                 )
@@ -662,13 +755,7 @@ impl Field {
             .chain(&lay.color)
             .map(|l| l.transposed(&self.params))
             .collect();
-        let max_in = lay
-            .density
-            .iter()
-            .chain(&lay.color)
-            .map(|l| l.inp_pad)
-            .max()
-            .unwrap_or(0);
+        let max_in = self.max_inputs();
         let max_rows = rows.total;
         let enc = &tape.enc;
         let act = &tape.act;

@@ -23,5 +23,5 @@ pub mod sh;
 pub use adam::Adam;
 pub use config::FieldConfig;
 pub use error::FieldError;
-pub use field::{Field, ParamLayout, PhaseTimes, Samples, Tape};
+pub use field::{Field, ParamLayout, PhaseTimes, Precision, Samples, Tape};
 pub use occupancy::OccupancyGrid;

@@ -103,4 +103,50 @@ fn fits_an_image_through_a_slice() {
         psnr(mse)
     );
     assert!(psnr(mse) >= 35.0, "PSNR {}", psnr(mse));
+
+    // Inference in bf16 (what rendering uses where the CPU has it) against f32 on the
+    // fitted field: colours within 1/100, the fit's PSNR within 0.3 dB.
+    if !assist_simd::bf16::available() {
+        eprintln!(
+            "!!! SKIP bf16 inference check: this CPU lacks AVX-512 BF16 (or ASSIST_PRECISION=f32)"
+        );
+        return;
+    }
+    let (mut sig16, mut rgb16) = (vec![0.0; m], vec![0.0; 3 * m]);
+    field.forward_at(
+        assist_field::Precision::Bf16,
+        &Samples {
+            pos: [&px, &py, &pz],
+            dir: [&dx, &dy, &dz],
+            image: &[],
+        },
+        &mut assist_field::Tape::default(),
+        &mut sig16,
+        &mut rgb16,
+    );
+    let worst = rgb
+        .iter()
+        .zip(&rgb16)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0f32, f32::max);
+    let worst_sigma = sig
+        .iter()
+        .zip(&sig16)
+        .map(|(a, b)| (a - b).abs() / a.abs().max(1e-3))
+        .fold(0f32, f32::max);
+    let mut mse16 = 0.0f64;
+    for k in 0..m {
+        let t = target(px[k], py[k]);
+        for c in 0..3 {
+            mse16 += ((rgb16[3 * k + c] - t[c]) as f64).powi(2);
+        }
+    }
+    mse16 /= (3 * m) as f64;
+    eprintln!(
+        "bf16 inference: max colour difference {worst:.4}, max relative density difference {worst_sigma:.4}, PSNR {:.2} dB",
+        psnr(mse16)
+    );
+    assert!(rgb16 != rgb, "bf16 path not taken");
+    assert!(worst < 0.01, "bf16 colours differ by {worst}");
+    assert!((psnr(mse16) - psnr(mse)).abs() < 0.3);
 }

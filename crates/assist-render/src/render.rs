@@ -3,7 +3,7 @@
 //! selected node is highlighted by adding a colour to its samples (paper §III-B).
 
 use assist_core::{Camera, InstanceId};
-use assist_field::Tape;
+use assist_field::{Precision, Tape};
 
 use crate::batch::{BatchOutput, composite_batch};
 use crate::node::NeuralScene;
@@ -18,6 +18,8 @@ pub struct RenderOptions {
     pub rays_per_batch: usize,
     /// Also produce each node's own colour and opacity.
     pub layers: bool,
+    /// Arithmetic of the fields' MLP products (default: the fastest this CPU runs).
+    pub precision: Precision,
 }
 
 impl Default for RenderOptions {
@@ -27,6 +29,7 @@ impl Default for RenderOptions {
             max_per_node: 1024,
             rays_per_batch: 1 << 14,
             layers: false,
+            precision: Precision::fastest(),
         }
     }
 }
@@ -63,6 +66,7 @@ pub fn query_fields(
     traced: &mut Traced,
     tapes: &mut Vec<Tape>,
     highlight: Option<(InstanceId, [f32; 3])>,
+    precision: Precision,
 ) {
     tapes.resize_with(traced.nodes.len(), Tape::default);
     for (ns, tape) in traced.nodes.iter_mut().zip(tapes.iter_mut()) {
@@ -74,7 +78,7 @@ pub fn query_fields(
         let mut sigma = std::mem::take(&mut ns.sigma);
         let mut rgb = std::mem::take(&mut ns.rgb);
         nf.field
-            .forward_with(&ns.samples(), tape, &mut sigma, &mut rgb);
+            .forward_at(precision, &ns.samples(), tape, &mut sigma, &mut rgb);
         if let Some((id, add)) = highlight
             && scene.scene.nodes[ns.node].id == id
         {
@@ -106,7 +110,13 @@ pub fn render_rays(scene: &NeuralScene, opts: &RenderOptions, sc: &mut RenderScr
         max_per_node: opts.max_per_node,
     };
     sample_rays(scene, &sc.rays, &so, &mut sc.traced);
-    query_fields(scene, &mut sc.traced, &mut sc.tapes, opts.highlight);
+    query_fields(
+        scene,
+        &mut sc.traced,
+        &mut sc.tapes,
+        opts.highlight,
+        opts.precision,
+    );
     composite_batch(
         &mut sc.traced,
         scene.scene.background_color,

@@ -216,7 +216,13 @@ fn batch_backward_matches_finite_differences() {
     sample_rays(&s, &rays, &so, &mut traced);
     assert!(traced.nodes.iter().all(|n| n.len() > 10));
     let mut tapes = Vec::new();
-    assist_render::render::query_fields(&s, &mut traced, &mut tapes, None);
+    assist_render::render::query_fields(
+        &s,
+        &mut traced,
+        &mut tapes,
+        None,
+        assist_field::Precision::F32,
+    );
     let bg = s.scene.background_color;
     let coef: Vec<f32> = (0..6 * 30).map(|_| rng.f32() - 0.5).collect();
     let loss = |out: &BatchOutput| -> f64 {

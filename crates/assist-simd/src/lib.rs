@@ -7,6 +7,7 @@
 //! than the CPU's only: a level the CPU lacks falls back, loudly). Every variant is tested
 //! against the scalar one on random inputs.
 
+pub mod bf16;
 pub mod dispatch;
 pub mod gemm;
 pub mod grid;

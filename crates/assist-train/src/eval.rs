@@ -28,6 +28,9 @@ pub struct EvalReport {
     pub ssim: f64,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub panoptic_miou: Option<f64>,
+    /// IoU of each instance id (0 = background) whose mean is `panoptic_miou`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub panoptic_iou: Option<std::collections::BTreeMap<u16, f64>>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub background_psnr: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -115,6 +118,7 @@ pub fn evaluate(
         psnr: per_image.iter().map(|s| s.psnr).sum::<f64>() / m,
         ssim: per_image.iter().map(|s| s.ssim).sum::<f64>() / m,
         panoptic_miou: if any_ids { iou.mean() } else { None },
+        panoptic_iou: any_ids.then(|| iou.per_class()),
         background_psnr: (bg_n > 0).then(|| mse_to_psnr(bg_se / bg_n as f64)),
         background_occluded_psnr: (occ_n > 0).then(|| mse_to_psnr(occ_se / occ_n as f64)),
         per_image,
@@ -134,4 +138,112 @@ pub fn background_dataset(root: &Path) -> Result<Option<Dataset>> {
         return Ok(None);
     }
     Ok(Some(assist_data::load(&b, &Default::default())?))
+}
+
+/// How well one built-in prior fills the background behind objects.
+#[derive(Debug, Clone, Serialize)]
+pub struct PriorScore {
+    pub prior: crate::views::PriorKind,
+    /// PSNR of the filled colour against the `background/` ground truth over the pixels
+    /// objects cover (all views pooled), the figure comparable with a trained scene's
+    /// `background_occluded_psnr`.
+    pub occluded_psnr: f64,
+    /// Mean seconds to fill one view.
+    pub seconds_per_view: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct PriorReport {
+    pub views: usize,
+    pub occluded_pixels: usize,
+    pub scores: Vec<PriorScore>,
+}
+
+/// Measures the built-in background priors on the views of `split` that have instance
+/// masks and a `background/` ground-truth view (desk format): each view is filled as
+/// training fills it, then compared with the truth under its objects.
+pub fn evaluate_priors(
+    ds: &Dataset,
+    split: Option<Split>,
+    kinds: &[crate::views::PriorKind],
+    mut progress: impl FnMut(usize, usize),
+) -> Result<PriorReport> {
+    let Some(truth) = background_dataset(&ds.root)? else {
+        return Err(crate::error::TrainError::Input {
+            path: ds.root.join("background"),
+            message: "no background/transforms.json: the prior needs background ground truth"
+                .into(),
+        });
+    };
+    let pairs: Vec<_> = ds
+        .frames
+        .iter()
+        .filter(|f| split.is_none_or(|s| f.split == s) && f.instance_mask_path.is_some())
+        .filter_map(|f| {
+            truth
+                .frames
+                .iter()
+                .find(|b| b.name == f.name)
+                .map(|b| (f, b))
+        })
+        .collect();
+    if pairs.is_empty() {
+        return Err(crate::error::TrainError::Input {
+            path: ds.root.clone(),
+            message: "no view has both an instance mask and a background/ view of the same name"
+                .into(),
+        });
+    }
+    let mut se = vec![0.0f64; kinds.len()];
+    let mut secs = vec![0.0f64; kinds.len()];
+    let mut pixels = 0usize;
+    for (i, (f, b)) in pairs.iter().enumerate() {
+        progress(i, pairs.len());
+        let v = load_view(f, u32::MAX, [0.0; 3])?;
+        let t = load_view(b, u32::MAX, [0.0; 3])?;
+        if t.rgb.len() != v.rgb.len() {
+            return Err(crate::error::TrainError::Input {
+                path: b.image_path.clone(),
+                message: format!(
+                    "background view is {}×{} but {} is {}×{}",
+                    t.width,
+                    t.height,
+                    f.image_path.display(),
+                    v.width,
+                    v.height
+                ),
+            });
+        }
+        let Some(ids) = &v.ids else { continue };
+        let mask: Vec<bool> = ids.iter().map(|&i| i != 0).collect();
+        for (k, &kind) in kinds.iter().enumerate() {
+            let mut filled = v.clone();
+            filled.inpaint = None;
+            filled.inpaint_depth = None;
+            let t0 = std::time::Instant::now();
+            crate::views::fill_prior(&mut filled, kind);
+            secs[k] += t0.elapsed().as_secs_f64();
+            let img = filled.inpaint.as_ref().unwrap_or(&filled.rgb);
+            let (e, n) = squared_error(img, &t.rgb, 3, Some(&mask));
+            se[k] += e;
+            if k == 0 {
+                pixels += n / 3;
+            }
+        }
+    }
+    progress(pairs.len(), pairs.len());
+    let scores = kinds
+        .iter()
+        .enumerate()
+        .map(|(k, &prior)| PriorScore {
+            prior,
+            occluded_psnr: mse_to_psnr(se[k] / (3 * pixels.max(1)) as f64),
+            seconds_per_view: secs[k] / pairs.len() as f64,
+        })
+        .collect();
+    Ok(PriorReport {
+        views: pairs.len(),
+        occluded_pixels: pixels,
+        scores,
+    })
 }

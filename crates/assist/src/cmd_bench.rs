@@ -1,9 +1,10 @@
-//! `assist bench field`: training-step and inference throughput of the field engine.
+//! `assist bench field`: training-step and inference throughput of the field engine;
+//! `assist bench prior`: the built-in background priors against background ground truth.
 
 use std::time::Instant;
 
 use assist_core::Rng;
-use assist_field::{Adam, Field, FieldConfig, PhaseTimes, Samples, Tape};
+use assist_field::{Adam, Field, FieldConfig, PhaseTimes, Precision, Samples, Tape};
 use clap::{Args, Subcommand};
 use serde_json::{Value, json};
 
@@ -12,6 +13,20 @@ pub enum BenchCommand {
     /// Field throughput: training step (forward + backward + Adam) and inference, in
     /// samples/s, at Nerfacto size and at object size, with a time breakdown.
     Field(FieldBenchArgs),
+    /// Background priors: each built-in fill (push-pull, exemplar) against a dataset's
+    /// `background/` ground truth under the objects, and its time per view.
+    Prior(PriorBenchArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct PriorBenchArgs {
+    /// Dataset with instance masks and a `background/` folder (desk format).
+    pub data: std::path::PathBuf,
+    /// Views to fill: train, val, test or all (those with a background/ view count).
+    #[arg(long, default_value = "test")]
+    pub split: String,
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Args, Debug)]
@@ -34,6 +49,7 @@ pub struct FieldBenchArgs {
 pub fn run(c: BenchCommand) -> anyhow::Result<()> {
     match c {
         BenchCommand::Field(a) => field(a),
+        BenchCommand::Prior(a) => prior(a),
     }
 }
 
@@ -122,18 +138,24 @@ fn bench_one(
             phases.encode_backward += t.encode_backward / a.steps as f64;
         }
     }
-    let mut infer_times = Vec::new();
-    let mut scratch = Tape::default();
-    for i in 0..a.steps + 1 {
-        let t0 = Instant::now();
-        field.forward_with(&s, &mut scratch, &mut sig, &mut rgb);
-        if i >= 1 {
-            infer_times.push(t0.elapsed().as_secs_f64());
+    // Inference as `assist render` runs it (the fastest precision here), and in f32.
+    let mut infer_at = |precision: Precision| {
+        let mut times = Vec::new();
+        let mut scratch = Tape::default();
+        for i in 0..a.steps + 1 {
+            let t0 = Instant::now();
+            field.forward_at(precision, &s, &mut scratch, &mut sig, &mut rgb);
+            if i >= 1 {
+                times.push(t0.elapsed().as_secs_f64());
+            }
         }
-    }
+        median(&mut times)
+    };
+    let precision = Precision::fastest();
+    let infer = infer_at(precision);
+    let infer_f32 = infer_at(Precision::F32);
     let step = median(&mut step_times);
     let adam_t = median(&mut adam_times);
-    let infer = median(&mut infer_times);
     let macs = field.mlp_macs_per_sample() as f64;
     let train_sps = n as f64 / step;
     let infer_sps = n as f64 / infer;
@@ -147,6 +169,8 @@ fn bench_one(
         "infer_samples_per_sec": infer_sps,
         "train_step_seconds": step,
         "infer_seconds": infer,
+        "infer_precision": format!("{precision:?}").to_lowercase(),
+        "infer_f32_samples_per_sec": n as f64 / infer_f32,
         "breakdown_seconds": {
             "encode_forward": phases.encode_forward,
             "mlp_forward": phases.mlp_forward,
@@ -160,10 +184,12 @@ fn bench_one(
     });
     if show {
         eprintln!(
-            "{name:>9}: train {:.3} M samples/s ({:.1} ms/step of {n}), infer {:.3} M samples/s | encode fwd {:.1} ms, mlp fwd {:.1} ms, mlp bwd {:.1} ms, encode bwd {:.1} ms, adam {:.1} ms | MLP {:.1} GFLOP/s",
+            "{name:>9}: train {:.3} M samples/s ({:.1} ms/step of {n}), infer {:.3} M samples/s ({}; f32 {:.3} M) | encode fwd {:.1} ms, mlp fwd {:.1} ms, mlp bwd {:.1} ms, encode bwd {:.1} ms, adam {:.1} ms | MLP {:.1} GFLOP/s",
             train_sps / 1e6,
             step * 1e3,
             infer_sps / 1e6,
+            format!("{precision:?}").to_lowercase(),
+            n as f64 / infer_f32 / 1e6,
             phases.encode_forward * 1e3,
             phases.mlp_forward * 1e3,
             phases.mlp_backward * 1e3,
@@ -213,6 +239,24 @@ fn gemm_gflops() -> Value {
         }
         let gf = 2.0 * (m * n * k) as f64 * iters as f64 / start.elapsed().as_secs_f64() / 1e9;
         out.insert(level.name().to_string(), json!(gf));
+    }
+    if assist_simd::bf16::cpu_has_bf16() {
+        // The bf16 kernel as inference runs it: activations packed, then the product.
+        use assist_simd::bf16;
+        let level = assist_simd::Level::Avx512;
+        let pa = bf16::PackedA::new(&a, m, k, k);
+        let mut bp = vec![0u32; k.div_ceil(2) * n];
+        let start = Instant::now();
+        let mut iters = 0u64;
+        while start.elapsed().as_secs_f64() < 0.2 {
+            for _ in 0..100 {
+                bf16::pack_b(level, &b, k, n, n, &mut bp);
+                bf16::gemm(level, &pa, &bp, n, &mut c, n);
+            }
+            iters += 100;
+        }
+        let gf = 2.0 * (m * n * k) as f64 * iters as f64 / start.elapsed().as_secs_f64() / 1e9;
+        out.insert("avx512bf16 (pack + product)".to_string(), json!(gf));
     }
     std::hint::black_box(&c);
     Value::Object(out)
@@ -264,6 +308,39 @@ fn field(a: FieldBenchArgs) -> anyhow::Result<()> {
     });
     if a.json {
         println!("{}", serde_json::to_string_pretty(&out)?);
+    }
+    Ok(())
+}
+
+fn prior(a: PriorBenchArgs) -> anyhow::Result<()> {
+    use anyhow::Context;
+    use assist_train::PriorKind;
+    use std::io::IsTerminal;
+    let split = crate::cmd_eval::parse_split(&a.split)?;
+    let ds = assist_data::load(&a.data, &Default::default())
+        .with_context(|| format!("loading dataset {}", a.data.display()))?;
+    let bar = crate::progress::bar(!a.json && std::io::stderr().is_terminal(), "prior");
+    let kinds = [PriorKind::PushPull, PriorKind::Exemplar];
+    let r = assist_train::eval::evaluate_priors(&ds, split, &kinds, |i, n| {
+        bar.set_length(n as u64);
+        bar.set_position(i as u64);
+    })?;
+    bar.finish_and_clear();
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+    } else {
+        println!(
+            "{} views, {} pixels under objects",
+            r.views, r.occluded_pixels
+        );
+        for s in &r.scores {
+            println!(
+                "{:>10}: {:.2} dB under the objects, {:.3} s per view",
+                serde_json::to_value(s.prior)?.as_str().unwrap_or("?"),
+                s.occluded_psnr,
+                s.seconds_per_view
+            );
+        }
     }
     Ok(())
 }

@@ -23,17 +23,18 @@ pub struct EvalArgs {
     pub json: bool,
 }
 
+/// `--split`: a split name, or `all` (`None`).
+pub(crate) fn parse_split(s: &str) -> anyhow::Result<Option<Split>> {
+    if s == "all" {
+        return Ok(None);
+    }
+    Ok(Some(Split::parse(s).with_context(|| {
+        format!("--split: expected train, val, test or all, got {s:?}")
+    })?))
+}
+
 pub fn run(a: EvalArgs) -> anyhow::Result<()> {
-    let split = if a.split == "all" {
-        None
-    } else {
-        Some(Split::parse(&a.split).with_context(|| {
-            format!(
-                "--split: expected train, val, test or all, got {:?}",
-                a.split
-            )
-        })?)
-    };
+    let split = parse_split(&a.split)?;
     let (scene, _) = assist_render::scene_file::load(&a.scene)
         .with_context(|| format!("loading scene {}", a.scene.display()))?;
     let ds = assist_data::load(&a.data, &LoadOptions::default())
@@ -53,7 +54,13 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         );
         println!("PSNR {:.2} dB  SSIM {:.4}", r.psnr, r.ssim);
         if let Some(m) = r.panoptic_miou {
-            println!("panoptic mIoU {m:.4}");
+            let per: Vec<String> = r
+                .panoptic_iou
+                .iter()
+                .flatten()
+                .map(|(id, v)| format!("{id}: {v:.3}"))
+                .collect();
+            println!("panoptic mIoU {m:.4} (per instance {})", per.join(", "));
         }
         if let Some(b) = r.background_psnr {
             println!("background PSNR {b:.2} dB (all pixels)");
