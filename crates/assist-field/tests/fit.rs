@@ -90,14 +90,18 @@ fn fits_an_image_through_a_slice() {
         &mut sig,
         &mut rgb,
     );
-    let mut mse = 0.0f64;
-    for k in 0..m {
-        let t = target(px[k], py[k]);
-        for c in 0..3 {
-            mse += ((rgb[3 * k + c] - t[c]) as f64).powi(2);
+    // Mean squared error of an output against the target image.
+    let mse_of = |rgb: &[f32]| {
+        let mut se = 0.0f64;
+        for k in 0..m {
+            let t = target(px[k], py[k]);
+            for c in 0..3 {
+                se += ((rgb[3 * k + c] - t[c]) as f64).powi(2);
+            }
         }
-    }
-    mse /= (3 * m) as f64;
+        se / (3 * m) as f64
+    };
+    let mse = mse_of(&rgb);
     eprintln!(
         "image fit: PSNR {:.2} dB after 400 steps in {secs:.2} s",
         psnr(mse)
@@ -134,14 +138,7 @@ fn fits_an_image_through_a_slice() {
         .zip(&sig16)
         .map(|(a, b)| (a - b).abs() / a.abs().max(1e-3))
         .fold(0f32, f32::max);
-    let mut mse16 = 0.0f64;
-    for k in 0..m {
-        let t = target(px[k], py[k]);
-        for c in 0..3 {
-            mse16 += ((rgb16[3 * k + c] - t[c]) as f64).powi(2);
-        }
-    }
-    mse16 /= (3 * m) as f64;
+    let mse16 = mse_of(&rgb16);
     eprintln!(
         "bf16 inference: max colour difference {worst:.4}, max relative density difference {worst_sigma:.4}, PSNR {:.2} dB",
         psnr(mse16)

@@ -102,3 +102,19 @@ pub fn available(level: Level) -> bool {
 }
 
 pub use dispatch::{WithSimd, dispatch, simd};
+
+/// Shared helpers of this crate's tests.
+#[cfg(test)]
+mod test_util {
+    /// `n` values uniform in [−1, 1) from a linear congruential sequence.
+    pub fn rand_vec(n: usize, seed: &mut u64) -> Vec<f32> {
+        (0..n)
+            .map(|_| {
+                *seed = seed
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                ((*seed >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+            })
+            .collect()
+    }
+}

@@ -321,10 +321,7 @@ fn prior(a: PriorBenchArgs) -> anyhow::Result<()> {
         .with_context(|| format!("loading dataset {}", a.data.display()))?;
     let bar = crate::progress::bar(!a.json && std::io::stderr().is_terminal(), "prior");
     let kinds = [PriorKind::PushPull, PriorKind::Exemplar];
-    let r = assist_train::eval::evaluate_priors(&ds, split, &kinds, |i, n| {
-        bar.set_length(n as u64);
-        bar.set_position(i as u64);
-    })?;
+    let r = assist_train::eval::evaluate_priors(&ds, split, &kinds, crate::progress::steps(&bar))?;
     bar.finish_and_clear();
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);

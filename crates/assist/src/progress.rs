@@ -15,3 +15,11 @@ pub fn bar(show: bool, message: &str) -> ProgressBar {
     b.set_message(message.to_string());
     b
 }
+
+/// A `(done, total)` callback that moves `bar`.
+pub fn steps(bar: &ProgressBar) -> impl FnMut(usize, usize) + '_ {
+    |i, n| {
+        bar.set_length(n as u64);
+        bar.set_position(i as u64);
+    }
+}
