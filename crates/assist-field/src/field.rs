@@ -831,6 +831,7 @@ impl Field {
                             mlp0,
                             Some(&mut db[..l.inp_pad * CHUNK]),
                             xt,
+                            l.inp_pad,
                         );
                         relu_mask(&mut db[..l.inp_pad * CHUNK], x);
                         std::mem::swap(&mut da, &mut db);
@@ -840,7 +841,7 @@ impl Field {
                     // summed per code: Σ dy over a code's lanes gives both its weight
                     // gradient and its code gradient (after the loop over chunks).
                     let l0 = &lay.color[0];
-                    l0.backward_part(
+                    l0.backward(
                         &wts[2],
                         row(rows.cin, l0.inp_pad),
                         &da[..l0.out * CHUNK],
@@ -885,6 +886,7 @@ impl Field {
                         mlp0,
                         Some(&mut da[..d2.inp_pad * CHUNK]),
                         xt,
+                        d2.inp_pad,
                     );
                     relu_mask(&mut da[..d2.inp_pad * CHUNK], hid);
                     let d1 = &lay.density[0];
@@ -896,6 +898,7 @@ impl Field {
                         mlp0,
                         Some(d_enc),
                         xt,
+                        d1.inp_pad,
                     );
                 });
             });

@@ -74,28 +74,13 @@ impl Linear {
     }
 
     /// Given `dy` (gradient at the pre-activation, `[out][CHUNK]`) and the input `x`,
-    /// accumulates `dW += dy xᵀ` and `db += Σ dy` into `grad` (the parameter layout from
-    /// offset `base` on: `grad[0]` is parameter `base`), and
-    /// writes `dx = Wᵀ dy` when `dx` is given. `wt` is `Wᵀ` (`inp_pad × out`) and
-    /// `xt` scratch of `CHUNK × inp_pad`.
+    /// accumulates `dW[:, ..cols] += dy x[..cols]ᵀ` and `db += Σ dy` into `grad` (the
+    /// parameter layout from offset `base` on: `grad[0]` is parameter `base`), and writes
+    /// `dx = Wᵀ dy` for as many input rows as `dx` holds (`dx.len() / CHUNK` ≤ `inp_pad`).
+    /// `wt` is `Wᵀ` (`inp_pad × out`) and `xt` scratch of `CHUNK × inp_pad`. `cols` is
+    /// `inp_pad` except for a layer whose trailing inputs act through its bias.
     #[inline(always)]
     pub fn backward(
-        &self,
-        wt: &[f32],
-        x: &[f32],
-        dy: &[f32],
-        grad: &mut [f32],
-        base: usize,
-        dx: Option<&mut [f32]>,
-        xt: &mut [f32],
-    ) {
-        self.backward_part(wt, x, dy, grad, base, dx, xt, self.inp_pad)
-    }
-
-    /// `backward` over the first `cols` inputs: `dW[:, ..cols]` only, and `dx` for as many
-    /// input rows as it holds (`dx.len() / CHUNK` ≤ `inp_pad`).
-    #[inline(always)]
-    pub fn backward_part(
         &self,
         wt: &[f32],
         x: &[f32],
