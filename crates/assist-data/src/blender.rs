@@ -64,6 +64,7 @@ pub fn load(dir: &Path) -> Result<Dataset> {
         meters_per_unit: None,
         points: vec![],
         depth_range: None,
+        split_declared: true,
         split_source: "transforms_{train,val,test}.json".into(),
         bounds,
         normalization,

@@ -255,6 +255,7 @@ pub fn load_dataset(model_dir: &Path, format: Format) -> Result<Dataset> {
         meters_per_unit: None,
         points,
         depth_range: None,
+        split_declared: false,
         split_source: "every 8th image (sorted by name) held out for test".into(),
         bounds,
         normalization,

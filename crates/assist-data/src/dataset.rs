@@ -163,6 +163,9 @@ pub struct Dataset {
     pub depth_range: Option<(f64, f64)>,
     /// How the train/test split was decided.
     pub split_source: String,
+    /// Whether the dataset declares its split (split.json, `*_filenames`, Blender's files)
+    /// rather than following a hold-out rule (every 8th frame for test).
+    pub split_declared: bool,
     pub bounds: SceneBounds,
     pub normalization: Normalization,
 }

@@ -10,6 +10,7 @@
 //! validated into typed values; every error names the file and the field.
 
 pub mod blender;
+pub mod boxes;
 pub mod colmap;
 pub mod colmap_bin;
 pub mod colmap_text;

@@ -6,11 +6,9 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use assist_core::{Camera, Distortion, Intrinsics, Obb, Pose};
+use assist_core::{Camera, Distortion, Intrinsics, Pose};
 
-use crate::dataset::{
-    Dataset, Format, Frame, InstanceInfo, Split, checked_rotation, compute_bounds, holdout_split,
-};
+use crate::dataset::{Dataset, Format, Frame, InstanceInfo, Split, compute_bounds, holdout_split};
 use crate::error::{DataError, Result};
 use crate::image_io::image_dimensions;
 use crate::json::{Node, read_json};
@@ -136,7 +134,7 @@ fn read_splits(
     top: &Node,
     frames: &mut [Frame],
     rel_paths: &[String],
-) -> Result<String> {
+) -> Result<(String, bool)> {
     let split_file = file.with_file_name("split.json");
     if split_file.is_file() {
         let v = read_json(&split_file)?;
@@ -163,7 +161,7 @@ fn read_splits(
         for (f, s) in frames.iter_mut().zip(&assigned) {
             f.split = s.unwrap_or(Split::Train);
         }
-        return Ok(format!("{}", split_file.display()));
+        return Ok((format!("{}", split_file.display()), true));
     }
     let lists: Vec<(Split, &str)> = vec![
         (Split::Train, "train_filenames"),
@@ -182,12 +180,12 @@ fn read_splits(
         for (f, rel) in frames.iter_mut().zip(rel_paths) {
             f.split = *by_name.get(&normalise_rel(rel)).unwrap_or(&Split::Train);
         }
-        return Ok("train_filenames/val_filenames/test_filenames".into());
+        return Ok(("train_filenames/val_filenames/test_filenames".into(), true));
     }
     for (i, f) in frames.iter_mut().enumerate() {
         f.split = holdout_split(i);
     }
-    Ok("every 8th frame held out for test".into())
+    Ok(("every 8th frame held out for test".into(), false))
 }
 
 fn normalise_rel(s: &str) -> String {
@@ -236,7 +234,7 @@ pub fn load(file: &Path) -> Result<Dataset> {
         });
         rel_paths.push(rel);
     }
-    let split_source = read_splits(file, &top, &mut frames, &rel_paths)?;
+    let (split_source, split_declared) = read_splits(file, &top, &mut frames, &rel_paths)?;
     let mut instances = Vec::new();
     if let Some(list) = top.get("instances") {
         for inst in list.items()? {
@@ -251,21 +249,10 @@ pub fn load(file: &Path) -> Result<Dataset> {
                 Some(l) => l.str()?.to_string(),
                 None => format!("object {id}"),
             };
-            let bbox = match inst.get("bbox") {
-                Some(b) => {
-                    let size = b.req("size")?;
-                    let sz = size.vec3()?;
-                    if sz.min_element() <= 0.0 {
-                        return Err(size.err(format!("expected positive box sizes, got {sz}")));
-                    }
-                    let rotation = match b.get("rotation") {
-                        Some(r) => checked_rotation(r.mat3_rows()?, file, r.path())?,
-                        None => assist_core::DMat3::IDENTITY,
-                    };
-                    Some(Obb::new(b.req("center")?.vec3()?, sz, rotation))
-                }
-                None => None,
-            };
+            let bbox = inst
+                .get("bbox")
+                .map(|b| crate::boxes::parse_bbox(&b))
+                .transpose()?;
             if instances.iter().any(|i: &InstanceInfo| i.id == id as u16) {
                 return Err(idn.err(format!("instance id {id} appears twice")));
             }
@@ -295,6 +282,7 @@ pub fn load(file: &Path) -> Result<Dataset> {
         points: vec![],
         depth_range: None,
         split_source,
+        split_declared,
         bounds,
         normalization,
     })

@@ -18,6 +18,10 @@ pub struct BatchOutput {
     pub nodes: Vec<Composite>,
     /// Each node's share of the composited weight `Σ_{i∈k} T_i α_i` (for panoptic ids).
     pub share: Vec<f32>,
+    /// Per ray, the distortion of the composited weights (mip-NeRF 360's inter-interval
+    /// term, in world units): `Σ_{i,j} w_i w_j |t_i − t_j|`. Small when the weight sits at
+    /// one depth, large for haze spread along the ray.
+    pub distortion: Vec<f32>,
 }
 
 impl BatchOutput {
@@ -44,11 +48,30 @@ pub struct CompositeGrad {
     pub rgb: [f32; 3],
     pub depth: f32,
     pub opacity: f32,
+    /// For a node: dL/d(its share of the composited weight, [`BatchOutput::share`]).
+    /// Unused in the ray-level gradient.
+    pub share: f32,
+    /// For the ray: dL/d(its distortion, [`BatchOutput::distortion`]). Unused for a node.
+    pub distortion: f32,
 }
 
-/// Gradient callback: `(ray, composite, per-node composites, d_composite, d_per_node)`.
-pub type GradFn<'a> =
-    dyn Fn(usize, &Composite, &[Composite], &mut CompositeGrad, &mut [CompositeGrad]) + Sync + 'a;
+/// What the gradient callback sees of one ray.
+#[derive(Debug, Clone, Copy)]
+pub struct RayOutputs<'a> {
+    pub ray: usize,
+    /// Everything composited together.
+    pub composite: &'a Composite,
+    /// Each node alone.
+    pub nodes: &'a [Composite],
+    /// Each node's share of the composited weight.
+    pub share: &'a [f32],
+    /// The distortion of the composited weights.
+    pub distortion: f32,
+}
+
+/// Gradient callback: `(outputs of a ray, d_composite, d_per_node)`; `d_per_node[k]` holds
+/// the gradients of node k alone and of its share.
+pub type GradFn<'a> = dyn Fn(&RayOutputs, &mut CompositeGrad, &mut [CompositeGrad]) + Sync + 'a;
 
 const BLOCK: usize = 64;
 
@@ -81,6 +104,8 @@ pub fn composite_batch(
     out.nodes.resize(n * nn, Composite::default());
     out.share.clear();
     out.share.resize(n * nn, 0.0);
+    out.distortion.clear();
+    out.distortion.resize(n, 0.0);
     let n_blocks = n.div_ceil(BLOCK);
     // Split every node's arrays at block boundaries (ray-major storage makes each block's
     // samples contiguous), then regroup per block.
@@ -133,10 +158,11 @@ pub fn composite_batch(
         .zip(out.rays.par_chunks_mut(BLOCK))
         .zip(out.nodes.par_chunks_mut(BLOCK * nn))
         .zip(out.share.par_chunks_mut(BLOCK * nn))
+        .zip(out.distortion.par_chunks_mut(BLOCK))
         .enumerate()
         .for_each_init(
             RayScratch::default,
-            |scratch, (b, (((mut views, rays), nodes), share))| {
+            |scratch, (b, ((((mut views, rays), nodes), share), dist))| {
                 for (i, ray_out) in rays.iter_mut().enumerate() {
                     let r = b * BLOCK + i;
                     composite_ray(
@@ -144,15 +170,26 @@ pub fn composite_batch(
                         i,
                         &mut views,
                         background,
-                        ray_out,
-                        &mut nodes[i * nn..(i + 1) * nn],
-                        &mut share[i * nn..(i + 1) * nn],
+                        RayOut {
+                            composite: ray_out,
+                            nodes: &mut nodes[i * nn..(i + 1) * nn],
+                            share: &mut share[i * nn..(i + 1) * nn],
+                            distortion: &mut dist[i],
+                        },
                         grad,
                         scratch,
                     );
                 }
             },
         );
+}
+
+/// Where one ray's outputs go.
+struct RayOut<'a> {
+    composite: &'a mut Composite,
+    nodes: &'a mut [Composite],
+    share: &'a mut [f32],
+    distortion: &'a mut f32,
 }
 
 #[derive(Default)]
@@ -169,12 +206,16 @@ fn composite_ray(
     i: usize,
     views: &mut [NodeView],
     background: [f32; 3],
-    out: &mut Composite,
-    node_out: &mut [Composite],
-    share: &mut [f32],
+    o: RayOut,
     grad: Option<&GradFn>,
     sc: &mut RayScratch,
 ) {
+    let RayOut {
+        composite: out,
+        nodes: node_out,
+        share,
+        distortion,
+    } = o;
     // Block-local range of this ray's samples in node k.
     let range = |v: &NodeView| {
         let b0 = v.start[0] as usize;
@@ -216,6 +257,16 @@ fn composite_ray(
         acc.rgb[c] += (1.0 - acc.opacity) * background[c];
     }
     *out = acc;
+    // Distortion Σ_{i,j} w_i w_j |t_i − t_j| = 2 Σ_i w_i (t_i W_{<i} − S_{<i}) over the
+    // depth-sorted samples (W, S: prefix sums of w and w·t).
+    let (mut w_before, mut s_before, mut dist) = (0.0f32, 0.0f32, 0.0f32);
+    for (q, &(t, _, _)) in sc.merged.iter().enumerate() {
+        let w = sc.w[q];
+        dist += 2.0 * w * (t * w_before - s_before);
+        w_before += w;
+        s_before += w * t;
+    }
+    *distortion = dist;
     // Each node alone.
     for (k, v) in views.iter().enumerate() {
         let mut a = Composite::default();
@@ -236,18 +287,44 @@ fn composite_ray(
     let mut g = CompositeGrad::default();
     sc.node_grads.clear();
     sc.node_grads.resize(views.len(), CompositeGrad::default());
-    grad(r, out, node_out, &mut g, &mut sc.node_grads);
+    let outputs = RayOutputs {
+        ray: r,
+        composite: out,
+        nodes: node_out,
+        share: &*share,
+        distortion: dist,
+    };
+    grad(&outputs, &mut g, &mut sc.node_grads);
     // Backward through the merged composite:
-    // dL/dσ_i = δ_i (T_{i+1} g_i − Σ_{j>i} w_j g_j), g_i = dL/dw_i.
+    // dL/dσ_i = δ_i (T_{i+1} g_i − Σ_{j>i} w_j g_j), g_i = dL/dw_i (which includes the
+    // gradient of the share of the sample's node).
     let g_bg = g.opacity
         - (g.rgb[0] * background[0] + g.rgb[1] * background[1] + g.rgb[2] * background[2]);
+    // d dist / d w_i = 2 Σ_j w_j |t_i − t_j| = 2 (t_i W_{<i} − S_{<i} + S_{>i} − t_i W_{>i}),
+    // with the prefix sums run backwards from the totals (W = O, S = D).
     let mut suffix = 0.0f32;
     for q in (0..m).rev() {
         let (t, k, j) = sc.merged[q];
         let v = &mut views[k as usize];
         let j = j as usize;
+        let wq = sc.w[q];
+        w_before -= wq;
+        s_before -= wq * t;
+        let g_dist = if g.distortion != 0.0 {
+            let w_after = (acc.opacity - w_before - wq).max(0.0);
+            let s_after = (acc.depth - s_before - wq * t).max(0.0);
+            2.0 * g.distortion * (t * w_before - s_before + s_after - t * w_after)
+        } else {
+            0.0
+        };
         let c = &v.rgb[3 * j..3 * j + 3];
-        let gi = g.rgb[0] * c[0] + g.rgb[1] * c[1] + g.rgb[2] * c[2] + g.depth * t + g_bg;
+        let gi = g_dist
+            + g.rgb[0] * c[0]
+            + g.rgb[1] * c[1]
+            + g.rgb[2] * c[2]
+            + g.depth * t
+            + g_bg
+            + sc.node_grads[k as usize].share;
         v.d_sigma[j] += v.dt[j] * (sc.t_next[q] * gi - suffix);
         suffix += sc.w[q] * gi;
         for ch in 0..3 {
@@ -256,7 +333,10 @@ fn composite_ray(
     }
     // Backward through each node alone (no background colour).
     for (k, v) in views.iter_mut().enumerate() {
-        let ng = sc.node_grads[k];
+        let ng = CompositeGrad {
+            share: 0.0,
+            ..sc.node_grads[k]
+        };
         if ng == CompositeGrad::default() {
             continue;
         }

@@ -6,11 +6,14 @@ use common::{constant_field, node, scene};
 
 use assist_core::{Camera, DQuat, DVec3, Intrinsics, Pose, Ray, Rng, Similarity3};
 use assist_render::{
-    BatchOutput, Composite, CompositeGrad, NeuralScene, RayBatch, RenderOptions, SampleOptions,
+    BatchOutput, CompositeGrad, NeuralScene, RayBatch, RayOutputs, RenderOptions, SampleOptions,
     Traced, composite_batch, render_camera, render_rays, sample_rays,
 };
 
-fn trace_one(s: &NeuralScene, ray: Ray) -> (Composite, Vec<Composite>) {
+fn trace_one(
+    s: &NeuralScene,
+    ray: Ray,
+) -> (assist_render::Composite, Vec<assist_render::Composite>) {
     let mut sc = assist_render::render::RenderScratch::default();
     sc.rays.push(&ray, u32::MAX);
     render_rays(s, &RenderOptions::default(), &mut sc);
@@ -161,8 +164,11 @@ fn rotating_a_node_rotates_its_view_dependence() {
 
 #[test]
 fn batch_backward_matches_finite_differences() {
-    // Two random fields in overlapping boxes; a loss linear in every composite output with
-    // random coefficients; dL/dσ and dL/drgb of every sample against central differences.
+    // Two random fields in overlapping boxes; a loss linear in every composite output (the
+    // ray's colour, depth, opacity and distortion, each node's colour, depth, opacity and
+    // share) with random coefficients; dL/dσ and dL/drgb of every sample against central
+    // differences. The distortion's coefficient is scaled up so that its term is not lost
+    // in the tolerance.
     let mut fields = Vec::new();
     for (k, seed) in [("a", 5u64), ("b", 6)] {
         let mut f = constant_field(1.0, [0.5; 3], true, seed);
@@ -224,46 +230,84 @@ fn batch_backward_matches_finite_differences() {
         assist_field::Precision::F32,
     );
     let bg = s.scene.background_color;
-    let coef: Vec<f32> = (0..6 * 30).map(|_| rng.f32() - 0.5).collect();
+    const DIST: f32 = 20.0;
+    // The distortion against its definition, Σ_{i,j} w_i w_j |t_i − t_j| over the merged
+    // samples.
+    {
+        let mut out = BatchOutput::default();
+        let mut t2 = traced.clone();
+        composite_batch(&mut t2, bg, &mut out, None);
+        for r in 0..traced.rays {
+            let mut merged: Vec<assist_render::composite::RaySample> = Vec::new();
+            for ns in &traced.nodes {
+                for j in ns.range(r) {
+                    merged.push(assist_render::composite::RaySample {
+                        sigma: ns.sigma[j],
+                        rgb: [ns.rgb[3 * j], ns.rgb[3 * j + 1], ns.rgb[3 * j + 2]],
+                        t: ns.t[j],
+                        dt: ns.dt[j],
+                    });
+                }
+            }
+            merged.sort_by(|a, b| a.t.total_cmp(&b.t));
+            let mut w = vec![0.0; merged.len()];
+            assist_render::composite::composite(&merged, bg, Some(&mut w));
+            let mut d = 0.0f64;
+            for i in 0..w.len() {
+                for j in 0..w.len() {
+                    d += (w[i] * w[j] * (merged[i].t - merged[j].t).abs()) as f64;
+                }
+            }
+            assert!(
+                (out.distortion[r] as f64 - d).abs() < 1e-4 * (1.0 + d),
+                "ray {r}: distortion {} against {d}",
+                out.distortion[r]
+            );
+            assert!(d > 1e-3, "ray {r}: distortion {d} too small to test");
+        }
+    }
+    let coef: Vec<f32> = (0..6 * 32).map(|_| rng.f32() - 0.5).collect();
     let loss = |out: &BatchOutput| -> f64 {
         let mut l = 0.0f64;
         for r in 0..out.rays.len() {
             let c = &out.rays[r];
-            let q = &coef[r * 30..];
+            let q = &coef[r * 32..];
             l += (q[0] * c.rgb[0]
                 + q[1] * c.rgb[1]
                 + q[2] * c.rgb[2]
                 + q[3] * c.depth
-                + q[4] * c.opacity) as f64;
+                + q[4] * c.opacity
+                + DIST * q[17] * out.distortion[r]) as f64;
             for k in 0..2 {
                 let p = &out.nodes[r * 2 + k];
-                let q = &q[5 + 5 * k..];
-                l += (q[0] * p.rgb[0]
-                    + q[1] * p.rgb[1]
-                    + q[2] * p.rgb[2]
-                    + q[3] * p.depth
-                    + q[4] * p.opacity) as f64;
+                let a = &q[5 + 5 * k..];
+                l += (a[0] * p.rgb[0]
+                    + a[1] * p.rgb[1]
+                    + a[2] * p.rgb[2]
+                    + a[3] * p.depth
+                    + a[4] * p.opacity
+                    + q[15 + k] * out.share[r * 2 + k]) as f64;
             }
         }
         l
     };
-    let grad = |r: usize,
-                _: &Composite,
-                _: &[Composite],
-                g: &mut CompositeGrad,
-                gn: &mut [CompositeGrad]| {
-        let q = &coef[r * 30..];
+    let grad = |o: &RayOutputs, g: &mut CompositeGrad, gn: &mut [CompositeGrad]| {
+        let q = &coef[o.ray * 32..];
         *g = CompositeGrad {
             rgb: [q[0], q[1], q[2]],
             depth: q[3],
             opacity: q[4],
+            share: 0.0,
+            distortion: DIST * q[17],
         };
         for k in 0..2 {
-            let q = &q[5 + 5 * k..];
+            let p = &q[5 + 5 * k..];
             gn[k] = CompositeGrad {
-                rgb: [q[0], q[1], q[2]],
-                depth: q[3],
-                opacity: q[4],
+                rgb: [p[0], p[1], p[2]],
+                depth: p[3],
+                opacity: p[4],
+                share: q[15 + k],
+                distortion: 0.0,
             };
         }
     };

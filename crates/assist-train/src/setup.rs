@@ -1,12 +1,13 @@
 //! From a dataset to the nodes of a trainable scene: a background node over the scene
 //! bounds (unless the dataset is a Blender object on an empty background), and one object
-//! node per instance — with the dataset's box plus a margin, or a box carved from the
-//! instance masks (visual hull) where the dataset gives none.
+//! node per instance — with the user's box (`--boxes`, used as given), else the dataset's
+//! box plus a margin, else a box carved from the instance masks (visual hull) plus a margin.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use assist_core::{Aabb, DVec3, InstanceId, Obb, Scene, SceneNode, Similarity3};
+use assist_data::boxes::BoxOverride;
 use assist_data::{Dataset, Format};
 use assist_field::{Field, FieldConfig, OccupancyGrid};
 use assist_render::{NeuralScene, NodeField};
@@ -24,8 +25,9 @@ pub struct SetupOptions {
     pub background_grid: u32,
     pub object_grid: u32,
     pub seed: u64,
-    /// Boxes given by the user (override the dataset's and the carved ones).
-    pub boxes: BTreeMap<InstanceId, Obb>,
+    /// Boxes given by the user (override the dataset's and the carved ones; no margin is
+    /// added). Each must name an instance of the dataset.
+    pub boxes: Vec<BoxOverride>,
 }
 
 impl Default for SetupOptions {
@@ -36,7 +38,7 @@ impl Default for SetupOptions {
             background_grid: 128,
             object_grid: 64,
             seed: 0,
-            boxes: BTreeMap::new(),
+            boxes: Vec::new(),
         }
     }
 }
@@ -66,10 +68,7 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
     };
     let mut nodes = Vec::new();
     let mut fields = BTreeMap::new();
-    let region = match depth_bounds(views) {
-        Some(b) => b.union(&Aabb::new(ds.bounds.min, ds.bounds.max)),
-        None => Aabb::new(ds.bounds.min, ds.bounds.max),
-    };
+    let region = scene_region(ds, views);
     if !is_object_capture(ds) {
         let c = region.center();
         let half = region.size() * 0.5 * 1.05;
@@ -92,7 +91,68 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
         );
         nodes.push(node);
     }
-    // Object ids: declared instances, else whatever the masks contain.
+    for nb in node_boxes(ds, views, &region, opts)? {
+        let key = format!("object-{}", nb.id);
+        let node = SceneNode::from_obb(nb.id, &nb.label, &key, &nb.obb);
+        let field = Field::new(app(FieldConfig::object(n_images)), opts.seed + nb.id as u64)?;
+        fields.insert(
+            key,
+            Arc::new(NodeField::new(
+                field,
+                OccupancyGrid::new(opts.object_grid),
+                nb.obb.half_size,
+            )),
+        );
+        nodes.push(node);
+    }
+    let scene = Scene {
+        nodes,
+        up: ds.world_up.unwrap_or(DVec3::Z),
+        meters_per_unit: ds.meters_per_unit.unwrap_or(1.0),
+        background_color: background_color(ds),
+        selected: None,
+    };
+    Ok(NeuralScene { scene, fields })
+}
+
+/// Where an object box comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BoxSource {
+    /// `--boxes`, used as given.
+    User,
+    /// The dataset's `bbox`, plus the margin.
+    Dataset,
+    /// Carved from the instance masks (visual hull), plus the margin.
+    Carved,
+}
+
+/// The box of one object node.
+#[derive(Debug, Clone)]
+pub struct NodeBox {
+    pub id: InstanceId,
+    pub label: String,
+    pub obb: Obb,
+    pub source: BoxSource,
+}
+
+/// The region the background node covers: the dataset's bounds united with what the
+/// training depth maps see.
+pub fn scene_region(ds: &Dataset, views: &[View]) -> Aabb {
+    match depth_bounds(views) {
+        Some(b) => b.union(&Aabb::new(ds.bounds.min, ds.bounds.max)),
+        None => Aabb::new(ds.bounds.min, ds.bounds.max),
+    }
+}
+
+/// The object nodes' boxes: one per declared instance, else per id the masks contain.
+/// A user box that names no instance is an error.
+pub fn node_boxes(
+    ds: &Dataset,
+    views: &[View],
+    region: &Aabb,
+    opts: &SetupOptions,
+) -> Result<Vec<NodeBox>> {
     let mut ids: Vec<(InstanceId, String, Option<Obb>)> = ds
         .instances
         .iter()
@@ -119,48 +179,63 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
             ids.push((id, label, None));
         }
     }
+    let mut used = vec![false; opts.boxes.len()];
+    let mut out = Vec::with_capacity(ids.len());
     for (id, label, bbox) in ids {
-        let obb = match opts.boxes.get(&id).copied().or(bbox) {
-            Some(b) => Obb {
-                half_size: b.half_size * (1.0 + 2.0 * opts.margin),
-                ..b
-            },
-            None => {
-                let carved = carve_box(views, id, &carve_region(views, &region)).ok_or_else(|| {
+        let mut user = None;
+        for (u, b) in opts.boxes.iter().enumerate() {
+            if b.matches(id, &label)? {
+                used[u] = true;
+                user = Some(b.bbox);
+            }
+        }
+        let grow = |b: Obb| Obb {
+            half_size: b.half_size * (1.0 + 2.0 * opts.margin),
+            ..b
+        };
+        let (obb, source) = match (user, bbox) {
+            (Some(b), _) => (b, BoxSource::User),
+            (None, Some(b)) => (grow(b), BoxSource::Dataset),
+            (None, None) => {
+                let carved = carve_box(views, id, &carve_region(views, region)).ok_or_else(|| {
                     TrainError::Other(format!(
-                        "instance {id} ({label}): no box in the dataset and none could be carved from the masks (is it visible in the training images?)"
+                        "instance {id} ({label}): no box in the dataset and none could be carved from the masks (is it visible in the training images? `--boxes` can give one)"
                     ))
                 })?;
-                let c = carved.center();
-                let half = carved.size() * 0.5 * (1.0 + 2.0 * opts.margin);
-                Obb {
-                    center: c,
-                    half_size: half,
+                let b = Obb {
+                    center: carved.center(),
+                    half_size: carved.size() * 0.5,
                     rotation: assist_core::DMat3::IDENTITY,
-                }
+                };
+                (grow(b), BoxSource::Carved)
             }
         };
-        let key = format!("object-{id}");
-        let node = SceneNode::from_obb(id, &label, &key, &obb);
-        let field = Field::new(app(FieldConfig::object(n_images)), opts.seed + id as u64)?;
-        fields.insert(
-            key,
-            Arc::new(NodeField::new(
-                field,
-                OccupancyGrid::new(opts.object_grid),
-                obb.half_size,
-            )),
-        );
-        nodes.push(node);
+        out.push(NodeBox {
+            id,
+            label,
+            obb,
+            source,
+        });
     }
-    let scene = Scene {
-        nodes,
-        up: ds.world_up.unwrap_or(DVec3::Z),
-        meters_per_unit: ds.meters_per_unit.unwrap_or(1.0),
-        background_color: background_color(ds),
-        selected: None,
-    };
-    Ok(NeuralScene { scene, fields })
+    if let Some(u) = used.iter().position(|&u| !u) {
+        let b = &opts.boxes[u];
+        let known: Vec<String> = out
+            .iter()
+            .map(|n| format!("{} {:?}", n.id, n.label))
+            .collect();
+        return Err(TrainError::Other(format!(
+            "{}: {}: names no instance of {} (its instances: {})",
+            b.file.display(),
+            b.entry,
+            ds.root.display(),
+            if known.is_empty() {
+                "none".to_string()
+            } else {
+                known.join(", ")
+            }
+        )));
+    }
+    Ok(out)
 }
 
 /// Bounds of what the training depth maps see (0.2nd–99.8th percentile per axis of the
@@ -217,26 +292,34 @@ pub fn carve_region(views: &[View], region: &Aabb) -> Aabb {
     region.union(&Aabb::new(focus - DVec3::splat(r), focus + DVec3::splat(r)))
 }
 
-/// Visual hull of instance `id`: voxels of `region` (96³) seen by at least a quarter of the
-/// masked views that project inside the mask in every view that sees them (allowing 5%
-/// disagreeing views for mask noise). Returns the
-/// bounding box of the kept voxels, grown by one voxel.
+/// Visual hull of instance `id`: voxels seen by at least a quarter of the masked views that
+/// project inside the mask in every view that sees them (allowing 5% disagreeing views for
+/// mask noise). Carved twice: over `region` (96³), then again (64³) over what the first
+/// pass kept, grown by two of its voxels — so the box is as fine as a few millimetres for a
+/// small object in a room-sized region. Returns the bounding box of the kept voxels, grown
+/// by one (fine) voxel.
 pub fn carve_box(views: &[View], id: InstanceId, region: &Aabb) -> Option<Aabb> {
-    const G: usize = 96;
+    let coarse = carve_pass(views, id, region, 96)?;
+    let voxel = region.size() / 96.0;
+    let refined = Aabb::new(coarse.min - voxel, coarse.max + voxel);
+    carve_pass(views, id, &refined, 64).or(Some(coarse))
+}
+
+fn carve_pass(views: &[View], id: InstanceId, region: &Aabb, g: usize) -> Option<Aabb> {
     let size = region.size();
-    let voxel = size / G as f64;
+    let voxel = size / g as f64;
     // A voxel must be seen by a quarter of the masked views: regions only a few cameras see
     // (e.g. right in front of one camera) are not constrained enough to be kept.
     let masked = views.iter().filter(|v| v.ids.is_some()).count();
     let min_seen = (masked / 4).max(2);
-    let kept: Vec<DVec3> = (0..G * G * G)
+    let kept: Vec<DVec3> = (0..g * g * g)
         .into_par_iter()
         .filter_map(|c| {
             let p = region.min
                 + DVec3::new(
-                    (c % G) as f64 + 0.5,
-                    ((c / G) % G) as f64 + 0.5,
-                    (c / (G * G)) as f64 + 0.5,
+                    (c % g) as f64 + 0.5,
+                    ((c / g) % g) as f64 + 0.5,
+                    (c / (g * g)) as f64 + 0.5,
                 ) * voxel;
             let (mut inside, mut outside) = (0usize, 0usize);
             for v in views {

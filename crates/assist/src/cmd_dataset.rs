@@ -13,6 +13,22 @@ pub enum DatasetCommand {
     /// Format, frames per split, resolution, cameras, instances and bounds; validates that
     /// every referenced file exists and decodes at the declared size.
     Info(InfoArgs),
+    /// The object boxes `assist train` would use (the dataset's plus a margin, or carved from
+    /// the instance masks plus a margin, or the ones --boxes gives). With --json, a file that
+    /// `assist train --boxes` reads back: edit it and pass it to override any box.
+    Boxes(BoxesArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct BoxesArgs {
+    /// A dataset folder or file.
+    pub path: PathBuf,
+    /// Print the boxes file (JSON) instead of a table.
+    #[arg(long)]
+    pub json: bool,
+    /// Boxes overriding the estimated ones (as for `assist train --boxes`).
+    #[arg(long)]
+    pub boxes: Option<PathBuf>,
 }
 
 #[derive(Args, Debug)]
@@ -36,7 +52,67 @@ pub struct InfoArgs {
 pub fn run(cmd: DatasetCommand) -> anyhow::Result<()> {
     match cmd {
         DatasetCommand::Info(a) => info(a),
+        DatasetCommand::Boxes(a) => boxes(a),
     }
+}
+
+fn boxes(a: BoxesArgs) -> anyhow::Result<()> {
+    use assist_train::setup::{SetupOptions, background_color, node_boxes, scene_region};
+    let user = match &a.boxes {
+        Some(p) => assist_data::boxes::read_boxes(p).context("--boxes")?,
+        None => Vec::new(),
+    };
+    let ds = assist_data::load(&a.path, &LoadOptions::default())
+        .with_context(|| format!("loading dataset {}", a.path.display()))?;
+    if ds.count(Split::Train) == 0 {
+        bail!("{}: the dataset has no training frames", a.path.display());
+    }
+    let views = assist_train::views::load_views(&ds, Split::Train, background_color(&ds))?;
+    let opts = SetupOptions {
+        boxes: user,
+        ..Default::default()
+    };
+    let list = node_boxes(&ds, &views, &scene_region(&ds, &views), &opts)?;
+    if a.json {
+        let triples: Vec<_> = list
+            .iter()
+            .map(|n| (n.id, n.label.clone(), n.obb))
+            .collect();
+        let mut v = assist_data::boxes::boxes_json(&triples);
+        for (e, n) in v["instances"]
+            .as_array_mut()
+            .into_iter()
+            .flatten()
+            .zip(&list)
+        {
+            e["source"] = serde_json::to_value(n.source)?;
+        }
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        println!(
+            "{:>5}  {:<8} {:>26}  {:>20}  label",
+            "id", "source", "centre", "size"
+        );
+        for n in &list {
+            let (c, sz) = (n.obb.center, n.obb.size());
+            println!(
+                "{:>5}  {:<8} {:>8.3} {:>8.3} {:>8.3}  {:>6.3} {:>6.3} {:>6.3}  {}",
+                n.id,
+                format!("{:?}", n.source).to_lowercase(),
+                c.x,
+                c.y,
+                c.z,
+                sz.x,
+                sz.y,
+                sz.z,
+                n.label,
+            );
+        }
+        if list.is_empty() {
+            println!("(no object instances: the scene is background only)");
+        }
+    }
+    Ok(())
 }
 
 pub fn load_options(format: Option<&str>, llff_factor: Option<u32>) -> anyhow::Result<LoadOptions> {
@@ -123,6 +199,7 @@ pub fn describe(ds: &Dataset) -> Value {
         "frames": ds.frames.len(),
         "splits": splits,
         "split_source": ds.split_source,
+        "split_declared": ds.split_declared,
         "width": f0.camera.width(),
         "height": f0.camera.height(),
         "uniform_resolution": same_size,
@@ -138,11 +215,7 @@ pub fn describe(ds: &Dataset) -> Value {
         "instances": ds.instances.iter().map(|inst| json!({
             "id": inst.id,
             "label": inst.label,
-            "bbox": inst.bbox.map(|b| json!({
-                "center": b.center.to_array(),
-                "size": b.size().to_array(),
-                "rotation": [b.rotation.row(0).to_array(), b.rotation.row(1).to_array(), b.rotation.row(2).to_array()],
-            })),
+            "bbox": inst.bbox.as_ref().map(assist_data::boxes::bbox_json),
         })).collect::<Vec<_>>(),
         "sparse_points": ds.points.len(),
         "depth_range": ds.depth_range.map(|(n, f)| [n, f]),

@@ -26,8 +26,10 @@ pub struct RenderArgs {
     /// Cameras: a dataset (directory), a transforms.json, or `orbit`.
     #[arg(long, default_value = "orbit")]
     pub cameras: String,
-    /// Dataset split to render (train, val, test or all).
-    #[arg(long, default_value = "test")]
+    /// Dataset split to render (train, val, test, all, or auto: the test split when the
+    /// dataset declares its split — split.json, *_filenames, Blender's files — else every
+    /// frame, e.g. for a bare transforms.json of cameras).
+    #[arg(long, default_value = "auto")]
     pub split: String,
     /// Comma-separated: rgb, depth, panoptic, semantic, objects, background.
     #[arg(long, default_value = "rgb,depth,panoptic")]
@@ -193,12 +195,14 @@ fn views(a: &RenderArgs, scene: &Scene) -> anyhow::Result<Vec<View>> {
     let path = Path::new(&a.cameras);
     let ds = assist_data::load(path, &LoadOptions::default())
         .with_context(|| format!("--cameras: loading {}", path.display()))?;
-    let frames: Vec<_> = if a.split == "all" {
+    let all = a.split == "all" || (a.split == "auto" && !ds.split_declared);
+    let frames: Vec<_> = if all {
         ds.frames.iter().collect()
     } else {
-        let split = Split::parse(&a.split).with_context(|| {
+        let name = if a.split == "auto" { "test" } else { &a.split };
+        let split = Split::parse(name).with_context(|| {
             format!(
-                "--split: expected train, val, test or all, got {:?}",
+                "--split: expected train, val, test, all or auto, got {:?}",
                 a.split
             )
         })?;

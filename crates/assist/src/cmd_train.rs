@@ -39,6 +39,17 @@ pub struct TrainArgs {
     pub lambda_obj_acc: Option<f32>,
     #[arg(long)]
     pub lambda_obj_rgb: Option<f32>,
+    /// Weight of the object-share term (ours, not the paper's; 0 gives the paper's loss).
+    #[arg(long)]
+    pub lambda_obj_share: Option<f32>,
+    /// Weight of the distortion loss (Nerfacto's; 0 turns it off).
+    #[arg(long)]
+    pub lambda_distortion: Option<f32>,
+    /// Object boxes overriding the dataset's and the carved ones, used as given (a JSON file
+    /// as `assist dataset boxes DATA --json` writes: {"instances": [{"id" or "label", "bbox":
+    /// {"center", "size", "rotation"}}]}).
+    #[arg(long)]
+    pub boxes: Option<PathBuf>,
     /// Per-image appearance embeddings: on, off or auto (on for real captures: COLMAP, LLFF).
     #[arg(long, default_value = "auto")]
     pub appearance: String,
@@ -73,6 +84,13 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
             a.prior
         )
     })?;
+    if a.resume && a.boxes.is_some() {
+        bail!("--boxes cannot change the boxes of a scene being resumed (train anew with --force)");
+    }
+    let user_boxes = match &a.boxes {
+        Some(p) => assist_data::boxes::read_boxes(p).context("--boxes")?,
+        None => Vec::new(),
+    };
     let ds = assist_data::load(&a.data, &LoadOptions::default())
         .with_context(|| format!("loading dataset {}", a.data.display()))?;
     if ds.count(Split::Train) == 0 {
@@ -117,6 +135,7 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
         let so = SetupOptions {
             appearance,
             seed: a.seed,
+            boxes: user_boxes,
             ..Default::default()
         };
         (build_scene(&ds, &views, &so)?, None)
@@ -137,6 +156,12 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
     }
     if let Some(v) = a.lambda_obj_rgb {
         lambdas.obj_rgb = v;
+    }
+    if let Some(v) = a.lambda_obj_share {
+        lambdas.obj_share = v;
+    }
+    if let Some(v) = a.lambda_distortion {
+        lambdas.distortion = v;
     }
     let opts = TrainOptions {
         iters: a.iters,
@@ -199,13 +224,15 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
                 .map(|(k, f)| format!("{k} {:.1}%", f * 100.0))
                 .collect();
             eprintln!(
-                "         samples/ray {:.1?} terms: comp {:.5} bg_rgb {:.5} bg_depth {:.5} obj_acc {:.5} obj_rgb {:.5}; occupied: {}",
+                "         samples/ray {:.1?} terms: comp {:.5} bg_rgb {:.5} bg_depth {:.5} obj_acc {:.5} obj_rgb {:.5} obj_share {:.5} dist {:.5}; occupied: {}",
                 s.samples_per_ray,
                 s.comp_rgb,
                 s.bg_rgb,
                 s.bg_depth,
                 s.obj_acc,
                 s.obj_rgb,
+                s.obj_share,
+                s.distortion,
                 occ.join(", ")
             );
             last_log = std::time::Instant::now();

@@ -68,6 +68,26 @@ fn render_orbit_writes_every_output_as_a_readable_dataset() {
     assert_eq!(ds.frames[0].camera.width(), 40);
     let report = assist_data::validate::validate(&ds);
     assert!(report.errors.is_empty(), "{:?}", report.errors);
+    // Its transforms.json declares no split, so rendering with its cameras takes every
+    // frame; --split test takes the hold-out rule's test frames (every 8th: one of three).
+    for (split, n) in [(None, 3), (Some("test"), 1)] {
+        let again = tmp.path().join(format!("again-{n}"));
+        let mut args = vec![
+            "render",
+            s(&edited),
+            "--out",
+            s(&again),
+            "--cameras",
+            s(&out.join("transforms.json")),
+            "--outputs",
+            "rgb",
+        ];
+        args.extend(split.map(|v| ["--split", v]).into_iter().flatten());
+        let (ok, _, err) = assist(&args);
+        assert!(ok, "{err}");
+        let rendered = std::fs::read_dir(again.join("images")).unwrap().count();
+        assert_eq!(rendered, n, "--split {split:?}");
+    }
     // Bad options are clear errors.
     let (ok, _, err) = assist(&[
         "render",

@@ -1,0 +1,228 @@
+//! `assist dataset boxes` and `assist train --boxes`: the boxes a scene is built with can be
+//! listed, edited and given back; bad box files are clear errors.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use assist_core::{DMat3, DQuat, DVec3};
+use assist_testkit::TempDir;
+use serde_json::{Value, json};
+
+fn assist(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_assist"))
+        .args(args)
+        .output()
+        .expect("run assist")
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn ok(out: &Output) -> String {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn fails_with(out: &Output, needles: &[&str]) {
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    for n in needles {
+        assert!(err.contains(n), "error should mention {n:?}: {err}");
+    }
+}
+
+fn vec3(v: &Value) -> DVec3 {
+    DVec3::new(
+        v[0].as_f64().unwrap(),
+        v[1].as_f64().unwrap(),
+        v[2].as_f64().unwrap(),
+    )
+}
+
+#[test]
+fn boxes_are_listed_carved_overridden_and_checked() {
+    let tmp = TempDir::new("cli-boxes");
+    let data = tmp.join("synth");
+    ok(&assist(&[
+        "synth",
+        "--out",
+        s(&data),
+        "--views",
+        "24",
+        "--width",
+        "64",
+        "--height",
+        "48",
+        "--objects",
+        "3",
+    ]));
+    // The dataset's true boxes, then the same dataset without instance 2's box: its box
+    // must be carved from the masks and hold the true one.
+    let tf_path = data.join("transforms.json");
+    let mut tf: Value = serde_json::from_slice(&std::fs::read(&tf_path).unwrap()).unwrap();
+    let truth = tf["instances"][1]["bbox"].clone();
+    assert_eq!(tf["instances"][1]["id"], 2);
+    tf["instances"][1].as_object_mut().unwrap().remove("bbox");
+    std::fs::write(&tf_path, serde_json::to_vec_pretty(&tf).unwrap()).unwrap();
+
+    let listed: Value =
+        serde_json::from_str(&ok(&assist(&["dataset", "boxes", s(&data), "--json"]))).unwrap();
+    let inst = listed["instances"].as_array().unwrap();
+    assert_eq!(inst.len(), 3);
+    assert_eq!(inst[0]["source"], "dataset");
+    assert_eq!(inst[1]["source"], "carved");
+    let (c, half) = (
+        vec3(&inst[1]["bbox"]["center"]),
+        vec3(&inst[1]["bbox"]["size"]) * 0.5,
+    );
+    let (tc, th) = (vec3(&truth["center"]), vec3(&truth["size"]) * 0.5);
+    let rot = DMat3::from_cols(
+        vec3(&json!([
+            truth["rotation"][0][0],
+            truth["rotation"][1][0],
+            truth["rotation"][2][0]
+        ])),
+        vec3(&json!([
+            truth["rotation"][0][1],
+            truth["rotation"][1][1],
+            truth["rotation"][2][1]
+        ])),
+        vec3(&json!([
+            truth["rotation"][0][2],
+            truth["rotation"][1][2],
+            truth["rotation"][2][2]
+        ])),
+    );
+    // Every corner of the true box lies in the carved box (within 2 cm), and the carved box
+    // is not much larger than the true box's axis-aligned bounds.
+    let mut true_aabb_half = DVec3::ZERO;
+    for k in 0..8 {
+        let sgn = DVec3::new(
+            if k & 1 == 0 { -1.0 } else { 1.0 },
+            if k & 2 == 0 { -1.0 } else { 1.0 },
+            if k & 4 == 0 { -1.0 } else { 1.0 },
+        );
+        let p = tc + rot * (sgn * th);
+        true_aabb_half = true_aabb_half.max((p - tc).abs());
+        let d = (p - c).abs() - half;
+        assert!(
+            d.max_element() < 0.02,
+            "true corner {p} outside carved box {c} ± {half}"
+        );
+    }
+    assert!(
+        (half - true_aabb_half).max_element() < 0.5 * true_aabb_half.max_element(),
+        "carved box {half} much larger than the truth {true_aabb_half}"
+    );
+
+    // Edit the listing: instance 1 by label, rotated and moved; train with it.
+    let label = inst[0]["label"].as_str().unwrap().to_string();
+    let r = DMat3::from_quat(DQuat::from_rotation_z(0.5));
+    let rows: Vec<[f64; 3]> = (0..3).map(|i| r.row(i).to_array()).collect();
+    let given_center = vec3(&inst[0]["bbox"]["center"]) + DVec3::new(0.01, -0.02, 0.0);
+    let given_size = DVec3::new(0.3, 0.25, 0.2);
+    let boxes = json!({"instances": [{
+        "label": label,
+        "bbox": {"center": given_center.to_array(), "size": given_size.to_array(), "rotation": rows}
+    }]});
+    let boxes_path = tmp.join("boxes.json");
+    std::fs::write(&boxes_path, serde_json::to_vec(&boxes).unwrap()).unwrap();
+    let listed2: Value = serde_json::from_str(&ok(&assist(&[
+        "dataset",
+        "boxes",
+        s(&data),
+        "--json",
+        "--boxes",
+        s(&boxes_path),
+    ])))
+    .unwrap();
+    assert_eq!(listed2["instances"][0]["source"], "user");
+    assert_eq!(listed2["instances"][1], listed["instances"][1]);
+    let scene = tmp.join("s.assist");
+    ok(&assist(&[
+        "train",
+        s(&data),
+        "--out",
+        s(&scene),
+        "--iters",
+        "2",
+        "--boxes",
+        s(&boxes_path),
+        "--json",
+    ]));
+    let (trained, _) = assist_render::scene_file::load(&scene).unwrap();
+    let node = trained.scene.nodes.iter().find(|n| n.id == 1).unwrap();
+    assert!(
+        (node.half_size - given_size * 0.5).length() < 1e-6,
+        "{:?}",
+        node.half_size
+    );
+    assert!((node.world_from_local.translation - given_center).length() < 1e-6);
+    let q = DQuat::from_mat3(&r);
+    assert!(node.world_from_local.rotation.angle_between(q) < 1e-6);
+    let carved = trained.scene.nodes.iter().find(|n| n.id == 2).unwrap();
+    assert!((carved.half_size - half).length() < 1e-6);
+
+    // Bad box files: no such instance, contradicting id and label, a broken box, resume.
+    let bad = |name: &str, v: Value| {
+        let p = tmp.join(name);
+        std::fs::write(&p, serde_json::to_vec(&v).unwrap()).unwrap();
+        p
+    };
+    let unit = json!({"center": [0, 0, 0], "size": [0.1, 0.1, 0.1]});
+    let p = bad(
+        "nolabel.json",
+        json!({"instances": [{"label": "giraffe", "bbox": unit}]}),
+    );
+    let out2 = tmp.join("x.assist");
+    fails_with(
+        &assist(&[
+            "train",
+            s(&data),
+            "--out",
+            s(&out2),
+            "--iters",
+            "1",
+            "--boxes",
+            s(&p),
+        ]),
+        &["nolabel.json", "instances[0]", "names no instance", &label],
+    );
+    assert!(!out2.exists());
+    let p = bad(
+        "clash.json",
+        json!({"instances": [{"id": 2, "label": label, "bbox": unit}]}),
+    );
+    fails_with(
+        &assist(&["dataset", "boxes", s(&data), "--boxes", s(&p)]),
+        &["clash.json", "instances[0]", "different instances"],
+    );
+    let p = bad(
+        "flat.json",
+        json!({"instances": [{"id": 2, "bbox": {"center": [0, 0, 0], "size": [0.1, 0, 0.1]}}]}),
+    );
+    fails_with(
+        &assist(&["train", s(&data), "--out", s(&out2), "--boxes", s(&p)]),
+        &["flat.json", "instances[0].bbox.size", "positive"],
+    );
+    let before = std::fs::read(scene.join("scene.json")).unwrap();
+    fails_with(
+        &assist(&[
+            "train",
+            s(&data),
+            "--out",
+            s(&scene),
+            "--resume",
+            "--boxes",
+            s(&boxes_path),
+        ]),
+        &["--boxes", "resumed"],
+    );
+    assert_eq!(before, std::fs::read(scene.join("scene.json")).unwrap());
+}
