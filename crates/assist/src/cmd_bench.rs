@@ -116,7 +116,7 @@ fn bench_one(
     let d_rgb: Vec<f32> = (0..3 * n).map(|_| (rng.f32() - 0.5) * 1e-3).collect();
     let (mut sig, mut rgb) = (vec![0.0; n], vec![0.0; 3 * n]);
     let mut grad = vec![0.0f32; field.param_count()];
-    let mut adam = Adam::new(field.param_count());
+    let mut adam = Adam::for_field(&field);
     let mut tape = Tape::default();
     let (mut step_times, mut adam_times) = (Vec::new(), Vec::new());
     let mut phases = PhaseTimes::default();

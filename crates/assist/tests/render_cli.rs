@@ -70,6 +70,7 @@ fn render_orbit_writes_every_output_as_a_readable_dataset() {
     assert!(report.errors.is_empty(), "{:?}", report.errors);
     // Its transforms.json declares no split, so rendering with its cameras takes every
     // frame; --split test takes the hold-out rule's test frames (every 8th: one of three).
+    let cameras = out.join("transforms.json");
     for (split, n) in [(None, 3), (Some("test"), 1)] {
         let again = tmp.path().join(format!("again-{n}"));
         let mut args = vec![
@@ -78,7 +79,7 @@ fn render_orbit_writes_every_output_as_a_readable_dataset() {
             "--out",
             s(&again),
             "--cameras",
-            s(&out.join("transforms.json")),
+            s(&cameras),
             "--outputs",
             "rgb",
         ];
