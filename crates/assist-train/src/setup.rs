@@ -182,13 +182,22 @@ pub fn node_boxes(
     let mut used = vec![false; opts.boxes.len()];
     let mut out = Vec::with_capacity(ids.len());
     for (id, label, bbox) in ids {
-        let mut user = None;
+        let mut user: Option<&BoxOverride> = None;
         for (u, b) in opts.boxes.iter().enumerate() {
             if b.matches(id, &label)? {
+                if let Some(prev) = user {
+                    return Err(TrainError::Other(format!(
+                        "{}: {} and {} both give a box for instance {id} ({label:?})",
+                        b.file.display(),
+                        prev.entry,
+                        b.entry
+                    )));
+                }
                 used[u] = true;
-                user = Some(b.bbox);
+                user = Some(b);
             }
         }
+        let user = user.map(|b| b.bbox);
         let grow = |b: Obb| Obb {
             half_size: b.half_size * (1.0 + 2.0 * opts.margin),
             ..b

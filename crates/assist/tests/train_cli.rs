@@ -204,6 +204,19 @@ fn boxes_are_listed_carved_overridden_and_checked() {
         &["clash.json", "instances[0]", "different instances"],
     );
     let p = bad(
+        "twice.json",
+        json!({"instances": [{"id": 1, "bbox": unit}, {"label": label, "bbox": unit}]}),
+    );
+    fails_with(
+        &assist(&["dataset", "boxes", s(&data), "--boxes", s(&p)]),
+        &[
+            "twice.json",
+            "instances[0]",
+            "instances[1]",
+            "both give a box",
+        ],
+    );
+    let p = bad(
         "flat.json",
         json!({"instances": [{"id": 2, "bbox": {"center": [0, 0, 0], "size": [0.1, 0, 0.1]}}]}),
     );
