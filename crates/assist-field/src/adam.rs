@@ -118,21 +118,26 @@ fn dense_block(h: Hyper, p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [f
     }
 }
 
-/// Entries with an exactly zero gradient are left alone — with selects, not branches, so
-/// that the loop vectorises.
+/// Entries with an exactly zero gradient are left alone. The rule is folded into the
+/// coefficients (β = 1 and step 0 for an untouched entry, whose gradient is 0, so m, v and
+/// the parameter come out bit-identical) rather than written as selects between the old
+/// and new values: LLVM turns a select whose operand holds a division into a branch, which
+/// left this loop scalar (3× slower than the dense loop with every entry touched).
 #[inline(always)]
 fn sparse_block(h: Hyper, p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [f32]) {
     let n = p.len();
     let (g, m, v) = (&mut g[..n], &mut m[..n], &mut v[..n]);
     for i in 0..n {
         let gi = g[i];
-        let mi = h.b1 * m[i] + (1.0 - h.b1) * gi;
-        let vi = h.b2 * v[i] + (1.0 - h.b2) * gi * gi;
-        let pi = p[i] - h.step_size * mi / (vi.sqrt() * h.inv_sqrt_c2 + h.eps);
         let touched = gi != 0.0;
-        m[i] = if touched { mi } else { m[i] };
-        v[i] = if touched { vi } else { v[i] };
-        p[i] = if touched { pi } else { p[i] };
+        let b1 = if touched { h.b1 } else { 1.0 };
+        let b2 = if touched { h.b2 } else { 1.0 };
+        let step = if touched { h.step_size } else { 0.0 };
+        let mi = b1 * m[i] + (1.0 - h.b1) * gi;
+        let vi = b2 * v[i] + (1.0 - h.b2) * gi * gi;
+        m[i] = mi;
+        v[i] = vi;
+        p[i] -= step * mi / (vi.sqrt() * h.inv_sqrt_c2 + h.eps);
         g[i] = 0.0;
     }
 }
@@ -192,11 +197,14 @@ mod tests {
         let mut p = vec![1.0f32; 4];
         adam.update(0.1, &mut p, &mut [1.0; 4]);
         let after_first = p.clone();
+        let (m_first, v_first) = (adam.m.clone(), adam.v.clone());
         // Zero gradients: entries 0..2 (sparse) stay, 2..4 keep moving on momentum.
         adam.update(0.1, &mut p, &mut [0.0; 4]);
         assert_eq!(&p[..2], &after_first[..2]);
         assert!(p[2] < after_first[2] && p[3] < after_first[3]);
-        assert_eq!(adam.m[0], adam.m[0]);
+        assert_eq!(&adam.m[..2], &m_first[..2]);
+        assert_eq!(&adam.v[..2], &v_first[..2]);
+        assert!(adam.m[2] < m_first[2] && adam.v[2] < v_first[2]);
     }
 
     /// A direct transcription of the Adam paper's algorithm in f64 (β 0.9/0.99, ε 1e-8,
