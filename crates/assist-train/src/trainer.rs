@@ -133,9 +133,9 @@ pub struct StepStats {
     pub elapsed: f64,
     /// Fraction of the run done (iterations or time).
     pub progress: f64,
-    /// Seconds in each phase: ray drawing + sampling, field forward, compositing and
-    /// losses, field backward, Adam + occupancy.
-    pub phase: [f64; 5],
+    /// Seconds in each phase of this step: ray drawing + sampling, field forward,
+    /// compositing and losses, field backward, Adam, occupancy-grid update.
+    pub phase: [f64; 6],
     /// Mean samples per ray of the first nodes (background first when present).
     pub samples_per_ray: [f32; 4],
 }
@@ -147,6 +147,9 @@ pub struct TrainReport {
     pub final_stats: StepStats,
     pub rays_per_sec: f64,
     pub samples_per_sec: f64,
+    /// Seconds spent over the run in each phase (as `StepStats::phase`), then everything
+    /// else (checkpoints, progress display).
+    pub phase_seconds: [f64; 7],
     pub depth_scale_shift: [f32; 2],
 }
 
@@ -357,7 +360,7 @@ impl Trainer {
         let progress = self.progress(elapsed);
         let lr = self.opts.lr_start * (self.opts.lr_end / self.opts.lr_start).powf(progress as f32);
         let tp = Instant::now();
-        let mut phase = [0.0f64; 5];
+        let mut phase = [0.0f64; 6];
         self.draw_rays();
         let so = SampleOptions {
             jitter: true,
@@ -535,6 +538,7 @@ impl Trainer {
         if bg.is_some() && lam.bg_depth > 0.0 {
             self.wq_adam.update(1e-3, &mut self.depth_wq, &mut g_wq);
         }
+        phase[4] = tp.elapsed().as_secs_f64();
         if self.opts.poison_at == Some(self.iteration) {
             for nf in self.scene.fields.values_mut() {
                 let f = &mut Arc::make_mut(nf).field;
@@ -549,8 +553,8 @@ impl Trainer {
         {
             self.update_occupancy();
         }
-        phase[4] = tp.elapsed().as_secs_f64();
-        for i in (1..5).rev() {
+        phase[5] = tp.elapsed().as_secs_f64();
+        for i in (1..6).rev() {
             phase[i] -= phase[i - 1];
         }
         s.phase = phase;
@@ -612,6 +616,7 @@ impl Trainer {
         let mut last_ckpt = Instant::now();
         let mut last = StepStats::default();
         let (mut rays, mut samples) = (0usize, 0usize);
+        let mut phase_seconds = [0.0f64; 7];
         let mut saved: Option<PathBuf> = None;
         loop {
             let elapsed = self.elapsed_before + start.elapsed().as_secs_f64();
@@ -623,6 +628,9 @@ impl Trainer {
                 Ok(s) => {
                     rays += s.rays;
                     samples += s.samples;
+                    for (t, p) in phase_seconds.iter_mut().zip(s.phase) {
+                        *t += p;
+                    }
                     last = s;
                     on_step(&s, self);
                 }
@@ -649,12 +657,14 @@ impl Trainer {
             }
         }
         let secs = start.elapsed().as_secs_f64();
+        phase_seconds[6] = secs - phase_seconds[..6].iter().sum::<f64>();
         Ok(TrainReport {
             iterations: self.iteration,
             seconds: self.elapsed_before + secs,
             final_stats: last,
             rays_per_sec: rays as f64 / secs.max(1e-9),
             samples_per_sec: samples as f64 / secs.max(1e-9),
+            phase_seconds,
             depth_scale_shift: self.depth_wq,
         })
     }

@@ -43,28 +43,36 @@ pub struct DemoArgs {
 const MARKER: &str = ".assist-demo";
 
 fn train(data: &Path, out: &Path, seconds: f64, seed: u64) -> anyhow::Result<()> {
-    crate::cmd_train::run(crate::cmd_train::TrainArgs {
-        data: data.to_path_buf(),
-        out: out.to_path_buf(),
-        iters: 1_000_000,
-        max_time: Some(seconds),
-        batch_samples: 1 << 16,
-        prior: "push-pull".into(),
-        lambda_bg_rgb: None,
-        lambda_bg_depth: None,
-        lambda_obj_acc: None,
-        lambda_obj_rgb: None,
-        lambda_obj_share: None,
-        lambda_distortion: None,
-        boxes: None,
-        appearance: "off".into(),
-        seed,
-        checkpoint_every: 1e9,
-        resume: false,
-        force: true,
-        json: false,
-        poison_at: None,
-    })
+    // Through the command line's own parser, so that the demo trains with `assist train`'s
+    // defaults and cannot drift from them.
+    use clap::Parser;
+    #[derive(Parser)]
+    struct Wrap {
+        #[command(flatten)]
+        train: crate::cmd_train::TrainArgs,
+    }
+    let (data, out) = (data.as_os_str(), out.as_os_str());
+    let max_time = seconds.to_string();
+    let seed = seed.to_string();
+    let args: [&std::ffi::OsStr; 15] = [
+        "demo".as_ref(),
+        data,
+        "--out".as_ref(),
+        out,
+        "--iters".as_ref(),
+        "1000000".as_ref(),
+        "--max-time".as_ref(),
+        max_time.as_ref(),
+        "--appearance".as_ref(),
+        "off".as_ref(),
+        "--seed".as_ref(),
+        seed.as_ref(),
+        "--checkpoint-every".as_ref(),
+        "1e9".as_ref(),
+        "--force".as_ref(),
+    ];
+    let w = Wrap::try_parse_from(args).context("demo: training arguments")?;
+    crate::cmd_train::run(w.train)
 }
 
 fn objects(scene: &Scene) -> Vec<&SceneNode> {

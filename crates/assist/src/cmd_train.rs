@@ -28,6 +28,10 @@ pub struct TrainArgs {
     /// Samples per training step (the ray count adapts).
     #[arg(long, default_value_t = 1 << 16)]
     pub batch_samples: usize,
+    /// Share of each batch's rays drawn from pixels on or next to objects (the rest are
+    /// drawn uniformly over all pixels), so that small objects get enough rays.
+    #[arg(long, default_value_t = 0.5)]
+    pub object_rays: f64,
     /// Background prior: exemplar, push-pull or none (none also sets λ1 = λ2 = 0).
     #[arg(long, default_value = "push-pull")]
     pub prior: String,
@@ -76,6 +80,12 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
         bail!(
             "{} already exists (pass --force to replace it, or --resume to continue it)",
             a.out.display()
+        );
+    }
+    if !(0.0..=1.0).contains(&a.object_rays) {
+        bail!(
+            "--object-rays: expected a fraction between 0 and 1, got {}",
+            a.object_rays
         );
     }
     let prior = PriorKind::parse(&a.prior).with_context(|| {
@@ -167,6 +177,7 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
         iters: a.iters,
         max_time: a.max_time,
         batch_samples: a.batch_samples,
+        object_ray_fraction: a.object_rays,
         lambdas,
         seed: a.seed,
         checkpoint: Some(a.out.clone()),
@@ -216,7 +227,7 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
                 s.rays,
                 s.samples,
                 s.lr,
-                s.phase.map(|v| v * 1e3)
+                s.phase.map(|v| (v * 1e4).round() / 10.0)
             );
             let occ: Vec<String> = t
                 .occupancy()
@@ -254,6 +265,22 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
             report.final_stats.psnr,
             a.out.display()
         );
+        let names = [
+            "sampling",
+            "forward",
+            "compositing",
+            "backward",
+            "adam",
+            "occupancy",
+            "other",
+        ];
+        let per_step = 1e3 / report.iterations.max(1) as f64;
+        let parts: Vec<String> = names
+            .iter()
+            .zip(report.phase_seconds)
+            .map(|(n, t)| format!("{n} {:.1}", t * per_step))
+            .collect();
+        eprintln!("ms per step: {}", parts.join(", "));
     }
     Ok(())
 }

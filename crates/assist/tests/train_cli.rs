@@ -238,4 +238,12 @@ fn boxes_are_listed_carved_overridden_and_checked() {
         &["--boxes", "resumed"],
     );
     assert_eq!(before, std::fs::read(scene.join("scene.json")).unwrap());
+    for bad_fraction in ["1.5", "-0.1", "NaN"] {
+        let arg = format!("--object-rays={bad_fraction}");
+        fails_with(
+            &assist(&["train", s(&data), "--out", s(&out2), "--iters", "1", &arg]),
+            &["--object-rays", "between 0 and 1", bad_fraction],
+        );
+        assert!(!out2.exists());
+    }
 }
