@@ -602,11 +602,25 @@ impl Field {
 
     /// Density only (for occupancy-grid updates): encoding and the density net.
     pub fn density(&self, pos: [&[f32]; 3], sigma: &mut [f32]) {
+        self.density_with(pos, sigma, &mut Vec::new());
+    }
+
+    /// [`density`](Self::density) with the encoding buffer `scratch` kept by the caller
+    /// (grown as needed), so repeated calls do not allocate and fault in a fresh one.
+    pub fn density_with(&self, pos: [&[f32]; 3], sigma: &mut [f32], scratch: &mut Vec<f32>) {
         let n = pos[0].len();
         let width = self.config.encoding_rows();
-        let mut enc = vec![0.0f32; Layout { width }.len(n)];
-        encode(&self.layout.grid, &self.params, pos, width, &mut enc);
+        let len = Layout { width }.len(n);
+        if scratch.len() < len {
+            scratch.resize(len, 0.0);
+        }
+        let enc = &mut scratch[..len];
         let block = width * CHUNK;
+        // Lanes past the end of the last chunk are zeroed so they stay finite.
+        if !n.is_multiple_of(CHUNK) {
+            enc[len - block..].fill(0.0);
+        }
+        encode(&self.layout.grid, &self.params, pos, width, enc);
         let (d1, d2) = (self.layout.density[0], self.layout.density[1]);
         sigma[..n].par_chunks_mut(CHUNK).enumerate().for_each_init(
             || (vec![0.0f32; d1.out * CHUNK], vec![0.0f32; d2.out * CHUNK]),

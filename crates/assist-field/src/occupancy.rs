@@ -4,6 +4,8 @@
 //! step, skipping empty cells by jumping to where the ray leaves them (staying on the same
 //! step lattice, so samples in occupied cells are exactly those of dense marching).
 
+use rayon::prelude::*;
+
 use crate::field::Field;
 
 #[derive(Debug, Clone, PartialEq)]
@@ -74,6 +76,19 @@ impl OccupancyGrid {
         self.update_part(field, rng, 0, 1);
     }
 
+    /// Into how many parts an update is split ([`update_round`](Self::update_round)): one
+    /// part holds at most 2¹⁹ cells, so a 128³ grid is refreshed a quarter at a time.
+    pub fn parts(&self) -> usize {
+        (self.cells() >> 19).max(1)
+    }
+
+    /// The update training runs every few steps: round `round` refreshes part
+    /// `round % parts()` of the cells (each cell every `parts()` rounds; all decay).
+    pub fn update_round(&mut self, field: &Field, rng: &mut assist_core::Rng, round: usize) {
+        let parts = self.parts();
+        self.update_part(field, rng, round % parts, parts);
+    }
+
     /// Like [`update`](Self::update) for the cells `c` with `c % parts == part` only
     /// (the others keep their estimate): spreads the cost of large grids over several calls.
     pub fn update_part(
@@ -85,34 +100,60 @@ impl OccupancyGrid {
     ) {
         let r = self.res as usize;
         let parts = parts.max(1);
-        let cells: Vec<usize> = (part % parts..self.cells()).step_by(parts).collect();
+        let part = part % parts;
+        let decay = self.decay;
+        // Every cell decays each call, so stale estimates fade at the same rate whatever
+        // `parts` is; the sampled cells are then refreshed below. Cells are numbered from
+        // 0, so within each run of `parts` cells the one at offset `part` is sampled.
+        if parts > 1 {
+            self.density.par_chunks_mut(parts * 4096).for_each(|run| {
+                for cells in run.chunks_mut(parts) {
+                    for (i, d) in cells.iter_mut().enumerate() {
+                        if i != part && d.is_finite() {
+                            *d *= decay;
+                        }
+                    }
+                }
+            });
+        }
+        let selected = (self.cells() - part).div_ceil(parts);
+        let cell = |k: usize| part + k * parts;
+        let seed = rng.next_u64();
         const BLOCK: usize = 1 << 16;
+        const SUB: usize = 4096;
         let mut pos = [vec![0f32; BLOCK], vec![0f32; BLOCK], vec![0f32; BLOCK]];
         let mut sigma = vec![0f32; BLOCK];
-        // Every cell decays each call, so stale estimates fade at the same rate whatever
-        // `parts` is; the sampled cells are then refreshed below.
-        if parts > 1 {
-            for (c, d) in self.density.iter_mut().enumerate() {
-                if c % parts != part % parts && d.is_finite() {
-                    *d *= self.decay;
-                }
-            }
-        }
-        for blk in cells.chunks(BLOCK) {
-            for (i, &c) in blk.iter().enumerate() {
-                let (x, y, z) = (c % r, (c / r) % r, c / (r * r));
-                pos[0][i] = (x as f32 + rng.f32()) / r as f32;
-                pos[1][i] = (y as f32 + rng.f32()) / r as f32;
-                pos[2][i] = (z as f32 + rng.f32()) / r as f32;
-            }
-            let m = blk.len();
-            field.density([&pos[0][..m], &pos[1][..m], &pos[2][..m]], &mut sigma[..m]);
-            for (i, &c) in blk.iter().enumerate() {
-                let d = &mut self.density[c];
+        let mut scratch = Vec::new();
+        for lo in (0..selected).step_by(BLOCK) {
+            let m = BLOCK.min(selected - lo);
+            let [px, py, pz] = &mut pos;
+            px[..m]
+                .par_chunks_mut(SUB)
+                .zip(py[..m].par_chunks_mut(SUB))
+                .zip(pz[..m].par_chunks_mut(SUB))
+                .enumerate()
+                .for_each(|(j, ((x, y), z))| {
+                    let first = lo + j * SUB;
+                    let mut rng = assist_core::Rng::stream(seed, (first / SUB) as u64);
+                    for i in 0..x.len() {
+                        let c = cell(first + i);
+                        let (cx, cy, cz) = (c % r, (c / r) % r, c / (r * r));
+                        x[i] = (cx as f32 + rng.f32()) / r as f32;
+                        y[i] = (cy as f32 + rng.f32()) / r as f32;
+                        z[i] = (cz as f32 + rng.f32()) / r as f32;
+                    }
+                });
+            field.density_with(
+                [&pos[0][..m], &pos[1][..m], &pos[2][..m]],
+                &mut sigma[..m],
+                &mut scratch,
+            );
+            for (i, &s) in sigma[..m].iter().enumerate() {
+                let d = &mut self.density[cell(lo + i)];
                 *d = if d.is_finite() {
-                    (*d * self.decay).max(sigma[i])
+                    (*d * decay).max(s)
                 } else {
-                    sigma[i]
+                    s
                 };
             }
         }
@@ -133,17 +174,24 @@ impl OccupancyGrid {
 
     /// Recomputes the bitfield from the density estimate.
     pub fn refresh_bits(&mut self) {
-        let mean = self.density.iter().map(|&d| d as f64).sum::<f64>() / self.density.len() as f64;
-        let thr = self.threshold.min(mean as f32);
-        for (w, chunk) in self.bits.iter_mut().zip(self.density.chunks(64)) {
-            let mut word = 0u64;
-            for (i, &d) in chunk.iter().enumerate() {
-                if d > thr {
-                    word |= 1 << i;
+        let sum: f64 = self
+            .density
+            .par_chunks(1 << 16)
+            .map(|c| c.iter().map(|&d| d as f64).sum::<f64>())
+            .sum();
+        let thr = self.threshold.min((sum / self.density.len() as f64) as f32);
+        self.bits
+            .par_iter_mut()
+            .zip(self.density.par_chunks(64))
+            .for_each(|(w, chunk)| {
+                let mut word = 0u64;
+                for (i, &d) in chunk.iter().enumerate() {
+                    if d > thr {
+                        word |= 1 << i;
+                    }
                 }
-            }
-            *w = word;
-        }
+                *w = word;
+            });
     }
 
     /// Where the ray `o + t·d` at parameter `t` (point `p`) leaves its current cell: the
@@ -295,5 +343,65 @@ mod tests {
                 assert!((x.t - y.t).abs() < 1e-5);
             }
         }
+    }
+
+    #[test]
+    fn an_update_part_refreshes_its_cells_and_decays_the_others() {
+        use crate::FieldConfig;
+        // A field whose density is the same everywhere: zero output weights, one bias.
+        let cfg = FieldConfig {
+            levels: 4,
+            log2_table_size: 10,
+            base_resolution: 4,
+            max_resolution: 32,
+            appearance_dim: 0,
+            num_images: 0,
+            ..FieldConfig::nerfacto(0)
+        };
+        let mut field = Field::new(cfg, 3).unwrap();
+        let d2 = field.layout.density[1];
+        field.params[d2.w..d2.w + d2.out * d2.inp_pad].fill(0.0);
+        field.params[d2.b] = 5.0f32.ln();
+        let mut sigma0 = [0.0f32];
+        field.density([&[0.3], &[0.6], &[0.9]], &mut sigma0);
+        let sigma0 = sigma0[0];
+        assert!((sigma0 - 5.0).abs() < 1e-3, "{sigma0}");
+        // 9³ = 729 cells in 4 parts (729 = 4 · 182 + 1: the last run is short).
+        let mut g = OccupancyGrid::new(9);
+        let start: Vec<f32> = (0..g.cells()).map(|c| [1.0, 20.0][c % 2]).collect();
+        g.density = start.clone();
+        let mut rng = assist_core::Rng::new(4);
+        g.update_part(&field, &mut rng, 2, 4);
+        for (c, (&d, &d0)) in g.density.iter().zip(&start).enumerate() {
+            let want = if c % 4 == 2 {
+                (d0 * g.decay).max(sigma0)
+            } else {
+                d0 * g.decay
+            };
+            assert_eq!(d, want, "cell {c}");
+        }
+        // The bits follow the estimate: threshold min(0.01, mean) = 0.01, all occupied.
+        assert_eq!(g.occupied_fraction(), 1.0);
+        g.density.fill(0.0);
+        g.density[700] = 1.0;
+        g.refresh_bits();
+        assert!(g.is_occupied_cell(700) && !g.is_occupied_cell(699));
+        // A round-robin of `parts()` rounds reaches every cell.
+        let mut big = OccupancyGrid::new(96);
+        assert_eq!(big.parts(), 1);
+        big.density.fill(0.0);
+        big.update_round(&field, &mut rng, 7);
+        assert!(big.density.iter().all(|&d| d == sigma0));
+        let mut huge = OccupancyGrid::new(128);
+        assert_eq!(huge.parts(), 4);
+        huge.density.fill(0.0);
+        for round in 0..4 {
+            huge.update_round(&field, &mut rng, round);
+        }
+        assert!(
+            huge.density
+                .iter()
+                .all(|&d| d >= sigma0 * huge.decay.powi(3))
+        );
     }
 }

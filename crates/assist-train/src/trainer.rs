@@ -86,7 +86,9 @@ pub struct TrainOptions {
     /// Checkpoint directory and interval in seconds.
     pub checkpoint: Option<PathBuf>,
     pub checkpoint_every: f64,
-    /// Fraction of each batch drawn from pixels on or near objects (when masks exist).
+    /// Fraction of each batch drawn from pixels on or near objects (when masks exist); the
+    /// rest are drawn uniformly over all pixels. 0.25 by measurement on desk (900 s: 32.42
+    /// dB against 30.76 dB with 0.5, the same mIoU).
     pub object_ray_fraction: f64,
     /// Testing aid: poison one parameter with NaN at this iteration (exercises divergence
     /// detection).
@@ -107,7 +109,7 @@ impl Default for TrainOptions {
             seed: 0,
             checkpoint: None,
             checkpoint_every: 60.0,
-            object_ray_fraction: 0.5,
+            object_ray_fraction: 0.25,
             poison_at: None,
         }
     }
@@ -575,10 +577,7 @@ impl Trainer {
         for (i, nf) in self.scene.fields.values_mut().enumerate() {
             let nf = Arc::make_mut(nf);
             let mut rng = Rng::stream(seed, i as u64);
-            // Large grids are refreshed a part at a time (each cell every `parts` rounds).
-            let parts = (nf.occupancy.cells() >> 19).max(1);
-            nf.occupancy
-                .update_part(&nf.field, &mut rng, round % parts, parts);
+            nf.occupancy.update_round(&nf.field, &mut rng, round);
         }
     }
 

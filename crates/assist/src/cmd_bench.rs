@@ -4,7 +4,7 @@
 use std::time::Instant;
 
 use assist_core::Rng;
-use assist_field::{Adam, Field, FieldConfig, PhaseTimes, Precision, Samples, Tape};
+use assist_field::{Adam, Field, FieldConfig, OccupancyGrid, PhaseTimes, Precision, Samples, Tape};
 use clap::{Args, Subcommand};
 use serde_json::{Value, json};
 
@@ -99,6 +99,7 @@ fn median(v: &mut [f64]) -> f64 {
 fn bench_one(
     name: &str,
     cfg: FieldConfig,
+    grid_res: u32,
     a: &FieldBenchArgs,
     show: bool,
 ) -> anyhow::Result<Value> {
@@ -153,6 +154,18 @@ fn bench_one(
     };
     let precision = Precision::fastest();
     let infer = infer_at(precision);
+    // One occupancy-grid update round as training runs it (every 16 steps), on a grid of
+    // the size training gives this field; the first round (allocation) is not timed.
+    let mut grid = OccupancyGrid::new(grid_res);
+    let mut occ_times = Vec::new();
+    for round in 0..a.steps.max(grid.parts()) + 1 {
+        let t0 = Instant::now();
+        grid.update_round(&field, &mut rng, round);
+        if round >= 1 {
+            occ_times.push(t0.elapsed().as_secs_f64());
+        }
+    }
+    let occupancy_t = median(&mut occ_times);
     let infer_f32 = infer_at(Precision::F32);
     let step = median(&mut step_times);
     let adam_t = median(&mut adam_times);
@@ -178,13 +191,16 @@ fn bench_one(
             "encode_backward": phases.encode_backward,
             "adam": adam_t,
         },
+        "occupancy_grid": grid_res,
+        "occupancy_cells_per_round": grid.cells() / grid.parts(),
+        "occupancy_round_seconds": occupancy_t,
         "mlp_macs_per_sample": macs,
         "mlp_train_gflops": mlp_train_gflops,
         "adam_gbytes_per_sec": 7.0 * 4.0 * field.param_count() as f64 / adam_t / 1e9,
     });
     if show {
         eprintln!(
-            "{name:>9}: train {:.3} M samples/s ({:.1} ms/step of {n}), infer {:.3} M samples/s ({}; f32 {:.3} M) | encode fwd {:.1} ms, mlp fwd {:.1} ms, mlp bwd {:.1} ms, encode bwd {:.1} ms, adam {:.1} ms | MLP {:.1} GFLOP/s",
+            "{name:>9}: train {:.3} M samples/s ({:.1} ms/step of {n}), infer {:.3} M samples/s ({}; f32 {:.3} M) | encode fwd {:.1} ms, mlp fwd {:.1} ms, mlp bwd {:.1} ms, encode bwd {:.1} ms, adam {:.1} ms | MLP {:.1} GFLOP/s | occupancy round ({}³ grid, {} cells) {:.1} ms",
             train_sps / 1e6,
             step * 1e3,
             infer_sps / 1e6,
@@ -195,7 +211,10 @@ fn bench_one(
             phases.mlp_backward * 1e3,
             phases.encode_backward * 1e3,
             adam_t * 1e3,
-            mlp_train_gflops
+            mlp_train_gflops,
+            grid_res,
+            grid.cells() / grid.parts(),
+            occupancy_t * 1e3
         );
     }
     Ok(v)
@@ -291,9 +310,23 @@ fn field(a: FieldBenchArgs) -> anyhow::Result<()> {
         );
         eprintln!("MLP product kernel (64×64×64, one core), GFLOP/s: {gemm}");
     }
-    let mut results = vec![bench_one("nerfacto", FieldConfig::nerfacto(100), &a, show)?];
+    // The occupancy grids training builds for a background and for an object.
+    let grids = assist_train::setup::SetupOptions::default();
+    let mut results = vec![bench_one(
+        "nerfacto",
+        FieldConfig::nerfacto(100),
+        grids.background_grid,
+        &a,
+        show,
+    )?];
     if !a.nerfacto_only {
-        results.push(bench_one("object", FieldConfig::object(100), &a, show)?);
+        results.push(bench_one(
+            "object",
+            FieldConfig::object(100),
+            grids.object_grid,
+            &a,
+            show,
+        )?);
     }
     let nerf = &results[0];
     let out = json!({

@@ -30,7 +30,7 @@ pub struct TrainArgs {
     pub batch_samples: usize,
     /// Share of each batch's rays drawn from pixels on or next to objects (the rest are
     /// drawn uniformly over all pixels), so that small objects get enough rays.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = TrainOptions::default().object_ray_fraction)]
     pub object_rays: f64,
     /// Background prior: exemplar, push-pull or none (none also sets λ1 = λ2 = 0).
     #[arg(long, default_value = "push-pull")]
