@@ -102,18 +102,34 @@ struct Hyper {
     inv_sqrt_c2: f32,
 }
 
+/// The Adam rule for one entry with gradient `g`, the moment decays `b1`, `b2` and the
+/// step size `step` given (the hyper-parameters', or 1, 1, 0 to leave the entry as it is).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn entry(h: Hyper, b1: f32, b2: f32, step: f32, g: f32, p: &mut f32, m: &mut f32, v: &mut f32) {
+    let mi = b1 * *m + (1.0 - h.b1) * g;
+    let vi = b2 * *v + (1.0 - h.b2) * g * g;
+    *m = mi;
+    *v = vi;
+    *p -= step * mi / (vi.sqrt() * h.inv_sqrt_c2 + h.eps);
+}
+
 /// Every entry updated.
 #[inline(always)]
 fn dense_block(h: Hyper, p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [f32]) {
     let n = p.len();
     let (g, m, v) = (&mut g[..n], &mut m[..n], &mut v[..n]);
     for i in 0..n {
-        let gi = g[i];
-        let mi = h.b1 * m[i] + (1.0 - h.b1) * gi;
-        let vi = h.b2 * v[i] + (1.0 - h.b2) * gi * gi;
-        m[i] = mi;
-        v[i] = vi;
-        p[i] -= h.step_size * mi / (vi.sqrt() * h.inv_sqrt_c2 + h.eps);
+        entry(
+            h,
+            h.b1,
+            h.b2,
+            h.step_size,
+            g[i],
+            &mut p[i],
+            &mut m[i],
+            &mut v[i],
+        );
         g[i] = 0.0;
     }
 }
@@ -133,11 +149,7 @@ fn sparse_block(h: Hyper, p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [
         let b1 = if touched { h.b1 } else { 1.0 };
         let b2 = if touched { h.b2 } else { 1.0 };
         let step = if touched { h.step_size } else { 0.0 };
-        let mi = b1 * m[i] + (1.0 - h.b1) * gi;
-        let vi = b2 * v[i] + (1.0 - h.b2) * gi * gi;
-        m[i] = mi;
-        v[i] = vi;
-        p[i] -= step * mi / (vi.sqrt() * h.inv_sqrt_c2 + h.eps);
+        entry(h, b1, b2, step, gi, &mut p[i], &mut m[i], &mut v[i]);
         g[i] = 0.0;
     }
 }
@@ -164,11 +176,16 @@ fn general(
         if wd != 0.0 && dr.contains(&(base + i)) {
             gi += wd * p[i];
         }
-        let mi = h.b1 * m[i] + (1.0 - h.b1) * gi;
-        let vi = h.b2 * v[i] + (1.0 - h.b2) * gi * gi;
-        m[i] = mi;
-        v[i] = vi;
-        p[i] -= h.step_size * mi / (vi.sqrt() * h.inv_sqrt_c2 + h.eps);
+        entry(
+            h,
+            h.b1,
+            h.b2,
+            h.step_size,
+            gi,
+            &mut p[i],
+            &mut m[i],
+            &mut v[i],
+        );
         g[i] = 0.0;
     }
 }
