@@ -27,6 +27,29 @@ pub struct SceneNode {
     /// Half extents of the canonical box.
     pub half_size: DVec3,
     pub world_from_local: Similarity3,
+    /// How the field's space relates to the box: the box itself (objects, bounded
+    /// rooms), or the box kept linearly and everything beyond it contracted towards a
+    /// finite shell (unbounded backgrounds of real captures).
+    #[serde(default, skip_serializing_if = "NodeSpace::is_box")]
+    pub space: NodeSpace,
+}
+
+/// The space a node's field covers.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NodeSpace {
+    /// The canonical box; nothing outside it.
+    #[default]
+    Box,
+    /// The box mapped linearly, all space beyond it contracted into a shell around it
+    /// (mip-NeRF 360's contraction with the L∞ norm): walls and far scenery have a place.
+    Contracted,
+}
+
+impl NodeSpace {
+    pub fn is_box(&self) -> bool {
+        *self == NodeSpace::Box
+    }
 }
 
 impl SceneNode {
@@ -46,6 +69,7 @@ impl SceneNode {
             field: field.to_string(),
             half_size: obb.half_size,
             world_from_local: obb.world_from_box(),
+            space: NodeSpace::Box,
         }
     }
     /// Where the box's corners are in the world (after scale, rotation, translation).
@@ -69,6 +93,13 @@ pub struct Scene {
     /// The selected (highlighted) node, if any.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub selected: Option<InstanceId>,
+    /// Near plane: what lies closer to a camera than this (world units) is not rendered.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub near: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 impl Scene {
@@ -118,6 +149,7 @@ mod tests {
             meters_per_unit: 1.0,
             background_color: [0.0; 3],
             selected: None,
+            near: 0.0,
         };
         assert_eq!(s.fresh_id(), 1);
     }

@@ -30,6 +30,7 @@ fn scene() -> Scene {
         meters_per_unit: 0.5,
         background_color: [0.0; 3],
         selected: None,
+        near: 0.0,
     }
 }
 

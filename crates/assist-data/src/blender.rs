@@ -68,5 +68,6 @@ pub fn load(dir: &Path) -> Result<Dataset> {
         split_source: "transforms_{train,val,test}.json".into(),
         bounds,
         normalization,
+        mask_folder: None,
     })
 }

@@ -259,6 +259,7 @@ pub fn load_dataset(model_dir: &Path, format: Format) -> Result<Dataset> {
         split_source: "every 8th image (sorted by name) held out for test".into(),
         bounds,
         normalization,
+        mask_folder: None,
     })
 }
 

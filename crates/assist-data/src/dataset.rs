@@ -83,6 +83,8 @@ pub struct Frame {
     pub alpha_is_mask: bool,
     /// Instance ids per pixel, 0 = background.
     pub instance_mask_path: Option<PathBuf>,
+    /// How the instance mask's values map to ids (a binary mask is one object).
+    pub mask_encoding: crate::masks::MaskEncoding,
     /// Z-depth PNG; raw value × `depth_scale` = depth in scene units.
     pub depth_path: Option<PathBuf>,
     pub depth_scale: f64,
@@ -92,6 +94,9 @@ pub struct Frame {
     /// User-supplied background depth prior (`inpaint_depth_path`, 16-bit PNG scaled by
     /// `depth_unit_scale_factor`, or float32 `.npy`), up to scale and shift.
     pub inpaint_depth_path: Option<PathBuf>,
+    /// The frame's files are this many times the camera's size (`--downscale` without
+    /// pre-reduced folders): readers reduce them ([`crate::downscale`]). 1 = as is.
+    pub pixel_factor: u32,
 }
 
 impl Frame {
@@ -106,10 +111,12 @@ impl Frame {
             mask_path: None,
             alpha_is_mask: false,
             instance_mask_path: None,
+            mask_encoding: crate::masks::MaskEncoding::Ids,
             depth_path: None,
             depth_scale: 1.0,
             inpaint_path: None,
             inpaint_depth_path: None,
+            pixel_factor: 1,
         }
     }
 }
@@ -168,6 +175,8 @@ pub struct Dataset {
     pub split_declared: bool,
     pub bounds: SceneBounds,
     pub normalization: Normalization,
+    /// Instance masks found in a `masks/` folder beside the images ([`crate::masks`]).
+    pub mask_folder: Option<crate::masks::MaskFolder>,
 }
 
 /// Options for loading.
@@ -177,6 +186,9 @@ pub struct LoadOptions {
     pub format: Option<Format>,
     /// LLFF downscale factor (`images_N`); default: the smallest available.
     pub llff_factor: Option<u32>,
+    /// Make every camera this many times smaller (see [`crate::downscale`]); 0 or 1 =
+    /// as the dataset is.
+    pub downscale: u32,
 }
 
 impl Dataset {
@@ -288,6 +300,8 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<Dataset> {
             message: "the dataset has no frames".into(),
         });
     }
+    ds.mask_folder = crate::masks::attach_mask_folder(&mut ds)?;
+    crate::downscale::apply(&mut ds, opts.downscale.max(1))?;
     Ok(ds)
 }
 

@@ -92,18 +92,67 @@ pub fn read_rgb(path: &Path, background: [f32; 3]) -> Result<(ImageF32, Option<V
     }
 }
 
-/// Reads an instance-id mask (8- or 16-bit grey PNG; 0 = background).
+/// Reads an instance-id mask (8- or 16-bit grey or palette PNG; 0 = background): the raw
+/// values are the ids.
 pub fn read_ids(path: &Path) -> Result<IdImage> {
+    read_mask_values(path)
+}
+
+/// Reads an instance mask and maps its values to ids with `encoding`.
+pub fn read_instance_mask(path: &Path, encoding: crate::masks::MaskEncoding) -> Result<IdImage> {
+    let mut m = read_mask_values(path)?;
+    if encoding != crate::masks::MaskEncoding::Ids {
+        for v in &mut m.data {
+            *v = encoding.id(*v);
+        }
+    }
+    Ok(m)
+}
+
+/// The raw values of a mask: grey (8 or 16 bits, with or without alpha, or RGB whose
+/// pixels are grey), or a palette PNG's indices (what XMem, DEVA and DAVIS write).
+pub fn read_mask_values(path: &Path) -> Result<IdImage> {
+    if let Some(m) = read_palette_indices(path)? {
+        return Ok(m);
+    }
     let img = decode(path)?;
     let (w, h) = (img.width(), img.height());
-    let data = match img {
+    let not_grey = |what: &str| DataError::Image {
+        path: path.to_path_buf(),
+        message: format!(
+            "a {what} mask with coloured pixels: expected grey values (instance ids, or 0/255 for one object) or a palette PNG whose indices are the ids"
+        ),
+    };
+    let data: Vec<u16> = match img {
         image::DynamicImage::ImageLuma8(g) => g.into_raw().into_iter().map(u16::from).collect(),
         image::DynamicImage::ImageLuma16(g) => g.into_raw(),
+        image::DynamicImage::ImageLumaA8(g) => g.pixels().map(|p| u16::from(p.0[0])).collect(),
+        image::DynamicImage::ImageLumaA16(g) => g.pixels().map(|p| p.0[0]).collect(),
+        image::DynamicImage::ImageRgb8(g) => g
+            .pixels()
+            .map(|p| (p.0[0] == p.0[1] && p.0[1] == p.0[2]).then_some(u16::from(p.0[0])))
+            .collect::<Option<_>>()
+            .ok_or_else(|| not_grey("RGB"))?,
+        image::DynamicImage::ImageRgba8(g) => g
+            .pixels()
+            .map(|p| (p.0[0] == p.0[1] && p.0[1] == p.0[2]).then_some(u16::from(p.0[0])))
+            .collect::<Option<_>>()
+            .ok_or_else(|| not_grey("RGBA"))?,
+        image::DynamicImage::ImageRgb16(g) => g
+            .pixels()
+            .map(|p| (p.0[0] == p.0[1] && p.0[1] == p.0[2]).then_some(p.0[0]))
+            .collect::<Option<_>>()
+            .ok_or_else(|| not_grey("RGB"))?,
+        image::DynamicImage::ImageRgba16(g) => g
+            .pixels()
+            .map(|p| (p.0[0] == p.0[1] && p.0[1] == p.0[2]).then_some(p.0[0]))
+            .collect::<Option<_>>()
+            .ok_or_else(|| not_grey("RGBA"))?,
         other => {
             return Err(DataError::Image {
                 path: path.to_path_buf(),
                 message: format!(
-                    "expected an 8- or 16-bit single-channel id mask, got {:?}",
+                    "expected an 8- or 16-bit grey or palette mask, got {:?}",
                     other.color()
                 ),
             });
@@ -114,6 +163,51 @@ pub fn read_ids(path: &Path) -> Result<IdImage> {
         height: h,
         data,
     })
+}
+
+/// A palette PNG's indices (not its colours); `None` for any other file.
+fn read_palette_indices(path: &Path) -> Result<Option<IdImage>> {
+    let is_png = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    if !is_png {
+        return Ok(None);
+    }
+    let file = std::fs::File::open(path).map_err(|e| DataError::io(path, e))?;
+    let bad = |e: png::DecodingError| DataError::Image {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    };
+    let mut dec = png::Decoder::new(std::io::BufReader::new(file));
+    dec.set_transformations(png::Transformations::IDENTITY);
+    let mut reader = dec.read_info().map_err(bad)?;
+    if reader.info().color_type != png::ColorType::Indexed {
+        return Ok(None);
+    }
+    let size = reader
+        .output_buffer_size()
+        .ok_or_else(|| DataError::Image {
+            path: path.to_path_buf(),
+            message: "image too large".into(),
+        })?;
+    let mut buf = vec![0u8; size];
+    let info = reader.next_frame(&mut buf).map_err(bad)?;
+    let bits = info.bit_depth as usize;
+    let (w, h) = (info.width as usize, info.height as usize);
+    let mut data = Vec::with_capacity(w * h);
+    for row in buf.chunks(info.line_size).take(h) {
+        for x in 0..w {
+            let bit = x * bits;
+            let byte = row[bit / 8];
+            let shift = 8 - bits - (bit % 8);
+            data.push(u16::from((byte >> shift) & ((1u16 << bits) - 1) as u8));
+        }
+    }
+    Ok(Some(IdImage {
+        width: info.width,
+        height: info.height,
+        data,
+    }))
 }
 
 /// Reads a 16-bit depth PNG; values times `scale` (0 stays 0 = no depth).

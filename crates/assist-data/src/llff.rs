@@ -173,5 +173,6 @@ pub fn load(dir: &Path, factor: Option<u32>) -> Result<Dataset> {
         ),
         bounds,
         normalization,
+        mask_folder: None,
     })
 }

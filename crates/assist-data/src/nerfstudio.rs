@@ -285,5 +285,6 @@ pub fn load(file: &Path) -> Result<Dataset> {
         split_declared,
         bounds,
         normalization,
+        mask_folder: None,
     })
 }

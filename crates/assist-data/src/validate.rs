@@ -4,7 +4,7 @@ use rayon::prelude::*;
 
 use crate::dataset::Dataset;
 use crate::error::DataError;
-use crate::image_io::{decoded_size, read_ids};
+use crate::image_io::{decoded_size, read_instance_mask};
 
 /// What validation found.
 #[derive(Debug, Default)]
@@ -47,19 +47,22 @@ pub fn validate(ds: &Dataset) -> Report {
         .enumerate()
         .map(|(i, f)| {
             let (w, h) = (f.camera.width(), f.camera.height());
+            // Files reduced on reading (`--downscale`) are `pixel_factor` times larger.
+            let k = f.pixel_factor.max(1);
+            let fits = |gw: u32, gh: u32| (gw / k, gh / k) == (w, h);
             let mut errs = Vec::new();
             let mut ids = Vec::new();
             let mut n = 0;
             let mut check = |path: &std::path::Path, field: &str, errs: &mut Vec<DataError>| {
                 n += 1;
                 match decoded_size(path) {
-                    Ok((gw, gh)) if (gw, gh) != (w, h) => errs.push(DataError::ImageSize {
+                    Ok((gw, gh)) if !fits(gw, gh) => errs.push(DataError::ImageSize {
                         path: path.into(),
                         field: format!("frames[{i}].{field}"),
                         got_w: gw,
                         got_h: gh,
-                        want_w: w,
-                        want_h: h,
+                        want_w: w * k,
+                        want_h: h * k,
                     }),
                     Ok(_) => {}
                     Err(e) => errs.push(with_field(e, i, field)),
@@ -74,14 +77,14 @@ pub fn validate(ds: &Dataset) -> Report {
             }
             if let Some(p) = &f.instance_mask_path {
                 n += 1;
-                match read_ids(p) {
-                    Ok(m) if (m.width, m.height) != (w, h) => errs.push(DataError::ImageSize {
+                match read_instance_mask(p, f.mask_encoding) {
+                    Ok(m) if !fits(m.width, m.height) => errs.push(DataError::ImageSize {
                         path: p.clone(),
                         field: format!("frames[{i}].instance_mask_path"),
                         got_w: m.width,
                         got_h: m.height,
-                        want_w: w,
-                        want_h: h,
+                        want_w: w * k,
+                        want_h: h * k,
                     }),
                     Ok(m) => {
                         let mut seen = [false; 65536];

@@ -12,6 +12,7 @@
 
 pub mod adam;
 pub mod config;
+pub mod contraction;
 pub mod error;
 pub mod field;
 pub mod hashgrid;

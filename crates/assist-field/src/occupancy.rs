@@ -17,6 +17,11 @@ pub struct OccupancyGrid {
     /// A cell is occupied when its density exceeds `min(threshold, mean density)`.
     pub threshold: f32,
     pub decay: f32,
+    /// Per cell, how many smallest steps one marching step through it spans (empty = 1
+    /// everywhere): its density is weighted by this before the threshold, so a cell is
+    /// occupied when one step through it is opaque enough, however long its steps are
+    /// (the outer shell of a contracted node). Derived from the node, not saved.
+    pub step_factor: Vec<f32>,
 }
 
 /// One sample of a marched ray: distance along the (unit) direction and interval length.
@@ -36,7 +41,22 @@ impl OccupancyGrid {
             bits: vec![u64::MAX; n.div_ceil(64)],
             threshold: 0.01,
             decay: 0.95,
+            step_factor: Vec::new(),
         }
+    }
+
+    /// Sets [`step_factor`](Self::step_factor) from a function of the cell centre (in
+    /// [0, 1]³) and refreshes the bits.
+    pub fn set_step_factor(&mut self, f: impl Fn([f32; 3]) -> f32 + Sync) {
+        let r = self.res as usize;
+        self.step_factor = (0..self.cells())
+            .into_par_iter()
+            .map(|c| {
+                let idx = [c % r, (c / r) % r, c / (r * r)];
+                f(idx.map(|i| (i as f32 + 0.5) / r as f32))
+            })
+            .collect();
+        self.refresh_bits();
     }
 
     pub fn cells(&self) -> usize {
@@ -174,19 +194,30 @@ impl OccupancyGrid {
 
     /// Recomputes the bitfield from the density estimate.
     pub fn refresh_bits(&mut self) {
+        let weighted = !self.step_factor.is_empty();
+        let factor = |c: usize| {
+            if weighted { self.step_factor[c] } else { 1.0 }
+        };
         let sum: f64 = self
             .density
             .par_chunks(1 << 16)
-            .map(|c| c.iter().map(|&d| d as f64).sum::<f64>())
+            .enumerate()
+            .map(|(k, c)| {
+                c.iter()
+                    .enumerate()
+                    .map(|(i, &d)| (d * factor(k * (1 << 16) + i)) as f64)
+                    .sum::<f64>()
+            })
             .sum();
         let thr = self.threshold.min((sum / self.density.len() as f64) as f32);
         self.bits
             .par_iter_mut()
             .zip(self.density.par_chunks(64))
-            .for_each(|(w, chunk)| {
+            .enumerate()
+            .for_each(|(k, (w, chunk))| {
                 let mut word = 0u64;
                 for (i, &d) in chunk.iter().enumerate() {
-                    if d > thr {
+                    if d * factor(k * 64 + i) > thr {
                         word |= 1 << i;
                     }
                 }
@@ -291,6 +322,77 @@ impl OccupancyGrid {
             }
         }
     }
+}
+
+impl OccupancyGrid {
+    /// Marching through a contracted node ([`crate::contraction`]): `o` and `d` are the
+    /// ray's origin and direction in box units (the box is [−1, 1]³; `d` per unit of `t`).
+    /// Steps are `max(min_dt, cone · t)` inside the box and grow with the square of the
+    /// box radius outside it, advancing about `dc` in contracted space each; the grid is
+    /// over the contracted space. Empty cells are skipped by jumping to where the ray
+    /// leaves them inside the box (where the map is linear) and step by step beyond it.
+    pub fn march_contracted(
+        &self,
+        o: [f32; 3],
+        d: [f32; 3],
+        t0: f32,
+        t1: f32,
+        min_dt: f32,
+        cone: f32,
+        dc: f32,
+        jitter: f32,
+        max: usize,
+        out: &mut Vec<Step>,
+    ) {
+        use crate::contraction::{contract_to_unit, outer_step};
+        let start = out.len();
+        let speed = d[0].abs().max(d[1].abs()).max(d[2].abs()).max(1e-12);
+        let step = |t: f32, r: f32| (cone * t).max(min_dt).max(outer_step(r, dc) / speed);
+        let at = |t: f32| [o[0] + d[0] * t, o[1] + d[1] * t, o[2] + d[2] * t];
+        let radius = |u: [f32; 3]| u[0].abs().max(u[1].abs()).max(u[2].abs());
+        let mut t = t0 + jitter * step(t0, radius(at(t0))).min(t1 - t0);
+        // Contracted-space direction inside the box (the map is u ↦ (u + 2) / 4 there).
+        let dp = d.map(|v| v * 0.25);
+        while t < t1 && out.len() - start < max {
+            let u = at(t);
+            let r = radius(u);
+            // The last step of the shell reaches the end of the march.
+            let dt = step(t, r).min(t1 - t);
+            let p = contract_to_unit(u);
+            match self.cell_of(p) {
+                Some(c) if !self.is_occupied_cell(c) => {
+                    if r < 1.0 {
+                        // Leave the cell (or the box, where the map stops being linear).
+                        let t_cell = self.cell_exit(p, dp, t);
+                        let t_box = box_exit(u, d, t);
+                        let n = ((t_cell.min(t_box) - t) / dt).ceil().max(1.0);
+                        t += n * dt;
+                    } else {
+                        t += dt;
+                    }
+                }
+                Some(_) => {
+                    out.push(Step { t, dt });
+                    t += dt;
+                }
+                None => t += dt,
+            }
+        }
+    }
+}
+
+/// Where the ray `u + s·d` (at parameter `t`) leaves the box [−1, 1]³.
+#[inline]
+fn box_exit(u: [f32; 3], d: [f32; 3], t: f32) -> f32 {
+    let mut t_exit = f32::INFINITY;
+    for a in 0..3 {
+        if d[a] > 0.0 {
+            t_exit = t_exit.min(t + (1.0 - u[a]) / d[a]);
+        } else if d[a] < 0.0 {
+            t_exit = t_exit.min(t + (-1.0 - u[a]) / d[a]);
+        }
+    }
+    t_exit
 }
 
 #[cfg(test)]

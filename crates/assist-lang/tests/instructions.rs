@@ -39,6 +39,7 @@ fn scene() -> Scene {
         meters_per_unit: 1.0,
         background_color: [0.0; 3],
         selected: None,
+        near: 0.0,
     }
 }
 

@@ -128,6 +128,7 @@ impl Editor {
                     &im.source_field,
                     &format!("action {}: node {} field", i + 1, im.source_id),
                     im.node.half_size,
+                    im.node.space,
                 )?;
                 new_fields.push((im.node.field.clone(), Arc::new(nf)));
             }

@@ -14,6 +14,7 @@ pub mod batch;
 pub mod composite;
 pub mod edit;
 pub mod node;
+pub mod prune;
 pub mod render;
 pub mod sample;
 pub mod scene_file;
@@ -22,6 +23,7 @@ pub use batch::{BatchOutput, CompositeGrad, GradFn, RayOutputs, composite_batch}
 pub use composite::{Composite, RaySample, composite, composite_backward};
 pub use edit::{EditError, Editor, SceneFiles};
 pub use node::{NeuralScene, NodeField};
+pub use prune::{PRUNE_EPS, PruneScratch, prune_occluded};
 pub use render::{HIGHLIGHT, NodeLayer, RenderOptions, RenderedImage, render_camera, render_rays};
 pub use sample::{NodeSamples, RayBatch, SampleOptions, Traced, sample_rays};
 pub use scene_file::SceneFileError;

@@ -4,7 +4,7 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use assist_core::{DVec3, Scene};
+use assist_core::{DVec3, NodeSpace, Scene};
 use assist_field::{Field, OccupancyGrid};
 
 /// Default step growth with distance (instant-NGP's cone angle for large scenes).
@@ -25,22 +25,51 @@ pub struct NodeField {
     pub unit: f32,
     /// Step growth with distance from the camera (`dt = max(step, cone · t)`); 0 = fixed.
     pub cone: f32,
+    /// The box alone, or the box plus contracted space beyond it.
+    pub space: NodeSpace,
+    /// Contracted nodes: the step beyond the box, in contracted units (half an occupancy
+    /// cell).
+    pub contracted_step: f32,
 }
 
 impl NodeField {
     /// A field for a box with half extents `half_size`: marching step from the diagonal,
     /// occupancy threshold such that a skipped cell has opacity below 1% per smallest step.
     pub fn new(field: Field, occupancy: OccupancyGrid, half_size: DVec3) -> Self {
+        Self::with_space(field, occupancy, half_size, NodeSpace::Box)
+    }
+
+    /// A field over `space` (for a contracted node, `half_size` is the inner box). The
+    /// occupancy grid of a contracted node weighs each cell by how long its steps are.
+    pub fn with_space(
+        field: Field,
+        occupancy: OccupancyGrid,
+        half_size: DVec3,
+        space: NodeSpace,
+    ) -> Self {
         let diag = (half_size * 2.0).length() as f32;
         let step = diag / STEPS_PER_DIAGONAL;
         let mut occupancy = occupancy;
         occupancy.threshold = 0.01 * STEPS_PER_DIAGONAL;
+        // Half an occupancy cell of the contracted space ([−2, 2], `res` cells).
+        let contracted_step = 2.0 / occupancy.res as f32;
+        match space {
+            NodeSpace::Box => occupancy.step_factor.clear(),
+            NodeSpace::Contracted => {
+                let h = half_size.min_element() as f32;
+                occupancy.set_step_factor(|p| {
+                    assist_field::contraction::cell_step_factor(p, h, step, contracted_step)
+                });
+            }
+        }
         NodeField {
             field,
             occupancy,
             step,
             unit: diag,
             cone: DEFAULT_CONE,
+            space,
+            contracted_step,
         }
     }
 }

@@ -20,6 +20,9 @@ pub struct RenderOptions {
     pub layers: bool,
     /// Arithmetic of the fields' MLP products (default: the fastest this CPU runs).
     pub precision: Precision,
+    /// Samples behind the point where their node's transmittance falls below this are
+    /// dropped after a density-only pass (0 = keep all; see [`crate::prune`]).
+    pub prune_eps: f32,
 }
 
 impl Default for RenderOptions {
@@ -30,6 +33,7 @@ impl Default for RenderOptions {
             rays_per_batch: 1 << 14,
             layers: false,
             precision: Precision::fastest(),
+            prune_eps: crate::prune::PRUNE_EPS,
         }
     }
 }
@@ -100,6 +104,7 @@ pub struct RenderScratch {
     pub traced: Traced,
     pub tapes: Vec<Tape>,
     pub out: BatchOutput,
+    pub prune: crate::prune::PruneScratch,
 }
 
 /// Renders a batch of rays (inference).
@@ -110,6 +115,9 @@ pub fn render_rays(scene: &NeuralScene, opts: &RenderOptions, sc: &mut RenderScr
         max_per_node: opts.max_per_node,
     };
     sample_rays(scene, &sc.rays, &so, &mut sc.traced);
+    if opts.prune_eps > 0.0 {
+        crate::prune::prune_occluded(scene, &mut sc.traced, opts.prune_eps, &mut sc.prune);
+    }
     query_fields(
         scene,
         &mut sc.traced,
@@ -159,7 +167,7 @@ pub fn render_camera(
     };
     let forward = camera.pose.forward();
     let mut sc = RenderScratch::default();
-    sc.rays.near = 0.0;
+    sc.rays.near = scene.scene.near as f32;
     let mut cos = Vec::new();
     let mut pixels = Vec::new();
     let mut p = 0usize;

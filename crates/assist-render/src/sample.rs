@@ -4,7 +4,8 @@
 //! for one batched field query per node.
 
 use assist_core::geometry::intersect_local_box;
-use assist_core::{DVec3, Ray, Rng};
+use assist_core::{DVec3, NodeSpace, Ray, Rng, SceneNode};
+use assist_field::contraction::{FAR_RADIUS, contract_to_unit};
 use rayon::prelude::*;
 
 use crate::node::NeuralScene;
@@ -193,6 +194,10 @@ fn sample_node(
         origin: DVec3::from(rays.origin[r].map(f64::from)),
         dir: DVec3::from(rays.dir[r].map(f64::from)),
     };
+    if nf.space == NodeSpace::Contracted {
+        sample_contracted(node, nf, &ray, rays, r, k, opts, steps, out);
+        return;
+    }
     let Some(hit) = intersect_local_box(
         &ray,
         &node.world_from_local,
@@ -230,6 +235,75 @@ fn sample_node(
         for a in 0..3 {
             out.pos[a].push((o[a] + d[a] * s.t).clamp(0.0, 1.0));
             out.dir[a].push(d_unit[a]);
+        }
+        out.image.push(image);
+        out.t.push(s.t * inv_k);
+        out.dt.push(s.dt * inv_unit);
+    }
+}
+
+/// Samples a contracted node: from the near plane to [`FAR_RADIUS`] box half-sizes, the
+/// box linearly and beyond it in contracted space.
+fn sample_contracted(
+    node: &SceneNode,
+    nf: &crate::node::NodeField,
+    ray: &Ray,
+    rays: &RayBatch,
+    r: usize,
+    k: usize,
+    opts: &SampleOptions,
+    steps: &mut Vec<assist_field::occupancy::Step>,
+    out: &mut NodeSamples,
+) {
+    let o_local = node.world_from_local.local_from_world_point(ray.origin);
+    let d_world_local = node.world_from_local.local_from_world_vector(ray.dir);
+    let local_per_world = d_world_local.length();
+    if local_per_world <= 0.0 || !local_per_world.is_finite() {
+        return;
+    }
+    let d_unit = d_world_local / local_per_world;
+    let half = node.half_size;
+    let o = (o_local / half).as_vec3().to_array();
+    let d = (d_unit / half).as_vec3().to_array();
+    // Where the ray leaves the box grown FAR_RADIUS times (a ray starting outside it is
+    // in the far shell already: nothing to sample).
+    let Some((t_in, t_out)) = assist_core::Aabb::from_half_size(half * FAR_RADIUS as f64)
+        .intersect(
+            o_local,
+            d_unit,
+            rays.near as f64 * local_per_world,
+            f64::INFINITY,
+        )
+    else {
+        return;
+    };
+    let jitter = if opts.jitter {
+        Rng::stream(opts.seed, (r * 1024 + k) as u64).f32()
+    } else {
+        0.5
+    };
+    steps.clear();
+    nf.occupancy.march_contracted(
+        o,
+        d,
+        t_in as f32,
+        t_out as f32,
+        nf.step,
+        nf.cone,
+        nf.contracted_step,
+        jitter,
+        opts.max_per_node,
+        steps,
+    );
+    let inv_k = (1.0 / local_per_world) as f32;
+    let inv_unit = 1.0 / nf.unit;
+    let dir = d_unit.as_vec3().to_array();
+    let image = rays.image[r];
+    for s in steps.iter() {
+        let p = contract_to_unit([0, 1, 2].map(|a| o[a] + d[a] * s.t));
+        for a in 0..3 {
+            out.pos[a].push(p[a]);
+            out.dir[a].push(dir[a]);
         }
         out.image.push(image);
         out.t.push(s.t * inv_k);

@@ -237,7 +237,7 @@ pub fn load_with_history(
         if fields.contains_key(&key) {
             continue;
         }
-        let half = scene
+        let (half, space) = scene
             .nodes
             .iter()
             .chain(
@@ -248,11 +248,11 @@ pub fn load_with_history(
                     .flat_map(|s| &s.nodes),
             )
             .find(|n| n.field == key)
-            .map(|n| n.half_size)
+            .map(|n| (n.half_size, n.space))
             .expect("key comes from a node");
         fields.insert(
             key.clone(),
-            Arc::new(load_field(&file, &dir, &key, &what, half)?),
+            Arc::new(load_field(&file, &dir, &key, &what, half, space)?),
         );
     }
     Ok((NeuralScene { scene, fields }, history, info))
@@ -265,6 +265,7 @@ pub fn load_field(
     key: &str,
     what: &str,
     half: assist_core::DVec3,
+    space: assist_core::NodeSpace,
 ) -> Result<NodeField, SceneFileError> {
     let fp = field_path(dir, key);
     if !fp.exists() {
@@ -276,7 +277,7 @@ pub fn load_field(
     }
     let (field, occ) = assist_field::io::load(&fp)?;
     let occ = occ.unwrap_or_else(|| assist_field::OccupancyGrid::new(64));
-    Ok(NodeField::new(field, occ, half))
+    Ok(NodeField::with_space(field, occ, half, space))
 }
 
 fn read_scene_json(file: &Path) -> Result<(Scene, serde_json::Value), SceneFileError> {

@@ -6,7 +6,7 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use assist_core::{Aabb, DVec3, InstanceId, Obb, Scene, SceneNode, Similarity3};
+use assist_core::{Aabb, DVec3, InstanceId, NodeSpace, Obb, Scene, SceneNode, Similarity3};
 use assist_data::boxes::BoxOverride;
 use assist_data::{Dataset, Format};
 use assist_field::{Field, FieldConfig, OccupancyGrid};
@@ -28,6 +28,47 @@ pub struct SetupOptions {
     /// Boxes given by the user (override the dataset's and the carved ones; no margin is
     /// added). Each must name an instance of the dataset.
     pub boxes: Vec<BoxOverride>,
+    /// The background node's space (auto: contracted unless the training views have
+    /// depth, which bounds the scene).
+    pub background_space: BackgroundSpace,
+}
+
+/// The space of the background node.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BackgroundSpace {
+    /// Contracted for captures without depth (real ones: the scene is unbounded), the
+    /// scene box for captures whose depth maps bound what is seen.
+    #[default]
+    Auto,
+    Box,
+    Contracted,
+}
+
+impl BackgroundSpace {
+    pub fn parse(s: &str) -> Option<Self> {
+        Some(match s {
+            "auto" => BackgroundSpace::Auto,
+            "box" => BackgroundSpace::Box,
+            "contracted" => BackgroundSpace::Contracted,
+            _ => return None,
+        })
+    }
+
+    /// The space `ds` gets with this choice.
+    pub fn resolve(self, views: &[View]) -> NodeSpace {
+        match self {
+            BackgroundSpace::Box => NodeSpace::Box,
+            BackgroundSpace::Contracted => NodeSpace::Contracted,
+            BackgroundSpace::Auto => {
+                if !views.is_empty() && views.iter().all(|v| v.depth.is_some()) {
+                    NodeSpace::Box
+                } else {
+                    NodeSpace::Contracted
+                }
+            }
+        }
+    }
 }
 
 impl Default for SetupOptions {
@@ -39,6 +80,7 @@ impl Default for SetupOptions {
             object_grid: 64,
             seed: 0,
             boxes: Vec::new(),
+            background_space: BackgroundSpace::Auto,
         }
     }
 }
@@ -69,9 +111,18 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
     let mut nodes = Vec::new();
     let mut fields = BTreeMap::new();
     let region = scene_region(ds, views);
+    let space = opts.background_space.resolve(views);
+    let mut near = 0.0;
     if !is_object_capture(ds) {
-        let c = region.center();
-        let half = region.size() * 0.5 * 1.05;
+        let inner = match space {
+            NodeSpace::Box => region,
+            NodeSpace::Contracted => {
+                near = near_plane(ds, views);
+                unbounded_inner_region(ds, views)
+            }
+        };
+        let c = inner.center();
+        let half = inner.size() * 0.5 * 1.05;
         let node = SceneNode {
             id: 0,
             label: "background".into(),
@@ -79,14 +130,16 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
             field: "background".into(),
             half_size: half,
             world_from_local: Similarity3::from_translation(c),
+            space,
         };
         let field = Field::new(app(FieldConfig::nerfacto(n_images)), opts.seed)?;
         fields.insert(
             "background".to_string(),
-            Arc::new(NodeField::new(
+            Arc::new(NodeField::with_space(
                 field,
                 OccupancyGrid::new(opts.background_grid),
                 half,
+                space,
             )),
         );
         nodes.push(node);
@@ -111,6 +164,7 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
         meters_per_unit: ds.meters_per_unit.unwrap_or(1.0),
         background_color: background_color(ds),
         selected: None,
+        near,
     };
     Ok(NeuralScene { scene, fields })
 }
@@ -142,6 +196,70 @@ pub fn scene_region(ds: &Dataset, views: &[View]) -> Aabb {
     match depth_bounds(views) {
         Some(b) => b.union(&Aabb::new(ds.bounds.min, ds.bounds.max)),
         None => Aabb::new(ds.bounds.min, ds.bounds.max),
+    }
+}
+
+/// The inner region of a contracted background (kept linearly; everything beyond it is
+/// contracted): the camera centres united with where most of the content is — the 5th to
+/// 95th percentile of the sparse points, else the views' frustums between the near bound
+/// and the geometric mean of the near and far bounds (LLFF), else a cube around the point
+/// the cameras look at reaching the median camera distance.
+pub fn unbounded_inner_region(ds: &Dataset, views: &[View]) -> Aabb {
+    let mut cams = Aabb::empty();
+    for v in views {
+        cams.extend(v.camera.pose.center());
+    }
+    let content = if ds.points.len() >= 20 {
+        assist_data::dataset::percentile_aabb(&ds.points, 50)
+    } else if let Some((near, far)) = ds.depth_range {
+        let mid = (near * far).sqrt();
+        let mut b = Aabb::empty();
+        for v in views {
+            let c = &v.camera;
+            let (w, h) = (c.width() as f64, c.height() as f64);
+            for (u, t) in [(0.0, 0.0), (w, 0.0), (0.0, h), (w, h), (w / 2.0, h / 2.0)] {
+                for z in [near, mid] {
+                    if let Some(p) = c.unproject(u, t, z) {
+                        b.extend(p);
+                    }
+                }
+            }
+        }
+        b
+    } else {
+        carve_region(views, &cams)
+    };
+    let mut b = cams.union(&content);
+    // A degenerate box (one camera, points on a plane) gets some thickness.
+    let s = b.size().max_element().max(1e-6);
+    let pad = (DVec3::splat(0.05 * s) - b.size() * 0.5).max(DVec3::ZERO);
+    b = Aabb::new(b.min - pad, b.max + pad);
+    b
+}
+
+/// Near plane for a capture without depth: half the distance to the closest content any
+/// view sees (the 1st percentile of the sparse points' depths in the views that see them,
+/// or the LLFF near bound); 0 when unknown. Keeps each view from painting its own haze
+/// right in front of its camera.
+pub fn near_plane(ds: &Dataset, views: &[View]) -> f64 {
+    let mut depths: Vec<f64> = views
+        .par_iter()
+        .flat_map_iter(|v| {
+            ds.points.iter().filter_map(move |&p| {
+                let (px, z) = v.camera.project(p)?;
+                let inside =
+                    px.x >= 0.0 && px.y >= 0.0 && px.x < v.width as f64 && px.y < v.height as f64;
+                (inside && z > 0.0).then_some(z)
+            })
+        })
+        .collect();
+    if depths.len() >= 100 {
+        depths.sort_by(f64::total_cmp);
+        return 0.5 * depths[depths.len() / 100];
+    }
+    match ds.depth_range {
+        Some((near, _)) if near > 0.0 => 0.5 * near,
+        _ => 0.0,
     }
 }
 

@@ -90,6 +90,12 @@ pub struct TrainOptions {
     /// rest are drawn uniformly over all pixels. 0.25 by measurement on desk (900 s: 32.42
     /// dB against 30.76 dB with 0.5, the same mIoU).
     pub object_ray_fraction: f64,
+    /// Samples behind the point where their node's transmittance falls below this are
+    /// dropped after a density-only pass, before the forward and backward passes (0 =
+    /// keep all; nerfacc's early stop, see `assist_render::prune`).
+    pub prune_eps: f32,
+    /// The dataset's `--downscale` (recorded in the scene for evaluation; 1 = none).
+    pub downscale: u32,
     /// Testing aid: poison one parameter with NaN at this iteration (exercises divergence
     /// detection).
     #[serde(skip)]
@@ -110,6 +116,8 @@ impl Default for TrainOptions {
             checkpoint: None,
             checkpoint_every: 60.0,
             object_ray_fraction: 0.25,
+            downscale: 1,
+            prune_eps: assist_render::PRUNE_EPS,
             poison_at: None,
         }
     }
@@ -138,8 +146,11 @@ pub struct StepStats {
     /// Seconds in each phase of this step: ray drawing + sampling, field forward,
     /// compositing and losses, field backward, Adam, occupancy-grid update.
     pub phase: [f64; 6],
-    /// Mean samples per ray of the first nodes (background first when present).
+    /// Mean samples per ray of the first nodes (background first when present), after
+    /// pruning.
     pub samples_per_ray: [f32; 4],
+    /// Samples marched before pruning.
+    pub candidates: usize,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -199,6 +210,7 @@ pub struct Trainer {
     background: Option<usize>,
     rays: RayBatch,
     traced: Traced,
+    prune: assist_render::PruneScratch,
     out: BatchOutput,
     targets: Vec<Target>,
     pixel_count: usize,
@@ -280,6 +292,7 @@ impl Trainer {
             background,
             rays: RayBatch::default(),
             traced: Traced::default(),
+            prune: assist_render::PruneScratch::default(),
             out: BatchOutput::default(),
             targets: Vec::new(),
             pixel_count,
@@ -363,7 +376,7 @@ impl Trainer {
             })
             .collect();
         self.rays.clear();
-        self.rays.near = 0.0;
+        self.rays.near = self.scene.scene.near as f32;
         self.targets.clear();
         for (ray, img, t) in drawn.into_iter().flatten() {
             self.rays.push(&ray, img);
@@ -384,6 +397,15 @@ impl Trainer {
             max_per_node: 1024,
         };
         sample_rays(&self.scene, &self.rays, &so, &mut self.traced);
+        let candidates = self.traced.total_samples();
+        if self.opts.prune_eps > 0.0 {
+            assist_render::prune_occluded(
+                &self.scene,
+                &mut self.traced,
+                self.opts.prune_eps,
+                &mut self.prune,
+            );
+        }
         let nn = self.traced.nodes.len();
         phase[0] = tp.elapsed().as_secs_f64();
         self.tapes.resize_with(nn, Tape::default);
@@ -461,6 +483,7 @@ impl Trainer {
             iteration: self.iteration,
             rays: self.targets.len(),
             samples: self.traced.total_samples(),
+            candidates,
             lr,
             elapsed,
             progress,
@@ -578,7 +601,9 @@ impl Trainer {
             s.samples_per_ray[k] = ns.len() as f32 / s.rays.max(1) as f32;
         }
         // Adapt the ray count towards the target sample count.
-        let per_ray = s.samples as f64 / s.rays.max(1) as f64;
+        // A marched sample costs about a quarter of a kept one (density only, no tape).
+        let per_ray =
+            (s.samples as f64 + 0.25 * (candidates - s.samples) as f64) / s.rays.max(1) as f64;
         let want = (self.opts.batch_samples as f64 / per_ray.max(1.0)) as usize;
         self.rays_per_batch = ((self.rays_per_batch + want) / 2).clamp(256, 1 << 16);
         Ok(s)

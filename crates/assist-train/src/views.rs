@@ -3,7 +3,7 @@
 //! inpainted colour/depth, or the built-in fill).
 
 use assist_core::Camera;
-use assist_data::image_io::{read_depth_png, read_ids, read_rgb};
+use assist_data::image_io::{read_depth_png, read_instance_mask, read_rgb};
 use assist_data::{Dataset, Frame, Split};
 use rayon::prelude::*;
 
@@ -52,83 +52,101 @@ pub struct View {
 /// Pixels covered by objects, dilated by this many pixels, are filled by the prior.
 pub const PRIOR_DILATION: usize = 3;
 
-/// Loads one frame: colour over `background`, ids, depth.
+/// Loads one frame: colour over `background`, ids, depth. Files `pixel_factor` times
+/// larger than the camera (`--downscale`) are reduced: colour by block means, ids and
+/// depth by block centres.
 pub fn load_view(frame: &Frame, image_index: u32, background: [f32; 3]) -> Result<View> {
-    let (img, alpha) = read_rgb(&frame.image_path, background)?;
-    let (w, h) = (img.width as usize, img.height as usize);
-    if (w as u32, h as u32) != (frame.camera.width(), frame.camera.height()) {
-        return Err(TrainError::Input {
-            path: frame.image_path.clone(),
-            message: format!(
-                "image is {w}×{h} but its camera says {}×{}",
-                frame.camera.width(),
-                frame.camera.height()
-            ),
-        });
-    }
-    let ids = if let Some(p) = &frame.instance_mask_path {
-        let m = read_ids(p)?;
-        if (m.width as usize, m.height as usize) != (w, h) {
-            return Err(TrainError::Input {
-                path: p.clone(),
-                message: format!(
-                    "instance mask is {}×{} but its image {} is {w}×{h}",
-                    m.width,
-                    m.height,
-                    frame.image_path.display()
-                ),
-            });
+    use assist_data::downscale::{reduce_mean, reduce_pick};
+    let k = frame.pixel_factor.max(1) as usize;
+    let (w, h) = (
+        frame.camera.width() as usize,
+        frame.camera.height() as usize,
+    );
+    let check = |path: &std::path::Path, what: &str, gw: u32, gh: u32| -> Result<()> {
+        if (gw as usize / k, gh as usize / k) == (w, h) {
+            return Ok(());
         }
-        Some(m.data)
+        let want = if k == 1 {
+            format!("{w}×{h}")
+        } else {
+            format!("{}×{} (the camera's {w}×{h}, {k} times)", w * k, h * k)
+        };
+        Err(TrainError::Input {
+            path: path.to_path_buf(),
+            message: format!("{what} is {gw}×{gh}, expected {want}"),
+        })
+    };
+    let colour = |data: Vec<f32>, gw: u32, gh: u32, ch: usize| {
+        if k == 1 {
+            data
+        } else {
+            reduce_mean(&data, gw as usize, gh as usize, ch, k)
+        }
+    };
+    let (img, alpha) = read_rgb(&frame.image_path, background)?;
+    check(&frame.image_path, "image", img.width, img.height)?;
+    let (iw, ih) = (img.width, img.height);
+    let rgb = colour(img.data, iw, ih, 3);
+    let alpha = alpha.map(|a| colour(a, iw, ih, 1));
+    let ids = if let Some(p) = &frame.instance_mask_path {
+        let m = read_instance_mask(p, frame.mask_encoding)?;
+        check(p, "instance mask", m.width, m.height)?;
+        Some(if k == 1 {
+            m.data
+        } else {
+            reduce_pick(&m.data, m.width as usize, m.height as usize, k)
+        })
     } else if frame.alpha_is_mask {
         alpha.map(|a| a.iter().map(|&v| u16::from(v > 0.5)).collect())
     } else {
         None
     };
+    let depth_map = |d: Vec<f32>, gw: u32, gh: u32| {
+        if k == 1 {
+            d
+        } else {
+            reduce_pick(&d, gw as usize, gh as usize, k)
+        }
+    };
     let depth = match &frame.depth_path {
         Some(p) => {
             let d = read_depth_png(p, frame.depth_scale)?;
-            if (d.width as usize, d.height as usize) != (w, h) {
-                return Err(TrainError::Input {
-                    path: p.clone(),
-                    message: format!("depth is {}×{} but the image is {w}×{h}", d.width, d.height),
-                });
-            }
-            Some(d.data)
+            check(p, "depth", d.width, d.height)?;
+            Some(depth_map(d.data, d.width, d.height))
         }
         None => None,
     };
     let inpaint = match &frame.inpaint_path {
         Some(p) => {
             let (im, _) = read_rgb(p, background)?;
-            if (im.width as usize, im.height as usize) != (w, h) {
-                return Err(TrainError::Input {
-                    path: p.clone(),
-                    message: format!(
-                        "inpainted image is {}×{}, expected {w}×{h}",
-                        im.width, im.height
-                    ),
-                });
-            }
-            Some(im.data)
+            check(p, "inpainted image", im.width, im.height)?;
+            Some(colour(im.data, im.width, im.height, 3))
         }
         None => None,
     };
     let inpaint_depth = match &frame.inpaint_depth_path {
         Some(p) => {
-            let d = if p.extension().is_some_and(|e| e == "npy") {
+            let (d, gw, gh) = if p.extension().is_some_and(|e| e == "npy") {
                 let a = assist_data::npy::read_npy(p)?;
-                a.data.iter().map(|&v| v as f32).collect::<Vec<f32>>()
+                let shape = a.shape.clone();
+                let d: Vec<f32> = a.data.iter().map(|&v| v as f32).collect();
+                match shape.as_slice() {
+                    [gh, gw] | [gh, gw, 1] => (d, *gw as u32, *gh as u32),
+                    _ => {
+                        return Err(TrainError::Input {
+                            path: p.clone(),
+                            message: format!(
+                                "inpainted depth has shape {shape:?}, expected (height, width)"
+                            ),
+                        });
+                    }
+                }
             } else {
-                read_depth_png(p, frame.depth_scale)?.data
+                let d = read_depth_png(p, frame.depth_scale)?;
+                (d.data, d.width, d.height)
             };
-            if d.len() != w * h {
-                return Err(TrainError::Input {
-                    path: p.clone(),
-                    message: format!("inpainted depth has {} values, expected {w}×{h}", d.len()),
-                });
-            }
-            Some(d)
+            check(p, "inpainted depth", gw, gh)?;
+            Some(depth_map(d, gw, gh))
         }
         None => None,
     };
@@ -138,7 +156,7 @@ pub fn load_view(frame: &Frame, image_index: u32, background: [f32; 3]) -> Resul
         image_index,
         width: w,
         height: h,
-        rgb: img.data,
+        rgb,
         ids,
         depth,
         inpaint,

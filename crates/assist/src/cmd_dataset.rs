@@ -44,6 +44,9 @@ pub struct InfoArgs {
     /// LLFF downscale factor (images_N); default: the smallest available.
     #[arg(long)]
     pub llff_factor: Option<u32>,
+    /// Make every image N times smaller (from images_N/ folders where they exist).
+    #[arg(long, default_value_t = 1)]
+    pub downscale: u32,
     /// Skip decoding every file (only parse the dataset description).
     #[arg(long)]
     pub no_validate: bool,
@@ -115,7 +118,11 @@ fn boxes(a: BoxesArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-pub fn load_options(format: Option<&str>, llff_factor: Option<u32>) -> anyhow::Result<LoadOptions> {
+pub fn load_options(
+    format: Option<&str>,
+    llff_factor: Option<u32>,
+    downscale: u32,
+) -> anyhow::Result<LoadOptions> {
     let format = match format {
         Some(f) => Some(Format::parse(f).with_context(|| {
             format!("--format {f}: expected nerfstudio, blender, colmap, colmap-text or llff")
@@ -125,11 +132,12 @@ pub fn load_options(format: Option<&str>, llff_factor: Option<u32>) -> anyhow::R
     Ok(LoadOptions {
         format,
         llff_factor,
+        downscale,
     })
 }
 
 fn info(a: InfoArgs) -> anyhow::Result<()> {
-    let opts = load_options(a.format.as_deref(), a.llff_factor)?;
+    let opts = load_options(a.format.as_deref(), a.llff_factor, a.downscale)?;
     let ds = assist_data::load(&a.path, &opts)?;
     let report = if a.no_validate {
         None
@@ -212,6 +220,7 @@ pub fn describe(ds: &Dataset) -> Value {
         "has_masks": ds.frames.iter().any(|f| f.mask_path.is_some() || f.alpha_is_mask),
         "has_instance_masks": ds.frames.iter().any(|f| f.instance_mask_path.is_some()),
         "has_depth": ds.frames.iter().any(|f| f.depth_path.is_some()),
+        "mask_folder": ds.mask_folder,
         "instances": ds.instances.iter().map(|inst| json!({
             "id": inst.id,
             "label": inst.label,
@@ -285,6 +294,20 @@ fn print_text(ds: &Dataset, v: &Value) {
             extras.join(", ")
         }
     );
+    if let Some(m) = &ds.mask_folder {
+        let kind = match m.encoding {
+            assist_data::masks::MaskEncoding::Ids => "instance-valued".to_string(),
+            assist_data::masks::MaskEncoding::Binary { threshold } => {
+                format!("binary, one object where the value is at least {threshold}")
+            }
+        };
+        println!(
+            "masks     {} files in {} ({kind}); instance ids {:?}",
+            m.files,
+            m.folder.display(),
+            m.ids
+        );
+    }
     println!("instances {}", ds.instances.len());
     for inst in &ds.instances {
         match inst.bbox {

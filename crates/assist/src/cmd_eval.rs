@@ -19,8 +19,20 @@ pub struct EvalArgs {
     /// Evaluate every N-th frame of the split.
     #[arg(long, default_value_t = 1)]
     pub stride: usize,
+    /// Evaluate with the images N times smaller (default: as the scene was trained).
+    #[arg(long)]
+    pub downscale: Option<u32>,
     #[arg(long)]
     pub json: bool,
+}
+
+/// The `--downscale` a scene was trained with (1 when it does not say).
+pub(crate) fn trained_downscale(info: &serde_json::Value) -> u32 {
+    info.pointer("/options/downscale")
+        .and_then(|v| v.as_u64())
+        .map_or(1, |v| {
+            v.clamp(1, assist_data::downscale::MAX_DOWNSCALE as u64) as u32
+        })
 }
 
 /// `--split`: a split name, or `all` (`None`).
@@ -35,9 +47,14 @@ pub(crate) fn parse_split(s: &str) -> anyhow::Result<Option<Split>> {
 
 pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     let split = parse_split(&a.split)?;
-    let (scene, _) = assist_render::scene_file::load(&a.scene)
+    let (scene, info) = assist_render::scene_file::load(&a.scene)
         .with_context(|| format!("loading scene {}", a.scene.display()))?;
-    let ds = assist_data::load(&a.data, &LoadOptions::default())
+    let downscale = a.downscale.unwrap_or_else(|| trained_downscale(&info));
+    let opts = LoadOptions {
+        downscale,
+        ..Default::default()
+    };
+    let ds = assist_data::load(&a.data, &opts)
         .with_context(|| format!("loading dataset {}", a.data.display()))?;
     let bar = crate::progress::bar(!a.json && std::io::stderr().is_terminal(), "eval");
     let r =

@@ -31,6 +31,9 @@ pub struct RenderArgs {
     /// frame, e.g. for a bare transforms.json of cameras).
     #[arg(long, default_value = "auto")]
     pub split: String,
+    /// With a dataset as --cameras: render its cameras N times smaller.
+    #[arg(long, default_value_t = 1)]
+    pub downscale: u32,
     /// Comma-separated: rgb, depth, panoptic, semantic, objects, background.
     #[arg(long, default_value = "rgb,depth,panoptic")]
     pub outputs: String,
@@ -193,7 +196,11 @@ fn views(a: &RenderArgs, scene: &Scene) -> anyhow::Result<Vec<View>> {
         return orbit(scene, a.frames, w, h, a.fov, a.elevation, a.radius);
     }
     let path = Path::new(&a.cameras);
-    let ds = assist_data::load(path, &LoadOptions::default())
+    let opts = LoadOptions {
+        downscale: a.downscale,
+        ..Default::default()
+    };
+    let ds = assist_data::load(path, &opts)
         .with_context(|| format!("--cameras: loading {}", path.display()))?;
     let all = a.split == "all" || (a.split == "auto" && !ds.split_declared);
     let frames: Vec<_> = if all {

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 use assist_data::{LoadOptions, Split};
-use assist_train::setup::{SetupOptions, background_color, build_scene};
+use assist_train::setup::{BackgroundSpace, SetupOptions, background_color, build_scene};
 use assist_train::trainer::Lambdas;
 use assist_train::views::{fill_prior, load_views};
 use assist_train::{PriorKind, TrainOptions, Trainer};
@@ -25,6 +25,10 @@ pub struct TrainArgs {
     /// Stop after this many seconds (the learning-rate schedule then runs on time).
     #[arg(long)]
     pub max_time: Option<f64>,
+    /// Train on images N times smaller (from images_N/ folders beside the images where
+    /// they exist, else reduced on loading); `eval` then defaults to the same.
+    #[arg(long, default_value_t = 1)]
+    pub downscale: u32,
     /// Samples per training step (the ray count adapts).
     #[arg(long, default_value_t = 1 << 16)]
     pub batch_samples: usize,
@@ -57,6 +61,11 @@ pub struct TrainArgs {
     /// Per-image appearance embeddings: on, off or auto (on for real captures: COLMAP, LLFF).
     #[arg(long, default_value = "auto")]
     pub appearance: String,
+    /// The background node's space: contracted (a box kept linearly, all space beyond it
+    /// contracted into a shell, for unbounded real captures), box, or auto (contracted
+    /// unless the training views have depth maps, which bound the scene).
+    #[arg(long, default_value = "auto")]
+    pub background: String,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Seconds between checkpoints (written atomically to --out).
@@ -88,6 +97,12 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
             a.object_rays
         );
     }
+    let background_space = BackgroundSpace::parse(&a.background).with_context(|| {
+        format!(
+            "--background: expected auto, box or contracted, got {:?}",
+            a.background
+        )
+    })?;
     let prior = PriorKind::parse(&a.prior).with_context(|| {
         format!(
             "--prior: expected exemplar, push-pull or none, got {:?}",
@@ -101,7 +116,11 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
         Some(p) => assist_data::boxes::read_boxes(p).context("--boxes")?,
         None => Vec::new(),
     };
-    let ds = assist_data::load(&a.data, &LoadOptions::default())
+    let load_opts = LoadOptions {
+        downscale: a.downscale,
+        ..Default::default()
+    };
+    let ds = assist_data::load(&a.data, &load_opts)
         .with_context(|| format!("loading dataset {}", a.data.display()))?;
     if ds.count(Split::Train) == 0 {
         bail!("{}: the dataset has no training frames", a.data.display());
@@ -146,6 +165,7 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
             appearance,
             seed: a.seed,
             boxes: user_boxes,
+            background_space,
             ..Default::default()
         };
         (build_scene(&ds, &views, &so)?, None)
@@ -178,6 +198,7 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
         max_time: a.max_time,
         batch_samples: a.batch_samples,
         object_ray_fraction: a.object_rays,
+        downscale: a.downscale,
         lambdas,
         seed: a.seed,
         checkpoint: Some(a.out.clone()),
@@ -185,6 +206,12 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
         poison_at: a.poison_at,
         ..Default::default()
     };
+    if !a.json && !a.resume && views.iter().all(|v| v.ids.is_none()) {
+        eprintln!(
+            "no instance masks in {} (an instance_mask_path per frame, or a masks/ folder beside the images): training the background only",
+            a.data.display()
+        );
+    }
     if !a.json {
         let nodes: Vec<String> = scene
             .scene

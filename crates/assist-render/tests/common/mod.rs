@@ -55,14 +55,15 @@ pub fn node(id: u16, key: &str, half: f64, pose: Similarity3) -> SceneNode {
         field: key.into(),
         half_size: DVec3::splat(half),
         world_from_local: pose,
+        space: assist_core::NodeSpace::Box,
     }
 }
 
 pub fn scene(nodes: Vec<SceneNode>, fields: Vec<(&str, Field)>, cone: f32) -> NeuralScene {
     let mut map = BTreeMap::new();
     for (k, f) in fields {
-        let half = nodes.iter().find(|n| n.field == k).unwrap().half_size;
-        let mut nf = NodeField::new(f, OccupancyGrid::new(16), half);
+        let n = nodes.iter().find(|n| n.field == k).unwrap();
+        let mut nf = NodeField::with_space(f, OccupancyGrid::new(16), n.half_size, n.space);
         nf.cone = cone;
         map.insert(k.to_string(), Arc::new(nf));
     }
@@ -73,6 +74,7 @@ pub fn scene(nodes: Vec<SceneNode>, fields: Vec<(&str, Field)>, cone: f32) -> Ne
             meters_per_unit: 1.0,
             background_color: [0.0, 0.0, 1.0],
             selected: None,
+            near: 0.0,
         },
         fields: map,
     }

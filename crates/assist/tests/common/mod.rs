@@ -52,6 +52,7 @@ pub fn write_scene(dir: &Path) {
             meters_per_unit: 1.0,
             background_color: [0.0; 3],
             selected: None,
+            near: 0.0,
         },
         fields,
     };

@@ -1,0 +1,168 @@
+//! Masks from any tool: a capture without instance masks in its description, with a
+//! `masks/` folder beside its images, trains into one object node per instance value; a
+//! binary mask gives one object; a capture without masks trains as background only and
+//! says so; a folder missing a mask is a clear error.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use assist_testkit::TempDir;
+use serde_json::Value;
+
+fn assist(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_assist"))
+        .args(args)
+        .output()
+        .expect("run assist")
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn ok(out: &Output) -> String {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// A synthetic capture as a phone user brings it: images and cameras only (no instance
+/// masks, boxes or depth in transforms.json), plus the instance ids as `masks/NAME.png`.
+fn capture(tmp: &TempDir) -> std::path::PathBuf {
+    let data = tmp.join("capture");
+    ok(&assist(&[
+        "synth",
+        "--out",
+        s(&data),
+        "--views",
+        "24",
+        "--width",
+        "64",
+        "--height",
+        "48",
+        "--objects",
+        "3",
+    ]));
+    let tf_path = data.join("transforms.json");
+    let mut tf: Value = serde_json::from_slice(&std::fs::read(&tf_path).unwrap()).unwrap();
+    tf.as_object_mut().unwrap().remove("instances");
+    std::fs::create_dir_all(data.join("masks")).unwrap();
+    for f in tf["frames"].as_array_mut().unwrap() {
+        let f = f.as_object_mut().unwrap();
+        let ids = f.remove("instance_mask_path").unwrap();
+        f.remove("depth_file_path");
+        let name = Path::new(f["file_path"].as_str().unwrap())
+            .file_name()
+            .unwrap()
+            .to_owned();
+        std::fs::rename(
+            data.join(ids.as_str().unwrap()),
+            data.join("masks").join(name),
+        )
+        .unwrap();
+    }
+    std::fs::write(&tf_path, serde_json::to_vec_pretty(&tf).unwrap()).unwrap();
+    data
+}
+
+fn nodes(scene: &Path) -> Vec<(u64, String)> {
+    let v: Value =
+        serde_json::from_slice(&std::fs::read(scene.join("scene.json")).unwrap()).unwrap();
+    v["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|n| {
+            (
+                n["id"].as_u64().unwrap(),
+                n["space"].as_str().unwrap_or("box").to_string(),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn a_masks_folder_gives_one_node_per_instance() {
+    let tmp = TempDir::new("cli-masks");
+    let data = capture(&tmp);
+    let info: Value =
+        serde_json::from_str(&ok(&assist(&["dataset", "info", s(&data), "--json"]))).unwrap();
+    assert_eq!(info["mask_folder"]["encoding"]["kind"], "ids", "{info}");
+    assert_eq!(info["mask_folder"]["ids"], serde_json::json!([1, 2, 3]));
+    assert_eq!(info["validation"]["errors"], serde_json::json!([]));
+
+    let out = tmp.join("ids.assist");
+    ok(&assist(&[
+        "train",
+        s(&data),
+        "--out",
+        s(&out),
+        "--iters",
+        "3",
+        "--json",
+    ]));
+    // No depth: the background is contracted; one object node per mask value.
+    assert_eq!(
+        nodes(&out),
+        vec![
+            (0, "contracted".to_string()),
+            (1, "box".to_string()),
+            (2, "box".to_string()),
+            (3, "box".to_string())
+        ]
+    );
+
+    // The same masks as binary JPEGs (every object white): one object node.
+    for e in std::fs::read_dir(data.join("masks")).unwrap() {
+        let p = e.unwrap().path();
+        let img = image::open(&p).unwrap().to_luma8();
+        let bin = image::GrayImage::from_fn(img.width(), img.height(), |x, y| {
+            image::Luma([if img.get_pixel(x, y).0[0] > 0 { 255 } else { 0 }])
+        });
+        bin.save(p.with_extension("jpg")).unwrap();
+        std::fs::remove_file(&p).unwrap();
+    }
+    let info: Value =
+        serde_json::from_str(&ok(&assist(&["dataset", "info", s(&data), "--json"]))).unwrap();
+    assert_eq!(info["mask_folder"]["encoding"]["kind"], "binary", "{info}");
+    assert_eq!(info["mask_folder"]["ids"], serde_json::json!([1]));
+    let out = tmp.join("binary.assist");
+    ok(&assist(&[
+        "train",
+        s(&data),
+        "--out",
+        s(&out),
+        "--iters",
+        "3",
+        "--json",
+    ]));
+    assert_eq!(nodes(&out).iter().map(|n| n.0).collect::<Vec<_>>(), [0, 1]);
+
+    // A missing mask names the image and the folder.
+    let first = std::fs::read_dir(data.join("masks"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .min()
+        .unwrap();
+    std::fs::remove_file(&first).unwrap();
+    let r = assist(&["dataset", "info", s(&data)]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("masks") && err.contains("no mask for image"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+
+    // Without the folder: background only, and the log says so.
+    std::fs::remove_dir_all(data.join("masks")).unwrap();
+    let out = tmp.join("bare.assist");
+    let r = assist(&["train", s(&data), "--out", s(&out), "--iters", "3"]);
+    ok(&r);
+    let log = String::from_utf8_lossy(&r.stderr);
+    assert!(log.contains("no instance masks"), "{log}");
+    assert_eq!(nodes(&out).iter().map(|n| n.0).collect::<Vec<_>>(), [0]);
+}
