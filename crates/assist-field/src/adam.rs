@@ -107,11 +107,29 @@ struct Hyper {
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn entry(h: Hyper, b1: f32, b2: f32, step: f32, g: f32, p: &mut f32, m: &mut f32, v: &mut f32) {
-    let mi = b1 * *m + (1.0 - h.b1) * g;
-    let vi = b2 * *v + (1.0 - h.b2) * g * g;
+    let g = flush_grad(g);
+    let mi = flush(b1 * *m + (1.0 - h.b1) * g);
+    let vi = flush(b2 * *v + (1.0 - h.b2) * g * g);
     *m = mi;
     *v = vi;
     *p -= step * mi / (vi.sqrt() * h.inv_sqrt_c2 + h.eps);
+}
+
+/// Moments below 1e-30 (far from mattering: the step they give is below 1e-15 of the
+/// learning rate) are flushed to zero before they decay into subnormal floats, whose
+/// arithmetic is tens of times slower on x86: in training, rarely hit hash entries of
+/// large backgrounds made Adam 4× slower that way (40 ms per step against 11 ms).
+#[inline(always)]
+fn flush(x: f32) -> f32 {
+    if x.abs() < 1e-30 { 0.0 } else { x }
+}
+
+/// Gradients below 1e-17 count as zero (an untouched entry, for the sparse rule): their
+/// squares would be subnormal, and with ε = 1e-15 the step they give is below 1e-3 of
+/// the learning rate once, then nothing.
+#[inline(always)]
+fn flush_grad(g: f32) -> f32 {
+    if g.abs() < 1e-17 { 0.0 } else { g }
 }
 
 /// Every entry updated.
@@ -144,7 +162,7 @@ fn sparse_block(h: Hyper, p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [
     let n = p.len();
     let (g, m, v) = (&mut g[..n], &mut m[..n], &mut v[..n]);
     for i in 0..n {
-        let gi = g[i];
+        let gi = flush_grad(g[i]);
         let touched = gi != 0.0;
         let b1 = if touched { h.b1 } else { 1.0 };
         let b2 = if touched { h.b2 } else { 1.0 };
@@ -169,7 +187,7 @@ fn general(
     sr: &std::ops::Range<usize>,
 ) {
     for i in 0..p.len() {
-        let mut gi = g[i];
+        let mut gi = flush_grad(g[i]);
         if gi == 0.0 && sr.contains(&(base + i)) {
             continue;
         }
@@ -193,6 +211,23 @@ fn general(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn gradients_whose_squares_would_be_subnormal_count_as_zero() {
+        // A whole sparse block (so the vectorised loop runs) with one tiny and one normal
+        // gradient: the tiny one leaves its entry untouched, moments included.
+        let n = 1 << 14;
+        let mut adam = Adam::new(n);
+        adam.sparse_range = 0..n;
+        let mut p = vec![1.0f32; n];
+        let mut g = vec![0.0f32; n];
+        g[3] = 1e-20;
+        g[5] = 1e-3;
+        adam.update(0.1, &mut p, &mut g);
+        assert_eq!((p[3], adam.m[3], adam.v[3]), (1.0, 0.0, 0.0));
+        assert!((p[5] - 0.9).abs() < 1e-4, "{}", p[5]);
+        assert!(adam.v.iter().all(|v| *v == 0.0 || v.is_normal()));
+    }
 
     #[test]
     fn weight_decay_applies_beside_a_sparse_range() {
