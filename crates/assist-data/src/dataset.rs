@@ -300,7 +300,7 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<Dataset> {
             message: "the dataset has no frames".into(),
         });
     }
-    ds.mask_folder = crate::masks::attach_mask_folder(&mut ds)?;
+    ds.mask_folder = crate::masks::attach_mask_folder(&mut ds, opts.downscale.max(1))?;
     crate::downscale::apply(&mut ds, opts.downscale.max(1))?;
     Ok(ds)
 }

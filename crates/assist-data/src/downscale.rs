@@ -66,23 +66,51 @@ fn downscale_frame(f: &mut Frame, factor: u32) -> Result<()> {
     paths.extend(f.depth_path.as_mut());
     paths.extend(f.inpaint_path.as_mut());
     paths.extend(f.inpaint_depth_path.as_mut());
+    // `.npy` depth has no image header; it is checked when read.
+    let fits = |s: &Path| {
+        s.extension().is_some_and(|e| e == "npy") || image_dimensions(s).is_ok_and(|d| d == (w, h))
+    };
     let found: Vec<Option<PathBuf>> = paths
         .iter()
         .map(|p| {
-            sibling(p, factor).filter(|s| {
-                // `.npy` depth has no image header; it is checked when read.
-                s.extension().is_some_and(|e| e == "npy")
-                    || image_dimensions(s).is_ok_and(|d| d == (w, h))
-            })
+            sibling(p, factor)
+                .filter(|s| fits(s))
+                // Already reduced (a `masks_N/` given to full-size images).
+                .or_else(|| {
+                    (p.parent()
+                        .is_some_and(|d| d.ends_with(format!("masks_{factor}")))
+                        && fits(p))
+                    .then(|| p.to_path_buf())
+                })
         })
         .collect();
     if found.iter().all(Option::is_some) {
         for (p, s) in paths.into_iter().zip(found) {
             *p = s.expect("checked");
         }
-    } else {
-        f.pixel_factor = factor;
+        return Ok(());
     }
+    // Mixed sizes cannot be read with one factor: a reduced mask needs reduced images.
+    if let Some(p) = paths
+        .iter()
+        .zip(&found)
+        .find_map(|(p, s)| (s.as_deref() == Some(p.as_path())).then(|| p.to_path_buf()))
+    {
+        let missing = paths
+            .iter()
+            .zip(&found)
+            .find(|(_, s)| s.is_none())
+            .map(|(q, _)| q.display().to_string())
+            .unwrap_or_default();
+        return Err(DataError::field(
+            &p,
+            "downscale",
+            format!(
+                "this mask is already {factor} times smaller, but {missing} has no {w}×{h} copy in a _{factor} folder beside it; put the reduced images there too"
+            ),
+        ));
+    }
+    f.pixel_factor = factor;
     Ok(())
 }
 

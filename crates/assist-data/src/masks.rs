@@ -83,19 +83,64 @@ fn is_jpeg(p: &Path) -> bool {
         .is_some_and(|e| e.eq_ignore_ascii_case("jpg") || e.eq_ignore_ascii_case("jpeg"))
 }
 
+/// The mask folder of an image folder: `masks` (or `masks_N` for `images_N`), else —
+/// when the images will be made `downscale` times smaller — `masks_<downscale>`.
+fn existing_mask_folder(image_dir: &Path, downscale: u32) -> Option<PathBuf> {
+    let d = mask_folder_for(image_dir)?;
+    if d.is_dir() {
+        return Some(d);
+    }
+    let reduced = image_dir.parent()?.join(format!("masks_{downscale}"));
+    (downscale > 1 && reduced.is_dir()).then_some(reduced)
+}
+
+/// `masks_N` folders beside the images that [`attach_mask_folder`] did not use (to tell a
+/// user which `--downscale` would use them).
+pub fn unused_mask_folders(ds: &Dataset) -> Vec<PathBuf> {
+    let Some(parent) = ds
+        .frames
+        .first()
+        .and_then(|f| f.image_path.parent())
+        .and_then(Path::parent)
+    else {
+        return Vec::new();
+    };
+    let used = ds.mask_folder.as_ref().map(|m| m.folder.clone());
+    let mut out: Vec<PathBuf> = std::fs::read_dir(parent)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| {
+            p.is_dir()
+                && p.file_name().is_some_and(|n| {
+                    let n = n.to_string_lossy();
+                    n == "masks"
+                        || n.strip_prefix("masks_")
+                            .is_some_and(|k| k.parse::<u32>().is_ok())
+                })
+                && Some(p) != used.as_ref()
+        })
+        .collect();
+    out.sort();
+    out
+}
+
 /// Attaches the masks of a `masks/` folder to the frames that have no instance mask yet,
-/// and decides their encoding. `Ok(None)` when there is no such folder. A folder that
-/// lacks the mask of some image is an error naming both.
-pub fn attach_mask_folder(ds: &mut Dataset) -> Result<Option<MaskFolder>> {
+/// and decides their encoding (`downscale`: the factor the images will be reduced by, so
+/// that `masks_N/` serves full-size images trained N times smaller). `Ok(None)` when there
+/// is no such folder. A folder that lacks the mask of some image is an error naming both.
+pub fn attach_mask_folder(ds: &mut Dataset, downscale: u32) -> Result<Option<MaskFolder>> {
     let mut folder: Option<PathBuf> = None;
     for f in &ds.frames {
         if f.instance_mask_path.is_some() {
             continue;
         }
-        let Some(d) = f.image_path.parent().and_then(mask_folder_for) else {
-            continue;
-        };
-        if d.is_dir() {
+        if let Some(d) = f
+            .image_path
+            .parent()
+            .and_then(|d| existing_mask_folder(d, downscale))
+        {
             folder = Some(d);
             break;
         }
@@ -108,7 +153,10 @@ pub fn attach_mask_folder(ds: &mut Dataset) -> Result<Option<MaskFolder>> {
         if f.instance_mask_path.is_some() {
             continue;
         }
-        let d = f.image_path.parent().and_then(mask_folder_for);
+        let d = f
+            .image_path
+            .parent()
+            .and_then(|d| existing_mask_folder(d, downscale));
         if d.as_deref() != Some(folder.as_path()) {
             continue;
         }

@@ -23,7 +23,7 @@ pub use batch::{BatchOutput, CompositeGrad, GradFn, RayOutputs, composite_batch}
 pub use composite::{Composite, RaySample, composite, composite_backward};
 pub use edit::{EditError, Editor, SceneFiles};
 pub use node::{NeuralScene, NodeField};
-pub use prune::{PRUNE_EPS, PruneScratch, prune_occluded};
+pub use prune::{PRUNE_EPS, PRUNE_MIN_PER_RAY, PruneScratch, PruneStats, prune_occluded};
 pub use render::{HIGHLIGHT, NodeLayer, RenderOptions, RenderedImage, render_camera, render_rays};
 pub use sample::{NodeSamples, RayBatch, SampleOptions, Traced, sample_rays};
 pub use scene_file::SceneFileError;

@@ -14,6 +14,14 @@ use crate::sample::{NodeSamples, Traced};
 /// Default transmittance below which samples are dropped.
 pub const PRUNE_EPS: f32 = 1e-4;
 
+/// Nodes with fewer samples than this per ray that reaches them are left as they are: the
+/// density pass costs about half a full query per sample (the hash-grid encoding is most
+/// of both), so it pays only where many samples lie behind surfaces. lego_400 (one
+/// object, 12 samples per ray) trained to 30.06 dB in 300 s with every node pruned
+/// against 30.69 dB without; beer's contracted background went from ~240 to ~46 samples
+/// per ray (4.6× the rays per second).
+pub const PRUNE_MIN_PER_RAY: f32 = 32.0;
+
 /// Reusable buffers.
 #[derive(Debug, Default)]
 pub struct PruneScratch {
@@ -22,21 +30,28 @@ pub struct PruneScratch {
     keep: Vec<u32>,
 }
 
-/// Drops, in every node of `traced`, the samples behind the point where the node's own
-/// transmittance falls below `eps`. Returns the number of samples kept and dropped.
+/// Drops, in every node of `traced` with at least [`PRUNE_MIN_PER_RAY`] samples per ray
+/// reaching it, the samples behind the point where the node's own transmittance falls
+/// below `eps`. Returns how many samples went through the density pass and how many of
+/// them were dropped.
 pub fn prune_occluded(
     scene: &NeuralScene,
     traced: &mut Traced,
     eps: f32,
     sc: &mut PruneScratch,
-) -> (usize, usize) {
-    let (mut kept, mut dropped) = (0, 0);
+) -> PruneStats {
+    let mut stats = PruneStats::default();
     for ns in traced.nodes.iter_mut() {
         if ns.is_empty() {
             continue;
         }
-        let nf = scene.field_of(ns.node);
         let n = ns.len();
+        let reached = ns.start.windows(2).filter(|w| w[1] > w[0]).count().max(1);
+        if (n as f32) < PRUNE_MIN_PER_RAY * reached as f32 {
+            continue;
+        }
+        stats.queried += n;
+        let nf = scene.field_of(ns.node);
         sc.sigma.resize(n, 0.0);
         nf.field.density_with(
             [&ns.pos[0], &ns.pos[1], &ns.pos[2]],
@@ -62,15 +77,21 @@ pub fn prune_occluded(
             *k = m as u32;
         });
         let total: usize = sc.keep.iter().map(|&k| k as usize).sum();
-        if total == n {
-            kept += n;
-            continue;
+        if total < n {
+            compact(ns, &sc.keep);
+            stats.dropped += n - total;
         }
-        compact(ns, &sc.keep);
-        kept += total;
-        dropped += n - total;
     }
-    (kept, dropped)
+    stats
+}
+
+/// What [`prune_occluded`] did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct PruneStats {
+    /// Samples that went through the density pass.
+    pub queried: usize,
+    /// Of those, the samples dropped.
+    pub dropped: usize,
 }
 
 /// Keeps the first `keep[r]` samples of each ray `r`.

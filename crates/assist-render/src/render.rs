@@ -21,7 +21,8 @@ pub struct RenderOptions {
     /// Arithmetic of the fields' MLP products (default: the fastest this CPU runs).
     pub precision: Precision,
     /// Samples behind the point where their node's transmittance falls below this are
-    /// dropped after a density-only pass (0 = keep all; see [`crate::prune`]).
+    /// dropped after a density-only pass (0 = keep all, the default: see [`crate::prune`]
+    /// for when it pays).
     pub prune_eps: f32,
 }
 
@@ -33,7 +34,7 @@ impl Default for RenderOptions {
             rays_per_batch: 1 << 14,
             layers: false,
             precision: Precision::fastest(),
-            prune_eps: crate::prune::PRUNE_EPS,
+            prune_eps: 0.0,
         }
     }
 }

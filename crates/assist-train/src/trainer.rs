@@ -92,7 +92,10 @@ pub struct TrainOptions {
     pub object_ray_fraction: f64,
     /// Samples behind the point where their node's transmittance falls below this are
     /// dropped after a density-only pass, before the forward and backward passes (0 =
-    /// keep all; nerfacc's early stop, see `assist_render::prune`).
+    /// keep all; nerfacc's early stop, see `assist_render::prune`). Off by default, by
+    /// measurement: on beer's contracted background it drops 9% of the samples (the
+    /// contracted occupancy grid already keeps ~45 per ray) for a density pass over all
+    /// of them; on lego it cost 0.6 dB in 300 s (bigger batches, fewer steps).
     pub prune_eps: f32,
     /// The dataset's `--downscale` (recorded in the scene for evaluation; 1 = none).
     pub downscale: u32,
@@ -117,7 +120,7 @@ impl Default for TrainOptions {
             checkpoint_every: 60.0,
             object_ray_fraction: 0.25,
             downscale: 1,
-            prune_eps: assist_render::PRUNE_EPS,
+            prune_eps: 0.0,
             poison_at: None,
         }
     }
@@ -151,6 +154,8 @@ pub struct StepStats {
     pub samples_per_ray: [f32; 4],
     /// Samples marched before pruning.
     pub candidates: usize,
+    /// Samples dropped by pruning (`candidates − samples`).
+    pub pruned: usize,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -177,6 +182,23 @@ struct Target {
     inpaint: Option<[f32; 3]>,
     /// Prior depth as distance along the ray, in units of the scene extent.
     depth: Option<f32>,
+}
+
+/// A pixel `(view, index)` drawn uniformly over the pixels to train on: one a `mask_path`
+/// excludes is drawn again, 16 times at most (`None` then: the ray is left out).
+fn draw_pixel(views: &[View], total: u64, rng: &mut Rng) -> Option<(usize, usize)> {
+    for _ in 0..16 {
+        let mut p = rng.below(total) as usize;
+        let mut vi = 0;
+        while p >= views[vi].width * views[vi].height {
+            p -= views[vi].width * views[vi].height;
+            vi += 1;
+        }
+        if views[vi].valid.as_ref().is_none_or(|ok| ok[p]) {
+            return Some((vi, p));
+        }
+    }
+    None
 }
 
 /// Smallest scale the depth prior's affine map may take.
@@ -270,9 +292,10 @@ impl Trainer {
                     }
                     None => Vec::new(),
                 };
+                let valid = v.valid.as_deref();
                 near.into_iter()
                     .enumerate()
-                    .filter(|(_, m)| *m)
+                    .filter(move |(p, m)| *m && valid.is_none_or(|ok| ok[*p]))
                     .map(move |(p, _)| (vi as u32, p as u32))
             })
             .collect();
@@ -335,13 +358,7 @@ impl Trainer {
                     let (vi, p) = objects[rng.below(objects.len() as u64) as usize];
                     (vi as usize, p as usize)
                 } else {
-                    let mut p = rng.below(total) as usize;
-                    let mut vi = 0;
-                    while p >= views[vi].width * views[vi].height {
-                        p -= views[vi].width * views[vi].height;
-                        vi += 1;
-                    }
-                    (vi, p)
+                    draw_pixel(views, total, &mut rng)?
                 };
                 let v = &views[vi];
                 let (i, j) = ((p % v.width) as u32, (p / v.width) as u32);
@@ -398,14 +415,16 @@ impl Trainer {
         };
         sample_rays(&self.scene, &self.rays, &so, &mut self.traced);
         let candidates = self.traced.total_samples();
-        if self.opts.prune_eps > 0.0 {
+        let pruned = if self.opts.prune_eps > 0.0 {
             assist_render::prune_occluded(
                 &self.scene,
                 &mut self.traced,
                 self.opts.prune_eps,
                 &mut self.prune,
-            );
-        }
+            )
+        } else {
+            assist_render::PruneStats::default()
+        };
         let nn = self.traced.nodes.len();
         phase[0] = tp.elapsed().as_secs_f64();
         self.tapes.resize_with(nn, Tape::default);
@@ -484,6 +503,7 @@ impl Trainer {
             rays: self.targets.len(),
             samples: self.traced.total_samples(),
             candidates,
+            pruned: pruned.dropped,
             lr,
             elapsed,
             progress,
@@ -601,9 +621,9 @@ impl Trainer {
             s.samples_per_ray[k] = ns.len() as f32 / s.rays.max(1) as f32;
         }
         // Adapt the ray count towards the target sample count.
-        // A marched sample costs about a quarter of a kept one (density only, no tape).
-        let per_ray =
-            (s.samples as f64 + 0.25 * (candidates - s.samples) as f64) / s.rays.max(1) as f64;
+        // A sample through the density pass costs about half a full one more (the
+        // hash-grid encoding and the density net, no tape).
+        let per_ray = (s.samples as f64 + 0.5 * pruned.queried as f64) / s.rays.max(1) as f64;
         let want = (self.opts.batch_samples as f64 / per_ray.max(1.0)) as usize;
         self.rays_per_batch = ((self.rays_per_batch + want) / 2).clamp(256, 1 << 16);
         Ok(s)
@@ -711,6 +731,51 @@ impl Trainer {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn pixels_a_mask_excludes_are_never_drawn() {
+        let camera = assist_core::Camera {
+            intrinsics: assist_core::Intrinsics::from_fov_x(4, 2, 1.0),
+            pose: assist_core::Pose::look_at(
+                assist_core::DVec3::Z,
+                assist_core::DVec3::ZERO,
+                assist_core::DVec3::Y,
+            )
+            .unwrap(),
+        };
+        let view = |valid: Option<Vec<bool>>| View {
+            name: "v".into(),
+            camera,
+            image_index: 0,
+            width: 4,
+            height: 2,
+            rgb: vec![0.0; 24],
+            ids: None,
+            valid,
+            depth: None,
+            inpaint: None,
+            inpaint_depth: None,
+        };
+        // View 0: only pixel 5 is valid; view 1: all; view 2: none.
+        let mut only5 = vec![false; 8];
+        only5[5] = true;
+        let views = [view(Some(only5)), view(None), view(Some(vec![false; 8]))];
+        let mut rng = Rng::new(2);
+        let mut seen = std::collections::BTreeSet::new();
+        let mut left_out = 0;
+        for _ in 0..4000 {
+            match draw_pixel(&views, 24, &mut rng) {
+                Some((vi, p)) => {
+                    assert!(vi != 2 && (vi != 0 || p == 5), "drew ({vi}, {p})");
+                    seen.insert((vi, p));
+                }
+                None => left_out += 1,
+            }
+        }
+        // Every valid pixel is drawn; a ray is rarely left out (P = (15/24)^16).
+        assert_eq!(seen.len(), 9);
+        assert!(left_out < 10, "{left_out}");
+    }
 
     #[test]
     fn the_depth_prior_scale_stays_positive() {

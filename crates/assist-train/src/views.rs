@@ -41,6 +41,8 @@ pub struct View {
     pub height: usize,
     pub rgb: Vec<f32>,
     pub ids: Option<Vec<u16>>,
+    /// Pixels to train on (nerfstudio's `mask_path`: 0 = ignore the pixel); `None` = all.
+    pub valid: Option<Vec<bool>>,
     /// Dataset depth (z, world units; 0 = none).
     pub depth: Option<Vec<f32>>,
     /// Background prior: colour with objects removed.
@@ -101,6 +103,19 @@ pub fn load_view(frame: &Frame, image_index: u32, background: [f32; 3]) -> Resul
     } else {
         None
     };
+    let valid = match &frame.mask_path {
+        Some(p) => {
+            let m = assist_data::image_io::read_mask_values(p)?;
+            check(p, "mask", m.width, m.height)?;
+            let v: Vec<bool> = m.data.iter().map(|&v| v != 0).collect();
+            Some(if k == 1 {
+                v
+            } else {
+                reduce_pick(&v, m.width as usize, m.height as usize, k)
+            })
+        }
+        None => None,
+    };
     let depth_map = |d: Vec<f32>, gw: u32, gh: u32| {
         if k == 1 {
             d
@@ -158,6 +173,7 @@ pub fn load_view(frame: &Frame, image_index: u32, background: [f32; 3]) -> Resul
         height: h,
         rgb,
         ids,
+        valid,
         depth,
         inpaint,
         inpaint_depth,

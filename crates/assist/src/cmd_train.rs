@@ -207,9 +207,21 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
         ..Default::default()
     };
     if !a.json && !a.resume && views.iter().all(|v| v.ids.is_none()) {
+        let unused: Vec<String> = assist_data::masks::unused_mask_folders(&ds)
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect();
         eprintln!(
-            "no instance masks in {} (an instance_mask_path per frame, or a masks/ folder beside the images): training the background only",
-            a.data.display()
+            "no instance masks in {} (an instance_mask_path per frame, or a masks/ folder beside the images): training the background only{}",
+            a.data.display(),
+            if unused.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    "; {} hold masks for other image sizes (masks_N/ is used with --downscale N)",
+                    unused.join(", ")
+                )
+            }
         );
     }
     if !a.json {
@@ -262,7 +274,9 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
                 .map(|(k, f)| format!("{k} {:.1}%", f * 100.0))
                 .collect();
             eprintln!(
-                "         samples/ray {:.1?} terms: comp {:.5} bg_rgb {:.5} bg_depth {:.5} obj_acc {:.5} obj_rgb {:.5} obj_share {:.5} dist {:.5}; occupied: {}",
+                "         pruned {} of {} samples; samples/ray {:.1?} terms: comp {:.5} bg_rgb {:.5} bg_depth {:.5} obj_acc {:.5} obj_rgb {:.5} obj_share {:.5} dist {:.5}; occupied: {}",
+                s.pruned,
+                s.candidates,
                 s.samples_per_ray,
                 s.comp_rgb,
                 s.bg_rgb,

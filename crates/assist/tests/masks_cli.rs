@@ -115,6 +115,49 @@ fn a_masks_folder_gives_one_node_per_instance() {
         ]
     );
 
+    // Masks made for images two times smaller (`masks_2/`) serve `--downscale 2`, once the
+    // reduced images are there too (`images_2/`); without them the error says so.
+    let masks = data.join("masks");
+    let masks2 = data.join("masks_2");
+    std::fs::create_dir_all(&masks2).unwrap();
+    for e in std::fs::read_dir(&masks).unwrap() {
+        let p = e.unwrap().path();
+        let img = image::open(&p).unwrap().to_luma8();
+        let small = image::GrayImage::from_fn(img.width() / 2, img.height() / 2, |x, y| {
+            *img.get_pixel(2 * x + 1, 2 * y + 1)
+        });
+        small.save(masks2.join(p.file_name().unwrap())).unwrap();
+    }
+    std::fs::rename(&masks, tmp.join("masks-aside")).unwrap();
+    let r = assist(&["dataset", "info", s(&data), "--downscale", "2"]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(1), "{err}");
+    assert!(err.contains("already 2 times smaller"), "{err}");
+    let images2 = data.join("images_2");
+    std::fs::create_dir_all(&images2).unwrap();
+    for e in std::fs::read_dir(data.join("images")).unwrap() {
+        let p = e.unwrap().path();
+        let img = image::open(&p).unwrap();
+        img.resize_exact(32, 24, image::imageops::FilterType::Triangle)
+            .save(images2.join(p.file_name().unwrap()))
+            .unwrap();
+    }
+    let info: Value = serde_json::from_str(&ok(&assist(&[
+        "dataset",
+        "info",
+        s(&data),
+        "--downscale",
+        "2",
+        "--json",
+    ])))
+    .unwrap();
+    assert_eq!(info["width"], 32, "{info}");
+    assert_eq!(info["mask_folder"]["ids"], serde_json::json!([1, 2, 3]));
+    assert_eq!(info["validation"]["errors"], serde_json::json!([]));
+    std::fs::remove_dir_all(&masks2).unwrap();
+    std::fs::remove_dir_all(&images2).unwrap();
+    std::fs::rename(tmp.join("masks-aside"), &masks).unwrap();
+
     // The same masks as binary JPEGs (every object white): one object node.
     for e in std::fs::read_dir(data.join("masks")).unwrap() {
         let p = e.unwrap().path();
