@@ -16,10 +16,7 @@ pub const PRUNE_EPS: f32 = 1e-4;
 
 /// Nodes with fewer samples than this per ray that reaches them are left as they are: the
 /// density pass costs about half a full query per sample (the hash-grid encoding is most
-/// of both), so it pays only where many samples lie behind surfaces. lego_400 (one
-/// object, 12 samples per ray) trained to 30.06 dB in 300 s with every node pruned
-/// against 30.69 dB without; beer's contracted background went from ~240 to ~46 samples
-/// per ray (4.6× the rays per second).
+/// of both), so it can pay only where many samples lie behind surfaces.
 pub const PRUNE_MIN_PER_RAY: f32 = 32.0;
 
 /// Reusable buffers.

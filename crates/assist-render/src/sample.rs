@@ -211,11 +211,7 @@ fn sample_node(
     let o = (hit.local_ray.origin / size + 0.5).as_vec3().to_array();
     let d_unit = hit.local_ray.dir.as_vec3().to_array();
     let d = (hit.local_ray.dir / size).as_vec3().to_array();
-    let jitter = if opts.jitter {
-        Rng::stream(opts.seed, (r * 1024 + k) as u64).f32()
-    } else {
-        0.5
-    };
+    let jitter = ray_jitter(opts, r, k);
     steps.clear();
     nf.occupancy.march_cone(
         o,
@@ -228,17 +224,49 @@ fn sample_node(
         opts.max_per_node,
         steps,
     );
-    let inv_k = (1.0 / hit.local_per_world) as f32;
-    let inv_unit = 1.0 / nf.unit;
-    let image = rays.image[r];
-    for s in steps.iter() {
+    let to_unit = |t: f32| [0, 1, 2].map(|a| (o[a] + d[a] * t).clamp(0.0, 1.0));
+    let scale = (1.0 / hit.local_per_world) as f32;
+    push_samples(
+        out,
+        steps,
+        to_unit,
+        d_unit,
+        rays.image[r],
+        scale,
+        1.0 / nf.unit,
+    );
+}
+
+/// The first sample's offset within its step: random when training, the middle otherwise.
+fn ray_jitter(opts: &SampleOptions, r: usize, k: usize) -> f32 {
+    if opts.jitter {
+        Rng::stream(opts.seed, (r * 1024 + k) as u64).f32()
+    } else {
+        0.5
+    }
+}
+
+/// Appends the marched `steps` of one ray: positions in [0, 1]³ from `to_unit(t)`, the
+/// canonical direction, world distance `t · world_per_local` and the interval in box
+/// diagonals `dt · per_unit`.
+fn push_samples(
+    out: &mut NodeSamples,
+    steps: &[assist_field::occupancy::Step],
+    to_unit: impl Fn(f32) -> [f32; 3],
+    dir: [f32; 3],
+    image: u32,
+    world_per_local: f32,
+    per_unit: f32,
+) {
+    for s in steps {
+        let p = to_unit(s.t);
         for a in 0..3 {
-            out.pos[a].push((o[a] + d[a] * s.t).clamp(0.0, 1.0));
-            out.dir[a].push(d_unit[a]);
+            out.pos[a].push(p[a]);
+            out.dir[a].push(dir[a]);
         }
         out.image.push(image);
-        out.t.push(s.t * inv_k);
-        out.dt.push(s.dt * inv_unit);
+        out.t.push(s.t * world_per_local);
+        out.dt.push(s.dt * per_unit);
     }
 }
 
@@ -277,11 +305,7 @@ fn sample_contracted(
     else {
         return;
     };
-    let jitter = if opts.jitter {
-        Rng::stream(opts.seed, (r * 1024 + k) as u64).f32()
-    } else {
-        0.5
-    };
+    let jitter = ray_jitter(opts, r, k);
     steps.clear();
     nf.occupancy.march_contracted(
         o,
@@ -295,18 +319,16 @@ fn sample_contracted(
         opts.max_per_node,
         steps,
     );
-    let inv_k = (1.0 / local_per_world) as f32;
-    let inv_unit = 1.0 / nf.unit;
+    let to_unit = |t: f32| contract_to_unit([0, 1, 2].map(|a| o[a] + d[a] * t));
     let dir = d_unit.as_vec3().to_array();
-    let image = rays.image[r];
-    for s in steps.iter() {
-        let p = contract_to_unit([0, 1, 2].map(|a| o[a] + d[a] * s.t));
-        for a in 0..3 {
-            out.pos[a].push(p[a]);
-            out.dir[a].push(dir[a]);
-        }
-        out.image.push(image);
-        out.t.push(s.t * inv_k);
-        out.dt.push(s.dt * inv_unit);
-    }
+    let scale = (1.0 / local_per_world) as f32;
+    push_samples(
+        out,
+        steps,
+        to_unit,
+        dir,
+        rays.image[r],
+        scale,
+        1.0 / nf.unit,
+    );
 }

@@ -95,7 +95,9 @@ pub struct TrainOptions {
     /// keep all; nerfacc's early stop, see `assist_render::prune`). Off by default, by
     /// measurement: on beer's contracted background it drops 9% of the samples (the
     /// contracted occupancy grid already keeps ~45 per ray) for a density pass over all
-    /// of them; on lego it cost 0.6 dB in 300 s (bigger batches, fewer steps).
+    /// of them, and beer and fern ended lower with it (23.96 / 22.80 dB against 24.20 /
+    /// 23.42 dB in 300 s); lego_400 ended higher (30.06 against 29.61 dB: its batches
+    /// held twice the rays). See BENCHMARKS.md.
     pub prune_eps: f32,
     /// The dataset's `--downscale` (recorded in the scene for evaluation; 1 = none).
     pub downscale: u32,
