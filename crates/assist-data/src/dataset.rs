@@ -186,8 +186,8 @@ pub struct LoadOptions {
     pub format: Option<Format>,
     /// LLFF downscale factor (`images_N`); default: the smallest available.
     pub llff_factor: Option<u32>,
-    /// Make every camera this many times smaller (see [`crate::downscale`]); 0 or 1 =
-    /// as the dataset is.
+    /// Make every camera this many times smaller (see [`crate::downscale`]); 1 = as the
+    /// dataset is (0, the `Default`, means 1 here; the CLI refuses 0).
     pub downscale: u32,
 }
 

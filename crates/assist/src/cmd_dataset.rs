@@ -45,7 +45,7 @@ pub struct InfoArgs {
     #[arg(long)]
     pub llff_factor: Option<u32>,
     /// Make every image N times smaller (from images_N/ folders where they exist).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downscale: u32,
     /// Skip decoding every file (only parse the dataset description).
     #[arg(long)]

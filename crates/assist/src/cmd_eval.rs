@@ -20,7 +20,7 @@ pub struct EvalArgs {
     #[arg(long, default_value_t = 1)]
     pub stride: usize,
     /// Evaluate with the images N times smaller (default: as the scene was trained).
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downscale: Option<u32>,
     #[arg(long)]
     pub json: bool,

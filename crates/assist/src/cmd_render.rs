@@ -32,7 +32,7 @@ pub struct RenderArgs {
     #[arg(long, default_value = "auto")]
     pub split: String,
     /// With a dataset as --cameras: render its cameras N times smaller.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downscale: u32,
     /// Comma-separated: rgb, depth, panoptic, semantic, objects, background.
     #[arg(long, default_value = "rgb,depth,panoptic")]

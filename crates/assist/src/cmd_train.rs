@@ -27,7 +27,7 @@ pub struct TrainArgs {
     pub max_time: Option<f64>,
     /// Train on images N times smaller (from images_N/ folders beside the images where
     /// they exist, else reduced on loading); `eval` then defaults to the same.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downscale: u32,
     /// Samples per training step (the ray count adapts).
     #[arg(long, default_value_t = 1 << 16)]

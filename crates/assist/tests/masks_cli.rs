@@ -68,6 +68,19 @@ fn capture(tmp: &TempDir) -> std::path::PathBuf {
     data
 }
 
+/// Trains `data` for 3 iterations into `out`.
+fn train3(data: &Path, out: &Path) {
+    ok(&assist(&[
+        "train",
+        s(data),
+        "--out",
+        s(out),
+        "--iters",
+        "3",
+        "--json",
+    ]));
+}
+
 fn nodes(scene: &Path) -> Vec<(u64, String)> {
     let v: Value =
         serde_json::from_slice(&std::fs::read(scene.join("scene.json")).unwrap()).unwrap();
@@ -95,15 +108,7 @@ fn a_masks_folder_gives_one_node_per_instance() {
     assert_eq!(info["validation"]["errors"], serde_json::json!([]));
 
     let out = tmp.join("ids.assist");
-    ok(&assist(&[
-        "train",
-        s(&data),
-        "--out",
-        s(&out),
-        "--iters",
-        "3",
-        "--json",
-    ]));
+    train3(&data, &out);
     // No depth: the background is contracted; one object node per mask value.
     assert_eq!(
         nodes(&out),
@@ -173,15 +178,7 @@ fn a_masks_folder_gives_one_node_per_instance() {
     assert_eq!(info["mask_folder"]["encoding"]["kind"], "binary", "{info}");
     assert_eq!(info["mask_folder"]["ids"], serde_json::json!([1]));
     let out = tmp.join("binary.assist");
-    ok(&assist(&[
-        "train",
-        s(&data),
-        "--out",
-        s(&out),
-        "--iters",
-        "3",
-        "--json",
-    ]));
+    train3(&data, &out);
     assert_eq!(nodes(&out).iter().map(|n| n.0).collect::<Vec<_>>(), [0, 1]);
 
     // A missing mask names the image and the folder.
