@@ -80,6 +80,27 @@ impl SceneNode {
     }
 }
 
+/// What a ray shows past its last sample, where the nodes leave it transparent.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Backdrop {
+    /// The scene's `background_color` (an object on a known background; scenes saved
+    /// before backdrops existed).
+    #[default]
+    Color,
+    /// The colour of the ray's last sample (nerfacto's `last_sample`), for captures whose
+    /// background is unknown: a ray the field has not yet made opaque is not darkened
+    /// towards a made-up colour, which would only be answered by raising every colour
+    /// until the colour net saturates.
+    LastSample,
+}
+
+impl Backdrop {
+    pub fn is_color(&self) -> bool {
+        *self == Backdrop::Color
+    }
+}
+
 /// A scene: nodes plus what is needed to interpret edits and render.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Scene {
@@ -88,8 +109,12 @@ pub struct Scene {
     pub up: DVec3,
     /// Metres per world unit (for edits given in m/cm/mm).
     pub meters_per_unit: f64,
-    /// Colour behind everything (what a ray that hits nothing shows).
+    /// Colour behind everything (what a ray that hits nothing shows, with
+    /// [`Backdrop::Color`]).
     pub background_color: [f32; 3],
+    /// What a ray shows past its last sample.
+    #[serde(default, skip_serializing_if = "Backdrop::is_color")]
+    pub backdrop: Backdrop,
     /// The selected (highlighted) node, if any.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub selected: Option<InstanceId>,
@@ -148,6 +173,7 @@ mod tests {
             up: DVec3::Z,
             meters_per_unit: 1.0,
             background_color: [0.0; 3],
+            backdrop: Backdrop::Color,
             selected: None,
             near: 0.0,
         };

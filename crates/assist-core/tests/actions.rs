@@ -29,6 +29,7 @@ fn scene() -> Scene {
         up: DVec3::Z,
         meters_per_unit: 0.5,
         background_color: [0.0; 3],
+        backdrop: Default::default(),
         selected: None,
         near: 0.0,
     }

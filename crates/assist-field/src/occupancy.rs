@@ -22,6 +22,10 @@ pub struct OccupancyGrid {
     /// occupied when one step through it is opaque enough, however long its steps are
     /// (the outer shell of a contracted node). Derived from the node, not saved.
     pub step_factor: Vec<f32>,
+    /// Cells known to be empty (one bit per cell; empty vector = none), e.g. carved out
+    /// of the free space depth maps see: their density estimate is held at 0 and they are
+    /// never occupied. Not saved: the saved estimate holds the zeros.
+    pub empty: Vec<u64>,
 }
 
 /// One sample of a marched ray: distance along the (unit) direction and interval length.
@@ -42,7 +46,23 @@ impl OccupancyGrid {
             threshold: 0.01,
             decay: 0.95,
             step_factor: Vec::new(),
+            empty: Vec::new(),
         }
+    }
+
+    /// Marks the cells where `empty[c]` holds as known empty (see [`empty`](Self::empty))
+    /// and refreshes the bits.
+    pub fn set_empty(&mut self, empty: &[bool]) {
+        assert_eq!(empty.len(), self.cells(), "one flag per cell");
+        self.empty = empty
+            .chunks(64)
+            .map(|c| {
+                c.iter()
+                    .enumerate()
+                    .fold(0u64, |w, (i, &e)| w | (u64::from(e) << i))
+            })
+            .collect();
+        self.refresh_bits();
     }
 
     /// Sets [`step_factor`](Self::step_factor) from a function of the cell centre (in
@@ -194,6 +214,21 @@ impl OccupancyGrid {
 
     /// Recomputes the bitfield from the density estimate.
     pub fn refresh_bits(&mut self) {
+        if !self.empty.is_empty() {
+            let empty = &self.empty;
+            self.density
+                .par_chunks_mut(64)
+                .zip(empty.par_iter())
+                .for_each(|(chunk, &e)| {
+                    if e != 0 {
+                        for (i, d) in chunk.iter_mut().enumerate() {
+                            if e >> i & 1 == 1 {
+                                *d = 0.0;
+                            }
+                        }
+                    }
+                });
+        }
         let weighted = !self.step_factor.is_empty();
         let factor = |c: usize| {
             if weighted { self.step_factor[c] } else { 1.0 }

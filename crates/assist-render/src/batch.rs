@@ -42,12 +42,31 @@ impl BatchOutput {
     }
 }
 
+/// What a ray shows past its last sample (see [`assist_core::Backdrop`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Behind {
+    Color([f32; 3]),
+    LastSample,
+}
+
+impl Behind {
+    /// The backdrop of `scene`.
+    pub fn of(scene: &assist_core::Scene) -> Self {
+        match scene.backdrop {
+            assist_core::Backdrop::Color => Behind::Color(scene.background_color),
+            assist_core::Backdrop::LastSample => Behind::LastSample,
+        }
+    }
+}
+
 /// Gradient of the loss with respect to one composite.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct CompositeGrad {
     pub rgb: [f32; 3],
     pub depth: f32,
     pub opacity: f32,
+    /// dL/d(Σ w t², [`Composite::depth_sq`]).
+    pub depth_sq: f32,
     /// For a node: dL/d(its share of the composited weight, [`BatchOutput::share`]).
     /// Unused in the ray-level gradient.
     pub share: f32,
@@ -91,7 +110,7 @@ struct NodeView<'a> {
 /// and zeroed (`NodeSamples::prepare_outputs(true)`).
 pub fn composite_batch(
     traced: &mut Traced,
-    background: [f32; 3],
+    background: Behind,
     out: &mut BatchOutput,
     grad: Option<&GradFn>,
 ) {
@@ -205,7 +224,7 @@ fn composite_ray(
     r: usize,
     i: usize,
     views: &mut [NodeView],
-    background: [f32; 3],
+    behind: Behind,
     o: RayOut,
     grad: Option<&GradFn>,
     sc: &mut RayScratch,
@@ -250,9 +269,20 @@ fn composite_ray(
             acc.rgb[c] += w * v.rgb[3 * j + c];
         }
         acc.depth += w * t;
+        acc.depth_sq += w * t * t;
         acc.opacity += w;
         share[k as usize] += w;
     }
+    // The backdrop: a colour, or the colour of the last sample (black without samples).
+    let last = sc.merged.last().map(|&(_, k, j)| (k as usize, j as usize));
+    let background = match (behind, last) {
+        (Behind::Color(c), _) => c,
+        (Behind::LastSample, Some((k, j))) => {
+            let c = &views[k].rgb[3 * j..3 * j + 3];
+            [c[0], c[1], c[2]]
+        }
+        (Behind::LastSample, None) => [0.0; 3],
+    };
     for c in 0..3 {
         acc.rgb[c] += (1.0 - acc.opacity) * background[c];
     }
@@ -279,6 +309,7 @@ fn composite_ray(
                 a.rgb[c] += w * v.rgb[3 * j + c];
             }
             a.depth += w * v.t[j];
+            a.depth_sq += w * v.t[j] * v.t[j];
             a.opacity += w;
         }
         node_out[k] = a;
@@ -300,6 +331,13 @@ fn composite_ray(
     // gradient of the share of the sample's node).
     let g_bg = g.opacity
         - (g.rgb[0] * background[0] + g.rgb[1] * background[1] + g.rgb[2] * background[2]);
+    // The last sample's colour also shows through what is left of the transmittance.
+    if let (Behind::LastSample, Some((k, j))) = (behind, last) {
+        let rest = 1.0 - acc.opacity;
+        for ch in 0..3 {
+            views[k].d_rgb[3 * j + ch] += rest * g.rgb[ch];
+        }
+    }
     // d dist / d w_i = 2 Σ_j w_j |t_i − t_j| = 2 (t_i W_{<i} − S_{<i} + S_{>i} − t_i W_{>i}),
     // with the prefix sums run backwards from the totals (W = O, S = D).
     let mut suffix = 0.0f32;
@@ -323,6 +361,7 @@ fn composite_ray(
             + g.rgb[1] * c[1]
             + g.rgb[2] * c[2]
             + g.depth * t
+            + g.depth_sq * t * t
             + g_bg
             + sc.node_grads[k as usize].share;
         v.d_sigma[j] += v.dt[j] * (sc.t_next[q] * gi - suffix);
@@ -357,6 +396,7 @@ fn composite_ray(
                 + ng.rgb[1] * c[1]
                 + ng.rgb[2] * c[2]
                 + ng.depth * v.t[j]
+                + ng.depth_sq * v.t[j] * v.t[j]
                 + ng.opacity;
             v.d_sigma[j] += v.dt[j] * (sc.t_next[q] * gi - suffix);
             suffix += sc.w[q] * gi;

@@ -2,7 +2,7 @@
 //!
 //! `α_i = 1 − exp(−σ_i δ_i)`, `T_i = exp(−Σ_{k<i} σ_k δ_k)`, `w_i = T_i α_i`;
 //! colour `C = Σ w_i c_i + (1 − O) · background`, depth `D = Σ w_i t_i`, opacity
-//! `O = Σ w_i` (paper eq. 1–4). Each sample carries its own interval `δ_i`.
+//! `O = Σ w_i` (paper eq. 1–4), and the second moment `Σ w_i t_i²`. Each sample carries its own interval `δ_i`.
 
 /// One sample of a ray: density, colour, position along the ray and interval length.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -19,6 +19,9 @@ pub struct Composite {
     pub rgb: [f32; 3],
     pub depth: f32,
     pub opacity: f32,
+    /// Second moment of the weights along the ray, `Σ w_i t_i²` (with `depth` and
+    /// `opacity`, the spread of the weight about a depth: `Σ w_i (t_i − d)²`).
+    pub depth_sq: f32,
 }
 
 /// Composites `samples` (sorted by `t`) over `background`; writes each sample's weight
@@ -38,6 +41,7 @@ pub fn composite(
             out.rgb[c] += w * s.rgb[c];
         }
         out.depth += w * s.t;
+        out.depth_sq += w * s.t * s.t;
         out.opacity += w;
         if let Some(ws) = weights.as_deref_mut() {
             ws[i] = w;

@@ -19,7 +19,7 @@ pub mod render;
 pub mod sample;
 pub mod scene_file;
 
-pub use batch::{BatchOutput, CompositeGrad, GradFn, RayOutputs, composite_batch};
+pub use batch::{BatchOutput, Behind, CompositeGrad, GradFn, RayOutputs, composite_batch};
 pub use composite::{Composite, RaySample, composite, composite_backward};
 pub use edit::{EditError, Editor, SceneFiles};
 pub use node::{NeuralScene, NodeField};

@@ -128,7 +128,7 @@ pub fn render_rays(scene: &NeuralScene, opts: &RenderOptions, sc: &mut RenderScr
     );
     composite_batch(
         &mut sc.traced,
-        scene.scene.background_color,
+        crate::batch::Behind::of(&scene.scene),
         &mut sc.out,
         None,
     );

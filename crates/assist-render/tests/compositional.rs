@@ -6,8 +6,8 @@ use common::{constant_field, node, scene};
 
 use assist_core::{Camera, DQuat, DVec3, Intrinsics, Pose, Ray, Rng, Similarity3};
 use assist_render::{
-    BatchOutput, CompositeGrad, NeuralScene, RayBatch, RayOutputs, RenderOptions, SampleOptions,
-    Traced, composite_batch, render_camera, render_rays, sample_rays,
+    BatchOutput, Behind, CompositeGrad, NeuralScene, RayBatch, RayOutputs, RenderOptions,
+    SampleOptions, Traced, composite_batch, render_camera, render_rays, sample_rays,
 };
 
 fn trace_one(
@@ -236,7 +236,7 @@ fn batch_backward_matches_finite_differences() {
     {
         let mut out = BatchOutput::default();
         let mut t2 = traced.clone();
-        composite_batch(&mut t2, bg, &mut out, None);
+        composite_batch(&mut t2, Behind::Color(bg), &mut out, None);
         for r in 0..traced.rays {
             let mut merged: Vec<assist_render::composite::RaySample> = Vec::new();
             for ns in &traced.nodes {
@@ -277,6 +277,7 @@ fn batch_backward_matches_finite_differences() {
                 + q[2] * c.rgb[2]
                 + q[3] * c.depth
                 + q[4] * c.opacity
+                + q[18] * c.depth_sq
                 + DIST * q[17] * out.distortion[r]) as f64;
             for k in 0..2 {
                 let p = &out.nodes[r * 2 + k];
@@ -286,6 +287,7 @@ fn batch_backward_matches_finite_differences() {
                     + a[2] * p.rgb[2]
                     + a[3] * p.depth
                     + a[4] * p.opacity
+                    + q[19 + k] * p.depth_sq
                     + q[15 + k] * out.share[r * 2 + k]) as f64;
             }
         }
@@ -297,6 +299,7 @@ fn batch_backward_matches_finite_differences() {
             rgb: [q[0], q[1], q[2]],
             depth: q[3],
             opacity: q[4],
+            depth_sq: q[18],
             share: 0.0,
             distortion: DIST * q[17],
         };
@@ -306,42 +309,46 @@ fn batch_backward_matches_finite_differences() {
                 rgb: [p[0], p[1], p[2]],
                 depth: p[3],
                 opacity: p[4],
+                depth_sq: q[19 + k],
                 share: q[15 + k],
                 distortion: 0.0,
             };
         }
     };
-    let mut out = BatchOutput::default();
-    for ns in traced.nodes.iter_mut() {
-        ns.prepare_outputs(true);
-    }
-    composite_batch(&mut traced, bg, &mut out, Some(&grad));
+    // Over a background colour, and showing the last sample past the transmittance.
     let mut failures = Vec::new();
-    let h = 1e-3f32;
-    for k in 0..2 {
-        for i in 0..traced.nodes[k].len() {
-            for which in 0..4 {
-                let analytic = if which == 0 {
-                    traced.nodes[k].d_sigma[i]
-                } else {
-                    traced.nodes[k].d_rgb[3 * i + which - 1]
-                };
-                let eval = |delta: f32| {
-                    let mut t = traced.clone();
-                    if which == 0 {
-                        t.nodes[k].sigma[i] += delta;
+    for behind in [Behind::Color(bg), Behind::LastSample] {
+        let mut out = BatchOutput::default();
+        for ns in traced.nodes.iter_mut() {
+            ns.prepare_outputs(true);
+        }
+        composite_batch(&mut traced, behind, &mut out, Some(&grad));
+        let h = 1e-3f32;
+        for k in 0..2 {
+            for i in 0..traced.nodes[k].len() {
+                for which in 0..4 {
+                    let analytic = if which == 0 {
+                        traced.nodes[k].d_sigma[i]
                     } else {
-                        t.nodes[k].rgb[3 * i + which - 1] += delta;
+                        traced.nodes[k].d_rgb[3 * i + which - 1]
+                    };
+                    let eval = |delta: f32| {
+                        let mut t = traced.clone();
+                        if which == 0 {
+                            t.nodes[k].sigma[i] += delta;
+                        } else {
+                            t.nodes[k].rgb[3 * i + which - 1] += delta;
+                        }
+                        let mut o = BatchOutput::default();
+                        composite_batch(&mut t, behind, &mut o, None);
+                        loss(&o)
+                    };
+                    let fd = ((eval(h) - eval(-h)) / (2.0 * h as f64)) as f32;
+                    if (fd - analytic).abs() > 2e-3 * (1.0 + fd.abs()) {
+                        failures.push(format!(
+                            "{behind:?} node {k} sample {i} input {which}: fd {fd} analytic {analytic}"
+                        ));
                     }
-                    let mut o = BatchOutput::default();
-                    composite_batch(&mut t, bg, &mut o, None);
-                    loss(&o)
-                };
-                let fd = ((eval(h) - eval(-h)) / (2.0 * h as f64)) as f32;
-                if (fd - analytic).abs() > 2e-3 * (1.0 + fd.abs()) {
-                    failures.push(format!(
-                        "node {k} sample {i} input {which}: fd {fd} analytic {analytic}"
-                    ));
                 }
             }
         }

@@ -35,6 +35,11 @@ pub struct EvalReport {
     pub background_psnr: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub background_occluded_psnr: Option<f64>,
+    /// Median of |rendered − true| / true z-depth of the background node alone, over the
+    /// pixels where the `background/` ground truth has depth (a pixel the background
+    /// leaves empty counts as error 1).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub background_depth_error: Option<f64>,
     pub per_image: Vec<ImageScore>,
     pub seconds: f64,
 }
@@ -78,6 +83,7 @@ pub fn evaluate(
     let mut iou = IouAccumulator::default();
     let mut any_ids = false;
     let (mut bg_se, mut bg_n, mut occ_se, mut occ_n) = (0.0, 0usize, 0.0, 0usize);
+    let mut depth_err: Vec<f32> = Vec::new();
     for (i, f) in frames.iter().enumerate() {
         progress(i, frames.len());
         let v = load_view(f, u32::MAX, scene.scene.background_color)?;
@@ -102,6 +108,13 @@ pub fn evaluate(
             let (se, n) = squared_error(&brgb, &truth.rgb, 3, None);
             bg_se += se;
             bg_n += n;
+            if let Some(td) = &truth.depth {
+                depth_err.extend(td.iter().zip(&b.depth).filter(|(t, _)| **t > 0.0).map(
+                    |(&t, &d)| {
+                        if d > 0.0 { ((d - t) / t).abs() } else { 1.0 }
+                    },
+                ));
+            }
             if let Some(ids) = &v.ids {
                 let mask: Vec<bool> = ids.iter().map(|&i| i != 0).collect();
                 let (se, n) = squared_error(&brgb, &truth.rgb, 3, Some(&mask));
@@ -121,9 +134,20 @@ pub fn evaluate(
         panoptic_iou: any_ids.then(|| iou.per_class()),
         background_psnr: (bg_n > 0).then(|| mse_to_psnr(bg_se / bg_n as f64)),
         background_occluded_psnr: (occ_n > 0).then(|| mse_to_psnr(occ_se / occ_n as f64)),
+        background_depth_error: median(&mut depth_err),
         per_image,
         seconds: t0.elapsed().as_secs_f64(),
     })
+}
+
+/// The median of `v` (reordered); `None` when empty.
+fn median(v: &mut [f32]) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    let mid = v.len() / 2;
+    let (_, m, _) = v.select_nth_unstable_by(mid, f32::total_cmp);
+    Some(*m as f64)
 }
 
 /// The `background/` ground truth beside a dataset (desk format), when present.
@@ -160,8 +184,9 @@ pub struct PriorReport {
 }
 
 /// Measures the built-in background priors on the views of `split` that have instance
-/// masks and a `background/` ground-truth view (desk format): each view is filled as
-/// training fills it, then compared with the truth under its objects.
+/// masks and a `background/` ground-truth view (desk format): the views are filled as
+/// training fills its views (the multi-view fill draws on the views of the same split),
+/// then compared with the truth under their objects.
 pub fn evaluate_priors(
     ds: &Dataset,
     split: Option<Split>,
@@ -194,11 +219,11 @@ pub fn evaluate_priors(
                 .into(),
         });
     }
-    let mut se = vec![0.0f64; kinds.len()];
-    let mut secs = vec![0.0f64; kinds.len()];
-    let mut pixels = 0usize;
+    // The views to fill, with their truths; the multi-view fill draws on all of them.
+    let mut set = Vec::new();
+    let mut truths = Vec::new();
     for (i, (f, b)) in pairs.iter().enumerate() {
-        progress(i, pairs.len());
+        progress(i, 2 * pairs.len());
         let v = load_view(f, u32::MAX, [0.0; 3])?;
         let t = load_view(b, u32::MAX, [0.0; 3])?;
         if t.rgb.len() != v.rgb.len() {
@@ -214,16 +239,35 @@ pub fn evaluate_priors(
                 ),
             });
         }
-        let Some(ids) = &v.ids else { continue };
-        let mask: Vec<bool> = ids.iter().map(|&i| i != 0).collect();
-        for (k, &kind) in kinds.iter().enumerate() {
-            let mut filled = v.clone();
-            filled.inpaint = None;
-            filled.inpaint_depth = None;
-            let t0 = std::time::Instant::now();
-            crate::views::fill_prior(&mut filled, kind);
-            secs[k] += t0.elapsed().as_secs_f64();
-            let img = filled.inpaint.as_ref().unwrap_or(&filled.rgb);
+        if v.ids.is_none() {
+            continue;
+        }
+        set.push(v);
+        truths.push(t);
+    }
+    let mut se = vec![0.0f64; kinds.len()];
+    let mut secs = vec![0.0f64; kinds.len()];
+    let mut pixels = 0usize;
+    for (k, &kind) in kinds.iter().enumerate() {
+        progress(pairs.len() + k * pairs.len() / kinds.len(), 2 * pairs.len());
+        let mut filled = set.clone();
+        for v in &mut filled {
+            v.inpaint = None;
+            v.inpaint_depth = None;
+            v.prior_confidence = None;
+        }
+        let t0 = std::time::Instant::now();
+        crate::views::fill_priors(&mut filled, kind);
+        secs[k] += t0.elapsed().as_secs_f64();
+        for (v, t) in filled.iter().zip(&truths) {
+            let mask: Vec<bool> = v
+                .ids
+                .as_ref()
+                .expect("views with masks")
+                .iter()
+                .map(|&i| i != 0)
+                .collect();
+            let img = v.inpaint.as_ref().unwrap_or(&v.rgb);
             let (e, n) = squared_error(img, &t.rgb, 3, Some(&mask));
             se[k] += e;
             if k == 0 {
@@ -231,7 +275,7 @@ pub fn evaluate_priors(
             }
         }
     }
-    progress(pairs.len(), pairs.len());
+    progress(2 * pairs.len(), 2 * pairs.len());
     let scores = kinds
         .iter()
         .enumerate()

@@ -2,12 +2,15 @@
 //!
 //! `setup` turns a dataset into scene nodes (boxes from the dataset or carved from the
 //! masks), `views` loads the training images with their masks and background priors
-//! (`prior`), `trainer` runs the paper's five losses with Adam and checkpoints, and
+//! (`prior` within a view, `multiview` from the other views), `trainer` runs the paper's five losses with Adam and checkpoints, and
 //! `metrics`/`eval` measure PSNR, SSIM, panoptic mIoU and background quality.
 
 pub mod error;
 pub mod eval;
+pub mod freespace;
+pub mod losses;
 pub mod metrics;
+pub mod multiview;
 pub mod prior;
 pub mod setup;
 pub mod trainer;

@@ -6,7 +6,9 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use assist_core::{Aabb, DVec3, InstanceId, NodeSpace, Obb, Scene, SceneNode, Similarity3};
+use assist_core::{
+    Aabb, Backdrop, DVec3, InstanceId, NodeSpace, Obb, Scene, SceneNode, Similarity3,
+};
 use assist_data::boxes::BoxOverride;
 use assist_data::{Dataset, Format};
 use assist_field::{Field, FieldConfig, OccupancyGrid};
@@ -114,12 +116,10 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
     let space = opts.background_space.resolve(views);
     let mut near = 0.0;
     if !is_object_capture(ds) {
+        near = near_plane(ds, views);
         let inner = match space {
             NodeSpace::Box => region,
-            NodeSpace::Contracted => {
-                near = near_plane(ds, views);
-                unbounded_inner_region(ds, views)
-            }
+            NodeSpace::Contracted => unbounded_inner_region(ds, views),
         };
         let c = inner.center();
         let half = inner.size() * 0.5 * 1.05;
@@ -163,6 +163,12 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
         up: ds.world_up.unwrap_or(DVec3::Z),
         meters_per_unit: ds.meters_per_unit.unwrap_or(1.0),
         background_color: background_color(ds),
+        // Captures with an unknown background show their last sample (see `Backdrop`).
+        backdrop: if is_object_capture(ds) {
+            Backdrop::Color
+        } else {
+            Backdrop::LastSample
+        },
         selected: None,
         near,
     };
@@ -237,13 +243,30 @@ pub fn unbounded_inner_region(ds: &Dataset, views: &[View]) -> Aabb {
     b
 }
 
-/// Near plane for a capture without depth: half the distance to the closest content any
-/// view sees (the 1st percentile of the sparse points' depths in the views that see them,
-/// or the LLFF near bound); 0 when unknown. Keeps each view from painting its own haze
+/// Near plane of a scene (not of an object capture): half the distance to the closest
+/// content any view sees — the 1st percentile of the depth maps' depths, else of the
+/// sparse points' depths in the views that see them, else the LLFF near bound; 0 when
+/// unknown. Keeps each view from painting its own haze
 /// right in front of its camera.
 pub fn near_plane(ds: &Dataset, views: &[View]) -> f64 {
     // At most ~20k points (every k-th), so a large model does not slow start-up: the
     // percentile needs no more.
+    // Depth maps, where the views have them (every 7th pixel).
+    let mut seen: Vec<f64> = views
+        .par_iter()
+        .flat_map_iter(|v| {
+            v.depth
+                .iter()
+                .flat_map(|d| d.iter().step_by(7))
+                .filter(|&&z| z > 0.0)
+                .map(|&z| z as f64)
+        })
+        .collect();
+    if seen.len() >= 100 {
+        let k = seen.len() / 100;
+        let (_, z, _) = seen.select_nth_unstable_by(k, f64::total_cmp);
+        return 0.5 * *z;
+    }
     let stride = ds.points.len().div_ceil(20_000).max(1);
     let mut depths: Vec<f64> = views
         .par_iter()

@@ -20,6 +20,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::error::{Result, TrainError};
+use crate::losses;
 use crate::views::View;
 
 /// Loss weights. Defaults: λ1 = 0.5 (bg colour), λ2 = 0.1 (bg depth, in units of the
@@ -101,6 +102,11 @@ pub struct TrainOptions {
     pub prune_eps: f32,
     /// The dataset's `--downscale` (recorded in the scene for evaluation; 1 = none).
     pub downscale: u32,
+    /// Learn a scale and shift of the background depth prior (`depth_wq`). For priors
+    /// of unknown scale (a monocular model's depth supplied by the user); a prior made
+    /// from the dataset's own depth is metric, and a free scale only lets the rendered
+    /// depth drift from it (the demo's wall rendered at half its distance, scale 0.42).
+    pub depth_affine: bool,
     /// Testing aid: poison one parameter with NaN at this iteration (exercises divergence
     /// detection).
     #[serde(skip)]
@@ -122,6 +128,7 @@ impl Default for TrainOptions {
             checkpoint_every: 60.0,
             object_ray_fraction: 0.25,
             downscale: 1,
+            depth_affine: false,
             prune_eps: 0.0,
             poison_at: None,
         }
@@ -184,6 +191,8 @@ struct Target {
     inpaint: Option<[f32; 3]>,
     /// Prior depth as distance along the ray, in units of the scene extent.
     depth: Option<f32>,
+    /// Weight of the prior terms (the prior's confidence at this pixel).
+    prior_weight: f32,
 }
 
 /// A pixel `(view, index)` drawn uniformly over the pixels to train on: one a `mask_path`
@@ -381,6 +390,7 @@ impl Trainer {
                     .map(|d| d[p])
                     .filter(|&z| z > 0.0 && cos > 1e-3)
                     .map(|z| z / cos / extent);
+                let prior_weight = v.prior_confidence.as_ref().map_or(1.0, |c| c[p]);
                 Some((
                     ray,
                     v.image_index,
@@ -390,6 +400,7 @@ impl Trainer {
                         masked,
                         inpaint,
                         depth,
+                        prior_weight,
                     },
                 ))
             })
@@ -449,6 +460,7 @@ impl Trainer {
         let targets = &self.targets;
         let bg = self.background;
         let wq = self.depth_wq;
+        let depth_affine = self.opts.depth_affine;
         let extent = self.extent;
         let is_object: Vec<bool> = self
             .scene
@@ -460,9 +472,8 @@ impl Trainer {
         let grad_fn = |o: &RayOutputs, g: &mut CompositeGrad, gn: &mut [CompositeGrad]| {
             let (c, per) = (o.composite, o.nodes);
             let t = &targets[o.ray];
-            for ch in 0..3 {
-                g.rgb[ch] = 2.0 * (c.rgb[ch] - t.rgb[ch]) / (3.0 * n_rays);
-            }
+            let (_, d) = losses::rgb(c.rgb, t.rgb);
+            g.rgb = d.map(|v| v / n_rays);
             g.distortion = lam.distortion / extent / n_rays;
             if t.masked {
                 for (k, pk) in per.iter().enumerate() {
@@ -470,32 +481,44 @@ impl Trainer {
                         continue;
                     }
                     let m = if t.mask_node == k as u32 { 1.0 } else { 0.0 };
-                    gn[k].opacity += lam.obj_acc * 2.0 * (pk.opacity - m) / n_rays;
+                    let (_, d) = losses::opacity(pk.opacity, m);
+                    gn[k].opacity += lam.obj_acc * d / n_rays;
                     if m > 0.0 {
+                        let (_, dc, d_o) = losses::premultiplied_rgb(pk.rgb, pk.opacity, t.rgb);
                         for ch in 0..3 {
-                            gn[k].rgb[ch] +=
-                                lam.obj_rgb * 2.0 * (pk.rgb[ch] - t.rgb[ch]) / (3.0 * n_rays);
+                            gn[k].rgb[ch] += lam.obj_rgb * dc[ch] / n_rays;
                         }
-                        gn[k].share -= lam.obj_share * 2.0 * (1.0 - o.share[k]) / n_rays;
+                        gn[k].opacity += lam.obj_rgb * d_o / n_rays;
+                        let (_, d) = losses::share(o.share[k]);
+                        gn[k].share += lam.obj_share * d / n_rays;
                     }
                 }
             }
             if let Some(b) = bg {
+                let pw = t.prior_weight;
                 if let Some(inp) = t.inpaint {
+                    let (_, dc, d_o) = losses::premultiplied_rgb(per[b].rgb, per[b].opacity, inp);
                     for ch in 0..3 {
-                        gn[b].rgb[ch] +=
-                            lam.bg_rgb * 2.0 * (per[b].rgb[ch] - inp[ch]) / (3.0 * n_rays);
+                        gn[b].rgb[ch] += pw * lam.bg_rgb * dc[ch] / n_rays;
                     }
+                    gn[b].opacity += pw * lam.bg_rgb * d_o / n_rays;
                 }
                 if let Some(d) = t.depth {
-                    let e = wq[0] * per[b].depth / extent + wq[1] - d;
-                    gn[b].depth += lam.bg_depth * 2.0 * e * wq[0] / extent / n_rays;
+                    if depth_affine {
+                        let (_, gd, _) = losses::affine_depth(per[b].depth, extent, wq, d);
+                        gn[b].depth += pw * lam.bg_depth * gd / n_rays;
+                    } else {
+                        let (_, gd, gs) =
+                            losses::depth_moment(per[b].depth, per[b].depth_sq, extent, d);
+                        gn[b].depth += pw * lam.bg_depth * gd / n_rays;
+                        gn[b].depth_sq += pw * lam.bg_depth * gs / n_rays;
+                    }
                 }
             }
         };
         composite_batch(
             &mut self.traced,
-            self.scene.scene.background_color,
+            assist_render::Behind::of(&self.scene.scene),
             &mut self.out,
             Some(&grad_fn),
         );
@@ -517,38 +540,38 @@ impl Trainer {
             let per = &self.out.nodes[r * nn..(r + 1) * nn];
             let share = &self.out.share[r * nn..(r + 1) * nn];
             s.distortion += (self.out.distortion[r] / self.extent) as f64;
-            s.comp_rgb += (0..3)
-                .map(|ch| ((c.rgb[ch] - t.rgb[ch]) as f64).powi(2))
-                .sum::<f64>()
-                / 3.0;
+            s.comp_rgb += losses::rgb(c.rgb, t.rgb).0 as f64;
             if t.masked {
                 for (k, pk) in per.iter().enumerate() {
                     if is_object[k] {
                         let m = if t.mask_node == k as u32 { 1.0 } else { 0.0 };
-                        s.obj_acc += ((pk.opacity - m) as f64).powi(2);
+                        s.obj_acc += losses::opacity(pk.opacity, m).0 as f64;
                         if m > 0.0 {
-                            s.obj_rgb += (0..3)
-                                .map(|ch| ((pk.rgb[ch] - t.rgb[ch]) as f64).powi(2))
-                                .sum::<f64>()
-                                / 3.0;
-                            s.obj_share += (1.0 - share[k] as f64).powi(2);
+                            s.obj_rgb +=
+                                losses::premultiplied_rgb(pk.rgb, pk.opacity, t.rgb).0 as f64;
+                            s.obj_share += losses::share(share[k]).0 as f64;
                         }
                     }
                 }
             }
             if let Some(b) = bg {
+                let pw = t.prior_weight;
                 if let Some(inp) = t.inpaint {
-                    s.bg_rgb += (0..3)
-                        .map(|ch| ((per[b].rgb[ch] - inp[ch]) as f64).powi(2))
-                        .sum::<f64>()
-                        / 3.0;
+                    let (v, _, _) = losses::premultiplied_rgb(per[b].rgb, per[b].opacity, inp);
+                    s.bg_rgb += (pw * v) as f64;
                 }
                 if let Some(d) = t.depth {
-                    let x = per[b].depth / self.extent;
-                    let e = self.depth_wq[0] * x + self.depth_wq[1] - d;
-                    s.bg_depth += (e as f64).powi(2);
-                    g_wq[0] += lam.bg_depth * 2.0 * e * x / n_rays;
-                    g_wq[1] += lam.bg_depth * 2.0 * e / n_rays;
+                    if self.opts.depth_affine {
+                        let (v, _, gab) =
+                            losses::affine_depth(per[b].depth, self.extent, self.depth_wq, d);
+                        s.bg_depth += (pw * v) as f64;
+                        g_wq[0] += pw * lam.bg_depth * gab[0] / n_rays;
+                        g_wq[1] += pw * lam.bg_depth * gab[1] / n_rays;
+                    } else {
+                        let (v, _, _) =
+                            losses::depth_moment(per[b].depth, per[b].depth_sq, self.extent, d);
+                        s.bg_depth += (pw * v) as f64;
+                    }
                 }
             }
         }
@@ -596,7 +619,7 @@ impl Trainer {
                 .expect("adam per field")
                 .update(lr, &mut nf.field.params, grad);
         }
-        if bg.is_some() && lam.bg_depth > 0.0 {
+        if bg.is_some() && lam.bg_depth > 0.0 && self.opts.depth_affine {
             update_depth_affine(&mut self.wq_adam, &mut self.depth_wq, &mut g_wq);
         }
         phase[4] = tp.elapsed().as_secs_f64();
@@ -757,6 +780,7 @@ mod tests {
             depth: None,
             inpaint: None,
             inpaint_depth: None,
+            prior_confidence: None,
         };
         // View 0: only pixel 5 is valid; view 1: all; view 2: none.
         let mut only5 = vec![false; 8];

@@ -18,6 +18,8 @@ pub enum PriorKind {
     None,
     PushPull,
     Exemplar,
+    /// From the other views that see the background (needs depth; push–pull elsewhere).
+    MultiView,
 }
 
 impl PriorKind {
@@ -26,6 +28,7 @@ impl PriorKind {
             "none" => PriorKind::None,
             "push-pull" => PriorKind::PushPull,
             "exemplar" => PriorKind::Exemplar,
+            "multi-view" => PriorKind::MultiView,
             _ => return None,
         })
     }
@@ -49,6 +52,8 @@ pub struct View {
     pub inpaint: Option<Vec<f32>>,
     /// Background prior: z-depth with objects removed (0 = none).
     pub inpaint_depth: Option<Vec<f32>>,
+    /// Weight of the background prior per pixel (0..1; `None` = 1 everywhere).
+    pub prior_confidence: Option<Vec<f32>>,
 }
 
 /// Pixels covered by objects, dilated by this many pixels, are filled by the prior.
@@ -177,6 +182,7 @@ pub fn load_view(frame: &Frame, image_index: u32, background: [f32; 3]) -> Resul
         depth,
         inpaint,
         inpaint_depth,
+        prior_confidence: None,
     })
 }
 
@@ -192,7 +198,9 @@ pub fn fill_prior(v: &mut View, kind: PriorKind) {
     if v.inpaint.is_none() {
         let mut img = v.rgb.clone();
         match kind {
-            PriorKind::PushPull => prior::push_pull(&mut img, w, h, 3, &hole),
+            PriorKind::PushPull | PriorKind::MultiView => {
+                prior::push_pull(&mut img, w, h, 3, &hole)
+            }
             PriorKind::Exemplar => prior::exemplar_fill(&mut img, w, h, 3, &hole, 7, 24),
             PriorKind::None => {}
         }
@@ -206,6 +214,17 @@ pub fn fill_prior(v: &mut View, kind: PriorKind) {
         prior::push_pull(&mut dd, w, h, 1, &hole_d);
         v.inpaint_depth = Some(dd);
     }
+}
+
+/// Fills the background prior of every view that has none: from the other views first
+/// with [`PriorKind::MultiView`] (where views have depth), then with the single-view fill.
+pub fn fill_priors(
+    views: &mut [View],
+    kind: PriorKind,
+) -> Option<crate::multiview::MultiViewStats> {
+    let stats = (kind == PriorKind::MultiView).then(|| crate::multiview::fill_multiview(views));
+    views.par_iter_mut().for_each(|v| fill_prior(v, kind));
+    stats
 }
 
 /// Loads the frames of `split` (in dataset order), in parallel.

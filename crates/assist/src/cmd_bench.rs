@@ -353,7 +353,11 @@ fn prior(a: PriorBenchArgs) -> anyhow::Result<()> {
     let ds = assist_data::load(&a.data, &Default::default())
         .with_context(|| format!("loading dataset {}", a.data.display()))?;
     let bar = crate::progress::bar(!a.json && std::io::stderr().is_terminal(), "prior");
-    let kinds = [PriorKind::PushPull, PriorKind::Exemplar];
+    let kinds = [
+        PriorKind::PushPull,
+        PriorKind::Exemplar,
+        PriorKind::MultiView,
+    ];
     let r = assist_train::eval::evaluate_priors(&ds, split, &kinds, crate::progress::steps(&bar))?;
     bar.finish_and_clear();
     if a.json {

@@ -161,10 +161,11 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     let (trained, _) = assist_render::scene_file::load(&scene_a)?;
     let r = assist_train::eval::evaluate(&trained, &ds, Some(Split::Test), 1, |_, _| {})?;
     eprintln!(
-        "    test PSNR {:.2} dB, SSIM {:.3}, panoptic mIoU {:.3} ({} views)",
+        "    test PSNR {:.2} dB, SSIM {:.3}, panoptic mIoU {:.3}, background depth error {:.1}% ({} views)",
         r.psnr,
         r.ssim,
         r.panoptic_miou.unwrap_or(f64::NAN),
+        100.0 * r.background_depth_error.unwrap_or(f64::NAN),
         r.images
     );
 

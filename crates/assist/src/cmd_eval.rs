@@ -83,6 +83,12 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         if let Some(b) = r.background_occluded_psnr {
             println!("background PSNR {b:.2} dB (pixels covered by objects)");
         }
+        if let Some(e) = r.background_depth_error {
+            println!(
+                "background depth error {:.1}% (median |rendered - true| / true)",
+                100.0 * e
+            );
+        }
     }
     Ok(())
 }

@@ -7,11 +7,10 @@ use anyhow::{Context, bail};
 use assist_data::{LoadOptions, Split};
 use assist_train::setup::{BackgroundSpace, SetupOptions, background_color, build_scene};
 use assist_train::trainer::Lambdas;
-use assist_train::views::{fill_prior, load_views};
+use assist_train::views::{fill_priors, load_views};
 use assist_train::{PriorKind, TrainOptions, Trainer};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use rayon::prelude::*;
 
 #[derive(Args, Debug)]
 pub struct TrainArgs {
@@ -36,8 +35,10 @@ pub struct TrainArgs {
     /// drawn uniformly over all pixels), so that small objects get enough rays.
     #[arg(long, default_value_t = TrainOptions::default().object_ray_fraction)]
     pub object_rays: f64,
-    /// Background prior: exemplar, push-pull or none (none also sets λ1 = λ2 = 0).
-    #[arg(long, default_value = "push-pull")]
+    /// Background prior under the objects: multi-view (from the other views that see it,
+    /// where the dataset has depth; push-pull elsewhere), push-pull, exemplar, or none
+    /// (none also sets λ1 = λ2 = 0).
+    #[arg(long, default_value = "multi-view")]
     pub prior: String,
     #[arg(long)]
     pub lambda_bg_rgb: Option<f32>,
@@ -105,7 +106,7 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
     })?;
     let prior = PriorKind::parse(&a.prior).with_context(|| {
         format!(
-            "--prior: expected exemplar, push-pull or none, got {:?}",
+            "--prior: expected multi-view, push-pull, exemplar or none, got {:?}",
             a.prior
         )
     })?;
@@ -135,7 +136,19 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
         );
     }
     let mut views = load_views(&ds, Split::Train, bgc)?;
-    views.par_iter_mut().for_each(|v| fill_prior(v, prior));
+    // A depth prior the user supplies (a monocular model's) has an unknown scale; one the
+    // built-in fill makes from the dataset's depth is metric.
+    let depth_affine = views.iter().any(|v| v.inpaint_depth.is_some());
+    let mv = fill_priors(&mut views, prior);
+    if let Some(mv) = mv
+        && !a.json
+        && mv.hole_pixels > 0
+    {
+        eprintln!(
+            "background prior: {:.0}% of the pixels objects cover are seen by other views, the rest filled by push-pull",
+            100.0 * mv.filled_pixels as f64 / mv.hole_pixels as f64
+        );
+    }
     let appearance = match a.appearance.as_str() {
         "on" => true,
         "off" => false,
@@ -170,6 +183,18 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
         };
         (build_scene(&ds, &views, &so)?, None)
     };
+    let mut scene = scene;
+    let carved = assist_train::freespace::carve_scene(&mut scene, &views);
+    if !a.json && !carved.is_empty() {
+        let parts: Vec<String> = carved
+            .iter()
+            .map(|(k, f)| format!("{k} {:.0}%", 100.0 * f))
+            .collect();
+        eprintln!(
+            "free space carved from the depth maps: {}",
+            parts.join(", ")
+        );
+    }
     let mut lambdas = Lambdas::default();
     if prior == PriorKind::None && views.iter().all(|v| v.inpaint.is_none()) {
         lambdas.bg_rgb = 0.0;
@@ -199,6 +224,7 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
         batch_samples: a.batch_samples,
         object_ray_fraction: a.object_rays,
         downscale: a.downscale,
+        depth_affine,
         lambdas,
         seed: a.seed,
         checkpoint: Some(a.out.clone()),

@@ -51,6 +51,7 @@ pub fn write_scene(dir: &Path) {
             up: DVec3::Z,
             meters_per_unit: 1.0,
             background_color: [0.0; 3],
+            backdrop: Default::default(),
             selected: None,
             near: 0.0,
         },
