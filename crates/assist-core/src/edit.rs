@@ -200,6 +200,12 @@ impl History {
         self.redo.clear();
         Ok(())
     }
+    /// Remembers `before`, the scene an edit (or a group of edits) started from, once the
+    /// scene holds the result; clears the redo list.
+    pub fn record(&mut self, before: Scene) {
+        self.undo.push(before);
+        self.redo.clear();
+    }
     /// Restores the scene before the last edit; false when there is nothing to undo.
     pub fn undo(&mut self, scene: &mut Scene) -> bool {
         match self.undo.pop() {

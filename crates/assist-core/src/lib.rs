@@ -9,6 +9,8 @@
 //! (+x right, +y up, looking along −z); pixel centres sit at +0.5; transforms are named
 //! `x_from_y`. Geometry is computed in `f64`; the renderer converts to `f32` batches.
 
+#![forbid(unsafe_code)]
+
 pub mod action;
 pub mod camera;
 pub mod distortion;

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use assist_core::{DVec2, DVec3};
 
-use crate::colmap::{ColmapCamera, ColmapImage, ColmapModel, ColmapPoint, model_name};
+use crate::colmap_model::{ColmapCamera, ColmapImage, ColmapModel, ColmapPoint, model_name};
 use crate::error::{DataError, Result};
 
 struct Reader<'a> {

@@ -4,7 +4,7 @@ use std::path::Path;
 
 use assist_core::{DVec2, DVec3};
 
-use crate::colmap::{ColmapCamera, ColmapImage, ColmapModel, ColmapPoint, model_params};
+use crate::colmap_model::{ColmapCamera, ColmapImage, ColmapModel, ColmapPoint, model_params};
 use crate::error::{DataError, Result};
 
 fn lines(path: &Path) -> Result<Vec<(usize, String)>> {

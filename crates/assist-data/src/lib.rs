@@ -9,10 +9,13 @@
 //! Parsing is two-stage: raw JSON/binary records are read with their field paths, then
 //! validated into typed values; every error names the file and the field.
 
+#![forbid(unsafe_code)]
+
 pub mod blender;
 pub mod boxes;
 pub mod colmap;
 pub mod colmap_bin;
+mod colmap_model;
 pub mod colmap_text;
 pub mod consistency;
 pub mod dataset;
@@ -21,15 +24,19 @@ pub mod error;
 pub mod image_io;
 pub mod json;
 pub mod llff;
+mod load;
 pub mod masks;
 pub mod nerfstudio;
 pub mod npy;
 pub mod synth;
 pub mod validate;
+pub mod visual;
+pub mod writer;
 
 pub use dataset::{
     Dataset, Format, Frame, InstanceInfo, LoadOptions, Normalization, SceneBounds, Split,
-    detect_format, load,
 };
 pub use error::{DataError, Result};
 pub use image_io::{IdImage, ImageF32};
+pub use load::{detect_format, load};
+pub use writer::{DatasetWriter, Instance, Layer, Output, ViewImages, WriterConfig};

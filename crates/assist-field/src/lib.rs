@@ -10,8 +10,11 @@
 //! across cores, buffers reused across steps. The CPU implementation is the reference
 //! behind the `Field` API, where a GPU backend can be added later.
 
+#![forbid(unsafe_code)]
+
 pub mod adam;
 pub mod config;
+mod constant;
 pub mod contraction;
 pub mod error;
 pub mod field;

@@ -10,6 +10,7 @@ use crate::words::{
     CREATED, FILLER, GENERIC, GROW, PRONOUNS, SHRINK, axis_word, direction_word, unit_word,
     verb_at, word,
 };
+pub use crate::words::{Direction, Unit};
 
 /// An object as the text names it.
 #[derive(Debug, Clone, PartialEq)]
@@ -22,28 +23,6 @@ pub enum ObjectRef {
     Last,
     /// "the copy", "the duplicate", "the new one".
     Created,
-}
-
-/// A horizontal or vertical direction word.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Direction {
-    Left,
-    Right,
-    Up,
-    Down,
-    Forward,
-    Back,
-}
-
-/// A unit attached to a number.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Unit {
-    /// Metres per unit.
-    Length(f64),
-    Degrees,
-    Radians,
-    Percent,
-    Times,
 }
 
 /// Size words of a scale instruction.

@@ -12,6 +12,8 @@
 //! `llm` is an optional provider: any OpenAI-compatible chat-completions endpoint answers
 //! with action JSON, which is validated exactly like the parser's output.
 
+#![forbid(unsafe_code)]
+
 pub mod grammar;
 pub mod llm;
 pub mod names;
@@ -22,7 +24,7 @@ pub mod words;
 use assist_core::{Action, ActionError, Scene, SceneSource};
 
 pub use names::TextEmbedder;
-pub use resolve::{ParseOptions, direction_vector};
+pub use resolve::{ParseOptions, Resolved, direction_vector};
 
 #[derive(Debug, thiserror::Error)]
 pub enum LangError {
@@ -59,5 +61,19 @@ pub fn parse(
 ) -> Result<Vec<Action>, LangError> {
     let toks = tokens::tokenize(text);
     let raw = grammar::parse_raw(&toks)?;
-    resolve::resolve(&raw, scene, opts, sources)
+    Ok(resolve::resolve(&raw, scene, opts, sources, &Default::default())?.actions)
+}
+
+/// Like [`parse`], keeping what validation made of each action (see [`Resolved`]); field
+/// keys in `taken_fields` are not given to imported nodes.
+pub fn resolve_text(
+    text: &str,
+    scene: &Scene,
+    opts: &ParseOptions,
+    sources: &mut dyn SceneSource,
+    taken_fields: &std::collections::BTreeSet<String>,
+) -> Result<Resolved, LangError> {
+    let toks = tokens::tokenize(text);
+    let raw = grammar::parse_raw(&toks)?;
+    resolve::resolve(&raw, scene, opts, sources, taken_fields)
 }

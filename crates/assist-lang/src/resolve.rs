@@ -284,19 +284,33 @@ fn factor(cmd: &RawCommand) -> Result<f64, LangError> {
     Ok(f)
 }
 
+/// An instruction resolved against a scene: its actions, each validated once against the
+/// scene as the previous ones left it, with the edit it makes and the scene after it.
+/// An editor installs these as they are, without validating again.
+#[derive(Debug, Clone, Default)]
+pub struct Resolved {
+    pub actions: Vec<Action>,
+    pub edits: Vec<assist_core::Edit>,
+    pub scenes: Vec<Scene>,
+}
+
 /// Resolves raw commands against `scene`; every action is validated in order.
+/// `taken_fields` are field keys an imported node must not take (see
+/// [`Action::validate`]).
 pub fn resolve(
     cmds: &[RawCommand],
     scene: &Scene,
     opts: &ParseOptions,
     sources: &mut dyn SceneSource,
-) -> Result<Vec<Action>, LangError> {
+    taken_fields: &BTreeSet<String>,
+) -> Result<Resolved, LangError> {
+    let mut taken = taken_fields.clone();
     let mut st = State {
         scene: scene.clone(),
         last: opts.last.into_iter().collect(),
         created: None,
     };
-    let mut out = Vec::new();
+    let mut out = Resolved::default();
     for cmd in cmds {
         let mut actions: Vec<Action> = Vec::new();
         let p = &cmd.params;
@@ -498,12 +512,12 @@ pub fn resolve(
                 Operation::Add => a.instance_id = st.scene.fresh_id(),
                 _ => {}
             }
-            let edit = a
-                .validate(&st.scene, sources, &BTreeSet::new())
-                .map_err(|source| LangError::Action {
-                    clause: cmd.text.clone(),
-                    source,
-                })?;
+            let edit =
+                a.validate(&st.scene, sources, &taken)
+                    .map_err(|source| LangError::Action {
+                        clause: cmd.text.clone(),
+                        source,
+                    })?;
             assist_core::edit::apply(&mut st.scene, &edit).map_err(|source| LangError::Action {
                 clause: cmd.text.clone(),
                 source,
@@ -511,7 +525,14 @@ pub fn resolve(
             if let Some(c) = edit.created() {
                 created = Some(c);
             }
-            out.push(a);
+            if let assist_core::Edit::Add { imported }
+            | assist_core::Edit::SwapIn { imported, .. } = &edit
+            {
+                taken.insert(imported.node.field.clone());
+            }
+            out.actions.push(a);
+            out.edits.push(edit);
+            out.scenes.push(st.scene.clone());
         }
         if let Some(c) = created {
             st.created = Some(c);

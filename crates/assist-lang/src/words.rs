@@ -3,7 +3,6 @@
 
 use assist_core::Operation;
 
-use crate::grammar::{Direction, Unit};
 use crate::tokens::Tok;
 
 pub struct Verb {
@@ -23,6 +22,28 @@ const fn v(words: &'static [&'static str], op: Operation) -> Verb {
 }
 
 use Operation::*;
+
+/// A horizontal or vertical direction word.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Direction {
+    Left,
+    Right,
+    Up,
+    Down,
+    Forward,
+    Back,
+}
+
+/// A unit attached to a number.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Unit {
+    /// Metres per unit.
+    Length(f64),
+    Degrees,
+    Radians,
+    Percent,
+    Times,
+}
 
 /// Verbs, longest phrases first where they share a first word.
 const VERBS: &[Verb] = &[

@@ -6,24 +6,21 @@
 //! rotated or scaled. Each node's field is queried once per batch, the samples of all nodes
 //! are merged by depth and composited (`batch`), with per-node colour, depth and opacity
 //! and a backward pass into every sample. `render` turns cameras into images (RGB, z-depth,
-//! opacity, panoptic ids, per-node layers, selection highlight); `scene_file` saves and
-//! loads `NAME.assist/` directories; `edit` applies actions (assist-core) with their weights
-//! and keeps the undo history.
+//! opacity, panoptic ids, per-node layers, selection highlight). Scenes themselves — nodes
+//! with their fields, scene files, the editor — are assist-scene's.
+
+#![forbid(unsafe_code)]
 
 pub mod batch;
 pub mod composite;
-pub mod edit;
-pub mod node;
 pub mod prune;
 pub mod render;
 pub mod sample;
-pub mod scene_file;
 
 pub use batch::{BatchOutput, Behind, CompositeGrad, GradFn, RayOutputs, composite_batch};
 pub use composite::{Composite, RaySample, composite, composite_backward};
-pub use edit::{EditError, Editor, SceneFiles};
-pub use node::{NeuralScene, NodeField};
 pub use prune::{PRUNE_EPS, PRUNE_MIN_PER_RAY, PruneScratch, PruneStats, prune_occluded};
-pub use render::{HIGHLIGHT, NodeLayer, RenderOptions, RenderedImage, render_camera, render_rays};
+pub use render::{
+    HIGHLIGHT, NodeLayer, RenderOptions, RenderScratch, RenderedImage, render_camera, render_rays,
+};
 pub use sample::{NodeSamples, RayBatch, SampleOptions, Traced, sample_rays};
-pub use scene_file::SceneFileError;

@@ -8,8 +8,8 @@
 
 use rayon::prelude::*;
 
-use crate::node::NeuralScene;
 use crate::sample::{NodeSamples, Traced};
+use assist_scene::NeuralScene;
 
 /// Default transmittance below which samples are dropped.
 pub const PRUNE_EPS: f32 = 1e-4;

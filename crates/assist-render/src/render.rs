@@ -6,8 +6,8 @@ use assist_core::{Camera, InstanceId};
 use assist_field::{Precision, Tape};
 
 use crate::batch::{BatchOutput, composite_batch};
-use crate::node::NeuralScene;
 use crate::sample::{RayBatch, SampleOptions, Traced, sample_rays};
+use assist_scene::NeuralScene;
 
 #[derive(Debug, Clone)]
 pub struct RenderOptions {
@@ -64,32 +64,50 @@ pub struct RenderedImage {
     pub layers: Vec<NodeLayer>,
 }
 
-/// Queries every node's field for its samples (inference), adding the highlight colour to
-/// the selected node's samples. `tapes` are reusable scratch buffers, one per node.
-pub fn query_fields(
-    scene: &NeuralScene,
-    traced: &mut Traced,
-    tapes: &mut Vec<Tape>,
-    highlight: Option<(InstanceId, [f32; 3])>,
-    precision: Precision,
-) {
+/// How fields are queried.
+#[derive(Debug, Clone, Copy)]
+pub enum Query {
+    /// For an image: at `precision`, adding `highlight`'s colour to that node's samples.
+    Render {
+        precision: Precision,
+        highlight: Option<(InstanceId, [f32; 3])>,
+    },
+    /// For a training step: in f32, keeping each node's tape for the backward pass and
+    /// leaving room for the gradients.
+    Train,
+}
+
+/// Queries every node's field at its samples: the one query path of rendering and
+/// training. `tapes` are reusable scratch buffers, one per node.
+pub fn query_fields(scene: &NeuralScene, traced: &mut Traced, tapes: &mut Vec<Tape>, q: Query) {
     tapes.resize_with(traced.nodes.len(), Tape::default);
     for (ns, tape) in traced.nodes.iter_mut().zip(tapes.iter_mut()) {
-        ns.prepare_outputs(false);
+        ns.prepare_outputs(matches!(q, Query::Train));
         if ns.is_empty() {
             continue;
         }
         let nf = scene.field_of(ns.node);
+        // The outputs are moved out while the samples are borrowed.
         let mut sigma = std::mem::take(&mut ns.sigma);
         let mut rgb = std::mem::take(&mut ns.rgb);
-        nf.field
-            .forward_at(precision, &ns.samples(), tape, &mut sigma, &mut rgb);
-        if let Some((id, add)) = highlight
-            && scene.scene.nodes[ns.node].id == id
-        {
-            for px in rgb.chunks_exact_mut(3) {
-                for c in 0..3 {
-                    px[c] = (px[c] + add[c]).min(1.0);
+        match q {
+            Query::Train => nf
+                .field
+                .forward_train(&ns.samples(), tape, &mut sigma, &mut rgb),
+            Query::Render {
+                precision,
+                highlight,
+            } => {
+                nf.field
+                    .forward_at(precision, &ns.samples(), tape, &mut sigma, &mut rgb);
+                if let Some((id, add)) = highlight
+                    && scene.scene.nodes[ns.node].id == id
+                {
+                    for px in rgb.chunks_exact_mut(3) {
+                        for c in 0..3 {
+                            px[c] = (px[c] + add[c]).min(1.0);
+                        }
+                    }
                 }
             }
         }
@@ -119,13 +137,11 @@ pub fn render_rays(scene: &NeuralScene, opts: &RenderOptions, sc: &mut RenderScr
     if opts.prune_eps > 0.0 {
         crate::prune::prune_occluded(scene, &mut sc.traced, opts.prune_eps, &mut sc.prune);
     }
-    query_fields(
-        scene,
-        &mut sc.traced,
-        &mut sc.tapes,
-        opts.highlight,
-        opts.precision,
-    );
+    let q = Query::Render {
+        precision: opts.precision,
+        highlight: opts.highlight,
+    };
+    query_fields(scene, &mut sc.traced, &mut sc.tapes, q);
     composite_batch(
         &mut sc.traced,
         crate::batch::Behind::of(&scene.scene),

@@ -8,7 +8,7 @@ use assist_core::{DVec3, NodeSpace, Ray, Rng, SceneNode};
 use assist_field::contraction::{FAR_RADIUS, contract_to_unit};
 use rayon::prelude::*;
 
-use crate::node::NeuralScene;
+use assist_scene::NeuralScene;
 
 /// World rays (unit directions) and the appearance code each should use.
 #[derive(Debug, Clone, Default)]
@@ -274,7 +274,7 @@ fn push_samples(
 /// box linearly and beyond it in contracted space.
 fn sample_contracted(
     node: &SceneNode,
-    nf: &crate::node::NodeField,
+    nf: &assist_scene::NodeField,
     ray: &Ray,
     rays: &RayBatch,
     r: usize,

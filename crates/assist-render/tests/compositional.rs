@@ -6,9 +6,10 @@ use common::{constant_field, node, scene};
 
 use assist_core::{Camera, DQuat, DVec3, Intrinsics, Pose, Ray, Rng, Similarity3};
 use assist_render::{
-    BatchOutput, Behind, CompositeGrad, NeuralScene, RayBatch, RayOutputs, RenderOptions,
-    SampleOptions, Traced, composite_batch, render_camera, render_rays, sample_rays,
+    BatchOutput, Behind, CompositeGrad, RayBatch, RayOutputs, RenderOptions, SampleOptions, Traced,
+    composite_batch, render_camera, render_rays, sample_rays,
 };
+use assist_scene::NeuralScene;
 
 fn trace_one(
     s: &NeuralScene,
@@ -222,13 +223,11 @@ fn batch_backward_matches_finite_differences() {
     sample_rays(&s, &rays, &so, &mut traced);
     assert!(traced.nodes.iter().all(|n| n.len() > 10));
     let mut tapes = Vec::new();
-    assist_render::render::query_fields(
-        &s,
-        &mut traced,
-        &mut tapes,
-        None,
-        assist_field::Precision::F32,
-    );
+    let q = assist_render::render::Query::Render {
+        precision: assist_field::Precision::F32,
+        highlight: None,
+    };
+    assist_render::render::query_fields(&s, &mut traced, &mut tapes, q);
     let bg = s.scene.background_color;
     const DIST: f32 = 20.0;
     // The distortion against its definition, Σ_{i,j} w_i w_j |t_i − t_j| over the merged

@@ -8,7 +8,8 @@ use std::path::Path;
 use std::sync::Arc;
 
 use assist_core::{Action, Camera, DVec3, Intrinsics, Pose, Similarity3};
-use assist_render::{Editor, NeuralScene, RenderOptions, RenderedImage, render_camera, scene_file};
+use assist_render::{RenderOptions, RenderedImage, render_camera};
+use assist_scene::{Editor, NeuralScene, scene_file};
 use common::{constant_field, node, scene};
 
 const GREY: [f32; 3] = [0.5, 0.5, 0.5];

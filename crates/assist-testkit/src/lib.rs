@@ -4,6 +4,8 @@
 //! skipping loudly when they are absent, temporary directories that clean up, and
 //! tolerance statistics.
 
+#![forbid(unsafe_code)]
+
 use std::path::{Path, PathBuf};
 
 /// The shared data folder, if present: `$ASSIST_DATA`, else `../shared/data` beside the

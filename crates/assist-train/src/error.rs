@@ -7,7 +7,7 @@ pub enum TrainError {
     #[error(transparent)]
     Field(#[from] assist_field::FieldError),
     #[error(transparent)]
-    Scene(#[from] assist_render::SceneFileError),
+    Scene(#[from] assist_scene::SceneFileError),
     #[error("{path}: {message}")]
     Input { path: PathBuf, message: String },
     #[error("training diverged at iteration {iteration}: {message} (the last good checkpoint was kept{})",

@@ -5,7 +5,8 @@
 use std::path::Path;
 
 use assist_data::{Dataset, Split};
-use assist_render::{NeuralScene, RenderOptions, render_camera};
+use assist_render::{RenderOptions, render_camera};
+use assist_scene::NeuralScene;
 use serde::Serialize;
 
 use crate::error::Result;

@@ -13,7 +13,7 @@
 //! (captures with depth get box backgrounds).
 
 use assist_core::{DVec3, NodeSpace, SceneNode};
-use assist_render::NeuralScene;
+use assist_scene::NeuralScene;
 use rayon::prelude::*;
 use std::sync::Arc;
 

@@ -5,6 +5,8 @@
 //! (`prior` within a view, `multiview` from the other views), `trainer` runs the paper's five losses with Adam and checkpoints, and
 //! `metrics`/`eval` measure PSNR, SSIM, panoptic mIoU and background quality.
 
+#![forbid(unsafe_code)]
+
 pub mod error;
 pub mod eval;
 pub mod freespace;

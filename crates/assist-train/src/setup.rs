@@ -12,7 +12,7 @@ use assist_core::{
 use assist_data::boxes::BoxOverride;
 use assist_data::{Dataset, Format};
 use assist_field::{Field, FieldConfig, OccupancyGrid};
-use assist_render::{NeuralScene, NodeField};
+use assist_scene::{NeuralScene, NodeField};
 use rayon::prelude::*;
 
 use crate::error::{Result, TrainError};
@@ -36,7 +36,7 @@ pub struct SetupOptions {
 }
 
 /// The space of the background node.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum BackgroundSpace {
     /// Contracted for captures without depth (real ones: the scene is unbounded), the

@@ -11,7 +11,7 @@ use crate::error::{Result, TrainError};
 use crate::prior;
 
 /// Which built-in fill produces the background prior.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, Default)]
 #[serde(rename_all = "kebab-case")]
 pub enum PriorKind {
     /// No background prior (λ1 = λ2 = 0 unless the user supplies files).
@@ -19,10 +19,13 @@ pub enum PriorKind {
     PushPull,
     Exemplar,
     /// From the other views that see the background (needs depth; push–pull elsewhere).
+    #[default]
     MultiView,
 }
 
 impl PriorKind {
+    pub const NAMES: &'static str = "multi-view, push-pull, exemplar or none";
+
     pub fn parse(s: &str) -> Option<Self> {
         Some(match s {
             "none" => PriorKind::None,

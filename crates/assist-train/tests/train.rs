@@ -80,7 +80,7 @@ fn nan_in_training_is_reported_and_the_last_checkpoint_kept() {
         }
         other => panic!("expected divergence, got {:?}", other.map(|r| r.iterations)),
     }
-    let (scene, info) = assist_render::scene_file::load(&ckpt).unwrap();
+    let (scene, info) = assist_scene::scene_file::load(&ckpt).unwrap();
     assert!(
         scene
             .fields
@@ -116,17 +116,17 @@ fn scene_file_errors_name_the_problem() {
     let t = setup(&ds);
     let dir = TempDir::new("scene-file");
     let p = dir.join("s.assist");
-    assist_render::scene_file::save(&p, &t.scene, serde_json::Value::Null, false).unwrap();
+    assist_scene::scene_file::save(&p, &t.scene, serde_json::Value::Null, false).unwrap();
     // Refuses to overwrite without force.
-    assert!(assist_render::scene_file::save(&p, &t.scene, serde_json::Value::Null, false).is_err());
-    let (back, _) = assist_render::scene_file::load(&p).unwrap();
+    assert!(assist_scene::scene_file::save(&p, &t.scene, serde_json::Value::Null, false).is_err());
+    let (back, _) = assist_scene::scene_file::load(&p).unwrap();
     assert_eq!(back.scene, t.scene.scene);
     for (k, f) in &back.fields {
         assert_eq!(f.field.params, t.scene.fields[k].field.params);
     }
     // Missing field file.
     std::fs::remove_file(p.join("fields/object-2.safetensors")).unwrap();
-    let e = assist_render::scene_file::load(&p).unwrap_err().to_string();
+    let e = assist_scene::scene_file::load(&p).unwrap_err().to_string();
     assert!(
         e.contains("object-2.safetensors") && e.contains("missing"),
         "{e}"
@@ -137,7 +137,7 @@ fn scene_file_errors_name_the_problem() {
         .unwrap()
         .replace("\"version\": 1", "\"version\": 99");
     std::fs::write(&j, text).unwrap();
-    let e = assist_render::scene_file::load(&p).unwrap_err().to_string();
+    let e = assist_scene::scene_file::load(&p).unwrap_err().to_string();
     assert!(e.contains("version") && e.contains("99"), "{e}");
 }
 

@@ -12,12 +12,12 @@ use anyhow::{Context, bail};
 use assist_core::{Scene, SceneNode};
 use assist_data::image_io::{ImageF32, write_rgb_png};
 use assist_data::synth::SynthConfig;
+use assist_data::visual::{contact_sheet, depth_image, ids_image, upscale};
 use assist_data::{LoadOptions, Split};
-use assist_lang::ParseOptions;
-use assist_render::{Editor, RenderOptions, render_camera};
+use assist_session::{
+    Appearance, DatasetOutput, Highlight, NamedCamera, Output, Session, TrainConfig, TrainJob,
+};
 use clap::Args;
-
-use crate::cmd_render::{Output, View, create_dirs, rgb_image, write_view};
 
 /// What the demo writes for each rendered view.
 const OUTPUTS: [Output; 3] = [Output::Rgb, Output::Depth, Output::Panoptic];
@@ -43,36 +43,20 @@ pub struct DemoArgs {
 const MARKER: &str = ".assist-demo";
 
 fn train(data: &Path, out: &Path, seconds: f64, seed: u64) -> anyhow::Result<()> {
-    // Through the command line's own parser, so that the demo trains with `assist train`'s
-    // defaults and cannot drift from them.
-    use clap::Parser;
-    #[derive(Parser)]
-    struct Wrap {
-        #[command(flatten)]
-        train: crate::cmd_train::TrainArgs,
-    }
-    let (data, out) = (data.as_os_str(), out.as_os_str());
-    let max_time = seconds.to_string();
-    let seed = seed.to_string();
-    let args: [&std::ffi::OsStr; 15] = [
-        "demo".as_ref(),
-        data,
-        "--out".as_ref(),
-        out,
-        "--iters".as_ref(),
-        "1000000".as_ref(),
-        "--max-time".as_ref(),
-        max_time.as_ref(),
-        "--appearance".as_ref(),
-        "off".as_ref(),
-        "--seed".as_ref(),
-        seed.as_ref(),
-        "--checkpoint-every".as_ref(),
-        "1e9".as_ref(),
-        "--force".as_ref(),
-    ];
-    let w = Wrap::try_parse_from(args).context("demo: training arguments")?;
-    crate::cmd_train::run(w.train)
+    // `assist train`'s defaults (declared once, in the job's configuration).
+    let cfg = TrainConfig {
+        data: data.to_path_buf(),
+        out: out.to_path_buf(),
+        iters: 1_000_000,
+        max_time: Some(seconds),
+        appearance: Appearance::Off,
+        seed,
+        checkpoint_every: 1e9,
+        force: true,
+        ..TrainConfig::default()
+    };
+    TrainJob::new(cfg).run(|_| {})?;
+    Ok(())
 }
 
 fn objects(scene: &Scene) -> Vec<&SceneNode> {
@@ -158,7 +142,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     train(&data_b, &scene_b, a.other_seconds, a.seed)?;
 
     eprintln!("4/6 measuring the trained scene on its test views");
-    let (trained, _) = assist_render::scene_file::load(&scene_a)?;
+    let (trained, _) = assist_scene::scene_file::load(&scene_a)?;
     let r = assist_train::eval::evaluate(&trained, &ds, Some(Split::Test), 1, |_, _| {})?;
     eprintln!(
         "    test PSNR {:.2} dB, SSIM {:.3}, panoptic mIoU {:.3}, background depth error {:.1}% ({} views)",
@@ -170,58 +154,60 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     );
 
     eprintln!("5/6 editing with plain language");
-    let mut ed = Editor::open(&scene_a)?;
-    let (other, _) = assist_render::scene_file::load_scene_json(&scene_b)?;
-    let text = instruction(&ed.scene.scene, &other, &scene_b.to_string_lossy())?;
+    let before = Session::new(trained);
+    let mut session = Session::open(&scene_a)?;
+    let (other, _) = assist_scene::scene_file::load_scene_json(&scene_b)?;
+    let text = instruction(&session.scene().scene, &other, &scene_b.to_string_lossy())?;
     eprintln!("    \"{text}\"");
-    let actions = assist_lang::parse(
-        &text,
-        &ed.scene.scene,
-        &ParseOptions::default(),
-        &mut ed.sources,
-    )?;
-    let edits = ed.apply_all(&actions)?;
+    let edits = session.apply_text(&text, None)?;
     let mut log = String::new();
     for e in &edits {
-        let line = serde_json::to_string(&e.to_action(ed.scene.scene.meters_per_unit))?;
+        let line = serde_json::to_string(&e.to_action(session.description().meters_per_unit))?;
         eprintln!("    {line}");
         log.push_str(&line);
         log.push('\n');
     }
     assist_data::image_io::write_atomic(&out.join("edits.jsonl"), log.as_bytes())?;
     let edited = out.join("edited.assist");
-    ed.save(&edited, true)?;
+    session.save(&edited, true)?;
 
     eprintln!("6/6 rendering test views before and after");
     let test: Vec<usize> = (0..ds.frames.len())
         .filter(|&i| ds.frames[i].split == Split::Test)
         .collect();
-    let picks = [test[0], test[test.len() / 2]];
-    let mut tiles = Vec::new();
-    for &i in &picks {
-        let f = &ds.frames[i];
-        for (tag, s) in [("before", &trained), ("after", &ed.scene)] {
-            let img = render_camera(s, &f.camera, u32::MAX, &RenderOptions::default());
-            let dir = out.join("render").join(tag);
-            create_dirs(&dir, &OUTPUTS)?;
-            let view = View {
-                name: f.name.clone(),
-                camera: f.camera,
-            };
-            write_view(&dir, &view, &img, None, &OUTPUTS, s, &Default::default())?;
-            tiles.push(rgb_image(img.width, img.height, img.rgb.clone()));
-            tiles.push(depth_to_rgb(&ImageF32 {
-                width: img.width,
-                height: img.height,
-                channels: 1,
-                data: img.depth.clone(),
-            }));
-            tiles.push(ids_image(img.width, img.height, &img.panoptic));
-        }
+    let picks: Vec<NamedCamera> = [test[0], test[test.len() / 2]]
+        .iter()
+        .map(|&i| NamedCamera {
+            name: ds.frames[i].name.clone(),
+            camera: ds.frames[i].camera,
+        })
+        .collect();
+    // Each row of the sheet: one view before and after (RGB, depth, panoptic).
+    let mut tiles = vec![Vec::new(); picks.len()];
+    for (tag, s) in [("before", &before), ("after", &session)] {
+        let job = DatasetOutput {
+            out: out.join("render").join(tag),
+            outputs: OUTPUTS.to_vec(),
+            highlight: Highlight::None,
+            force: true,
+        };
+        s.write_dataset(&picks, &job, |v| {
+            let (f, (w, h)) = (v.frame, (v.frame.width, v.frame.height));
+            tiles[v.index].extend([
+                ImageF32 {
+                    width: w,
+                    height: h,
+                    channels: 3,
+                    data: f.rgb.clone(),
+                },
+                depth_image(w, h, &f.depth),
+                ids_image(w, h, &f.panoptic),
+            ]);
+        })?;
     }
-    let tiles: Vec<ImageF32> = tiles.iter().map(|t| upscale(t, 2)).collect();
+    let tiles: Vec<ImageF32> = tiles.concat().iter().map(|t| upscale(t, 2)).collect();
     let sheet = out.join("contact_sheet.png");
-    write_rgb_png(&sheet, &tile(&tiles, 6))?;
+    write_rgb_png(&sheet, &contact_sheet(&tiles, 6))?;
     println!("Done in {:.0} s. Look at:", t0.elapsed().as_secs_f64());
     println!(
         "  {}   (each row: before RGB | depth | panoptic, after RGB | depth | panoptic)",
@@ -245,85 +231,4 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         edited.display()
     );
     Ok(())
-}
-
-fn ids_image(w: u32, h: u32, ids: &[u16]) -> ImageF32 {
-    let mut out = ImageF32::new(w, h, 3);
-    for (k, &v) in ids.iter().enumerate() {
-        out.data[k * 3..k * 3 + 3].copy_from_slice(&id_color(v));
-    }
-    out
-}
-
-/// Nearest-neighbour enlargement by an integer factor.
-fn upscale(img: &ImageF32, f: u32) -> ImageF32 {
-    let mut out = ImageF32::new(img.width * f, img.height * f, 3);
-    for y in 0..out.height {
-        for x in 0..out.width {
-            let src = img.pixel(x / f, y / f);
-            let k = ((y * out.width + x) * 3) as usize;
-            out.data[k..k + 3].copy_from_slice(&src[..3]);
-        }
-    }
-    out
-}
-
-/// Distinct colours for instance ids (0 = black).
-pub fn id_color(id: u16) -> [f32; 3] {
-    if id == 0 {
-        return [0.0; 3];
-    }
-    let h = (id as f32 * 0.618_034).fract();
-    let (r, g, b) = hsv(h, 0.75, 0.95);
-    [r, g, b]
-}
-
-fn hsv(h: f32, s: f32, v: f32) -> (f32, f32, f32) {
-    let i = (h * 6.0).floor();
-    let f = h * 6.0 - i;
-    let (p, q, t) = (v * (1.0 - s), v * (1.0 - f * s), v * (1.0 - (1.0 - f) * s));
-    match i as i32 % 6 {
-        0 => (v, t, p),
-        1 => (q, v, p),
-        2 => (p, v, t),
-        3 => (p, q, v),
-        4 => (t, p, v),
-        _ => (v, p, q),
-    }
-}
-
-fn depth_to_rgb(d: &ImageF32) -> ImageF32 {
-    let valid: Vec<f32> = d.data.iter().copied().filter(|&v| v > 0.0).collect();
-    let lo = valid.iter().copied().fold(f32::INFINITY, f32::min);
-    let hi = valid.iter().copied().fold(0.0, f32::max);
-    let mut out = ImageF32::new(d.width, d.height, 3);
-    for (k, &v) in d.data.iter().enumerate() {
-        let t = if v > 0.0 {
-            1.0 - ((v - lo) / (hi - lo).max(1e-6)).sqrt()
-        } else {
-            0.0
-        };
-        out.data[k * 3..k * 3 + 3].copy_from_slice(&[t, t, t]);
-    }
-    out
-}
-
-/// Tiles equally sized images into rows of `cols`.
-pub fn tile(images: &[ImageF32], cols: usize) -> ImageF32 {
-    let (w, h) = (images[0].width, images[0].height);
-    let rows = images.len().div_ceil(cols);
-    let gap = 2;
-    let mut out = ImageF32::new(cols as u32 * (w + gap), rows as u32 * (h + gap), 3);
-    out.data.fill(1.0);
-    for (n, img) in images.iter().enumerate() {
-        let (ox, oy) = ((n % cols) as u32 * (w + gap), (n / cols) as u32 * (h + gap));
-        for y in 0..h {
-            for x in 0..w {
-                let src = img.pixel(x, y);
-                let k = (((oy + y) * out.width + ox + x) * 3) as usize;
-                out.data[k..k + 3].copy_from_slice(&src[..3]);
-            }
-        }
-    }
-    out
 }

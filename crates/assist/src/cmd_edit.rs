@@ -7,8 +7,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use assist_core::Action;
-use assist_lang::ParseOptions;
-use assist_render::Editor;
+use assist_session::{Resolved, Session, Steps};
 use clap::Args;
 
 #[derive(Args, Debug)]
@@ -95,7 +94,8 @@ pub fn read_actions(path: &Path) -> anyhow::Result<Vec<Action>> {
     Ok(out)
 }
 
-fn camera_rotation(a: &EditArgs) -> anyhow::Result<Option<assist_core::DMat3>> {
+/// The camera left/right/forward are relative to (`--camera DATA --frame NAME`).
+fn camera(a: &EditArgs) -> anyhow::Result<Option<assist_core::Camera>> {
     let Some(data) = &a.camera else {
         if a.frame.is_some() {
             bail!("--frame needs --camera DATA");
@@ -117,7 +117,7 @@ fn camera_rotation(a: &EditArgs) -> anyhow::Result<Option<assist_core::DMat3>> {
                 .join(", ")
         )
     })?;
-    Ok(Some(f.camera.pose.rotation()))
+    Ok(Some(f.camera))
 }
 
 pub fn run(a: EditArgs) -> anyhow::Result<()> {
@@ -129,29 +129,30 @@ pub fn run(a: EditArgs) -> anyhow::Result<()> {
     if sources.iter().filter(|s| **s).count() != 1 {
         bail!("give exactly one of --do TEXT, --actions FILE, or --undo/--redo N");
     }
-    let mut ed =
-        Editor::open(&a.scene).with_context(|| format!("loading scene {}", a.scene.display()))?;
-    let actions: Vec<Action> = if let Some(text) = &a.text {
+    let mut session =
+        Session::open(&a.scene).with_context(|| format!("loading scene {}", a.scene.display()))?;
+    let mpu = session.description().meters_per_unit;
+    // What to apply: an instruction resolved by the built-in parser (validated once, by
+    // it), or actions (from a script or an LLM) that the editor validates.
+    let mut resolved: Option<Resolved> = None;
+    let mut actions: Vec<Action> = Vec::new();
+    if let Some(text) = &a.text {
         if a.llm {
             let p = assist_lang::llm::LlmProvider::from_env()
                 .context("--llm: set ASSIST_LLM_URL (and ASSIST_LLM_MODEL, ASSIST_LLM_API_KEY) to an OpenAI-compatible endpoint")?;
-            p.parse(text, &ed.scene.scene, &mut ed.sources)?
+            actions = session.ask_llm(&p, text)?;
         } else {
-            let opts = ParseOptions {
-                camera: camera_rotation(&a)?,
-                last: ed.scene.scene.selected,
-                embedder: None,
-            };
-            assist_lang::parse(text, &ed.scene.scene, &opts, &mut ed.sources)?
+            let view = camera(&a)?;
+            resolved = Some(session.resolve(text, view.as_ref())?);
         }
     } else if let Some(f) = &a.actions {
-        read_actions(f)?
-    } else {
-        Vec::new()
-    };
-    let mpu = ed.scene.scene.meters_per_unit;
+        actions = read_actions(f)?;
+    }
     if a.dry_run {
-        let edits = ed.plan(&actions)?;
+        let edits = match resolved {
+            Some(r) => r.edits,
+            None => session.plan(&actions)?,
+        };
         let resolved: Vec<Action> = edits.iter().map(|e| e.to_action(mpu)).collect();
         if a.json {
             println!("{}", serde_json::to_string_pretty(&resolved)?);
@@ -169,46 +170,52 @@ pub fn run(a: EditArgs) -> anyhow::Result<()> {
     if out.exists() && !a.force {
         bail!("{} exists (pass --force to replace it)", out.display());
     }
-    let mut resolved = Vec::new();
+    let mut applied = Vec::new();
     if let Some(n) = a.undo {
         for i in 0..n {
-            if !ed.undo() {
+            if !session.undo() {
                 bail!("--undo {n}: the scene has only {i} edit(s) to undo");
             }
         }
     } else if let Some(n) = a.redo {
         for i in 0..n {
-            if !ed.redo() {
+            if !session.redo() {
                 bail!("--redo {n}: the scene has only {i} undone edit(s) to redo");
             }
         }
     } else {
-        let edits = ed.apply_all(&actions)?;
-        resolved = edits.iter().map(|e| e.to_action(mpu)).collect();
+        // One undo step per action, as an edit script is undone.
+        let edits = match resolved {
+            Some(r) => session.install(r, Steps::PerAction)?,
+            None => session.apply_with(&actions, Steps::PerAction)?,
+        };
+        applied = edits.iter().map(|e| e.to_action(mpu)).collect();
     }
-    ed.save(out, a.force)
+    session
+        .save(out, a.force)
         .with_context(|| format!("saving {}", out.display()))?;
+    let nodes = session.nodes().len();
     if a.json {
         println!(
             "{}",
             serde_json::json!({
                 "out": out,
-                "actions": resolved,
-                "nodes": ed.scene.scene.nodes.len(),
-                "undo": ed.history.undo.len(),
-                "redo": ed.history.redo.len(),
+                "actions": applied,
+                "nodes": nodes,
+                "undo": session.undo_steps(),
+                "redo": session.redo_steps(),
             })
         );
     } else {
-        for r in &resolved {
+        for r in &applied {
             eprintln!("applied {}", serde_json::to_string(r)?);
         }
         eprintln!(
             "saved {} ({} nodes; {} edit(s) to undo, {} to redo)",
             out.display(),
-            ed.scene.scene.nodes.len(),
-            ed.history.undo.len(),
-            ed.history.redo.len()
+            nodes,
+            session.undo_steps(),
+            session.redo_steps()
         );
     }
     Ok(())

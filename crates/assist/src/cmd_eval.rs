@@ -47,7 +47,7 @@ pub(crate) fn parse_split(s: &str) -> anyhow::Result<Option<Split>> {
 
 pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     let split = parse_split(&a.split)?;
-    let (scene, info) = assist_render::scene_file::load(&a.scene)
+    let (scene, info) = assist_scene::scene_file::load(&a.scene)
         .with_context(|| format!("loading scene {}", a.scene.display()))?;
     let downscale = a.downscale.unwrap_or_else(|| trained_downscale(&info));
     let opts = LoadOptions {

@@ -4,6 +4,8 @@
 //! generates a built-in multi-object scene; `assist demo` runs the main job on the
 //! built-in default. Errors are reported with `anyhow` context chains and a non-zero exit.
 
+#![forbid(unsafe_code)]
+
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};

@@ -140,7 +140,7 @@ fn demo_runs_end_to_end() {
             "add"
         ]
     );
-    let (edited, _) = assist_render::scene_file::load(&out.join("edited.assist")).unwrap();
+    let (edited, _) = assist_scene::scene_file::load(&out.join("edited.assist")).unwrap();
     // 5 objects + background, one deleted, one copy, one inserted.
     assert_eq!(edited.scene.nodes.len(), 7);
 }

@@ -156,7 +156,7 @@ fn boxes_are_listed_carved_overridden_and_checked() {
         s(&boxes_path),
         "--json",
     ]));
-    let (trained, _) = assist_render::scene_file::load(&scene).unwrap();
+    let (trained, _) = assist_scene::scene_file::load(&scene).unwrap();
     let node = trained.scene.nodes.iter().find(|n| n.id == 1).unwrap();
     assert!(
         (node.half_size - given_size * 0.5).length() < 1e-6,

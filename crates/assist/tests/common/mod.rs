@@ -8,7 +8,7 @@ use std::sync::Arc;
 
 use assist_core::{DMat3, DVec3, Obb, Scene, SceneNode};
 use assist_field::{Field, FieldConfig, OccupancyGrid};
-use assist_render::{NeuralScene, NodeField};
+use assist_scene::{NeuralScene, NodeField};
 
 pub fn small_field(seed: u64) -> Field {
     let mut cfg = FieldConfig::object(0);
@@ -57,7 +57,7 @@ pub fn write_scene(dir: &Path) {
         },
         fields,
     };
-    assist_render::scene_file::save(dir, &s, serde_json::Value::Null, false).unwrap();
+    assist_scene::scene_file::save(dir, &s, serde_json::Value::Null, false).unwrap();
 }
 
 pub fn assist(args: &[&str]) -> (bool, String, String) {

@@ -83,8 +83,8 @@ impl Editor {
         })
     }
 
-    /// Field keys an imported node must not take.
-    fn taken(&self) -> BTreeSet<String> {
+    /// Field keys an imported node must not take (the scene's and its history's).
+    pub fn taken(&self) -> BTreeSet<String> {
         let mut t = self.history.field_keys();
         t.extend(self.scene.fields.keys().cloned());
         t
@@ -93,9 +93,16 @@ impl Editor {
     /// Validates `actions` in order against the evolving scene without touching weights or
     /// history: the edits that `apply_all` would make.
     pub fn plan(&mut self, actions: &[Action]) -> Result<Vec<Edit>, EditError> {
+        Ok(self.plan_scenes(actions)?.0)
+    }
+
+    /// [`plan`](Self::plan), with the scene after each edit: every action is validated
+    /// and applied once, here; applying the plan only installs its results.
+    fn plan_scenes(&mut self, actions: &[Action]) -> Result<(Vec<Edit>, Vec<Scene>), EditError> {
         let mut scene = self.scene.scene.clone();
         let mut taken = self.taken();
         let mut edits = Vec::with_capacity(actions.len());
+        let mut after = Vec::with_capacity(actions.len());
         for (i, a) in actions.iter().enumerate() {
             let wrap = |source| EditError::Action {
                 index: i + 1,
@@ -109,15 +116,13 @@ impl Editor {
                 taken.insert(im.node.field.clone());
             }
             edits.push(e);
+            after.push(scene.clone());
         }
-        Ok(edits)
+        Ok((edits, after))
     }
 
-    /// Validates and applies `actions` in order; all or nothing (on error the scene and
-    /// history are as before).
-    pub fn apply_all(&mut self, actions: &[Action]) -> Result<Vec<Edit>, EditError> {
-        let edits = self.plan(actions)?;
-        // Load every imported field before changing anything.
+    /// Loads the weights of every node `edits` import from other scenes.
+    fn import_fields(&mut self, edits: &[Edit]) -> Result<(), EditError> {
         let mut new_fields = Vec::new();
         for (i, e) in edits.iter().enumerate() {
             if let Some(im) = imported(e) {
@@ -136,13 +141,43 @@ impl Editor {
         for (k, f) in new_fields {
             self.scene.fields.insert(k, f);
         }
-        for (i, e) in edits.iter().enumerate() {
-            self.history
-                .apply(&mut self.scene.scene, e)
-                .map_err(|source| EditError::Action {
-                    index: i + 1,
-                    source,
-                })?;
+        Ok(())
+    }
+
+    /// Validates and applies `actions` in order, one undo step per edit; all or nothing
+    /// (on error the scene and history are as before).
+    pub fn apply_all(&mut self, actions: &[Action]) -> Result<Vec<Edit>, EditError> {
+        let (edits, after) = self.plan_scenes(actions)?;
+        self.install(edits, after, false)
+    }
+
+    /// Like [`apply_all`](Self::apply_all), as one undo step (one instruction).
+    pub fn apply_as_one(&mut self, actions: &[Action]) -> Result<Vec<Edit>, EditError> {
+        let (edits, after) = self.plan_scenes(actions)?;
+        self.install(edits, after, true)
+    }
+
+    /// Installs edits validated against the current scene (by [`plan`](Self::plan) or
+    /// the language resolver), given with the scene after each: imports the fields of
+    /// added nodes, then records one undo step per edit or, with `one_step`, one in all.
+    pub fn install(
+        &mut self,
+        edits: Vec<Edit>,
+        after: Vec<Scene>,
+        one_step: bool,
+    ) -> Result<Vec<Edit>, EditError> {
+        assert_eq!(edits.len(), after.len(), "one scene after each edit");
+        self.import_fields(&edits)?;
+        if one_step {
+            if let Some(next) = after.into_iter().last() {
+                let before = std::mem::replace(&mut self.scene.scene, next);
+                self.history.record(before);
+            }
+        } else {
+            for next in after {
+                let before = std::mem::replace(&mut self.scene.scene, next);
+                self.history.record(before);
+            }
         }
         Ok(edits)
     }

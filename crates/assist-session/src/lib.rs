@@ -1,0 +1,294 @@
+//! assist-session: the application layer every front end shares — the CLI, the viewer,
+//! the generator and the Python bindings hold a [`Session`] instead of re-assembling the
+//! libraries themselves.
+//!
+//! A session is one scene in memory, nodes and fields: edits in words or as actions go
+//! through one validation path (each action is validated and applied once, by the
+//! editor), one call is one undo step, renders come back as typed frames, `pick` names
+//! the node under a pixel, and `save` writes atomically. Nothing touches the disk after
+//! loading except `save` and an `add … from SCENE` that imports another scene's node.
+
+#![forbid(unsafe_code)]
+
+mod cameras;
+mod render_job;
+mod train_job;
+
+use std::path::Path;
+
+use assist_core::{Action, Camera, Edit, InstanceId, Scene, SceneNode};
+use assist_render::{HIGHLIGHT, RenderOptions, RenderScratch, render_camera, render_rays};
+use assist_scene::{EditError, Editor, NeuralScene, SceneFileError};
+
+pub use assist_data::Output;
+pub use assist_lang::Resolved;
+pub use assist_render::RenderedImage as Frame;
+pub use cameras::{CameraSource, NamedCamera, Orbit, SplitChoice, dataset_cameras, orbit};
+pub use render_job::{DatasetOutput, Highlight, RenderJob, RenderSummary, ViewDone};
+pub use train_job::{
+    Appearance, LambdaOverrides, TrainConfig, TrainEvent, TrainJob, TrainOutcome, lambdas,
+};
+
+#[derive(Debug, thiserror::Error)]
+pub enum SessionError {
+    #[error(transparent)]
+    File(#[from] SceneFileError),
+    #[error(transparent)]
+    Edit(#[from] EditError),
+    #[error(transparent)]
+    Language(#[from] assist_lang::LangError),
+    #[error(transparent)]
+    Data(assist_data::DataError),
+    #[error(transparent)]
+    Train(#[from] assist_train::TrainError),
+    /// A request that cannot be served (a size, a pixel, an id).
+    #[error("{what}: {message}")]
+    Request { what: String, message: String },
+}
+
+pub type Result<T> = std::result::Result<T, SessionError>;
+
+pub(crate) fn request(what: &str, message: String) -> SessionError {
+    SessionError::Request {
+        what: what.into(),
+        message,
+    }
+}
+
+/// What to render besides colour, depth, opacity and instance ids.
+#[derive(Debug, Clone, Default)]
+pub struct RenderRequest {
+    /// Output size (the camera's intrinsics are scaled to it); `None` = the camera's.
+    pub size: Option<(u32, u32)>,
+    /// Each node's own colour and opacity too.
+    pub layers: bool,
+    /// Highlight the selected node.
+    pub highlight: bool,
+    /// Appearance code of a training image; `None` = the average.
+    pub image: Option<u32>,
+}
+
+/// How many undo steps an application of several actions makes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Steps {
+    /// One for all (an instruction, as a viewer applies it).
+    One,
+    /// One per action (an edit script, as `assist edit` applies it).
+    PerAction,
+}
+
+/// A scene being viewed and edited.
+pub struct Session {
+    editor: Editor,
+}
+
+impl Session {
+    /// Opens a `NAME.assist` scene with its history.
+    pub fn open(path: &Path) -> Result<Self> {
+        Ok(Session {
+            editor: Editor::open(path)?,
+        })
+    }
+
+    /// A session over a scene already in memory (no history).
+    pub fn new(scene: NeuralScene) -> Self {
+        Session {
+            editor: Editor::new(scene),
+        }
+    }
+
+    pub fn scene(&self) -> &NeuralScene {
+        &self.editor.scene
+    }
+
+    /// The scene's nodes (background first when it has one).
+    pub fn nodes(&self) -> &[SceneNode] {
+        &self.editor.scene.scene.nodes
+    }
+
+    pub fn node(&self, id: InstanceId) -> Option<&SceneNode> {
+        self.nodes().iter().find(|n| n.id == id)
+    }
+
+    /// Validates and applies `actions` in order, all or nothing, as one undo step.
+    pub fn apply(&mut self, actions: &[Action]) -> Result<Vec<Edit>> {
+        self.apply_with(actions, Steps::One)
+    }
+
+    /// [`apply`](Self::apply) with a choice of undo steps.
+    pub fn apply_with(&mut self, actions: &[Action], steps: Steps) -> Result<Vec<Edit>> {
+        Ok(match steps {
+            Steps::One => self.editor.apply_as_one(actions)?,
+            Steps::PerAction => self.editor.apply_all(actions)?,
+        })
+    }
+
+    /// What an instruction in words resolves to — actions, each validated once against
+    /// the scene as the previous ones leave it, with its edit — without applying it.
+    /// `view` makes left/right/forward relative to that camera; "it" before any object is
+    /// named means the selected node.
+    pub fn resolve(&mut self, text: &str, view: Option<&Camera>) -> Result<Resolved> {
+        let opts = assist_lang::ParseOptions {
+            camera: view.map(|c| c.pose.rotation()),
+            last: self.editor.scene.scene.selected,
+            embedder: None,
+        };
+        let taken = self.editor.taken();
+        Ok(assist_lang::resolve_text(
+            text,
+            &self.editor.scene.scene,
+            &opts,
+            &mut self.editor.sources,
+            &taken,
+        )?)
+    }
+
+    /// Installs what [`resolve`](Self::resolve) returned (the scene must not have changed
+    /// since) without validating it again.
+    pub fn install(&mut self, resolved: Resolved, steps: Steps) -> Result<Vec<Edit>> {
+        Ok(self
+            .editor
+            .install(resolved.edits, resolved.scenes, steps == Steps::One)?)
+    }
+
+    /// Applies an instruction in words as one undo step.
+    pub fn apply_text(&mut self, text: &str, view: Option<&Camera>) -> Result<Vec<Edit>> {
+        let r = self.resolve(text, view)?;
+        self.install(r, Steps::One)
+    }
+
+    /// Asks an LLM provider for the actions of an instruction (validated against the
+    /// scene, not applied).
+    pub fn ask_llm(
+        &mut self,
+        provider: &assist_lang::llm::LlmProvider,
+        text: &str,
+    ) -> Result<Vec<Action>> {
+        Ok(provider.parse(text, &self.editor.scene.scene, &mut self.editor.sources)?)
+    }
+
+    /// The edits `actions` would make, validated against the scene, without applying them.
+    pub fn plan(&mut self, actions: &[Action]) -> Result<Vec<Edit>> {
+        Ok(self.editor.plan(actions)?)
+    }
+
+    /// Undoes the last call to `apply`; false when there is nothing to undo.
+    pub fn undo(&mut self) -> bool {
+        self.editor.undo()
+    }
+
+    pub fn redo(&mut self) -> bool {
+        self.editor.redo()
+    }
+
+    /// Undo steps available.
+    pub fn undo_steps(&self) -> usize {
+        self.editor.history.undo.len()
+    }
+
+    /// Redo steps available.
+    pub fn redo_steps(&self) -> usize {
+        self.editor.history.redo.len()
+    }
+
+    /// Selects (highlights) a node, or clears the selection; not an undoable edit.
+    pub fn select(&mut self, id: Option<InstanceId>) -> Result<()> {
+        if let Some(id) = id
+            && self.node(id).is_none()
+        {
+            return Err(request(
+                "select",
+                format!("no node with id {id} (the scene has {})", self.ids()),
+            ));
+        }
+        self.editor.scene.scene.selected = id;
+        Ok(())
+    }
+
+    pub(crate) fn ids(&self) -> String {
+        let ids: Vec<String> = self
+            .nodes()
+            .iter()
+            .map(|n| format!("{} {:?}", n.id, n.label))
+            .collect();
+        ids.join(", ")
+    }
+
+    fn options(&self, req: &RenderRequest) -> RenderOptions {
+        RenderOptions {
+            layers: req.layers,
+            highlight: if req.highlight {
+                self.editor.scene.scene.selected.map(|id| (id, HIGHLIGHT))
+            } else {
+                None
+            },
+            ..RenderOptions::default()
+        }
+    }
+
+    /// `camera` with its intrinsics scaled to `size`.
+    pub fn sized(camera: &Camera, size: Option<(u32, u32)>) -> Result<Camera> {
+        let Some((w, h)) = size else {
+            return Ok(*camera);
+        };
+        if w == 0 || h == 0 || w > 1 << 14 || h > 1 << 14 {
+            return Err(request(
+                "size",
+                format!("expected 1 to 16384 pixels each way, got {w}×{h}"),
+            ));
+        }
+        let factor = camera.width() as f64 / w as f64;
+        let mut c = *camera;
+        c.intrinsics = camera.intrinsics.downscaled(factor, w, h);
+        c.intrinsics.fy = camera.intrinsics.fy * h as f64 / camera.height() as f64;
+        c.intrinsics.cy = camera.intrinsics.cy * h as f64 / camera.height() as f64;
+        Ok(c)
+    }
+
+    /// Renders the scene as it is now: colour, z-depth, opacity, instance ids and, on
+    /// request, per-node layers.
+    pub fn render(&self, camera: &Camera, req: &RenderRequest) -> Result<Frame> {
+        let camera = Self::sized(camera, req.size)?;
+        Ok(render_camera(
+            &self.editor.scene,
+            &camera,
+            req.image.unwrap_or(u32::MAX),
+            &self.options(req),
+        ))
+    }
+
+    /// The node seen at pixel `(x, y)` of `camera` (the one with the largest share of
+    /// the composited weight, as in the instance output); `None` for the background or
+    /// nothing.
+    pub fn pick(&self, camera: &Camera, x: f64, y: f64) -> Result<Option<InstanceId>> {
+        let (w, h) = (camera.width() as f64, camera.height() as f64);
+        if !(0.0..w).contains(&x) || !(0.0..h).contains(&y) {
+            return Err(request(
+                "pick",
+                format!("pixel ({x}, {y}) is outside the {w}×{h} image"),
+            ));
+        }
+        let Some(ray) = camera.ray(x, y) else {
+            return Ok(None);
+        };
+        let scene = &self.editor.scene;
+        let mut sc = RenderScratch::default();
+        sc.rays.near = scene.scene.near as f32;
+        sc.rays.push(&ray, u32::MAX);
+        render_rays(scene, &self.options(&RenderRequest::default()), &mut sc);
+        Ok(sc.out.winner(0).and_then(|k| {
+            let n = &scene.scene.nodes[k];
+            (!n.is_background()).then_some(n.id)
+        }))
+    }
+
+    /// Saves scene, fields and history atomically (`force` to replace an existing `path`).
+    pub fn save(&self, path: &Path, force: bool) -> Result<()> {
+        Ok(self.editor.save(path, force)?)
+    }
+
+    /// The scene description (nodes, up, units) without the fields.
+    pub fn description(&self) -> &Scene {
+        &self.editor.scene.scene
+    }
+}

@@ -1,0 +1,169 @@
+//! `RenderJob`: cameras → a labelled dataset on disk, through assist-data's writer.
+
+use std::path::PathBuf;
+
+use assist_core::InstanceId;
+use assist_data::{DatasetWriter, Instance, Layer, Output, ViewImages, WriterConfig};
+use assist_render::{HIGHLIGHT, RenderOptions, render_camera};
+use assist_scene::NeuralScene;
+use serde::{Deserialize, Serialize};
+
+use crate::cameras::{CameraSource, NamedCamera};
+use crate::{Frame, Result, Session, SessionError, request};
+
+/// Which node to highlight in a render.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Highlight {
+    /// The scene's selection, if any.
+    #[default]
+    Selected,
+    None,
+    Node(InstanceId),
+}
+
+/// Where and what a render writes.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct DatasetOutput {
+    pub out: PathBuf,
+    pub outputs: Vec<Output>,
+    #[serde(default)]
+    pub highlight: Highlight,
+    /// Write into a non-empty `out`.
+    #[serde(default)]
+    pub force: bool,
+}
+
+/// A render of a scene into a dataset folder.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RenderJob {
+    pub cameras: CameraSource,
+    #[serde(flatten)]
+    pub output: DatasetOutput,
+}
+
+/// One view rendered and written, as a render job reports it.
+pub struct ViewDone<'a> {
+    /// 0-based position of the view among `total`.
+    pub index: usize,
+    pub total: usize,
+    pub camera: &'a NamedCamera,
+    pub frame: &'a Frame,
+}
+
+/// What a finished render job wrote.
+#[derive(Debug, Clone)]
+pub struct RenderSummary {
+    pub views: usize,
+    pub out: PathBuf,
+}
+
+impl Session {
+    /// Renders every camera of `job` and writes the dataset; `on_view` is told of each
+    /// view once it is written.
+    pub fn run_render(
+        &self,
+        job: &RenderJob,
+        on_view: impl FnMut(&ViewDone),
+    ) -> Result<RenderSummary> {
+        let cameras = job.cameras.cameras(&self.scene().scene)?;
+        self.write_dataset(&cameras, &job.output, on_view)
+    }
+
+    /// Renders `cameras` and writes them as a dataset.
+    pub fn write_dataset(
+        &self,
+        cameras: &[NamedCamera],
+        job: &DatasetOutput,
+        mut on_view: impl FnMut(&ViewDone),
+    ) -> Result<RenderSummary> {
+        let scene = self.scene();
+        let highlight = match job.highlight {
+            Highlight::Selected => scene.scene.selected,
+            Highlight::None => None,
+            Highlight::Node(id) => {
+                if scene.scene.node(id).is_none() {
+                    return Err(request(
+                        "highlight",
+                        format!("no node with id {id} (the scene has {})", self.ids()),
+                    ));
+                }
+                Some(id)
+            }
+        };
+        let wants = |o| job.outputs.contains(&o);
+        let background = if wants(Output::Background) {
+            let mut s: NeuralScene = scene.clone();
+            s.scene.nodes.retain(|n| n.is_background());
+            if s.scene.nodes.is_empty() {
+                return Err(request(
+                    "outputs",
+                    "background: the scene has no background node".into(),
+                ));
+            }
+            Some(s)
+        } else {
+            None
+        };
+        let instances = self
+            .nodes()
+            .iter()
+            .filter(|n| !n.is_background())
+            .map(|n| Instance {
+                id: n.id,
+                label: n.label.clone(),
+            })
+            .collect();
+        let cfg = WriterConfig {
+            outputs: job.outputs.clone(),
+            meters_per_unit: scene.scene.meters_per_unit,
+            world_up: scene.scene.up.to_array(),
+            instances,
+        };
+        let writer = DatasetWriter::create(&job.out, cfg, job.force).map_err(SessionError::Data)?;
+        let opts = RenderOptions {
+            highlight: highlight.map(|id| (id, HIGHLIGHT)),
+            layers: wants(Output::Objects),
+            ..Default::default()
+        };
+        let total = cameras.len();
+        for (k, c) in cameras.iter().enumerate() {
+            let img = render_camera(scene, &c.camera, u32::MAX, &opts);
+            let bg = background
+                .as_ref()
+                .map(|s| render_camera(s, &c.camera, u32::MAX, &RenderOptions::default()));
+            let layers: Vec<Layer> = img
+                .layers
+                .iter()
+                .map(|l| Layer {
+                    id: l.id,
+                    rgb: &l.rgb,
+                    opacity: &l.opacity,
+                })
+                .collect();
+            let v = ViewImages {
+                width: img.width,
+                height: img.height,
+                rgb: &img.rgb,
+                depth: &img.depth,
+                panoptic: &img.panoptic,
+                layers: &layers,
+                background: bg.as_ref().map(|b| b.rgb.as_slice()),
+            };
+            writer
+                .write(k, &c.name, &c.camera, &v)
+                .map_err(SessionError::Data)?;
+            on_view(&ViewDone {
+                index: k,
+                total,
+                camera: c,
+                frame: &img,
+            });
+        }
+        let views = writer.finish().map_err(SessionError::Data)?;
+        Ok(RenderSummary {
+            views,
+            out: job.out.clone(),
+        })
+    }
+}

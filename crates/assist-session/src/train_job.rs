@@ -1,0 +1,365 @@
+//! `TrainJob`: a dataset → a trained scene on disk. One typed configuration (defaults
+//! declared here, once), the rules that turn it into training options (loss weights,
+//! background prior, appearance, resume), progress as typed events, cancellation.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
+use assist_data::{Dataset, LoadOptions, Split};
+use assist_scene::NeuralScene;
+use assist_train::setup::{BackgroundSpace, SetupOptions, background_color, build_scene};
+use assist_train::trainer::{Lambdas, ResumeState, StepStats};
+use assist_train::views::{fill_priors, load_views};
+use assist_train::{PriorKind, TrainOptions, TrainReport, Trainer};
+use serde::{Deserialize, Serialize};
+
+use crate::{Result, SessionError, request};
+
+/// Per-image appearance embeddings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Appearance {
+    /// On for real captures (COLMAP, LLFF), off for rendered ones.
+    #[default]
+    Auto,
+    On,
+    Off,
+}
+
+impl Appearance {
+    pub fn parse(s: &str) -> Option<Self> {
+        Some(match s {
+            "auto" => Appearance::Auto,
+            "on" => Appearance::On,
+            "off" => Appearance::Off,
+            _ => return None,
+        })
+    }
+}
+
+/// Loss weights the user sets; `None` keeps the rule's value (see [`Lambdas`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default)]
+pub struct LambdaOverrides {
+    pub bg_rgb: Option<f32>,
+    pub bg_depth: Option<f32>,
+    pub obj_acc: Option<f32>,
+    pub obj_rgb: Option<f32>,
+    pub obj_share: Option<f32>,
+    pub distortion: Option<f32>,
+}
+
+/// Everything a training run is configured with. `data` and `out` have no default; every
+/// other field's default is the one `assist train` uses.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct TrainConfig {
+    /// The dataset (any supported format).
+    pub data: PathBuf,
+    /// The scene directory written (`NAME.assist`).
+    pub out: PathBuf,
+    pub iters: usize,
+    /// Stop after this many seconds (the learning-rate schedule then runs on time).
+    pub max_time: Option<f64>,
+    /// Train on images this many times smaller.
+    pub downscale: u32,
+    /// Samples per training step (the ray count adapts).
+    pub batch_samples: usize,
+    /// Share of each batch's rays drawn from pixels on or next to objects.
+    pub object_rays: f64,
+    /// Background prior under the objects (`None` also sets λ1 = λ2 = 0 when the dataset
+    /// supplies no inpainted images).
+    pub prior: PriorKind,
+    pub lambdas: LambdaOverrides,
+    /// Object boxes overriding the dataset's and the carved ones.
+    pub boxes: Option<PathBuf>,
+    pub appearance: Appearance,
+    pub background: BackgroundSpace,
+    pub seed: u64,
+    /// Seconds between checkpoints written to `out`.
+    pub checkpoint_every: f64,
+    /// Continue training the scene in `out`.
+    pub resume: bool,
+    /// Replace `out` if it exists.
+    pub force: bool,
+    /// Testing aid: poison a parameter with NaN at this iteration.
+    #[serde(skip)]
+    pub poison_at: Option<usize>,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        let t = TrainOptions::default();
+        TrainConfig {
+            data: PathBuf::new(),
+            out: PathBuf::new(),
+            iters: t.iters,
+            max_time: t.max_time,
+            downscale: 1,
+            batch_samples: t.batch_samples,
+            object_rays: t.object_ray_fraction,
+            prior: PriorKind::default(),
+            lambdas: LambdaOverrides::default(),
+            boxes: None,
+            appearance: Appearance::Auto,
+            background: BackgroundSpace::Auto,
+            seed: 0,
+            checkpoint_every: 120.0,
+            resume: false,
+            force: false,
+            poison_at: None,
+        }
+    }
+}
+
+/// What a training job tells while it runs.
+#[derive(Debug, Clone, Serialize)]
+#[serde(tag = "event", rename_all = "snake_case")]
+pub enum TrainEvent {
+    /// The dataset is read; its training images are being loaded.
+    Loading { images: usize, data: PathBuf },
+    /// The background prior: the share of object-covered pixels other views see.
+    Prior { seen_share: f64 },
+    /// Free space carved from the depth maps, per node (share of its grid cells).
+    Carved { nodes: Vec<(String, f64)> },
+    /// The views have no instance masks; `unused` are mask folders for other sizes.
+    NoMasks { unused: Vec<PathBuf> },
+    /// The scene's nodes (id, label).
+    Nodes { nodes: Vec<(u16, String)> },
+    /// One training step, with the share of the run done and the seconds left.
+    Step {
+        stats: Box<StepStats>,
+        eta_seconds: Option<f64>,
+        /// Share of each node's occupancy grid that is occupied (sent every few seconds).
+        occupancy: Option<Vec<(String, f64)>>,
+    },
+    /// The scene is saved.
+    Saved { path: PathBuf },
+}
+
+/// A finished training job.
+#[derive(Debug, Clone)]
+pub struct TrainOutcome {
+    pub report: TrainReport,
+    pub out: PathBuf,
+}
+
+/// A training run to do.
+pub struct TrainJob {
+    pub config: TrainConfig,
+    cancel: Arc<AtomicBool>,
+}
+
+impl TrainJob {
+    pub fn new(config: TrainConfig) -> Self {
+        TrainJob {
+            config,
+            cancel: Arc::new(AtomicBool::new(false)),
+        }
+    }
+
+    /// A handle that stops the run after the current step when set (the scene trained so
+    /// far is saved).
+    pub fn cancel_handle(&self) -> Arc<AtomicBool> {
+        self.cancel.clone()
+    }
+
+    /// Checks the configuration without reading the dataset.
+    pub fn validate(&self) -> Result<()> {
+        let c = &self.config;
+        if c.data.as_os_str().is_empty() {
+            return Err(request("data", "expected a dataset path".into()));
+        }
+        if c.out.as_os_str().is_empty() {
+            return Err(request("out", "expected a scene path to write".into()));
+        }
+        if c.out.exists() && !c.force && !c.resume {
+            return Err(request(
+                "out",
+                format!(
+                    "{} already exists (replace it with force, or continue it with resume)",
+                    c.out.display()
+                ),
+            ));
+        }
+        if !(0.0..=1.0).contains(&c.object_rays) {
+            return Err(request(
+                "object_rays",
+                format!("expected a fraction between 0 and 1, got {}", c.object_rays),
+            ));
+        }
+        if c.resume && c.boxes.is_some() {
+            return Err(request(
+                "boxes",
+                "cannot change the boxes of a scene being resumed (train anew instead)".into(),
+            ));
+        }
+        if !(1..=64).contains(&c.downscale) {
+            return Err(request(
+                "downscale",
+                format!("expected 1 to 64, got {}", c.downscale),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Loads, trains and saves, telling `on_event` as it goes.
+    pub fn run(&self, mut on_event: impl FnMut(&TrainEvent)) -> Result<TrainOutcome> {
+        self.validate()?;
+        let c = &self.config;
+        let user_boxes = match &c.boxes {
+            Some(p) => assist_data::boxes::read_boxes(p).map_err(SessionError::Data)?,
+            None => Vec::new(),
+        };
+        let load_opts = LoadOptions {
+            downscale: c.downscale,
+            ..Default::default()
+        };
+        let ds = assist_data::load(&c.data, &load_opts).map_err(SessionError::Data)?;
+        let n_train = ds.count(Split::Train);
+        if n_train == 0 {
+            return Err(request(
+                "data",
+                format!("{}: the dataset has no training frames", c.data.display()),
+            ));
+        }
+        on_event(&TrainEvent::Loading {
+            images: n_train,
+            data: c.data.clone(),
+        });
+        let mut views = load_views(&ds, Split::Train, background_color(&ds))?;
+        // A depth prior the user supplies (a monocular model's) has an unknown scale; one
+        // the built-in fill makes from the dataset's depth is metric.
+        let depth_affine = views.iter().any(|v| v.inpaint_depth.is_some());
+        if let Some(mv) = fill_priors(&mut views, c.prior)
+            && mv.hole_pixels > 0
+        {
+            on_event(&TrainEvent::Prior {
+                seen_share: mv.filled_pixels as f64 / mv.hole_pixels as f64,
+            });
+        }
+        let (mut scene, resume) = self.scene(&ds, &views, user_boxes)?;
+        let carved = assist_train::freespace::carve_scene(&mut scene, &views);
+        if !carved.is_empty() {
+            on_event(&TrainEvent::Carved { nodes: carved });
+        }
+        let lambdas = lambdas(c, views.iter().any(|v| v.inpaint.is_some()));
+        if !c.resume && views.iter().all(|v| v.ids.is_none()) {
+            on_event(&TrainEvent::NoMasks {
+                unused: assist_data::masks::unused_mask_folders(&ds),
+            });
+        }
+        on_event(&TrainEvent::Nodes {
+            nodes: scene
+                .scene
+                .nodes
+                .iter()
+                .map(|n| (n.id, n.label.clone()))
+                .collect(),
+        });
+        let opts = TrainOptions {
+            iters: c.iters,
+            max_time: c.max_time,
+            batch_samples: c.batch_samples,
+            object_ray_fraction: c.object_rays,
+            downscale: c.downscale,
+            depth_affine,
+            lambdas,
+            seed: c.seed,
+            checkpoint: Some(c.out.clone()),
+            checkpoint_every: c.checkpoint_every,
+            poison_at: c.poison_at,
+            cancel: Some(self.cancel.clone()),
+            ..Default::default()
+        };
+        let mut trainer = Trainer::new(scene, views, opts)?;
+        if let Some(r) = &resume {
+            trainer.resume_from(r);
+        }
+        let mut last_occupancy = std::time::Instant::now();
+        let report = trainer.run(|s, t| {
+            let occupancy = (last_occupancy.elapsed().as_secs_f64() > 10.0).then(|| {
+                last_occupancy = std::time::Instant::now();
+                t.occupancy()
+            });
+            let eta_seconds =
+                (s.progress > 1e-6).then(|| (s.elapsed * (1.0 - s.progress) / s.progress).max(0.0));
+            on_event(&TrainEvent::Step {
+                stats: Box::new(*s),
+                eta_seconds,
+                occupancy,
+            });
+        })?;
+        assist_scene::scene_file::save(&c.out, &trainer.scene, trainer.info(report.seconds), true)?;
+        on_event(&TrainEvent::Saved {
+            path: c.out.clone(),
+        });
+        Ok(TrainOutcome {
+            report,
+            out: c.out.clone(),
+        })
+    }
+
+    /// A new scene for the dataset, or the one being resumed with its state.
+    fn scene(
+        &self,
+        ds: &Dataset,
+        views: &[assist_train::View],
+        boxes: Vec<assist_data::boxes::BoxOverride>,
+    ) -> Result<(NeuralScene, Option<ResumeState>)> {
+        let c = &self.config;
+        if c.resume {
+            let (scene, info) = assist_scene::scene_file::load(&c.out)?;
+            let state = ResumeState::from_info(&info).map_err(|m| {
+                request(
+                    "resume",
+                    format!("{}: {m}", c.out.join("scene.json").display()),
+                )
+            })?;
+            return Ok((scene, Some(state)));
+        }
+        let appearance = match c.appearance {
+            Appearance::On => true,
+            Appearance::Off => false,
+            Appearance::Auto => matches!(
+                ds.format,
+                assist_data::Format::ColmapBinary
+                    | assist_data::Format::ColmapText
+                    | assist_data::Format::Llff
+            ),
+        };
+        let so = SetupOptions {
+            appearance,
+            seed: c.seed,
+            boxes,
+            background_space: c.background,
+            ..Default::default()
+        };
+        Ok((build_scene(ds, views, &so)?, None))
+    }
+}
+
+/// The loss weights of a run: the defaults, the background-prior terms off when there is
+/// no prior at all, then the user's values.
+pub fn lambdas(c: &TrainConfig, dataset_inpaint: bool) -> Lambdas {
+    let mut l = Lambdas::default();
+    if c.prior == PriorKind::None && !dataset_inpaint {
+        l.bg_rgb = 0.0;
+        l.bg_depth = 0.0;
+    }
+    let o = &c.lambdas;
+    for (slot, v) in [
+        (&mut l.bg_rgb, o.bg_rgb),
+        (&mut l.bg_depth, o.bg_depth),
+        (&mut l.obj_acc, o.obj_acc),
+        (&mut l.obj_rgb, o.obj_rgb),
+        (&mut l.obj_share, o.obj_share),
+        (&mut l.distortion, o.distortion),
+    ] {
+        if let Some(v) = v {
+            *slot = v;
+        }
+    }
+    l
+}

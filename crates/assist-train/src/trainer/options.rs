@@ -1,0 +1,265 @@
+//! What a training run is given and what it reports: loss weights, options, per-step
+//! figures with phase times, the final report, and the state a run resumes from.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
+use serde::{Deserialize, Serialize};
+
+/// Loss weights. Defaults: λ1 = 0.5 (bg colour), λ2 = 0.1 (bg depth, in units of the
+/// scene's extent), λ3 = 0.1 (object opacity), λ4 = 0.5 (object colour). The paper calls
+/// them "normalising constants" and gives no values; these were chosen on the synth scene.
+///
+/// λ5 = 0.1 weighs a sixth term that is not in the paper, `L_obj_share = Σ_k M^k (1 − W^k)²`,
+/// where `W^k` is node k's share of the weight composited along the ray (the quantity the
+/// panoptic id is taken from). The paper's `M^k` means "the ray *first* hits object k", but
+/// its `L_obj_acc` looks at each node alone, so it cannot tell whether another node — in
+/// practice the background — has density in front of the object: both colour losses are
+/// satisfied when the background grows a copy of the object's surface in front of it, and
+/// the object then loses its pixels in the panoptic output. `L_obj_share` says what the mask
+/// says, on the composite. `λ5 = 0` gives the paper's loss exactly.
+///
+/// λ6 weighs the distortion loss of mip-NeRF 360 (inter-interval term), which the paper's
+/// per-node model, nerfstudio's Nerfacto, trains with: `Σ_{i,j} w_i w_j |t_i − t_j|` over
+/// the composited weights of a ray, with `t` in units of the scene's extent. It removes the
+/// semi-transparent haze that otherwise spreads a surface over centimetres of depth (on
+/// desk without it: transmittance falls from 0.9 to 0.1 over 8 cm of depth at the median
+/// ray, over 82 cm at the 90th percentile), which blurs novel views and costs samples.
+/// λ6 defaults to 0 (off), by measurement on desk (150 s runs, λ6 = 0 / 0.01 / 0.1 / 1: background samples per
+/// ray 138 / 147 / 114 / 40, rays per second 3.4 k / 3.8 k / 4.4 k / 7.2 k, test PSNR
+/// 24.8 / 24.6 / 24.9 / 25.5 dB) — but λ6 = 1 over 900 s ended 0.7 dB *below* the run
+/// without it (28.9 dB, 20 background samples per ray: the occupancy grid, fed by the
+/// over-sharpened density, pruned cells surfaces still needed), and λ6 = 0.1 over 900 s
+/// 0.15 dB below (29.42 dB, SSIM 0.864 against 0.882). It stays available for speed (λ6 =
+/// 0.1 trains 2× the rays per second). See BENCHMARKS.md.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Lambdas {
+    pub bg_rgb: f32,
+    pub bg_depth: f32,
+    pub obj_acc: f32,
+    pub obj_rgb: f32,
+    pub obj_share: f32,
+    pub distortion: f32,
+}
+
+impl Default for Lambdas {
+    fn default() -> Self {
+        Lambdas {
+            bg_rgb: 0.5,
+            bg_depth: 0.1,
+            obj_acc: 0.1,
+            obj_rgb: 0.5,
+            obj_share: 0.1,
+            distortion: 0.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct TrainOptions {
+    pub iters: usize,
+    /// Stop after this many seconds (the schedule then runs on time).
+    pub max_time: Option<f64>,
+    /// Target number of samples per step; the ray count adapts to it.
+    pub batch_samples: usize,
+    pub lr_start: f32,
+    pub lr_end: f32,
+    pub lambdas: Lambdas,
+    pub occupancy_every: usize,
+    pub seed: u64,
+    /// Checkpoint directory and interval in seconds.
+    pub checkpoint: Option<PathBuf>,
+    pub checkpoint_every: f64,
+    /// Fraction of each batch drawn from pixels on or near objects (when masks exist); the
+    /// rest are drawn uniformly over all pixels. 0.25 by measurement on desk (900 s: 32.42
+    /// dB against 30.76 dB with 0.5, the same mIoU).
+    pub object_ray_fraction: f64,
+    /// Samples behind the point where their node's transmittance falls below this are
+    /// dropped after a density-only pass, before the forward and backward passes (0 =
+    /// keep all; nerfacc's early stop, see `assist_render::prune`). Off by default, by
+    /// measurement: on beer's contracted background it drops 9% of the samples (the
+    /// contracted occupancy grid already keeps ~45 per ray) for a density pass over all
+    /// of them, and beer and fern ended lower with it (23.96 / 22.80 dB against 24.20 /
+    /// 23.42 dB in 300 s); lego_400 ended higher (30.06 against 29.61 dB: its batches
+    /// held twice the rays). See BENCHMARKS.md.
+    pub prune_eps: f32,
+    /// The dataset's `--downscale` (recorded in the scene for evaluation; 1 = none).
+    pub downscale: u32,
+    /// Learn a scale and shift of the background depth prior (`depth_wq`). For priors
+    /// of unknown scale (a monocular model's depth supplied by the user); a prior made
+    /// from the dataset's own depth is metric, and a free scale only lets the rendered
+    /// depth drift from it (the demo's wall rendered at half its distance, scale 0.42).
+    pub depth_affine: bool,
+    /// Testing aid: poison one parameter with NaN at this iteration (exercises divergence
+    /// detection).
+    #[serde(skip)]
+    pub poison_at: Option<usize>,
+    /// Set from another thread to stop the run after the current step (the report then
+    /// says `cancelled`; the scene is as trained so far).
+    #[serde(skip)]
+    pub cancel: Option<Arc<AtomicBool>>,
+}
+
+impl Default for TrainOptions {
+    fn default() -> Self {
+        TrainOptions {
+            iters: 5000,
+            max_time: None,
+            batch_samples: 1 << 16,
+            lr_start: 1e-2,
+            lr_end: 1e-4,
+            lambdas: Lambdas::default(),
+            occupancy_every: 16,
+            seed: 0,
+            checkpoint: None,
+            checkpoint_every: 60.0,
+            object_ray_fraction: 0.25,
+            downscale: 1,
+            depth_affine: false,
+            prune_eps: 0.0,
+            poison_at: None,
+            cancel: None,
+        }
+    }
+}
+
+/// One step's figures (losses are batch means, before the λ weights).
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct StepStats {
+    pub iteration: usize,
+    pub loss: f64,
+    pub comp_rgb: f64,
+    pub bg_rgb: f64,
+    pub bg_depth: f64,
+    pub obj_acc: f64,
+    pub obj_rgb: f64,
+    pub obj_share: f64,
+    pub distortion: f64,
+    /// PSNR of the composite colour on this batch.
+    pub psnr: f64,
+    pub rays: usize,
+    pub samples: usize,
+    pub lr: f32,
+    pub elapsed: f64,
+    /// Fraction of the run done (iterations or time).
+    pub progress: f64,
+    /// Seconds in each phase of this step (`other` stays 0).
+    pub phase: PhaseTimes,
+    /// Mean samples per ray of the first nodes (background first when present), after
+    /// pruning.
+    pub samples_per_ray: [f32; 4],
+    /// Samples marched before pruning.
+    pub candidates: usize,
+    /// Samples dropped by pruning (`candidates − samples`).
+    pub pruned: usize,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct TrainReport {
+    pub iterations: usize,
+    pub seconds: f64,
+    pub final_stats: StepStats,
+    pub rays_per_sec: f64,
+    pub samples_per_sec: f64,
+    /// Seconds spent over the run in each phase; `other` is everything else
+    /// (checkpoints, progress display).
+    pub phases: PhaseTimes,
+    pub depth_scale_shift: [f32; 2],
+    /// Whether the run was stopped by [`TrainOptions::cancel`].
+    pub cancelled: bool,
+}
+
+/// Seconds in each phase of a training step or run.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct PhaseTimes {
+    /// Ray drawing and sampling.
+    pub sampling: f64,
+    /// Field forward passes.
+    pub forward: f64,
+    /// Compositing and losses.
+    pub compositing: f64,
+    /// Field backward passes.
+    pub backward: f64,
+    pub adam: f64,
+    /// Occupancy-grid updates.
+    pub occupancy: f64,
+    pub other: f64,
+}
+
+impl PhaseTimes {
+    /// From the times at which each of the six step phases ended, measured from the
+    /// step's start.
+    pub fn from_marks(ends: [f64; 6]) -> Self {
+        let d = |i: usize| ends[i] - if i == 0 { 0.0 } else { ends[i - 1] };
+        PhaseTimes {
+            sampling: d(0),
+            forward: d(1),
+            compositing: d(2),
+            backward: d(3),
+            adam: d(4),
+            occupancy: d(5),
+            other: 0.0,
+        }
+    }
+
+    pub fn add(&mut self, o: &PhaseTimes) {
+        for (a, b) in self.as_mut_array().into_iter().zip(o.named()) {
+            *a += b.1;
+        }
+    }
+
+    fn as_mut_array(&mut self) -> [&mut f64; 7] {
+        [
+            &mut self.sampling,
+            &mut self.forward,
+            &mut self.compositing,
+            &mut self.backward,
+            &mut self.adam,
+            &mut self.occupancy,
+            &mut self.other,
+        ]
+    }
+
+    /// Each phase with its name, in order.
+    pub fn named(&self) -> [(&'static str, f64); 7] {
+        [
+            ("sampling", self.sampling),
+            ("forward", self.forward),
+            ("compositing", self.compositing),
+            ("backward", self.backward),
+            ("adam", self.adam),
+            ("occupancy", self.occupancy),
+            ("other", self.other),
+        ]
+    }
+
+    pub fn total(&self) -> f64 {
+        self.named().iter().map(|p| p.1).sum()
+    }
+}
+
+/// Where a saved run stands, written into the scene file's `info` and read back to
+/// resume it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ResumeState {
+    pub iteration: usize,
+    pub elapsed_seconds: f64,
+    /// Learnt scale and shift of the background depth prior.
+    #[serde(default = "identity_affine")]
+    pub depth_scale_shift: [f32; 2],
+}
+
+fn identity_affine() -> [f32; 2] {
+    [1.0, 0.0]
+}
+
+impl ResumeState {
+    /// Reads the state from a scene file's `info`; `Err` names the field that is missing
+    /// or malformed.
+    pub fn from_info(info: &serde_json::Value) -> Result<Self, String> {
+        serde_json::from_value(info.clone()).map_err(|e| {
+            format!("info: expected iteration, elapsed_seconds and depth_scale_shift: {e}")
+        })
+    }
+}
