@@ -13,11 +13,13 @@ pub mod freespace;
 pub mod losses;
 pub mod metrics;
 pub mod multiview;
+pub mod optimizer;
 pub mod prior;
 pub mod setup;
 pub mod trainer;
 pub mod views;
 
 pub use error::{Result, TrainError};
+pub use optimizer::{CpuOptimizer, NodeOptimizer};
 pub use trainer::{TrainOptions, TrainReport, Trainer};
 pub use views::{PriorKind, View};

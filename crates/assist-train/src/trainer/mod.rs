@@ -21,6 +21,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 
+use crate::optimizer::{CpuOptimizer, NodeOptimizer};
 use assist_core::Rng;
 use assist_field::{Adam, Tape};
 use assist_render::{
@@ -61,8 +62,8 @@ pub struct Trainer {
     pub iteration: usize,
     /// Learnable scale and shift of the background depth prior.
     pub depth_wq: [f32; 2],
-    adams: BTreeMap<String, Adam>,
-    grads: BTreeMap<String, Vec<f32>>,
+    /// One optimiser per field: the trainer never writes parameters itself.
+    optimizers: BTreeMap<String, Box<dyn NodeOptimizer>>,
     tapes: Vec<Tape>,
     wq_adam: Adam,
     rays_per_batch: usize,
@@ -93,15 +94,13 @@ impl Trainer {
                 "every node must have its own field to be trained (replicas share one)".into(),
             ));
         }
-        let adams = scene
+        let optimizers = scene
             .fields
             .iter()
-            .map(|(k, f)| (k.clone(), Adam::for_field(&f.field)))
-            .collect();
-        let grads = scene
-            .fields
-            .iter()
-            .map(|(k, f)| (k.clone(), vec![0.0; f.field.layout.total]))
+            .map(|(k, f)| {
+                let o: Box<dyn NodeOptimizer> = Box::new(CpuOptimizer::new(f));
+                (k.clone(), o)
+            })
             .collect();
         let mut ext = assist_core::Aabb::empty();
         for n in &scene.scene.nodes {
@@ -144,8 +143,7 @@ impl Trainer {
             opts,
             iteration: 0,
             depth_wq: [1.0, 0.0],
-            adams,
-            grads,
+            optimizers,
             tapes: Vec::new(),
             wq_adam: Adam::new(2),
             rays_per_batch: 512,
@@ -369,19 +367,23 @@ impl Trainer {
                 continue;
             }
             let key = &self.scene.scene.nodes[ns.node].field;
-            let nf = &self.scene.fields[key];
-            let grad = self.grads.get_mut(key).expect("grad buffer per field");
-            nf.field
-                .backward(&ns.samples(), tape, &ns.d_sigma, &ns.d_rgb, grad);
+            self.optimizers
+                .get_mut(key)
+                .expect("optimizer per field")
+                .accumulate(
+                    &self.scene.fields[key],
+                    &ns.samples(),
+                    tape,
+                    &ns.d_sigma,
+                    &ns.d_rgb,
+                );
         }
         phase[3] = tp.elapsed().as_secs_f64();
         for (key, nf) in self.scene.fields.iter_mut() {
-            let nf = Arc::make_mut(nf);
-            let grad = self.grads.get_mut(key).expect("grad buffer per field");
-            self.adams
+            self.optimizers
                 .get_mut(key)
-                .expect("adam per field")
-                .update(lr, &mut nf.field.params, grad);
+                .expect("optimizer per field")
+                .step(Arc::make_mut(nf), lr);
         }
         if bg.is_some() && lam.bg_depth > 0.0 && self.opts.depth_affine {
             update_depth_affine(&mut self.wq_adam, &mut self.depth_wq, &mut g_wq);
@@ -389,9 +391,7 @@ impl Trainer {
         phase[4] = tp.elapsed().as_secs_f64();
         if self.opts.poison_at == Some(self.iteration) {
             for nf in self.scene.fields.values_mut() {
-                let f = &mut Arc::make_mut(nf).field;
-                let b = f.layout.color.last().expect("colour layers").b;
-                f.params[b] = f32::NAN;
+                Arc::make_mut(nf).field.poison();
             }
         }
         self.iteration += 1;
@@ -419,10 +419,12 @@ impl Trainer {
     pub fn update_occupancy(&mut self) {
         let seed = self.opts.seed ^ self.iteration as u64;
         let round = self.iteration / self.opts.occupancy_every.max(1);
-        for (i, nf) in self.scene.fields.values_mut().enumerate() {
-            let nf = Arc::make_mut(nf);
+        for (i, (key, nf)) in self.scene.fields.iter_mut().enumerate() {
             let mut rng = Rng::stream(seed, i as u64);
-            nf.occupancy.update_round(&nf.field, &mut rng, round);
+            self.optimizers
+                .get_mut(key)
+                .expect("optimizer per field")
+                .refresh_occupancy(Arc::make_mut(nf), &mut rng, round);
         }
     }
 
@@ -439,8 +441,8 @@ impl Trainer {
     pub fn is_finite(&self) -> bool {
         self.scene
             .fields
-            .values()
-            .all(|f| f.field.params.par_iter().all(|v| v.is_finite()))
+            .iter()
+            .all(|(k, f)| self.optimizers[k].is_finite(f))
     }
 
     /// Training information written into the scene file (`info`).

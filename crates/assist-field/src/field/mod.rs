@@ -10,11 +10,18 @@
 use rayon::prelude::*;
 
 use crate::config::FieldConfig;
-use crate::hashgrid::{CHUNK, GridLayout, Layout, encode, encode_backward};
+use crate::hashgrid::{CHUNK, Layout, encode};
 use assist_simd::bf16::{self, PackedA};
 
 use crate::mlp::{Linear, bias_act};
+
+mod backward;
+mod layout;
+
 use crate::sh::sh_encode_rows;
+pub use backward::Tape;
+pub use layout::ParamLayout;
+use layout::Rows;
 
 /// Arithmetic of the MLP products at inference.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -41,75 +48,6 @@ impl Precision {
 /// (`trunc_exp` as in Nerfacto).
 pub const MAX_RAW_DENSITY: f32 = 15.0;
 
-/// Where each parameter group lives in the flat vector.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ParamLayout {
-    pub grid: GridLayout,
-    pub density: [Linear; 2],
-    pub color: Vec<Linear>,
-    /// Offset of the appearance table (`num_images × appearance_dim`).
-    pub appearance: usize,
-    pub total: usize,
-}
-
-impl ParamLayout {
-    pub fn new(cfg: &FieldConfig) -> Self {
-        let grid = GridLayout::new(cfg);
-        let mut off = grid.param_count();
-        let enc = cfg.encoding_width();
-        let d1 = Linear::new(cfg.hidden, enc, &mut off);
-        let d2 = Linear::new(1 + cfg.geo_features, cfg.hidden, &mut off);
-        let cin = cfg.geo_features + cfg.sh_width() + cfg.appearance_dim;
-        let mut color = vec![Linear::new(cfg.color_hidden, cin, &mut off)];
-        for _ in 1..cfg.color_layers {
-            color.push(Linear::new(cfg.color_hidden, cfg.color_hidden, &mut off));
-        }
-        color.push(Linear::new(3, cfg.color_hidden, &mut off));
-        let appearance = off;
-        off += cfg.num_images * cfg.appearance_dim;
-        ParamLayout {
-            grid,
-            density: [d1, d2],
-            color,
-            appearance,
-            total: off,
-        }
-    }
-
-    /// Named groups `(name, start, len)`, for serialisation and gradient checks.
-    pub fn groups(&self, cfg: &FieldConfig) -> Vec<(String, usize, usize)> {
-        let mut g = Vec::new();
-        for (i, lv) in self.grid.levels.iter().enumerate() {
-            g.push((
-                format!("grid.level{i:02}"),
-                lv.offset * self.grid.features,
-                lv.size as usize * self.grid.features,
-            ));
-        }
-        for (i, l) in self.density.iter().enumerate() {
-            g.push((format!("density.{i}.weight"), l.w, l.out * l.inp_pad));
-            g.push((format!("density.{i}.bias"), l.b, l.out));
-        }
-        for (i, l) in self.color.iter().enumerate() {
-            g.push((format!("color.{i}.weight"), l.w, l.out * l.inp_pad));
-            g.push((format!("color.{i}.bias"), l.b, l.out));
-        }
-        if cfg.appearance_dim > 0 {
-            g.push((
-                "appearance".into(),
-                self.appearance,
-                cfg.num_images * cfg.appearance_dim,
-            ));
-        }
-        g
-    }
-
-    /// Start of the MLP + appearance parameters (everything after the grid).
-    pub fn mlp_start(&self) -> usize {
-        self.grid.param_count()
-    }
-}
-
 /// Per-sample inputs, structure of arrays. Positions are in the node's canonical box
 /// scaled to [0, 1]³; directions are unit vectors in the same frame. `image[i]` selects an
 /// appearance code; `u32::MAX` (or an empty slice) means the average code (novel views).
@@ -129,31 +67,6 @@ impl Samples<'_> {
     }
 }
 
-/// Activations recorded by `forward_train` for `backward`. Reused across steps: buffers
-/// grow to the largest batch and are not reallocated after that.
-#[derive(Default)]
-pub struct Tape {
-    n: usize,
-    enc: Vec<f32>,
-    d_enc: Vec<f32>,
-    act: Vec<f32>,
-    /// Time spent in each phase by the calls on this tape (accumulated; reset at will).
-    pub times: PhaseTimes,
-    scratch: Vec<std::sync::Mutex<Scratch>>,
-    scratch_sizes: (usize, usize, usize, usize),
-}
-
-/// Per-thread buffers of the backward pass: the thread's MLP gradient and work rows.
-#[derive(Default)]
-struct Scratch {
-    g: Vec<f32>,
-    da: Vec<f32>,
-    db: Vec<f32>,
-    xt: Vec<f32>,
-    /// Σ dL/d(first colour layer pre-activation) per appearance code (`code_biases` rows).
-    code_sums: Vec<f32>,
-}
-
 /// Seconds spent per phase, for benchmarks.
 #[derive(Debug, Clone, Copy, Default, serde::Serialize)]
 pub struct PhaseTimes {
@@ -161,46 +74,6 @@ pub struct PhaseTimes {
     pub mlp_forward: f64,
     pub mlp_backward: f64,
     pub encode_backward: f64,
-}
-
-/// Row offsets (in units of CHUNK floats) of one chunk's activations.
-#[derive(Debug, Clone)]
-struct Rows {
-    hidden: usize,
-    dens: usize,
-    cin: usize,
-    color: Vec<usize>,
-    rgb: usize,
-    sigma: usize,
-    total: usize,
-}
-
-impl Rows {
-    fn new(cfg: &FieldConfig, lay: &ParamLayout) -> Self {
-        let mut r = 0;
-        let mut take = |n: usize| {
-            let o = r;
-            r += n;
-            o
-        };
-        let hidden = take(cfg.hidden);
-        let dens = take(1 + cfg.geo_features);
-        let cin = take(lay.color[0].inp_pad);
-        let color: Vec<usize> = (0..cfg.color_layers)
-            .map(|_| take(cfg.color_hidden))
-            .collect();
-        let rgb = take(3);
-        let sigma = take(1);
-        Rows {
-            hidden,
-            dens,
-            cin,
-            color,
-            rgb,
-            sigma,
-            total: r,
-        }
-    }
 }
 
 #[derive(Debug, Clone)]
@@ -219,14 +92,6 @@ fn write_outputs(act: &[f32], rows: &Rows, sig: &mut [f32], col: &mut [f32]) {
         for k in 0..3 {
             col[3 * l + k] = act[(rows.rgb + k) * CHUNK + l];
         }
-    }
-}
-
-/// `d ← d · [x > 0]` (ReLU backward), branch-free so that it vectorises.
-#[inline(always)]
-fn relu_mask(d: &mut [f32], x: &[f32]) {
-    for (d, v) in d.iter_mut().zip(x) {
-        *d = if *v > 0.0 { *d } else { 0.0 };
     }
 }
 
@@ -262,6 +127,14 @@ impl Field {
             layout,
             params,
         })
+    }
+
+    /// Fault injection for the tests of divergence handling: the last colour bias
+    /// becomes NaN, so every output does.
+    #[doc(hidden)]
+    pub fn poison(&mut self) {
+        let b = self.layout.color.last().expect("colour layers").b;
+        self.params[b] = f32::NAN;
     }
 
     pub fn param_count(&self) -> usize {
@@ -642,298 +515,5 @@ impl Field {
             self.config.encoding_rows(),
             enc,
         );
-    }
-
-    /// Training forward: like `forward`, recording activations in `tape`.
-    pub fn forward_train(&self, s: &Samples, tape: &mut Tape, sigma: &mut [f32], rgb: &mut [f32]) {
-        let n = s.len();
-        assert!(sigma.len() >= n && rgb.len() >= 3 * n);
-        let width = self.config.encoding_rows();
-        let rows = self.rows();
-        let nc = n.div_ceil(CHUNK);
-        let enc_len = Layout { width }.len(n);
-        if tape.enc.len() < enc_len {
-            tape.enc.resize(enc_len, 0.0);
-            tape.d_enc.resize(enc_len, 0.0);
-        }
-        if tape.act.len() < nc * rows.total * CHUNK {
-            tape.act.resize(nc * rows.total * CHUNK, 0.0);
-        }
-        tape.n = n;
-        // Lanes past the end of the last chunk are zeroed so they stay finite.
-        if !n.is_multiple_of(CHUNK) {
-            let last = &mut tape.enc[(nc - 1) * width * CHUNK..nc * width * CHUNK];
-            last.fill(0.0);
-        }
-        let t0 = std::time::Instant::now();
-        encode(&self.layout.grid, &self.params, s.pos, width, &mut tape.enc);
-        let t1 = std::time::Instant::now();
-        tape.times.encode_forward += (t1 - t0).as_secs_f64();
-        let biases = self.code_biases();
-        let block = width * CHUNK;
-        let enc = &tape.enc;
-        tape.act[..nc * rows.total * CHUNK]
-            .par_chunks_mut(rows.total * CHUNK)
-            .zip(sigma[..n].par_chunks_mut(CHUNK))
-            .zip(rgb[..3 * n].par_chunks_mut(3 * CHUNK))
-            .enumerate()
-            .for_each(|(c, ((act, sig), col))| {
-                self.chunk_outputs(
-                    s,
-                    c,
-                    &enc[c * block..(c + 1) * block],
-                    act,
-                    &rows,
-                    &biases,
-                    None,
-                    sig,
-                    col,
-                )
-            });
-        tape.times.mlp_forward += t1.elapsed().as_secs_f64();
-    }
-
-    /// The appearance part of the first colour layer, from `sums` (per code, Σ of dL/dy
-    /// over its samples): `dW_app += s codeᵀ` and `d code += W_appᵀ s`; the average code
-    /// spreads its gradient evenly over every image's code.
-    fn code_backward(&self, sums: &[f32], grad: &mut [f32]) {
-        let (cfg, l) = (&self.config, &self.layout.color[0]);
-        let (a, k0, ni) = (cfg.appearance_dim, self.code_col(), cfg.num_images);
-        let avg = self.average_code();
-        for (slot, sm) in sums.chunks_exact(l.out).enumerate() {
-            if sm.iter().all(|&v| v == 0.0) {
-                continue;
-            }
-            let code_at = |k: usize| {
-                if slot < ni {
-                    self.params[self.layout.appearance + slot * a + k]
-                } else {
-                    avg[k]
-                }
-            };
-            let mut dcode = vec![0.0f32; a];
-            for (o, &so) in sm.iter().enumerate() {
-                let w0 = l.w + o * l.inp_pad + k0;
-                for k in 0..a {
-                    grad[w0 + k] += so * code_at(k);
-                    dcode[k] += self.params[w0 + k] * so;
-                }
-            }
-            if slot < ni {
-                let o = self.layout.appearance + slot * a;
-                grad[o..o + a]
-                    .iter_mut()
-                    .zip(&dcode)
-                    .for_each(|(g, d)| *g += d);
-            } else {
-                for i in 0..ni {
-                    let o = self.layout.appearance + i * a;
-                    grad[o..o + a]
-                        .iter_mut()
-                        .zip(&dcode)
-                        .for_each(|(g, d)| *g += d / ni as f32);
-                }
-            }
-        }
-    }
-
-    /// Backward: given dL/dσ and dL/drgb (interleaved) for the samples of the last
-    /// `forward_train`, accumulates dL/dθ into `grad` (same layout as `params`).
-    pub fn backward(
-        &self,
-        s: &Samples,
-        tape: &mut Tape,
-        d_sigma: &[f32],
-        d_rgb: &[f32],
-        grad: &mut [f32],
-    ) {
-        let n = tape.n;
-        assert_eq!(
-            s.len(),
-            n,
-            "backward: samples differ from the recorded forward"
-        );
-        assert!(grad.len() == self.layout.total);
-        let cfg = &self.config;
-        let lay = &self.layout;
-        let rows = self.rows();
-        let width = cfg.encoding_rows();
-        let block = width * CHUNK;
-        let nc = n.div_ceil(CHUNK);
-        let mlp0 = lay.mlp_start();
-        let mlp_len = lay.total - mlp0;
-        let t0 = std::time::Instant::now();
-        let wts: Vec<Vec<f32>> = lay
-            .density
-            .iter()
-            .chain(&lay.color)
-            .map(|l| l.transposed(&self.params))
-            .collect();
-        let max_in = self.max_inputs();
-        let max_rows = rows.total;
-        let enc = &tape.enc;
-        let act = &tape.act;
-        let (geo, a) = (cfg.geo_features, cfg.appearance_dim);
-        // One scratch set per worker thread, kept in the tape across steps (no allocation
-        // in the hot loop); each holds that thread's share of the MLP gradient.
-        let threads = rayon::current_num_threads().max(1);
-        let k0 = self.product_cols();
-        let code_rows = if a > 0 { cfg.num_images + 1 } else { 0 };
-        let sizes = (
-            mlp_len,
-            max_rows * CHUNK,
-            CHUNK * max_in,
-            code_rows * lay.color[0].out,
-        );
-        if tape.scratch.len() != threads || tape.scratch_sizes != sizes {
-            tape.scratch = (0..threads)
-                .map(|_| {
-                    std::sync::Mutex::new(Scratch {
-                        g: vec![0.0; sizes.0],
-                        da: vec![0.0; sizes.1],
-                        db: vec![0.0; sizes.1],
-                        xt: vec![0.0; sizes.2],
-                        code_sums: vec![0.0; sizes.3],
-                    })
-                })
-                .collect();
-            tape.scratch_sizes = sizes;
-        }
-        let scratch = &tape.scratch;
-        tape.d_enc[..nc * block]
-            .par_chunks_mut(block)
-            .enumerate()
-            .for_each(|(c, d_enc)| {
-                let slot = rayon::current_thread_index().unwrap_or(0) % scratch.len();
-                let mut guard = scratch[slot].lock().unwrap_or_else(|p| p.into_inner());
-                let Scratch {
-                    g,
-                    da,
-                    db,
-                    xt,
-                    code_sums,
-                } = &mut *guard;
-                let (g, mut da, mut db, xt) = (
-                    g.as_mut_slice(),
-                    da.as_mut_slice(),
-                    db.as_mut_slice(),
-                    xt.as_mut_slice(),
-                );
-                assist_simd::simd(|| {
-                    let act = &act[c * rows.total * CHUNK..(c + 1) * rows.total * CHUNK];
-                    let row = |r: usize, k: usize| &act[r * CHUNK..(r + k) * CHUNK];
-                    let c0 = c * CHUNK;
-                    let lanes = CHUNK.min(n - c0);
-                    // dL/d(rgb pre-activation) into `da` (3 rows).
-                    da[..3 * CHUNK].fill(0.0);
-                    for l in 0..lanes {
-                        for k in 0..3 {
-                            let y = act[(rows.rgb + k) * CHUNK + l];
-                            da[k * CHUNK + l] = d_rgb[3 * (c0 + l) + k] * y * (1.0 - y);
-                        }
-                    }
-                    // Colour layers, last to first; `da` holds dL/d(pre-activation).
-                    let nl = lay.color.len();
-                    for li in (1..nl).rev() {
-                        let l = &lay.color[li];
-                        let x = row(rows.color[li - 1], l.inp_pad);
-                        l.backward(
-                            &wts[2 + li],
-                            x,
-                            &da[..l.out * CHUNK],
-                            g,
-                            mlp0,
-                            Some(&mut db[..l.inp_pad * CHUNK]),
-                            xt,
-                            l.inp_pad,
-                        );
-                        relu_mask(&mut db[..l.inp_pad * CHUNK], x);
-                        std::mem::swap(&mut da, &mut db);
-                    }
-                    // First colour layer: the product's columns (geometry + SH), dx for the
-                    // geometry rows only (SH has no parameters), and the appearance part
-                    // summed per code: Σ dy over a code's lanes gives both its weight
-                    // gradient and its code gradient (after the loop over chunks).
-                    let l0 = &lay.color[0];
-                    l0.backward(
-                        &wts[2],
-                        row(rows.cin, l0.inp_pad),
-                        &da[..l0.out * CHUNK],
-                        g,
-                        mlp0,
-                        // (16 rows rather than the 15 geometry ones: the fast kernel.)
-                        Some(&mut db[..crate::mlp::pad16(geo).min(l0.inp_pad) * CHUNK]),
-                        xt,
-                        k0,
-                    );
-                    if a > 0 {
-                        let mut slots = [0u32; CHUNK];
-                        let dy = &da[..l0.out * CHUNK];
-                        if self.chunk_slots(s, c0, &mut slots) {
-                            let sum = &mut code_sums[slots[0] as usize * l0.out..][..l0.out];
-                            for (o, r) in dy.chunks_exact(CHUNK).enumerate() {
-                                sum[o] += r[..lanes].iter().sum::<f32>();
-                            }
-                        } else {
-                            for (o, r) in dy.chunks_exact(CHUNK).enumerate() {
-                                for (&v, &sl) in r[..lanes].iter().zip(&slots) {
-                                    code_sums[sl as usize * l0.out + o] += v;
-                                }
-                            }
-                        }
-                    }
-                    std::mem::swap(&mut da, &mut db);
-                    // dL/d(density net output) into `db`: row 0 from σ, rows 1.. from geo.
-                    let d2 = &lay.density[1];
-                    db[..d2.out * CHUNK].fill(0.0);
-                    for l in 0..lanes {
-                        let sig = act[rows.sigma * CHUNK + l];
-                        db[l] = d_sigma[c0 + l] * sig;
-                    }
-                    db[CHUNK..(1 + geo) * CHUNK].copy_from_slice(&da[..geo * CHUNK]);
-                    let hid = row(rows.hidden, d2.inp_pad);
-                    d2.backward(
-                        &wts[1],
-                        hid,
-                        &db[..d2.out * CHUNK],
-                        g,
-                        mlp0,
-                        Some(&mut da[..d2.inp_pad * CHUNK]),
-                        xt,
-                        d2.inp_pad,
-                    );
-                    relu_mask(&mut da[..d2.inp_pad * CHUNK], hid);
-                    let d1 = &lay.density[0];
-                    d1.backward(
-                        &wts[0],
-                        &enc[c * block..(c + 1) * block],
-                        &da[..d1.out * CHUNK],
-                        g,
-                        mlp0,
-                        Some(d_enc),
-                        xt,
-                        d1.inp_pad,
-                    );
-                });
-            });
-        let mut sums = vec![0.0f32; sizes.3];
-        for sc in scratch {
-            let mut sc = sc.lock().unwrap_or_else(|p| p.into_inner());
-            for (g, m) in grad[mlp0..].iter_mut().zip(sc.g.iter_mut()) {
-                *g += *m;
-                *m = 0.0;
-            }
-            for (t, m) in sums.iter_mut().zip(sc.code_sums.iter_mut()) {
-                *t += *m;
-                *m = 0.0;
-            }
-        }
-        if a > 0 {
-            self.code_backward(&sums, grad);
-        }
-        let t1 = std::time::Instant::now();
-        tape.times.mlp_backward += (t1 - t0).as_secs_f64();
-        encode_backward(&lay.grid, s.pos, width, &tape.d_enc, &mut grad[..mlp0]);
-        tape.times.encode_backward += t1.elapsed().as_secs_f64();
     }
 }

@@ -1,0 +1,118 @@
+//! What the trainer asks of a node's field once the forward pass is done: take a
+//! batch's output gradients, step the parameters, refresh the occupancy grid. The trainer
+//! holds one [`NodeOptimizer`] per field and never writes parameters itself; this is the
+//! seam a GPU backend implements (its state lives in device buffers, the field's
+//! parameters are read back only at checkpoints).
+//!
+//! [`CpuOptimizer`] keeps the gradient buffer and Adam moments beside the field.
+
+use assist_core::Rng;
+use assist_field::{Adam, Samples, Tape};
+use assist_scene::NodeField;
+use rayon::prelude::*;
+
+/// A field's training state: gradient accumulation, the optimiser step and the
+/// occupancy refresh.
+pub trait NodeOptimizer: Send {
+    /// Adds the gradient of the loss with respect to the parameters for one batch of
+    /// samples, given the loss's gradient with respect to their density and colour.
+    fn accumulate(
+        &mut self,
+        field: &NodeField,
+        samples: &Samples,
+        tape: &mut Tape,
+        d_sigma: &[f32],
+        d_rgb: &[f32],
+    );
+
+    /// One optimiser step with learning rate `lr`; clears the accumulated gradient.
+    fn step(&mut self, field: &mut NodeField, lr: f32);
+
+    /// Refreshes the field's occupancy grid from its density (`round` counts refreshes).
+    fn refresh_occupancy(&mut self, field: &mut NodeField, rng: &mut Rng, round: usize) {
+        field.occupancy.update_round(&field.field, rng, round);
+    }
+
+    /// Whether every parameter is finite (checked before a checkpoint is written).
+    fn is_finite(&self, field: &NodeField) -> bool {
+        field.field.params.par_iter().all(|v| v.is_finite())
+    }
+}
+
+/// Adam on the CPU with a dense gradient buffer (the hash tables are updated sparsely,
+/// see [`Adam::for_field`]).
+#[derive(Debug, Clone)]
+pub struct CpuOptimizer {
+    adam: Adam,
+    grad: Vec<f32>,
+}
+
+impl CpuOptimizer {
+    pub fn new(field: &NodeField) -> Self {
+        CpuOptimizer {
+            adam: Adam::for_field(&field.field),
+            grad: vec![0.0; field.field.layout.total],
+        }
+    }
+}
+
+impl NodeOptimizer for CpuOptimizer {
+    fn accumulate(
+        &mut self,
+        field: &NodeField,
+        samples: &Samples,
+        tape: &mut Tape,
+        d_sigma: &[f32],
+        d_rgb: &[f32],
+    ) {
+        field
+            .field
+            .backward(samples, tape, d_sigma, d_rgb, &mut self.grad);
+    }
+
+    fn step(&mut self, field: &mut NodeField, lr: f32) {
+        self.adam
+            .update(lr, &mut field.field.params, &mut self.grad);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use assist_core::DVec3;
+    use assist_field::{Field, FieldConfig, OccupancyGrid};
+
+    #[test]
+    fn a_step_moves_parameters_against_the_gradient_and_clears_it() {
+        let cfg = FieldConfig {
+            levels: 4,
+            log2_table_size: 10,
+            base_resolution: 4,
+            max_resolution: 32,
+            appearance_dim: 0,
+            num_images: 0,
+            ..FieldConfig::nerfacto(0)
+        };
+        let field = Field::new(cfg, 3).unwrap();
+        let occ = OccupancyGrid::new(8);
+        let mut nf = NodeField::new(field, occ, DVec3::ONE);
+        let before = nf.field.params.clone();
+        let mut opt = CpuOptimizer::new(&nf);
+        let k = nf.field.layout.mlp_start();
+        opt.grad[k] = 1.0;
+        opt.step(&mut nf, 1e-2);
+        assert!(nf.field.params[k] < before[k], "moved against the gradient");
+        assert!(opt.grad.iter().all(|&g| g == 0.0), "gradient cleared");
+        let moved = nf
+            .field
+            .params
+            .iter()
+            .zip(&before)
+            .filter(|(a, b)| a != b)
+            .count();
+        assert_eq!(moved, 1, "only the parameter with a gradient moved");
+        assert!(opt.is_finite(&nf));
+        nf.field.params[k] = f32::NAN;
+        assert!(!opt.is_finite(&nf));
+    }
+}
