@@ -7,7 +7,7 @@ use assist_core::Operation::*;
 use crate::LangError;
 use crate::tokens::Tok;
 use crate::words::{
-    CREATED, FILLER, GENERIC, GROW, PRONOUNS, SHRINK, axis_word, direction_word, unit_word,
+    CREATED, FILLER, GENERIC, GROW, PRONOUNS, SHRINK, Verb, axis_word, direction_word, unit_word,
     verb_at, word,
 };
 pub use crate::words::{Direction, Unit};
@@ -158,331 +158,410 @@ fn render(toks: &[Tok]) -> String {
 }
 
 fn parse_clause(toks: &[Tok], out: &mut Vec<RawCommand>) -> Result<(), LangError> {
-    let text = render(toks);
-    let verb = (0..toks.len()).find_map(|i| verb_at(toks, i).map(|(v, n)| (i, v, n)));
-    let mut p = RawParams::default();
-    let mut refs = Refs::default();
-    let mut after_from = false;
-    let (vi, vn) = verb.map(|(i, _, n)| (i, n)).unwrap_or((usize::MAX, 0));
-    let mut op = verb.map(|(_, v, _)| v.op);
-    if let Some((_, v, _)) = verb {
-        p.direction = v.direction;
-        if let Some(f) = v.factor {
-            p.quantities.push((f, Some(Unit::Times)));
-        }
-        if SHRINK.contains(&v.words[0]) {
-            p.size = Some(SizeWord::Smaller);
-        } else if GROW.contains(&v.words[0]) {
-            p.size = Some(SizeWord::Bigger);
-        }
-    }
+    let mut c = Clause::new(toks);
+    let (vi, vn) = c.verb.map(|(i, _, n)| (i, n)).unwrap_or((usize::MAX, 0));
     let mut i = 0;
     while i < toks.len() {
-        if i == vi {
-            i += vn;
-            continue;
-        }
-        let t = &toks[i];
-        let next = toks.get(i + 1).and_then(word);
-        match t {
-            Tok::Sep => {}
-            Tok::Path(path) => {
-                refs.close();
-                p.path = Some(path.clone());
-            }
-            Tok::Num(n) => {
-                refs.close();
-                // Three numbers in a row after "at"/"to": a position.
-                let prev = i.checked_sub(1).and_then(|j| toks.get(j)).and_then(word);
-                if (matches!(prev, Some("at" | "to"))
-                    || (prev == Some("position") && op == Some(Translate)))
-                    && let (Some(Tok::Num(b)), Some(Tok::Num(c))) =
-                        (toks.get(i + 1), toks.get(i + 2))
-                {
-                    let unit = toks.get(i + 3).and_then(word).and_then(unit_word);
-                    p.position = Some(([*n, *b, *c], unit));
-                    i += 3 + usize::from(unit.is_some());
-                    continue;
-                }
-                match next.and_then(unit_word) {
-                    Some(u) => {
-                        p.quantities.push((*n, Some(u)));
-                        i += 2;
-                        continue;
-                    }
-                    None => p.quantities.push((*n, None)),
-                }
-            }
-            Tok::Word(w) => {
-                let w = w.as_str();
-                if w == "one"
-                    && let Some(u) = next.and_then(unit_word)
-                {
-                    refs.close();
-                    p.quantities.push((1.0, Some(u)));
-                    i += 2;
-                    continue;
-                }
-                if matches!(w, "copies" | "copy" | "duplicates" | "clones" | "replicas")
-                    && op == Some(Scale)
-                    && verb.is_some_and(|(_, v, _)| v.words == ["make"])
-                {
-                    op = Some(Replicate);
-                    i += 1;
-                    continue;
-                }
-                let is_id_word =
-                    matches!(w, "object" | "node" | "instance" | "id" | "number" | "no");
-                if is_id_word && let Some(Tok::Num(n)) = toks.get(i + 1) {
-                    refs.close();
-                    if *n < 0.0 || n.fract() != 0.0 || *n > u16::MAX as f64 {
-                        return Err(LangError::BadValue {
-                            what: "object id".into(),
-                            clause: text,
-                            message: format!("expected a whole number, got {n}"),
-                        });
-                    }
-                    refs.push(ObjectRef::Id(*n as u16));
-                    i += 2;
-                    continue;
-                }
-                if matches!(w, "local" | "own")
-                    || (w == "object"
-                        && matches!(
-                            next,
-                            Some("frame" | "axis" | "x" | "y" | "z" | "coordinates")
-                        ))
-                {
-                    p.frame_object = true;
-                } else if matches!(w, "world" | "global") {
-                    p.frame_object = false;
-                } else if matches!(w, "negative" | "minus")
-                    && let Some(a) = next.and_then(axis_word)
-                {
-                    p.axis = Some(format!("-{}", a.trim_start_matches('-')));
-                    i += 2;
-                    continue;
-                } else if matches!(w, "positive" | "plus")
-                    && let Some(a) = next.and_then(axis_word)
-                {
-                    p.axis = Some(a.to_string());
-                    i += 2;
-                    continue;
-                } else if let Some(a) = axis_word(w) {
-                    refs.close();
-                    p.axis = Some(a.to_string());
-                } else if w == "times" {
-                    // "2 times": the unit of the number before.
-                    if let Some(last) = p.quantities.last_mut()
-                        && last.1.is_none()
-                    {
-                        last.1 = Some(Unit::Times);
-                    }
-                } else if w == "twice" || w == "thrice" {
-                    p.quantities
-                        .push((if w == "twice" { 2.0 } else { 3.0 }, Some(Unit::Times)));
-                } else if matches!(w, "double" | "triple" | "quadruple") {
-                    let f = match w {
-                        "double" => 2.0,
-                        "triple" => 3.0,
-                        _ => 4.0,
-                    };
-                    p.quantities.push((f, Some(Unit::Times)));
-                } else if matches!(w, "quarter" | "half" | "third") {
-                    let is_turn =
-                        matches!(next, Some("turn" | "rotation" | "revolution" | "circle"));
-                    let f = match w {
-                        "quarter" => 0.25,
-                        "half" => 0.5,
-                        _ => 1.0 / 3.0,
-                    };
-                    if is_turn {
-                        p.turn = Some(360.0 * f);
-                        i += 2;
-                        continue;
-                    }
-                    p.fraction = Some(f);
-                } else if matches!(w, "full" | "complete" | "whole")
-                    && matches!(next, Some("turn" | "rotation" | "revolution" | "circle"))
-                {
-                    p.turn = Some(360.0);
-                    i += 2;
-                    continue;
-                } else if w == "clockwise" {
-                    p.clockwise = Some(true);
-                } else if w == "counterclockwise" {
-                    p.clockwise = Some(false);
-                } else if matches!(
-                    w,
-                    "bigger"
-                        | "larger"
-                        | "big"
-                        | "large"
-                        | "huge"
-                        | "taller"
-                        | "tall"
-                        | "grow"
-                        | "wider"
-                        | "longer"
-                ) {
-                    refs.close();
-                    p.size = Some(SizeWord::Bigger);
-                    if matches!(w, "taller" | "tall") && p.axis.is_none() {
-                        p.axis = Some("up".into());
-                    }
-                } else if matches!(
-                    w,
-                    "smaller"
-                        | "small"
-                        | "tiny"
-                        | "tinier"
-                        | "shorter"
-                        | "short"
-                        | "narrower"
-                        | "thinner"
-                ) {
-                    refs.close();
-                    p.size = Some(SizeWord::Smaller);
-                    if matches!(w, "shorter" | "short") && p.axis.is_none() {
-                        p.axis = Some("up".into());
-                    }
-                } else if w == "as" {
-                    refs.close();
-                    p.as_ = true;
-                } else if w == "by" {
-                    refs.close();
-                    p.by = true;
-                } else if w == "to" {
-                    refs.close();
-                    p.to = true;
-                } else if w == "at" {
-                    refs.close();
-                } else if w == "from" {
-                    refs.close();
-                    after_from = true;
-                } else if w == "with" || w == "for" {
-                    refs.close();
-                    refs.in_partner = true;
-                } else if w == "and" || w == "&" || w == "plus" {
-                    refs.close();
-                } else if w == "around"
-                    && op == Some(Rotate)
-                    && !toks[i + 1..].iter().any(|t| {
-                        matches!(t, Tok::Num(_)) || word(t).is_some_and(|w| axis_word(w).is_some())
-                    })
-                {
-                    refs.close();
-                    p.turn.get_or_insert(180.0);
-                } else if matches!(w, "another" | "more" | "second" | "extra") {
-                    p.another = true;
-                    if op == Some(Add) {
-                        op = Some(Replicate);
-                    }
-                } else if let Some(d) = direction_word(w).filter(|_| op != Some(Select)) {
-                    refs.close();
-                    p.direction = Some(d);
-                } else if PRONOUNS.contains(&w) && !(w == "that" || w == "this") {
-                    refs.close();
-                    refs.push(ObjectRef::Last);
-                } else if (w == "that" || w == "this")
-                    && matches!(
-                        next,
-                        None | Some("one" | "object" | "thing" | "to" | "by" | "and" | "with")
-                    )
-                {
-                    refs.close();
-                    refs.push(ObjectRef::Last);
-                    if next == Some("one") {
-                        i += 1;
-                    }
-                } else if CREATED.contains(&w)
-                    && (i == 0
-                        || matches!(
-                            toks.get(i - 1).and_then(word),
-                            Some("the" | "that" | "this" | "a" | "new")
-                        ))
-                    && !(w == "new"
-                        && next.is_some_and(|n| !GENERIC.contains(&n) && !CREATED.contains(&n)))
-                {
-                    refs.close();
-                    refs.push(ObjectRef::Created);
-                    if w == "new" && next.is_some() {
-                        i += 1;
-                    }
-                } else if GENERIC.contains(&w) {
-                    refs.generic = true;
-                } else if after_from
-                    && matches!(w, "scene" | "table" | "desk" | "room" | "floor")
-                    && refs.phrase.is_empty()
-                {
-                    // "remove the duck from the scene"
-                } else if FILLER.contains(&w) {
-                    if !refs.phrase.is_empty() && !matches!(w, "the" | "a" | "an") {
-                        refs.close();
-                    }
-                } else {
-                    refs.phrase.push(w.to_string());
-                }
-            }
-        }
-        i += 1;
+        i += if i == vi { vn } else { c.token(i)? };
     }
-    refs.close();
-    let Refs {
-        mut targets,
-        partners,
-        ..
-    } = refs;
-    let Some(mut op) = op else {
-        // No verb: a continuation of the previous command.
-        let Some(prev) = out.last().cloned() else {
-            return Err(LangError::NoAction { text });
-        };
-        let has_params = !p.quantities.is_empty()
-            || p.direction.is_some()
-            || p.axis.is_some()
-            || p.turn.is_some()
-            || p.position.is_some();
-        if !has_params && !targets.is_empty() {
-            out.last_mut().expect("prev").targets.extend(targets);
-            return Ok(());
+    c.refs.close();
+    c.finish(out)
+}
+
+/// One clause being read: its verb, the operation so far, the parameters and the object
+/// phrases. Each `*_word` method reads one class of words and returns how many tokens it
+/// used, or `None` when the word is not of its class.
+struct Clause<'a> {
+    toks: &'a [Tok],
+    text: String,
+    /// The verb: its token index, its entry and its word count.
+    verb: Option<(usize, &'static Verb, usize)>,
+    op: Option<Operation>,
+    p: RawParams,
+    refs: Refs,
+    /// "from" was read: "the scene", "the table" after it name no object.
+    after_from: bool,
+}
+
+impl<'a> Clause<'a> {
+    fn new(toks: &'a [Tok]) -> Self {
+        let verb = (0..toks.len()).find_map(|i| verb_at(toks, i).map(|(v, n)| (i, v, n)));
+        let mut p = RawParams::default();
+        if let Some((_, v, _)) = verb {
+            p.direction = v.direction;
+            if let Some(f) = v.factor {
+                p.quantities.push((f, Some(Unit::Times)));
+            }
+            if SHRINK.contains(&v.words[0]) {
+                p.size = Some(SizeWord::Smaller);
+            } else if GROW.contains(&v.words[0]) {
+                p.size = Some(SizeWord::Bigger);
+            }
         }
-        if !has_params {
+        Clause {
+            toks,
+            text: render(toks),
+            verb,
+            op: verb.map(|(_, v, _)| v.op),
+            p,
+            refs: Refs::default(),
+            after_from: false,
+        }
+    }
+
+    fn word_at(&self, i: usize) -> Option<&'a str> {
+        self.toks.get(i).and_then(word)
+    }
+
+    fn verb_is_make(&self) -> bool {
+        self.verb.is_some_and(|(_, v, _)| v.words == ["make"])
+    }
+
+    /// Reads the token at `i`; returns how many tokens it used.
+    fn token(&mut self, i: usize) -> Result<usize, LangError> {
+        Ok(match &self.toks[i] {
+            Tok::Sep => 1,
+            Tok::Path(path) => {
+                self.refs.close();
+                self.p.path = Some(path.clone());
+                1
+            }
+            Tok::Num(n) => self.number(i, *n),
+            Tok::Word(w) => {
+                let (w, next) = (w.as_str(), self.word_at(i + 1));
+                match self.id_word(i, w, next)? {
+                    Some(k) => k,
+                    None => self
+                        .axis_word(w, next)
+                        .or_else(|| self.amount_word(w, next))
+                        .or_else(|| self.connective_word(i, w))
+                        .unwrap_or_else(|| self.object_word(i, w, next)),
+                }
+            }
+        })
+    }
+
+    /// A number: a position after "at"/"to" (three numbers), or a quantity with the unit
+    /// that follows it.
+    fn number(&mut self, i: usize, n: f64) -> usize {
+        let toks = self.toks;
+        self.refs.close();
+        let prev = i.checked_sub(1).and_then(|j| self.word_at(j));
+        if (matches!(prev, Some("at" | "to"))
+            || (prev == Some("position") && self.op == Some(Translate)))
+            && let (Some(Tok::Num(b)), Some(Tok::Num(c))) = (toks.get(i + 1), toks.get(i + 2))
+        {
+            let unit = self.word_at(i + 3).and_then(unit_word);
+            self.p.position = Some(([n, *b, *c], unit));
+            return 3 + usize::from(unit.is_some());
+        }
+        match self.word_at(i + 1).and_then(unit_word) {
+            Some(u) => {
+                self.p.quantities.push((n, Some(u)));
+                2
+            }
+            None => {
+                self.p.quantities.push((n, None));
+                1
+            }
+        }
+    }
+
+    /// "one metre", "make two copies", "object 3".
+    fn id_word(
+        &mut self,
+        i: usize,
+        w: &str,
+        next: Option<&str>,
+    ) -> Result<Option<usize>, LangError> {
+        if w == "one"
+            && let Some(u) = next.and_then(unit_word)
+        {
+            self.refs.close();
+            self.p.quantities.push((1.0, Some(u)));
+            return Ok(Some(2));
+        }
+        if matches!(w, "copies" | "copy" | "duplicates" | "clones" | "replicas")
+            && self.op == Some(Scale)
+            && self.verb_is_make()
+        {
+            self.op = Some(Replicate);
+            return Ok(Some(1));
+        }
+        let is_id_word = matches!(w, "object" | "node" | "instance" | "id" | "number" | "no");
+        if is_id_word && let Some(Tok::Num(n)) = self.toks.get(i + 1) {
+            self.refs.close();
+            if *n < 0.0 || n.fract() != 0.0 || *n > u16::MAX as f64 {
+                return Err(LangError::BadValue {
+                    what: "object id".into(),
+                    clause: self.text.clone(),
+                    message: format!("expected a whole number, got {n}"),
+                });
+            }
+            self.refs.push(ObjectRef::Id(*n as u16));
+            return Ok(Some(2));
+        }
+        Ok(None)
+    }
+
+    /// Axes and their frame: "its own x axis", "negative z", "up".
+    fn axis_word(&mut self, w: &str, next: Option<&str>) -> Option<usize> {
+        if matches!(w, "local" | "own")
+            || (w == "object"
+                && matches!(
+                    next,
+                    Some("frame" | "axis" | "x" | "y" | "z" | "coordinates")
+                ))
+        {
+            self.p.frame_object = true;
+        } else if matches!(w, "world" | "global") {
+            self.p.frame_object = false;
+        } else if matches!(w, "negative" | "minus")
+            && let Some(a) = next.and_then(axis_word)
+        {
+            self.p.axis = Some(format!("-{}", a.trim_start_matches('-')));
+            return Some(2);
+        } else if matches!(w, "positive" | "plus")
+            && let Some(a) = next.and_then(axis_word)
+        {
+            self.p.axis = Some(a.to_string());
+            return Some(2);
+        } else if let Some(a) = axis_word(w) {
+            self.refs.close();
+            self.p.axis = Some(a.to_string());
+        } else {
+            return None;
+        }
+        Some(1)
+    }
+
+    /// Factors, fractions, turns, senses of rotation and size words.
+    fn amount_word(&mut self, w: &str, next: Option<&str>) -> Option<usize> {
+        let p = &mut self.p;
+        let turn_word = matches!(next, Some("turn" | "rotation" | "revolution" | "circle"));
+        if w == "times" {
+            // "2 times": the unit of the number before.
+            if let Some(last) = p.quantities.last_mut()
+                && last.1.is_none()
+            {
+                last.1 = Some(Unit::Times);
+            }
+        } else if w == "twice" || w == "thrice" {
+            p.quantities
+                .push((if w == "twice" { 2.0 } else { 3.0 }, Some(Unit::Times)));
+        } else if matches!(w, "double" | "triple" | "quadruple") {
+            let f = match w {
+                "double" => 2.0,
+                "triple" => 3.0,
+                _ => 4.0,
+            };
+            p.quantities.push((f, Some(Unit::Times)));
+        } else if matches!(w, "quarter" | "half" | "third") {
+            let f = match w {
+                "quarter" => 0.25,
+                "half" => 0.5,
+                _ => 1.0 / 3.0,
+            };
+            if turn_word {
+                p.turn = Some(360.0 * f);
+                return Some(2);
+            }
+            p.fraction = Some(f);
+        } else if matches!(w, "full" | "complete" | "whole") && turn_word {
+            p.turn = Some(360.0);
+            return Some(2);
+        } else if w == "clockwise" {
+            p.clockwise = Some(true);
+        } else if w == "counterclockwise" {
+            p.clockwise = Some(false);
+        } else if matches!(
+            w,
+            "bigger"
+                | "larger"
+                | "big"
+                | "large"
+                | "huge"
+                | "taller"
+                | "tall"
+                | "grow"
+                | "wider"
+                | "longer"
+        ) {
+            self.refs.close();
+            p.size = Some(SizeWord::Bigger);
+            if matches!(w, "taller" | "tall") && p.axis.is_none() {
+                p.axis = Some("up".into());
+            }
+        } else if matches!(
+            w,
+            "smaller" | "small" | "tiny" | "tinier" | "shorter" | "short" | "narrower" | "thinner"
+        ) {
+            self.refs.close();
+            p.size = Some(SizeWord::Smaller);
+            if matches!(w, "shorter" | "short") && p.axis.is_none() {
+                p.axis = Some("up".into());
+            }
+        } else {
+            return None;
+        }
+        Some(1)
+    }
+
+    /// Words that end an object phrase and say how what follows is meant: "as", "by",
+    /// "to", "at", "from", "with", "and", "around", "another", directions.
+    fn connective_word(&mut self, i: usize, w: &str) -> Option<usize> {
+        let (p, refs) = (&mut self.p, &mut self.refs);
+        match w {
+            "as" => p.as_ = true,
+            "by" => p.by = true,
+            "to" => p.to = true,
+            "at" => {}
+            "from" => self.after_from = true,
+            "with" | "for" => {
+                refs.close();
+                refs.in_partner = true;
+                return Some(1);
+            }
+            "and" | "&" | "plus" => {}
+            "around"
+                if self.op == Some(Rotate)
+                    && !self.toks[i + 1..].iter().any(|t| {
+                        matches!(t, Tok::Num(_)) || word(t).is_some_and(|w| axis_word(w).is_some())
+                    }) =>
+            {
+                refs.close();
+                p.turn.get_or_insert(180.0);
+                return Some(1);
+            }
+            "another" | "more" | "second" | "extra" => {
+                p.another = true;
+                if self.op == Some(Add) {
+                    self.op = Some(Replicate);
+                }
+                return Some(1);
+            }
+            _ => {
+                let d = direction_word(w).filter(|_| self.op != Some(Select))?;
+                refs.close();
+                p.direction = Some(d);
+                return Some(1);
+            }
+        }
+        refs.close();
+        Some(1)
+    }
+
+    /// Words that name objects: pronouns, "the copy", generic nouns, fillers, and the
+    /// content words of a phrase.
+    fn object_word(&mut self, i: usize, w: &str, next: Option<&str>) -> usize {
+        let refs = &mut self.refs;
+        if PRONOUNS.contains(&w) && !(w == "that" || w == "this") {
+            refs.close();
+            refs.push(ObjectRef::Last);
+        } else if (w == "that" || w == "this")
+            && matches!(
+                next,
+                None | Some("one" | "object" | "thing" | "to" | "by" | "and" | "with")
+            )
+        {
+            refs.close();
+            refs.push(ObjectRef::Last);
+            if next == Some("one") {
+                return 2;
+            }
+        } else if CREATED.contains(&w)
+            && (i == 0
+                || matches!(
+                    i.checked_sub(1)
+                        .and_then(|j| self.toks.get(j))
+                        .and_then(word),
+                    Some("the" | "that" | "this" | "a" | "new")
+                ))
+            && !(w == "new" && next.is_some_and(|n| !GENERIC.contains(&n) && !CREATED.contains(&n)))
+        {
+            refs.close();
+            refs.push(ObjectRef::Created);
+            if w == "new" && next.is_some() {
+                return 2;
+            }
+        } else if GENERIC.contains(&w) {
+            refs.generic = true;
+        } else if self.after_from
+            && matches!(w, "scene" | "table" | "desk" | "room" | "floor")
+            && refs.phrase.is_empty()
+        {
+            // "remove the duck from the scene"
+        } else if FILLER.contains(&w) {
+            if !refs.phrase.is_empty() && !matches!(w, "the" | "a" | "an") {
+                refs.close();
+            }
+        } else {
+            refs.phrase.push(w.to_string());
+        }
+        1
+    }
+
+    /// The clause as a command; a clause without a verb continues the previous command.
+    fn finish(self, out: &mut Vec<RawCommand>) -> Result<(), LangError> {
+        let make = self.verb_is_make();
+        let Clause {
+            text, op, p, refs, ..
+        } = self;
+        let Refs {
+            mut targets,
+            partners,
+            ..
+        } = refs;
+        let Some(mut op) = op else {
+            let Some(prev) = out.last().cloned() else {
+                return Err(LangError::NoAction { text });
+            };
+            let has_params = !p.quantities.is_empty()
+                || p.direction.is_some()
+                || p.axis.is_some()
+                || p.turn.is_some()
+                || p.position.is_some();
+            if !has_params && !targets.is_empty() {
+                out.last_mut().expect("prev").targets.extend(targets);
+                return Ok(());
+            }
+            if !has_params {
+                return Err(LangError::NoAction { text });
+            }
+            out.push(RawCommand {
+                op: prev.op,
+                targets: if targets.is_empty() {
+                    vec![ObjectRef::Last]
+                } else {
+                    targets
+                },
+                partners,
+                params: p,
+                text,
+            });
+            return Ok(());
+        };
+        if op == Translate && p.path.is_some() {
+            op = Add; // "put the mic from ../b.assist at …"
+        }
+        if op == Scale
+            && make
+            && p.size.is_none()
+            && p.quantities.is_empty()
+            && p.fraction.is_none()
+        {
             return Err(LangError::NoAction { text });
+        }
+        if targets.is_empty() && partners.is_empty() {
+            targets.push(ObjectRef::Last);
         }
         out.push(RawCommand {
-            op: prev.op,
-            targets: if targets.is_empty() {
-                vec![ObjectRef::Last]
-            } else {
-                targets
-            },
+            op,
+            targets,
             partners,
             params: p,
             text,
         });
-        return Ok(());
-    };
-    if op == Translate && p.path.is_some() {
-        op = Add; // "put the mic from ../b.assist at …"
+        Ok(())
     }
-    if op == Scale
-        && verb.is_some_and(|(_, v, _)| v.words == ["make"])
-        && p.size.is_none()
-        && p.quantities.is_empty()
-        && p.fraction.is_none()
-    {
-        return Err(LangError::NoAction { text });
-    }
-    if targets.is_empty() && partners.is_empty() {
-        targets.push(ObjectRef::Last);
-    }
-    out.push(RawCommand {
-        op,
-        targets,
-        partners,
-        params: p,
-        text,
-    });
-    Ok(())
 }

@@ -388,5 +388,7 @@ fn axis_spec(v: DVec3) -> AxisSpec {
     AxisSpec::Vector(v.to_array())
 }
 
+mod import;
 mod validate;
-pub use validate::{axis_direction, describe_nodes, free_field_key};
+pub use import::free_field_key;
+pub use validate::{axis_direction, describe_nodes};

@@ -3,11 +3,11 @@
 
 use std::collections::BTreeSet;
 
-use glam::{DQuat, DVec3};
+use glam::DVec3;
 
-use super::{
-    Action, ActionConfig, ActionError, AxisSpec, Edit, Imported, NodeRef, Operation, SceneSource,
-};
+use super::import::import;
+
+use super::{Action, ActionConfig, ActionError, AxisSpec, Edit, NodeRef, Operation, SceneSource};
 use crate::InstanceId;
 use crate::scene::{Scene, SceneNode};
 
@@ -33,7 +33,11 @@ fn length_unit(
     Ok(m / meters_per_unit)
 }
 
-fn cfg_err(op: Operation, field: &'static str, message: impl Into<String>) -> ActionError {
+pub(super) fn cfg_err(
+    op: Operation,
+    field: &'static str,
+    message: impl Into<String>,
+) -> ActionError {
     ActionError::Config {
         operation: op,
         field,
@@ -128,11 +132,6 @@ impl Action {
             id,
             available: describe_nodes(scene),
         })?;
-        let not_allowed = |message: &str| ActionError::NotAllowed {
-            operation: op,
-            id,
-            message: message.to_string(),
-        };
         if node.is_background()
             && matches!(
                 op,
@@ -140,6 +139,8 @@ impl Action {
             )
         {
             return Err(not_allowed(
+                op,
+                id,
                 "the background node cannot be deleted, replicated, swapped or scaled",
             ));
         }
@@ -154,101 +155,22 @@ impl Action {
                 ));
             }
         };
-        let to_world_dir = |v: DVec3| {
-            if frame_object {
-                (node.world_from_local.rotation * v).normalize()
-            } else {
-                v
-            }
+        let on = OnNode {
+            op,
+            c,
+            scene,
+            node,
+            frame_object,
         };
         Ok(match op {
             Operation::Select => Edit::Select { id },
             Operation::Delete => Edit::Delete { id },
-            Operation::Translate => {
-                let unit = length_unit(op, c.unit.as_deref(), scene.meters_per_unit)?;
-                let v = match (&c.axis, c.distance, c.vector.or(c.offset)) {
-                    (Some(axis), Some(d), None) => {
-                        let dir =
-                            axis_direction(axis, scene.up).map_err(|m| cfg_err(op, "axis", m))?;
-                        to_world_dir(dir) * finite(op, "distance", d)?
-                    }
-                    (None, None, Some(v)) => {
-                        let v = finite3(op, "vector", v)?;
-                        if frame_object {
-                            node.world_from_local.rotation * v
-                        } else {
-                            v
-                        }
-                    }
-                    (Some(_), None, None) => {
-                        return Err(cfg_err(
-                            op,
-                            "distance",
-                            "expected a distance along the axis",
-                        ));
-                    }
-                    (None, Some(_), None) => {
-                        return Err(cfg_err(op, "axis", "expected an axis for the distance"));
-                    }
-                    (None, None, None) => {
-                        return Err(cfg_err(
-                            op,
-                            "vector",
-                            "expected axis + distance, or vector/offset",
-                        ));
-                    }
-                    _ => {
-                        return Err(cfg_err(
-                            op,
-                            "vector",
-                            "give either axis + distance or vector/offset, not both",
-                        ));
-                    }
-                };
-                Edit::Translate {
-                    id,
-                    offset: v * unit,
-                }
-            }
+            Operation::Translate => Edit::Translate {
+                id,
+                offset: on.translation()?,
+            },
             Operation::Rotate => {
-                let angle = match (c.angle, c.degrees, c.radians) {
-                    (Some(a), None, None) => {
-                        let a = finite(op, "angle", a)?;
-                        match c.unit.as_deref().unwrap_or("deg") {
-                            "deg" | "degree" | "degrees" => a.to_radians(),
-                            "rad" | "radian" | "radians" => a,
-                            u => {
-                                return Err(cfg_err(
-                                    op,
-                                    "unit",
-                                    format!("expected deg or rad, got {u:?}"),
-                                ));
-                            }
-                        }
-                    }
-                    (None, Some(d), None) => finite(op, "degrees", d)?.to_radians(),
-                    (None, None, Some(r)) => finite(op, "radians", r)?,
-                    (None, None, None) => {
-                        return Err(cfg_err(
-                            op,
-                            "angle",
-                            "expected angle (with unit), degrees or radians",
-                        ));
-                    }
-                    _ => {
-                        return Err(cfg_err(
-                            op,
-                            "angle",
-                            "give only one of angle, degrees, radians",
-                        ));
-                    }
-                };
-                let axis = match &c.axis {
-                    Some(a) => to_world_dir(
-                        axis_direction(a, scene.up).map_err(|m| cfg_err(op, "axis", m))?,
-                    ),
-                    None => scene.up.normalize(),
-                };
+                let (axis, angle) = on.rotation()?;
                 let pivot = c.center.map(|p| finite3(op, "center", p)).transpose()?;
                 Edit::Rotate {
                     id,
@@ -258,48 +180,7 @@ impl Action {
                 }
             }
             Operation::Scale => {
-                let factors = match (c.factor, c.factors) {
-                    (Some(f), None) => {
-                        let f = finite(op, "factor", f)?;
-                        check_factor(op, "factor", f)?;
-                        match &c.axis {
-                            None => DVec3::splat(f),
-                            Some(axis) => {
-                                let dir = axis_direction(axis, scene.up)
-                                    .map_err(|m| cfg_err(op, "axis", m))?;
-                                let local = if frame_object {
-                                    dir
-                                } else {
-                                    node.world_from_local.rotation.inverse() * dir
-                                };
-                                let k = local.abs().max_position();
-                                if local.abs()[k] < 0.9 {
-                                    return Err(cfg_err(
-                                        op,
-                                        "axis",
-                                        format!(
-                                            "{axis:?} is not close to any of the object's own axes (a per-axis scale along it would shear); give frame \"object\" with x, y or z"
-                                        ),
-                                    ));
-                                }
-                                let mut f3 = DVec3::ONE;
-                                f3[k] = f;
-                                f3
-                            }
-                        }
-                    }
-                    (None, Some(fs)) => {
-                        let v = finite3(op, "factors", fs)?;
-                        for f in fs {
-                            check_factor(op, "factors", f)?;
-                        }
-                        v
-                    }
-                    (None, None) => {
-                        return Err(cfg_err(op, "factor", "expected factor or factors"));
-                    }
-                    _ => return Err(cfg_err(op, "factor", "give factor or factors, not both")),
-                };
+                let factors = on.scale_factors()?;
                 let pivot = c.center.map(|p| finite3(op, "center", p)).transpose()?;
                 Edit::Scale { id, factors, pivot }
             }
@@ -315,39 +196,7 @@ impl Action {
                 Edit::Replicate { id, new_id, offset }
             }
             Operation::Add => unreachable!("handled above"),
-            Operation::Swap => {
-                let with = c
-                    .with
-                    .as_ref()
-                    .ok_or_else(|| cfg_err(op, "with", "expected the node to swap with"))?;
-                if c.scene.is_some() {
-                    let new_id = fresh_or_given(op, scene, c.new_id)?;
-                    let mut imported = import(op, scene, sources, taken_fields, c, new_id)?;
-                    crate::edit::rest_in_place_of(&mut imported.node, node, scene.up);
-                    Edit::SwapIn { id, imported }
-                } else {
-                    let b = match with {
-                        NodeRef::Id(b) => *b,
-                        NodeRef::Label(l) => {
-                            return Err(cfg_err(
-                                op,
-                                "with",
-                                format!(
-                                    "expected an instance id of this scene (labels are resolved by the language parser), got {l:?}"
-                                ),
-                            ));
-                        }
-                    };
-                    let other = scene.node(b).ok_or_else(|| ActionError::NoSuchNode {
-                        id: b,
-                        available: describe_nodes(scene),
-                    })?;
-                    if other.is_background() || b == id {
-                        return Err(not_allowed("swap needs two different object nodes"));
-                    }
-                    Edit::Swap { a: id, b }
-                }
-            }
+            Operation::Swap => on.swap(sources, taken_fields)?,
         })
     }
 
@@ -405,6 +254,207 @@ impl Action {
     }
 }
 
+fn not_allowed(operation: Operation, id: InstanceId, message: &str) -> ActionError {
+    ActionError::NotAllowed {
+        operation,
+        id,
+        message: message.to_string(),
+    }
+}
+
+/// An operation on an existing node, with what its parts need to be checked.
+struct OnNode<'a> {
+    op: Operation,
+    c: &'a ActionConfig,
+    scene: &'a Scene,
+    node: &'a SceneNode,
+    /// Axes and vectors are in the object's frame (`frame: "object"`).
+    frame_object: bool,
+}
+
+impl OnNode<'_> {
+    fn axis(&self, axis: &AxisSpec) -> Result<DVec3, ActionError> {
+        axis_direction(axis, self.scene.up).map_err(|m| cfg_err(self.op, "axis", m))
+    }
+
+    /// A direction in the action's frame, as a world direction.
+    fn to_world_dir(&self, v: DVec3) -> DVec3 {
+        if self.frame_object {
+            (self.node.world_from_local.rotation * v).normalize()
+        } else {
+            v
+        }
+    }
+
+    fn to_world(&self, v: DVec3) -> DVec3 {
+        if self.frame_object {
+            self.node.world_from_local.rotation * v
+        } else {
+            v
+        }
+    }
+
+    /// Translation: axis + distance, or a vector, in world units.
+    fn translation(&self) -> Result<DVec3, ActionError> {
+        let (op, c) = (self.op, self.c);
+        let unit = length_unit(op, c.unit.as_deref(), self.scene.meters_per_unit)?;
+        let v = match (&c.axis, c.distance, c.vector.or(c.offset)) {
+            (Some(axis), Some(d), None) => {
+                self.to_world_dir(self.axis(axis)?) * finite(op, "distance", d)?
+            }
+            (None, None, Some(v)) => self.to_world(finite3(op, "vector", v)?),
+            (Some(_), None, None) => {
+                return Err(cfg_err(
+                    op,
+                    "distance",
+                    "expected a distance along the axis",
+                ));
+            }
+            (None, Some(_), None) => {
+                return Err(cfg_err(op, "axis", "expected an axis for the distance"));
+            }
+            (None, None, None) => {
+                return Err(cfg_err(
+                    op,
+                    "vector",
+                    "expected axis + distance, or vector/offset",
+                ));
+            }
+            _ => {
+                return Err(cfg_err(
+                    op,
+                    "vector",
+                    "give either axis + distance or vector/offset, not both",
+                ));
+            }
+        };
+        Ok(v * unit)
+    }
+
+    /// Rotation: the world axis (the scene's up by default) and the angle in radians.
+    fn rotation(&self) -> Result<(DVec3, f64), ActionError> {
+        let (op, c) = (self.op, self.c);
+        let angle = match (c.angle, c.degrees, c.radians) {
+            (Some(a), None, None) => {
+                let a = finite(op, "angle", a)?;
+                match c.unit.as_deref().unwrap_or("deg") {
+                    "deg" | "degree" | "degrees" => a.to_radians(),
+                    "rad" | "radian" | "radians" => a,
+                    u => {
+                        return Err(cfg_err(
+                            op,
+                            "unit",
+                            format!("expected deg or rad, got {u:?}"),
+                        ));
+                    }
+                }
+            }
+            (None, Some(d), None) => finite(op, "degrees", d)?.to_radians(),
+            (None, None, Some(r)) => finite(op, "radians", r)?,
+            (None, None, None) => {
+                return Err(cfg_err(
+                    op,
+                    "angle",
+                    "expected angle (with unit), degrees or radians",
+                ));
+            }
+            _ => {
+                return Err(cfg_err(
+                    op,
+                    "angle",
+                    "give only one of angle, degrees, radians",
+                ));
+            }
+        };
+        let axis = match &c.axis {
+            Some(a) => self.to_world_dir(self.axis(a)?),
+            None => self.scene.up.normalize(),
+        };
+        Ok((axis, angle))
+    }
+
+    /// Scale factors along the object's own axes: uniform, along one axis, or per axis.
+    fn scale_factors(&self) -> Result<DVec3, ActionError> {
+        let (op, c) = (self.op, self.c);
+        match (c.factor, c.factors) {
+            (Some(f), None) => {
+                let f = finite(op, "factor", f)?;
+                check_factor(op, "factor", f)?;
+                let Some(axis) = &c.axis else {
+                    return Ok(DVec3::splat(f));
+                };
+                let dir = self.axis(axis)?;
+                let local = if self.frame_object {
+                    dir
+                } else {
+                    self.node.world_from_local.rotation.inverse() * dir
+                };
+                let k = local.abs().max_position();
+                if local.abs()[k] < 0.9 {
+                    return Err(cfg_err(
+                        op,
+                        "axis",
+                        format!(
+                            "{axis:?} is not close to any of the object's own axes (a per-axis scale along it would shear); give frame \"object\" with x, y or z"
+                        ),
+                    ));
+                }
+                let mut f3 = DVec3::ONE;
+                f3[k] = f;
+                Ok(f3)
+            }
+            (None, Some(fs)) => {
+                let v = finite3(op, "factors", fs)?;
+                for f in fs {
+                    check_factor(op, "factors", f)?;
+                }
+                Ok(v)
+            }
+            (None, None) => Err(cfg_err(op, "factor", "expected factor or factors")),
+            _ => Err(cfg_err(op, "factor", "give factor or factors, not both")),
+        }
+    }
+
+    /// Swap with another node of this scene, or with a node imported from another scene.
+    fn swap(
+        &self,
+        sources: &mut dyn SceneSource,
+        taken_fields: &BTreeSet<String>,
+    ) -> Result<Edit, ActionError> {
+        let (op, c, scene, id) = (self.op, self.c, self.scene, self.node.id);
+        let with = c
+            .with
+            .as_ref()
+            .ok_or_else(|| cfg_err(op, "with", "expected the node to swap with"))?;
+        if c.scene.is_some() {
+            let new_id = fresh_or_given(op, scene, c.new_id)?;
+            let mut imported = import(op, scene, sources, taken_fields, c, new_id)?;
+            crate::edit::rest_in_place_of(&mut imported.node, self.node, scene.up);
+            return Ok(Edit::SwapIn { id, imported });
+        }
+        let b = match with {
+            NodeRef::Id(b) => *b,
+            NodeRef::Label(l) => {
+                return Err(cfg_err(
+                    op,
+                    "with",
+                    format!(
+                        "expected an instance id of this scene (labels are resolved by the language parser), got {l:?}"
+                    ),
+                ));
+            }
+        };
+        let other = scene.node(b).ok_or_else(|| ActionError::NoSuchNode {
+            id: b,
+            available: describe_nodes(scene),
+        })?;
+        if other.is_background() || b == id {
+            return Err(not_allowed(op, id, "swap needs two different object nodes"));
+        }
+        Ok(Edit::Swap { a: id, b })
+    }
+}
+
 fn check_factor(op: Operation, field: &'static str, f: f64) -> Result<(), ActionError> {
     if f <= 0.0 {
         return Err(cfg_err(
@@ -450,118 +500,4 @@ pub fn describe_nodes(scene: &Scene) -> String {
     } else {
         v.join(", ")
     }
-}
-
-/// Reads the node named by `config.node` (add) or `config.with` (swap) from `config.scene`,
-/// re-expressed in `scene`'s units and up direction, with a fresh id and a free field key.
-fn import(
-    op: Operation,
-    scene: &Scene,
-    sources: &mut dyn SceneSource,
-    taken_fields: &BTreeSet<String>,
-    c: &ActionConfig,
-    new_id: InstanceId,
-) -> Result<Imported, ActionError> {
-    let path = c
-        .scene
-        .as_deref()
-        .ok_or_else(|| cfg_err(op, "scene", "expected the path of the other scene"))?;
-    let (field, which) = if op == Operation::Add {
-        ("node", c.node.as_ref())
-    } else {
-        ("with", c.with.as_ref())
-    };
-    let which = which
-        .ok_or_else(|| cfg_err(op, field, "expected a node id or label of the other scene"))?;
-    let src = sources
-        .load_scene(path)
-        .map_err(|message| ActionError::Source {
-            path: path.to_string(),
-            message,
-        })?;
-    let candidates: Vec<&SceneNode> = match which {
-        NodeRef::Id(i) => src.nodes.iter().filter(|n| n.id == *i).collect(),
-        NodeRef::Label(l) => {
-            let l = l.trim().to_lowercase();
-            let exact: Vec<_> = src
-                .nodes
-                .iter()
-                .filter(|n| n.label.to_lowercase() == l)
-                .collect();
-            if exact.is_empty() {
-                src.nodes
-                    .iter()
-                    .filter(|n| n.label.to_lowercase().contains(&l))
-                    .collect()
-            } else {
-                exact
-            }
-        }
-    };
-    let n = match candidates.as_slice() {
-        [n] => *n,
-        [] => {
-            return Err(ActionError::Source {
-                path: path.into(),
-                message: format!("no node {which} (it has {})", describe_nodes(&src)),
-            });
-        }
-        many => {
-            return Err(ActionError::Source {
-                path: path.into(),
-                message: format!(
-                    "{which} is ambiguous: {}",
-                    many.iter()
-                        .map(|n| format!("{} {:?}", n.id, n.label))
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            });
-        }
-    };
-    if n.is_background() {
-        return Err(cfg_err(
-            op,
-            field,
-            "the other scene's background cannot be imported",
-        ));
-    }
-    let s = src.meters_per_unit / scene.meters_per_unit;
-    if !(s.is_finite() && s > 0.0) {
-        return Err(ActionError::Source {
-            path: path.into(),
-            message: format!(
-                "meters_per_unit {} cannot be converted",
-                src.meters_per_unit
-            ),
-        });
-    }
-    let q = DQuat::from_rotation_arc(src.up.normalize(), scene.up.normalize());
-    let p = n.world_from_local;
-    let mut node = n.clone();
-    node.id = new_id;
-    node.world_from_local = crate::Similarity3 {
-        rotation: (q * p.rotation).normalize(),
-        translation: q * (p.translation * s),
-        scale: p.scale * s,
-    };
-    node.field = free_field_key(&n.field, scene, taken_fields);
-    Ok(Imported {
-        node,
-        source: path.to_string(),
-        source_field: n.field.clone(),
-        source_id: n.id,
-    })
-}
-
-/// `key`, or `key-2`, `key-3`, … — the first not used by `scene` nor in `taken`.
-pub fn free_field_key(key: &str, scene: &Scene, taken: &BTreeSet<String>) -> String {
-    let used = |k: &str| taken.contains(k) || scene.nodes.iter().any(|n| n.field == k);
-    if !used(key) {
-        return key.to_string();
-    }
-    (2..)
-        .map(|i| format!("{key}-{i}"))
-        .find(|k| !used(k))
-        .expect("unbounded")
 }

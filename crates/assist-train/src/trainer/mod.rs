@@ -32,12 +32,13 @@ use assist_scene::NeuralScene;
 use rayon::prelude::*;
 
 use crate::error::{Result, TrainError};
-use crate::losses;
 use crate::views::View;
 
+mod objective;
 mod options;
 mod rays;
 
+use objective::Objective;
 pub use options::{Lambdas, PhaseTimes, ResumeState, StepStats, TrainOptions, TrainReport};
 use rays::Target;
 
@@ -218,12 +219,6 @@ impl Trainer {
         assist_render::render::query_fields(&self.scene, &mut self.traced, &mut self.tapes, q);
         phase[1] = tp.elapsed().as_secs_f64();
         let lam = self.opts.lambdas;
-        let n_rays = self.targets.len().max(1) as f32;
-        let targets = &self.targets;
-        let bg = self.background;
-        let wq = self.depth_wq;
-        let depth_affine = self.opts.depth_affine;
-        let extent = self.extent;
         let is_object: Vec<bool> = self
             .scene
             .scene
@@ -231,52 +226,18 @@ impl Trainer {
             .iter()
             .map(|n| !n.is_background())
             .collect();
+        let objective = Objective {
+            lam,
+            n_rays: self.targets.len().max(1) as f32,
+            extent: self.extent,
+            background: self.background,
+            depth_affine: self.opts.depth_affine,
+            depth_wq: self.depth_wq,
+            is_object: &is_object,
+        };
+        let targets = &self.targets;
         let grad_fn = |o: &RayOutputs, g: &mut CompositeGrad, gn: &mut [CompositeGrad]| {
-            let (c, per) = (o.composite, o.nodes);
-            let t = &targets[o.ray];
-            let (_, d) = losses::rgb(c.rgb, t.rgb);
-            g.rgb = d.map(|v| v / n_rays);
-            g.distortion = lam.distortion / extent / n_rays;
-            if t.masked {
-                for (k, pk) in per.iter().enumerate() {
-                    if !is_object[k] {
-                        continue;
-                    }
-                    let m = if t.mask_node == k as u32 { 1.0 } else { 0.0 };
-                    let (_, d) = losses::opacity(pk.opacity, m);
-                    gn[k].opacity += lam.obj_acc * d / n_rays;
-                    if m > 0.0 {
-                        let (_, dc, d_o) = losses::premultiplied_rgb(pk.rgb, pk.opacity, t.rgb);
-                        for ch in 0..3 {
-                            gn[k].rgb[ch] += lam.obj_rgb * dc[ch] / n_rays;
-                        }
-                        gn[k].opacity += lam.obj_rgb * d_o / n_rays;
-                        let (_, d) = losses::share(o.share[k]);
-                        gn[k].share += lam.obj_share * d / n_rays;
-                    }
-                }
-            }
-            if let Some(b) = bg {
-                let pw = t.prior_weight;
-                if let Some(inp) = t.inpaint {
-                    let (_, dc, d_o) = losses::premultiplied_rgb(per[b].rgb, per[b].opacity, inp);
-                    for ch in 0..3 {
-                        gn[b].rgb[ch] += pw * lam.bg_rgb * dc[ch] / n_rays;
-                    }
-                    gn[b].opacity += pw * lam.bg_rgb * d_o / n_rays;
-                }
-                if let Some(d) = t.depth {
-                    if depth_affine {
-                        let (_, gd, _) = losses::affine_depth(per[b].depth, extent, wq, d);
-                        gn[b].depth += pw * lam.bg_depth * gd / n_rays;
-                    } else {
-                        let (_, gd, gs) =
-                            losses::depth_moment(per[b].depth, per[b].depth_sq, extent, d);
-                        gn[b].depth += pw * lam.bg_depth * gd / n_rays;
-                        gn[b].depth_sq += pw * lam.bg_depth * gs / n_rays;
-                    }
-                }
-            }
+            objective.ray(&targets[o.ray], o, Some((g, gn)));
         };
         composite_batch(
             &mut self.traced,
@@ -284,7 +245,7 @@ impl Trainer {
             &mut self.out,
             Some(&grad_fn),
         );
-        // Loss values and the depth scale/shift gradient.
+        // The loss values and the depth scale/shift gradient.
         let mut s = StepStats {
             iteration: self.iteration,
             rays: self.targets.len(),
@@ -298,44 +259,23 @@ impl Trainer {
         };
         let mut g_wq = [0.0f32; 2];
         for (r, t) in self.targets.iter().enumerate() {
-            let c = &self.out.rays[r];
-            let per = &self.out.nodes[r * nn..(r + 1) * nn];
-            let share = &self.out.share[r * nn..(r + 1) * nn];
-            s.distortion += (self.out.distortion[r] / self.extent) as f64;
-            s.comp_rgb += losses::rgb(c.rgb, t.rgb).0 as f64;
-            if t.masked {
-                for (k, pk) in per.iter().enumerate() {
-                    if is_object[k] {
-                        let m = if t.mask_node == k as u32 { 1.0 } else { 0.0 };
-                        s.obj_acc += losses::opacity(pk.opacity, m).0 as f64;
-                        if m > 0.0 {
-                            s.obj_rgb +=
-                                losses::premultiplied_rgb(pk.rgb, pk.opacity, t.rgb).0 as f64;
-                            s.obj_share += losses::share(share[k]).0 as f64;
-                        }
-                    }
-                }
-            }
-            if let Some(b) = bg {
-                let pw = t.prior_weight;
-                if let Some(inp) = t.inpaint {
-                    let (v, _, _) = losses::premultiplied_rgb(per[b].rgb, per[b].opacity, inp);
-                    s.bg_rgb += (pw * v) as f64;
-                }
-                if let Some(d) = t.depth {
-                    if self.opts.depth_affine {
-                        let (v, _, gab) =
-                            losses::affine_depth(per[b].depth, self.extent, self.depth_wq, d);
-                        s.bg_depth += (pw * v) as f64;
-                        g_wq[0] += pw * lam.bg_depth * gab[0] / n_rays;
-                        g_wq[1] += pw * lam.bg_depth * gab[1] / n_rays;
-                    } else {
-                        let (v, _, _) =
-                            losses::depth_moment(per[b].depth, per[b].depth_sq, self.extent, d);
-                        s.bg_depth += (pw * v) as f64;
-                    }
-                }
-            }
+            let o = RayOutputs {
+                ray: r,
+                composite: &self.out.rays[r],
+                nodes: &self.out.nodes[r * nn..(r + 1) * nn],
+                share: &self.out.share[r * nn..(r + 1) * nn],
+                distortion: self.out.distortion[r],
+            };
+            let v = objective.ray(t, &o, None);
+            s.comp_rgb += v.comp_rgb as f64;
+            s.distortion += v.distortion as f64;
+            s.obj_acc += v.obj_acc as f64;
+            s.obj_rgb += v.obj_rgb as f64;
+            s.obj_share += v.obj_share as f64;
+            s.bg_rgb += v.bg_rgb as f64;
+            s.bg_depth += v.bg_depth as f64;
+            g_wq[0] += v.d_depth_wq[0];
+            g_wq[1] += v.d_depth_wq[1];
         }
         let nr = self.targets.len().max(1) as f64;
         s.comp_rgb /= nr;
@@ -385,7 +325,7 @@ impl Trainer {
                 .expect("optimizer per field")
                 .step(Arc::make_mut(nf), lr);
         }
-        if bg.is_some() && lam.bg_depth > 0.0 && self.opts.depth_affine {
+        if self.background.is_some() && lam.bg_depth > 0.0 && self.opts.depth_affine {
             update_depth_affine(&mut self.wq_adam, &mut self.depth_wq, &mut g_wq);
         }
         phase[4] = tp.elapsed().as_secs_f64();
