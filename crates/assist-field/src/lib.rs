@@ -12,20 +12,20 @@
 
 #![forbid(unsafe_code)]
 
-pub mod adam;
-pub mod config;
+mod adam;
+mod config;
 mod constant;
 pub mod contraction;
-pub mod error;
-pub mod field;
+mod error;
+mod field;
 pub mod hashgrid;
 pub mod io;
-pub mod mlp;
-pub mod occupancy;
-pub mod sh;
+mod mlp;
+mod occupancy;
+mod sh;
 
 pub use adam::Adam;
 pub use config::FieldConfig;
 pub use error::FieldError;
 pub use field::{Field, ParamLayout, PhaseTimes, Precision, Samples, Tape};
-pub use occupancy::OccupancyGrid;
+pub use occupancy::{OccupancyGrid, Step};

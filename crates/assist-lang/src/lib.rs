@@ -14,15 +14,16 @@
 
 #![forbid(unsafe_code)]
 
-pub mod grammar;
-pub mod llm;
-pub mod names;
-pub mod resolve;
-pub mod tokens;
-pub mod words;
+mod grammar;
+mod llm;
+mod names;
+mod resolve;
+mod tokens;
+mod words;
 
 use assist_core::{Action, ActionError, Scene, SceneSource};
 
+pub use llm::{LlmProvider, actions_from_answer};
 pub use names::TextEmbedder;
 pub use resolve::{ParseOptions, Resolved, direction_vector};
 

@@ -8,7 +8,7 @@ use std::sync::mpsc;
 use assist_core::action::NoSources;
 use assist_core::{DMat3, DVec3, Obb, Scene, SceneNode};
 use assist_lang::LangError;
-use assist_lang::llm::LlmProvider;
+use assist_lang::LlmProvider;
 
 fn scene() -> Scene {
     let n = |id: u16, label: &str| {

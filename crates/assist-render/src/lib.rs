@@ -11,16 +11,17 @@
 
 #![forbid(unsafe_code)]
 
-pub mod batch;
-pub mod composite;
-pub mod prune;
-pub mod render;
-pub mod sample;
+mod batch;
+mod composite;
+mod prune;
+mod render;
+mod sample;
 
 pub use batch::{BatchOutput, Behind, CompositeGrad, GradFn, RayOutputs, composite_batch};
 pub use composite::{Composite, RaySample, composite, composite_backward};
 pub use prune::{PRUNE_EPS, PRUNE_MIN_PER_RAY, PruneScratch, PruneStats, prune_occluded};
 pub use render::{
-    HIGHLIGHT, NodeLayer, RenderOptions, RenderScratch, RenderedImage, render_camera, render_rays,
+    HIGHLIGHT, NodeLayer, Query, RenderOptions, RenderScratch, RenderedImage, query_fields,
+    render_camera, render_rays,
 };
 pub use sample::{NodeSamples, RayBatch, SampleOptions, Traced, sample_rays};

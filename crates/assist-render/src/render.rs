@@ -21,7 +21,7 @@ pub struct RenderOptions {
     /// Arithmetic of the fields' MLP products (default: the fastest this CPU runs).
     pub precision: Precision,
     /// Samples behind the point where their node's transmittance falls below this are
-    /// dropped after a density-only pass (0 = keep all, the default: see [`crate::prune`]
+    /// dropped after a density-only pass (0 = keep all, the default: see [`crate::prune_occluded`]
     /// for when it pays).
     pub prune_eps: f32,
 }

@@ -185,7 +185,7 @@ fn sample_node(
     rays: &RayBatch,
     r: usize,
     opts: &SampleOptions,
-    steps: &mut Vec<assist_field::occupancy::Step>,
+    steps: &mut Vec<assist_field::Step>,
     out: &mut NodeSamples,
 ) {
     let node = &scene.scene.nodes[k];
@@ -251,7 +251,7 @@ fn ray_jitter(opts: &SampleOptions, r: usize, k: usize) -> f32 {
 /// diagonals `dt · per_unit`.
 fn push_samples(
     out: &mut NodeSamples,
-    steps: &[assist_field::occupancy::Step],
+    steps: &[assist_field::Step],
     to_unit: impl Fn(f32) -> [f32; 3],
     dir: [f32; 3],
     image: u32,
@@ -280,7 +280,7 @@ fn sample_contracted(
     r: usize,
     k: usize,
     opts: &SampleOptions,
-    steps: &mut Vec<assist_field::occupancy::Step>,
+    steps: &mut Vec<assist_field::Step>,
     out: &mut NodeSamples,
 ) {
     let o_local = node.world_from_local.local_from_world_point(ray.origin);

@@ -15,7 +15,7 @@ fn trace_one(
     s: &NeuralScene,
     ray: Ray,
 ) -> (assist_render::Composite, Vec<assist_render::Composite>) {
-    let mut sc = assist_render::render::RenderScratch::default();
+    let mut sc = assist_render::RenderScratch::default();
     sc.rays.push(&ray, u32::MAX);
     render_rays(s, &RenderOptions::default(), &mut sc);
     (sc.out.rays[0], sc.out.nodes.clone())
@@ -223,11 +223,11 @@ fn batch_backward_matches_finite_differences() {
     sample_rays(&s, &rays, &so, &mut traced);
     assert!(traced.nodes.iter().all(|n| n.len() > 10));
     let mut tapes = Vec::new();
-    let q = assist_render::render::Query::Render {
+    let q = assist_render::Query::Render {
         precision: assist_field::Precision::F32,
         highlight: None,
     };
-    assist_render::render::query_fields(&s, &mut traced, &mut tapes, q);
+    assist_render::query_fields(&s, &mut traced, &mut tapes, q);
     let bg = s.scene.background_color;
     const DIST: f32 = 20.0;
     // The distortion against its definition, Σ_{i,j} w_i w_j |t_i − t_j| over the merged
@@ -237,10 +237,10 @@ fn batch_backward_matches_finite_differences() {
         let mut t2 = traced.clone();
         composite_batch(&mut t2, Behind::Color(bg), &mut out, None);
         for r in 0..traced.rays {
-            let mut merged: Vec<assist_render::composite::RaySample> = Vec::new();
+            let mut merged: Vec<assist_render::RaySample> = Vec::new();
             for ns in &traced.nodes {
                 for j in ns.range(r) {
-                    merged.push(assist_render::composite::RaySample {
+                    merged.push(assist_render::RaySample {
                         sigma: ns.sigma[j],
                         rgb: [ns.rgb[3 * j], ns.rgb[3 * j + 1], ns.rgb[3 * j + 2]],
                         t: ns.t[j],
@@ -250,7 +250,7 @@ fn batch_backward_matches_finite_differences() {
             }
             merged.sort_by(|a, b| a.t.total_cmp(&b.t));
             let mut w = vec![0.0; merged.len()];
-            assist_render::composite::composite(&merged, bg, Some(&mut w));
+            assist_render::composite(&merged, bg, Some(&mut w));
             let mut d = 0.0f64;
             for i in 0..w.len() {
                 for j in 0..w.len() {

@@ -3,7 +3,7 @@
 //! renders the same image as dense marching.
 
 use assist_core::Rng;
-use assist_field::occupancy::Step;
+use assist_field::Step;
 use assist_field::{Adam, Field, FieldConfig, OccupancyGrid, Samples, Tape};
 use assist_render::{RaySample, composite};
 

@@ -161,7 +161,7 @@ impl Session {
     /// scene, not applied).
     pub fn ask_llm(
         &mut self,
-        provider: &assist_lang::llm::LlmProvider,
+        provider: &assist_lang::LlmProvider,
         text: &str,
     ) -> Result<Vec<Action>> {
         Ok(provider.parse(text, &self.editor.scene.scene, &mut self.editor.sources)?)

@@ -8,10 +8,10 @@ use std::sync::atomic::AtomicBool;
 
 use assist_data::{Dataset, LoadOptions, Split};
 use assist_scene::NeuralScene;
-use assist_train::setup::{BackgroundSpace, SetupOptions, background_color, build_scene};
-use assist_train::trainer::{Lambdas, ResumeState, StepStats};
-use assist_train::views::{fill_priors, load_views};
+use assist_train::{BackgroundSpace, SetupOptions, background_color, build_scene};
+use assist_train::{Lambdas, ResumeState, StepStats};
 use assist_train::{PriorKind, TrainOptions, TrainReport, Trainer};
+use assist_train::{fill_priors, load_views};
 use serde::{Deserialize, Serialize};
 
 use crate::{Result, SessionError, request};
@@ -240,7 +240,7 @@ impl TrainJob {
             });
         }
         let (mut scene, resume) = self.scene(&ds, &views, user_boxes)?;
-        let carved = assist_train::freespace::carve_scene(&mut scene, &views);
+        let carved = assist_train::carve_scene(&mut scene, &views);
         if !carved.is_empty() {
             on_event(&TrainEvent::Carved { nodes: carved });
         }

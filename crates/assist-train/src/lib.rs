@@ -7,19 +7,31 @@
 
 #![forbid(unsafe_code)]
 
-pub mod error;
-pub mod eval;
-pub mod freespace;
+mod error;
+mod eval;
+mod freespace;
 pub mod losses;
 pub mod metrics;
-pub mod multiview;
-pub mod optimizer;
-pub mod prior;
-pub mod setup;
-pub mod trainer;
-pub mod views;
+mod multiview;
+mod optimizer;
+mod prior;
+mod setup;
+mod trainer;
+mod views;
 
 pub use error::{Result, TrainError};
+pub use eval::{
+    EvalReport, ImageScore, PriorReport, PriorScore, background_dataset, evaluate, evaluate_priors,
+};
+pub use freespace::{CarveStats, carve_scene};
+pub use multiview::MultiViewStats;
 pub use optimizer::{CpuOptimizer, NodeOptimizer};
-pub use trainer::{TrainOptions, TrainReport, Trainer};
-pub use views::{PriorKind, View};
+pub use setup::{
+    BackgroundSpace, BoxSource, NodeBox, SetupOptions, background_color, build_scene,
+    is_object_capture, near_plane, node_boxes, scene_region,
+};
+pub use trainer::{
+    Lambdas, PhaseTimes, ResumeState, StepStats, TrainOptions, TrainReport, Trainer,
+    update_depth_affine,
+};
+pub use views::{PriorKind, View, fill_prior, fill_priors, load_view, load_views};

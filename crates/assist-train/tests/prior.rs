@@ -4,7 +4,7 @@
 
 use assist_data::Split;
 use assist_train::PriorKind;
-use assist_train::eval::evaluate_priors;
+use assist_train::evaluate_priors;
 
 #[test]
 fn default_prior_is_the_better_fill_on_desk() {

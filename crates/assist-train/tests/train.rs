@@ -6,9 +6,9 @@ use std::sync::OnceLock;
 use assist_data::synth::{SynthConfig, generate};
 use assist_data::{Dataset, LoadOptions, Split};
 use assist_testkit::TempDir;
-use assist_train::setup::{SetupOptions, background_color, build_scene};
-use assist_train::views::{fill_prior, load_views};
 use assist_train::{PriorKind, TrainError, TrainOptions, Trainer};
+use assist_train::{SetupOptions, background_color, build_scene};
+use assist_train::{fill_prior, load_views};
 
 /// One synth dataset shared by the tests of this file.
 fn synth() -> &'static Path {
@@ -39,7 +39,7 @@ fn synth_scene_trains_to_stated_quality() {
     t.opts.iters = 350;
     let start = std::time::Instant::now();
     let report = t.run(|_, _| {}).unwrap();
-    let r = assist_train::eval::evaluate(&t.scene, &ds, Some(Split::Test), 1, |_, _| {}).unwrap();
+    let r = assist_train::evaluate(&t.scene, &ds, Some(Split::Test), 1, |_, _| {}).unwrap();
     eprintln!(
         "synth: {} iterations in {:.1} s; test PSNR {:.2} dB, SSIM {:.3}, panoptic mIoU {:?}, background {:?} / occluded {:?}",
         report.iterations,

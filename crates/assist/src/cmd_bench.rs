@@ -311,7 +311,7 @@ fn field(a: FieldBenchArgs) -> anyhow::Result<()> {
         eprintln!("MLP product kernel (64×64×64, one core), GFLOP/s: {gemm}");
     }
     // The occupancy grids training builds for a background and for an object.
-    let grids = assist_train::setup::SetupOptions::default();
+    let grids = assist_train::SetupOptions::default();
     let mut results = vec![bench_one(
         "nerfacto",
         FieldConfig::nerfacto(100),
@@ -358,7 +358,7 @@ fn prior(a: PriorBenchArgs) -> anyhow::Result<()> {
         PriorKind::Exemplar,
         PriorKind::MultiView,
     ];
-    let r = assist_train::eval::evaluate_priors(&ds, split, &kinds, crate::progress::steps(&bar))?;
+    let r = assist_train::evaluate_priors(&ds, split, &kinds, crate::progress::steps(&bar))?;
     bar.finish_and_clear();
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);

@@ -60,7 +60,7 @@ pub fn run(cmd: DatasetCommand) -> anyhow::Result<()> {
 }
 
 fn boxes(a: BoxesArgs) -> anyhow::Result<()> {
-    use assist_train::setup::{SetupOptions, background_color, node_boxes, scene_region};
+    use assist_train::{SetupOptions, background_color, node_boxes, scene_region};
     let user = match &a.boxes {
         Some(p) => assist_data::boxes::read_boxes(p).context("--boxes")?,
         None => Vec::new(),
@@ -70,7 +70,7 @@ fn boxes(a: BoxesArgs) -> anyhow::Result<()> {
     if ds.count(Split::Train) == 0 {
         bail!("{}: the dataset has no training frames", a.path.display());
     }
-    let views = assist_train::views::load_views(&ds, Split::Train, background_color(&ds))?;
+    let views = assist_train::load_views(&ds, Split::Train, background_color(&ds))?;
     let opts = SetupOptions {
         boxes: user,
         ..Default::default()

@@ -143,7 +143,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
 
     eprintln!("4/6 measuring the trained scene on its test views");
     let (trained, _) = assist_scene::scene_file::load(&scene_a)?;
-    let r = assist_train::eval::evaluate(&trained, &ds, Some(Split::Test), 1, |_, _| {})?;
+    let r = assist_train::evaluate(&trained, &ds, Some(Split::Test), 1, |_, _| {})?;
     eprintln!(
         "    test PSNR {:.2} dB, SSIM {:.3}, panoptic mIoU {:.3}, background depth error {:.1}% ({} views)",
         r.psnr,

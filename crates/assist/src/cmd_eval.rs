@@ -57,8 +57,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     let ds = assist_data::load(&a.data, &opts)
         .with_context(|| format!("loading dataset {}", a.data.display()))?;
     let bar = crate::progress::bar(!a.json && std::io::stderr().is_terminal(), "eval");
-    let r =
-        assist_train::eval::evaluate(&scene, &ds, split, a.stride, crate::progress::steps(&bar))?;
+    let r = assist_train::evaluate(&scene, &ds, split, a.stride, crate::progress::steps(&bar))?;
     bar.finish_and_clear();
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);

@@ -5,8 +5,8 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use assist_session::{Appearance, LambdaOverrides, TrainConfig, TrainEvent, TrainJob};
+use assist_train::BackgroundSpace;
 use assist_train::PriorKind;
-use assist_train::setup::BackgroundSpace;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 

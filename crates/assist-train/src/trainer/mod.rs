@@ -215,8 +215,8 @@ impl Trainer {
         };
         let nn = self.traced.nodes.len();
         phase[0] = tp.elapsed().as_secs_f64();
-        let q = assist_render::render::Query::Train;
-        assist_render::render::query_fields(&self.scene, &mut self.traced, &mut self.tapes, q);
+        let q = assist_render::Query::Train;
+        assist_render::query_fields(&self.scene, &mut self.traced, &mut self.tapes, q);
         phase[1] = tp.elapsed().as_secs_f64();
         let lam = self.opts.lambdas;
         let is_object: Vec<bool> = self
