@@ -122,8 +122,7 @@ fn reference_indices() {
     };
     let (i, _) = corners_one(&hashed, 0.505, 0.0, 1.0);
     let (cx, cy, cz) = (50u32, 0u32, 99u32);
-    let h =
-        |x: u32, y: u32, z: u32| (x ^ y.wrapping_mul(PRIME_Y) ^ z.wrapping_mul(PRIME_Z)) & 1023;
+    let h = |x: u32, y: u32, z: u32| (x ^ y.wrapping_mul(PRIME_Y) ^ z.wrapping_mul(PRIME_Z)) & 1023;
     assert_eq!(i[0], h(cx, cy, cz));
     assert_eq!(i[5], h(cx + 1, cy, cz + 1));
     // NaN lands on the low corner.
