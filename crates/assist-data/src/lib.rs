@@ -39,4 +39,4 @@ pub use dataset::{
 pub use error::{DataError, Result};
 pub use image_io::{IdImage, ImageF32};
 pub use load::{detect_format, load};
-pub use writer::{DatasetWriter, Instance, Layer, Output, ViewImages, WriterConfig};
+pub use writer::{DatasetWriter, IdImages, Instance, Layer, Output, ViewImages, WriterConfig};

@@ -12,18 +12,19 @@
 //! - `transforms.json`: an OPENCV camera per frame, `depth_file_path`,
 //!   `instance_mask_path`, `depth_unit_scale_factor`, `world_up` and the `instances`.
 //!
-//! Every file is written atomically; the writer refuses a non-empty folder unless told to
-//! write into it.
+//! With [`IdImages::Instances8`] the ids go to `instances/NAME.png` as 8-bit grey values
+//! instead (the desk format `synth` writes). Every file is written atomically; the writer
+//! refuses a non-empty folder unless told to write into it.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
-use assist_core::Camera;
+use assist_core::{Camera, Obb};
 use serde_json::{Value, json};
 
 use crate::error::{DataError, Result};
-use crate::image_io::{ImageF32, write_atomic, write_gray16_png, write_rgb_png};
+use crate::image_io::{ImageF32, write_atomic, write_gray8_png, write_gray16_png, write_rgb_png};
 
 /// One kind of file a view is written as.
 #[derive(
@@ -107,6 +108,18 @@ impl Output {
 pub struct Instance {
     pub id: u16,
     pub label: String,
+    /// Its box in world units, written into `instances` when known.
+    pub bbox: Option<Obb>,
+}
+
+/// How instance-id images are written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum IdImages {
+    /// `panoptic/NAME.png`, 16-bit.
+    #[default]
+    Panoptic16,
+    /// `instances/NAME.png`, 8-bit (ids above 255 are refused): the desk format.
+    Instances8,
 }
 
 /// What a dataset is written with.
@@ -118,6 +131,45 @@ pub struct WriterConfig {
     pub world_up: [f64; 3],
     /// The scene's objects (not the background), for the legends and `instances`.
     pub instances: Vec<Instance>,
+    pub id_images: IdImages,
+    /// Further top-level keys of `transforms.json` (the writer's own keys win).
+    pub extra: serde_json::Map<String, Value>,
+}
+
+impl Default for WriterConfig {
+    /// RGB, depth and panoptic ids of a metric scene with +z up and no objects.
+    fn default() -> Self {
+        WriterConfig {
+            outputs: vec![Output::Rgb, Output::Depth, Output::Panoptic],
+            meters_per_unit: 1.0,
+            world_up: [0.0, 0.0, 1.0],
+            instances: Vec::new(),
+            id_images: IdImages::default(),
+            extra: serde_json::Map::new(),
+        }
+    }
+}
+
+impl WriterConfig {
+    /// The folder of an output's files.
+    pub fn folder(&self, o: Output) -> &'static str {
+        match (o, self.id_images) {
+            (Output::Panoptic, IdImages::Instances8) => "instances",
+            _ => o.folder(),
+        }
+    }
+}
+
+fn instance_json(i: &Instance) -> Value {
+    let mut v = json!({"id": i.id, "label": i.label});
+    if let Some(b) = &i.bbox {
+        v["bbox"] = json!({
+            "center": b.center.to_array(),
+            "size": b.size().to_array(),
+            "rotation": (0..3).map(|r| b.rotation.row(r).to_array().to_vec()).collect::<Vec<_>>(),
+        });
+    }
+    v
 }
 
 /// One object's own rendering: colour (not premultiplied) and opacity.
@@ -219,7 +271,7 @@ impl DatasetWriter {
             return Err(DataError::Exists { path: dir.into() });
         }
         for o in &cfg.outputs {
-            let d = dir.join(o.folder());
+            let d = dir.join(cfg.folder(*o));
             std::fs::create_dir_all(&d).map_err(|e| DataError::io(&d, e))?;
         }
         let (classes, class_names) = semantic_classes(&cfg.instances);
@@ -298,7 +350,11 @@ impl DatasetWriter {
     pub fn write(&self, index: usize, name: &str, camera: &Camera, v: &ViewImages) -> Result<()> {
         self.check(name, v)?;
         let (w, h) = (v.width, v.height);
-        let file = |o: Output, ext: &str| self.dir.join(o.folder()).join(format!("{name}.{ext}"));
+        let file = |o: Output, ext: &str| {
+            self.dir
+                .join(self.cfg.folder(o))
+                .join(format!("{name}.{ext}"))
+        };
         let rgb = |data: &[f32]| ImageF32 {
             width: w,
             height: h,
@@ -314,7 +370,24 @@ impl DatasetWriter {
                     let npy = crate::npy::encode_npy_f32(&[h as usize, w as usize], v.depth);
                     write_atomic(&file(o, "npy"), &npy)?;
                 }
-                Output::Panoptic => write_gray16_png(&file(o, "png"), w, h, v.panoptic)?,
+                Output::Panoptic => match self.cfg.id_images {
+                    IdImages::Panoptic16 => write_gray16_png(&file(o, "png"), w, h, v.panoptic)?,
+                    IdImages::Instances8 => {
+                        let ids = v
+                            .panoptic
+                            .iter()
+                            .map(|&id| u8::try_from(id))
+                            .collect::<std::result::Result<Vec<u8>, _>>()
+                            .map_err(|_| {
+                                DataError::field(
+                                    file(o, "png"),
+                                    "instance ids",
+                                    "expected ids up to 255 in 8-bit instance images",
+                                )
+                            })?;
+                        write_gray8_png(&file(o, "png"), w, h, &ids)?
+                    }
+                },
                 Output::Semantic => {
                     let sem: Vec<u16> = v
                         .panoptic
@@ -353,12 +426,14 @@ impl DatasetWriter {
             "transform_matrix": camera.pose.to_matrix().transpose().to_cols_array_2d(),
             "fl_x": i.fx, "fl_y": i.fy, "cx": i.cx, "cy": i.cy,
             "w": w, "h": h,
+            "frame_index": index,
         });
         if self.wants(Output::Depth) {
             f["depth_file_path"] = json!(format!("depth/{name}.png"));
         }
         if self.wants(Output::Panoptic) {
-            f["instance_mask_path"] = json!(format!("panoptic/{name}.png"));
+            let folder = self.cfg.folder(Output::Panoptic);
+            f["instance_mask_path"] = json!(format!("{folder}/{name}.png"));
         }
         self.frames
             .lock()
@@ -375,13 +450,18 @@ impl DatasetWriter {
                 .collect();
         let n = frames.len();
         let cfg = &self.cfg;
-        let tj = json!({
+        let mut tj = json!({
             "camera_model": "OPENCV",
             "depth_unit_scale_factor": 0.001 / cfg.meters_per_unit,
             "world_up": cfg.world_up,
             "frames": frames,
-            "instances": cfg.instances.iter().map(|i| json!({"id": i.id, "label": i.label})).collect::<Vec<_>>(),
         });
+        tj["instances"] = cfg.instances.iter().map(instance_json).collect();
+        for (k, v) in &cfg.extra {
+            if tj.get(k).is_none() {
+                tj[k] = v.clone();
+            }
+        }
         let pretty = |v: &Value| serde_json::to_string_pretty(v).expect("JSON values serialise");
         write_atomic(&self.dir.join("transforms.json"), pretty(&tj).as_bytes())?;
         if self.wants(Output::Panoptic) {
@@ -438,16 +518,20 @@ mod tests {
                 Instance {
                     id: 3,
                     label: "mug".into(),
+                    bbox: None,
                 },
                 Instance {
                     id: 7,
                     label: "mug".into(),
+                    bbox: None,
                 },
                 Instance {
                     id: 9,
                     label: "book".into(),
+                    bbox: None,
                 },
             ],
+            ..WriterConfig::default()
         };
         let w = DatasetWriter::create(&dir, cfg.clone(), false).unwrap();
         let n = 12;

@@ -112,6 +112,7 @@ impl Session {
             .map(|n| Instance {
                 id: n.id,
                 label: n.label.clone(),
+                bbox: None,
             })
             .collect();
         let cfg = WriterConfig {
@@ -119,6 +120,7 @@ impl Session {
             meters_per_unit: scene.scene.meters_per_unit,
             world_up: scene.scene.up.to_array(),
             instances,
+            ..WriterConfig::default()
         };
         let writer = DatasetWriter::create(&job.out, cfg, job.force).map_err(SessionError::Data)?;
         let opts = RenderOptions {

@@ -11,7 +11,8 @@ use serde_json::{Value, json};
 use super::scene::{Object, Scene, build_scene, cameras};
 use super::trace::render_view;
 use crate::error::{DataError, Result};
-use crate::image_io::{ImageF32, write_atomic, write_gray8_png, write_gray16_png, write_rgb_png};
+use crate::image_io::write_atomic;
+use crate::writer::{DatasetWriter, IdImages, Instance, Output, ViewImages, WriterConfig};
 
 #[derive(Debug, Clone)]
 pub struct SynthConfig {
@@ -98,59 +99,41 @@ pub fn is_test(i: usize) -> bool {
     i % 6 == 3
 }
 
-fn matrix_rows(c: &Camera) -> Value {
-    let m = c.pose.to_matrix();
-    json!(
-        (0..4)
-            .map(|r| m.row(r).to_array().to_vec())
-            .collect::<Vec<_>>()
-    )
-}
-
-fn instances_json(objects: &[Object]) -> Value {
-    json!(objects.iter().map(|o| {
-        let b = o.obb();
-        json!({
-            "id": o.id,
-            "label": o.label,
-            "bbox": {
-                "center": b.center.to_array(),
-                "size": b.size().to_array(),
-                "rotation": (0..3).map(|r| b.rotation.row(r).to_array().to_vec()).collect::<Vec<_>>(),
-            }
-        })
-    }).collect::<Vec<_>>())
-}
-
-fn transforms(
-    cam: &Camera,
-    frames: Vec<Value>,
-    instances: Option<&[Object]>,
-    cfg: &SynthConfig,
-) -> Value {
-    let i = &cam.intrinsics;
-    let mut v = json!({
-        "camera_model": "OPENCV",
-        "fl_x": i.fx, "fl_y": i.fy, "cx": i.cx, "cy": i.cy, "w": i.width, "h": i.height,
-        "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0,
-        "depth_unit_scale_factor": 0.001,
-        "world_up": [0, 0, 1],
+/// The writer of one of synth's datasets (the scene, the background alone, an edit): the
+/// desk format, 8-bit instance images, with the scene's objects and their boxes.
+fn writer(dir: &Path, cfg: &SynthConfig, objects: Option<&[Object]>) -> Result<DatasetWriter> {
+    let mut outputs = vec![Output::Rgb, Output::Depth];
+    if objects.is_some() {
+        outputs.push(Output::Panoptic);
+    }
+    let extra = json!({
         "meters_per_unit": 1.0,
         "table_top_z": super::scene::TABLE_Z,
         "renderer": format!("assist synth (seed {}, {} spp, {} light samples)", cfg.seed, cfg.spp, cfg.shadow_samples),
-        "frames": frames,
     });
-    if let Some(objs) = instances {
-        v["instances"] = instances_json(objs);
-    }
-    v
+    let instances = objects
+        .unwrap_or_default()
+        .iter()
+        .map(|o| Instance {
+            id: o.id,
+            label: o.label.clone(),
+            bbox: Some(o.obb()),
+        })
+        .collect();
+    let cfg = WriterConfig {
+        outputs,
+        instances,
+        id_images: IdImages::Instances8,
+        extra: extra.as_object().cloned().unwrap_or_default(),
+        ..WriterConfig::default()
+    };
+    DatasetWriter::create(dir, cfg, false)
 }
 
 struct Job {
-    dir: PathBuf,
+    writer: usize,
     scene_idx: usize,
     view: usize,
-    with_ids: bool,
 }
 
 fn edit_name(op: &str, label: &str) -> String {
@@ -287,14 +270,6 @@ pub fn generate(
     })
 }
 
-fn mkdirs(dir: &Path, subs: &[&str]) -> Result<()> {
-    for s in subs {
-        let p = dir.join(s);
-        std::fs::create_dir_all(&p).map_err(|e| DataError::io(&p, e))?;
-    }
-    Ok(())
-}
-
 fn write_all(
     cfg: &SynthConfig,
     dir: &Path,
@@ -303,47 +278,38 @@ fn write_all(
     edits: &[(String, Value, Scene)],
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<()> {
-    mkdirs(
-        dir,
-        &[
-            "images",
-            "depth",
-            "instances",
-            "background/images",
-            "background/depth",
-        ],
-    )?;
     let tests: Vec<usize> = (0..cams.len()).filter(|&i| is_test(i)).collect();
     let bg = scene.without_objects();
     let mut scenes = vec![scene.clone(), bg];
+    let mut writers = vec![
+        writer(dir, cfg, Some(&scene.objects))?,
+        writer(&dir.join("background"), cfg, None)?,
+    ];
     let mut jobs: Vec<Job> = (0..cams.len())
         .map(|v| Job {
-            dir: dir.to_path_buf(),
+            writer: 0,
             scene_idx: 0,
             view: v,
-            with_ids: true,
         })
         .collect();
     jobs.extend(tests.iter().map(|&v| Job {
-        dir: dir.join("background"),
+        writer: 1,
         scene_idx: 1,
         view: v,
-        with_ids: false,
     }));
     for (name, edit, s) in edits {
         let ed = dir.join("edits").join(name);
-        mkdirs(&ed, &["images", "depth", "instances"])?;
+        writers.push(writer(&ed, cfg, Some(&s.objects))?);
         write_atomic(
             &ed.join("edit.json"),
             serde_json::to_string_pretty(edit).unwrap().as_bytes(),
         )?;
         scenes.push(s.clone());
-        let idx = scenes.len() - 1;
+        let (w, idx) = (writers.len() - 1, scenes.len() - 1);
         jobs.extend(tests.iter().map(|&v| Job {
-            dir: ed.clone(),
+            writer: w,
             scene_idx: idx,
             view: v,
-            with_ids: true,
         }));
     }
     let done = AtomicUsize::new(0);
@@ -361,79 +327,24 @@ fn write_all(
             cfg.spp,
             cfg.shadow_samples,
         );
-        let (w, h) = (cam.width(), cam.height());
-        let stem = format!("r_{:03}.png", job.view);
-        write_rgb_png(
-            &job.dir.join("images").join(&stem),
-            &ImageF32 {
-                width: w,
-                height: h,
-                channels: 3,
-                data: r.rgb,
-            },
-        )?;
-        let mm: Vec<u16> = r
-            .depth
-            .iter()
-            .map(|&z| (z as f64 * 1000.0).round().clamp(0.0, 65535.0) as u16)
-            .collect();
-        write_gray16_png(&job.dir.join("depth").join(&stem), w, h, &mm)?;
-        if job.with_ids {
-            let ids: Vec<u8> = r.ids.iter().map(|&v| v as u8).collect();
-            write_gray8_png(&job.dir.join("instances").join(&stem), w, h, &ids)?;
-        }
+        let view = ViewImages {
+            width: cam.width(),
+            height: cam.height(),
+            rgb: &r.rgb,
+            depth: &r.depth,
+            panoptic: &r.ids,
+            ..Default::default()
+        };
+        writers[job.writer].write(job.view, &format!("r_{:03}", job.view), cam, &view)?;
         progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
         Ok(())
     })?;
-    let frame = |v: usize, ids: bool| {
-        let mut f = json!({
-            "file_path": format!("images/r_{v:03}.png"),
-            "transform_matrix": matrix_rows(&cams[v]),
-            "depth_file_path": format!("depth/r_{v:03}.png"),
-            "frame_index": v,
-        });
-        if ids {
-            f["instance_mask_path"] = json!(format!("instances/r_{v:03}.png"));
-        }
-        f
-    };
-    let main = transforms(
-        &cams[0],
-        (0..cams.len()).map(|v| frame(v, true)).collect(),
-        Some(&scene.objects),
-        cfg,
-    );
-    write_atomic(
-        &dir.join("transforms.json"),
-        serde_json::to_string_pretty(&main).unwrap().as_bytes(),
-    )?;
+    for w in writers {
+        w.finish()?;
+    }
     let split = json!({"train": (0..cams.len()).filter(|&i| !is_test(i)).collect::<Vec<_>>(), "test": tests});
     write_atomic(
         &dir.join("split.json"),
         serde_json::to_string_pretty(&split).unwrap().as_bytes(),
-    )?;
-    let bgt = transforms(
-        &cams[0],
-        tests.iter().map(|&v| frame(v, false)).collect(),
-        None,
-        cfg,
-    );
-    write_atomic(
-        &dir.join("background/transforms.json"),
-        serde_json::to_string_pretty(&bgt).unwrap().as_bytes(),
-    )?;
-    for (k, (name, _, s)) in edits.iter().enumerate() {
-        let t = transforms(
-            &cams[0],
-            tests.iter().map(|&v| frame(v, true)).collect(),
-            Some(&scenes[2 + k].objects),
-            cfg,
-        );
-        write_atomic(
-            &dir.join("edits").join(name).join("transforms.json"),
-            serde_json::to_string_pretty(&t).unwrap().as_bytes(),
-        )?;
-        let _ = s;
-    }
-    Ok(())
+    )
 }
