@@ -18,6 +18,7 @@ mod cmd_eval;
 mod cmd_render;
 mod cmd_synth;
 mod cmd_train;
+mod cmd_view;
 mod progress;
 
 #[derive(Parser, Debug)]
@@ -50,6 +51,8 @@ pub enum Command {
     Edit(cmd_edit::EditArgs),
     /// Render a trained scene from a dataset's cameras into a new labelled dataset.
     Render(cmd_render::RenderArgs),
+    /// Open a trained scene in the interactive viewer (a page in your browser).
+    View(cmd_view::ViewArgs),
     /// Measure the speed of hot paths.
     Bench {
         #[command(subcommand)]
@@ -66,6 +69,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Eval(a) => cmd_eval::run(a),
         Command::Edit(a) => cmd_edit::run(a),
         Command::Render(a) => cmd_render::run(a),
+        Command::View(a) => cmd_view::run(a),
         Command::Bench { command } => cmd_bench::run(command),
     }
 }

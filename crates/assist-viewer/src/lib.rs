@@ -1,0 +1,319 @@
+//! assist-viewer: the interactive viewer. An axum server serves one page embedded in the
+//! binary (nothing is fetched from the network) and a WebSocket per client; each client
+//! gets its own [`assist_session::Session`] on a worker thread ([`worker`]), speaking the
+//! versioned JSON messages of [`protocol`]. Frames come back as JPEG: a low-resolution
+//! preview at once, the full frame when the view rests.
+//!
+//! Security: the server binds 127.0.0.1 unless told otherwise; any other address needs a
+//! token (given, or generated and printed), checked when the socket opens. Only the
+//! embedded files are served; saves go only beside the opened scene.
+
+#![forbid(unsafe_code)]
+
+pub mod protocol;
+mod worker;
+
+use std::net::{IpAddr, SocketAddr};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use axum::Router;
+use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::extract::{Query, State};
+use axum::http::{StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+use serde::Deserialize;
+
+use assist_session::{CameraSource, Session, SplitChoice};
+use protocol::{CameraState, ClientMsg, MAX_MESSAGE_BYTES, PROTOCOL_VERSION, ServerMsg, View};
+pub use worker::{Outgoing, PREVIEW_DIVISOR, encode_jpeg};
+
+/// The page, embedded at build time.
+const INDEX_HTML: &str = include_str!("../page/index.html");
+
+/// Messages a client may send per second; more are answered with an error and dropped.
+pub const MAX_MESSAGES_PER_SECOND: u32 = 240;
+
+/// Frames larger than this close the socket (smaller ones over [`MAX_MESSAGE_BYTES`] get
+/// an error reply and the session goes on).
+const MAX_FRAME_BYTES: usize = 1 << 20;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ViewerError {
+    #[error("{0}")]
+    Session(#[from] assist_session::SessionError),
+    #[error("cannot listen on {addr}: {source}")]
+    Bind {
+        addr: SocketAddr,
+        source: std::io::Error,
+    },
+    #[error("{what}: {message}")]
+    Options { what: &'static str, message: String },
+    #[error("server: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// How the viewer is started.
+#[derive(Debug, Clone)]
+pub struct ViewerOptions {
+    pub scene: PathBuf,
+    /// A dataset whose training cameras the page lists (else an orbit around the scene).
+    pub data: Option<PathBuf>,
+    pub host: IpAddr,
+    /// 0 = any free port.
+    pub port: u16,
+    /// Required on a non-loopback host; generated when not given.
+    pub token: Option<String>,
+}
+
+struct App {
+    scene: PathBuf,
+    token: Option<String>,
+    hello: ServerMsg,
+}
+
+/// A running viewer: its address, the token clients need (if any) and the URL to open.
+pub struct Running {
+    pub addr: SocketAddr,
+    pub token: Option<String>,
+    pub url: String,
+    server: tokio::task::JoinHandle<std::io::Result<()>>,
+}
+
+impl Running {
+    /// Serves until the process ends (or the server fails).
+    pub async fn wait(self) -> Result<(), ViewerError> {
+        match self.server.await {
+            Ok(r) => Ok(r?),
+            Err(e) => Err(ViewerError::Io(std::io::Error::other(e))),
+        }
+    }
+}
+
+/// A token of 128 random bits (from the OS's hash seed and the clock; enough to keep
+/// other users of a shared network out, not a cryptographic secret).
+fn new_token() -> String {
+    use std::hash::{BuildHasher, Hasher};
+    let mut s = String::new();
+    for i in 0..2u64 {
+        let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+        h.write_u64(i);
+        h.write_u128(
+            std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map(|d| d.as_nanos())
+                .unwrap_or(0),
+        );
+        h.write_u32(std::process::id());
+        s.push_str(&format!("{:016x}", h.finish()));
+    }
+    s
+}
+
+/// Loads the scene (to check it and list its cameras), binds, and starts serving.
+pub async fn start(opts: ViewerOptions) -> Result<Running, ViewerError> {
+    let session = Session::open(&opts.scene)?;
+    let description = session.description().clone();
+    let cameras = match &opts.data {
+        Some(path) => CameraSource::Dataset {
+            path: path.clone(),
+            split: SplitChoice::Train,
+            downscale: 1,
+        },
+        None => CameraSource::Orbit(Default::default()),
+    }
+    .cameras(&description)?;
+    let token = if opts.host.is_loopback() {
+        opts.token.clone()
+    } else {
+        Some(opts.token.clone().unwrap_or_else(new_token))
+    };
+    if token.as_deref().is_some_and(|t| t.len() < 8) {
+        return Err(ViewerError::Options {
+            what: "token",
+            message: "expected at least 8 characters".into(),
+        });
+    }
+    let hello = ServerMsg::Hello {
+        version: PROTOCOL_VERSION,
+        scene: scene_name(&opts.scene),
+        up: description.up.to_array(),
+        cameras: cameras
+            .iter()
+            .map(|c| CameraState {
+                name: c.name.clone(),
+                view: View::of_camera(&c.camera),
+            })
+            .collect(),
+        max_message_bytes: MAX_MESSAGE_BYTES,
+    };
+    let app = Arc::new(App {
+        scene: opts.scene.clone(),
+        token: token.clone(),
+        hello,
+    });
+    let router = Router::new()
+        .route("/", get(index))
+        .route("/ws", get(ws))
+        .with_state(app);
+    let addr = SocketAddr::new(opts.host, opts.port);
+    let listener = tokio::net::TcpListener::bind(addr)
+        .await
+        .map_err(|source| ViewerError::Bind { addr, source })?;
+    let addr = listener.local_addr()?;
+    let url = match &token {
+        Some(t) => format!("http://{addr}/?token={t}"),
+        None => format!("http://{addr}/"),
+    };
+    let server = tokio::spawn(async move { axum::serve(listener, router).await });
+    Ok(Running {
+        addr,
+        token,
+        url,
+        server,
+    })
+}
+
+fn scene_name(p: &Path) -> String {
+    p.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| p.display().to_string())
+}
+
+async fn index() -> Response {
+    (
+        [
+            (header::CONTENT_TYPE, "text/html; charset=utf-8"),
+            (header::CACHE_CONTROL, "no-store"),
+        ],
+        INDEX_HTML,
+    )
+        .into_response()
+}
+
+#[derive(Deserialize)]
+struct WsQuery {
+    token: Option<String>,
+}
+
+async fn ws(
+    upgrade: WebSocketUpgrade,
+    Query(q): Query<WsQuery>,
+    State(app): State<Arc<App>>,
+) -> Response {
+    if let Some(t) = &app.token
+        && q.token.as_deref() != Some(t.as_str())
+    {
+        return (
+            StatusCode::UNAUTHORIZED,
+            "this viewer needs its token: open the URL it printed (…/?token=…)",
+        )
+            .into_response();
+    }
+    upgrade
+        .max_message_size(MAX_FRAME_BYTES)
+        .max_frame_size(MAX_FRAME_BYTES)
+        .on_upgrade(move |socket| client(socket, app))
+}
+
+async fn send_json(socket: &mut WebSocket, m: &ServerMsg) -> bool {
+    let text = serde_json::to_string(m).unwrap_or_else(|e| {
+        format!(r#"{{"type":"error","message":"cannot encode a reply: {e}"}}"#)
+    });
+    socket.send(Message::Text(text.into())).await.is_ok()
+}
+
+/// One client: a worker thread with its own session, and this task moving messages.
+async fn client(mut socket: WebSocket, app: Arc<App>) {
+    if !send_json(&mut socket, &app.hello).await {
+        return;
+    }
+    let path = app.scene.clone();
+    let session = match tokio::task::spawn_blocking(move || Session::open(&path)).await {
+        Ok(Ok(s)) => s,
+        Ok(Err(e)) => {
+            send_json(
+                &mut socket,
+                &ServerMsg::Error {
+                    message: e.to_string(),
+                },
+            )
+            .await;
+            return;
+        }
+        Err(e) => {
+            send_json(
+                &mut socket,
+                &ServerMsg::Error {
+                    message: e.to_string(),
+                },
+            )
+            .await;
+            return;
+        }
+    };
+    let (in_tx, in_rx) = std::sync::mpsc::channel::<ClientMsg>();
+    let (out_tx, mut out_rx) = tokio::sync::mpsc::unbounded_channel::<Outgoing>();
+    let scene = app.scene.clone();
+    let worker = std::thread::Builder::new()
+        .name("assist-view-client".into())
+        .spawn(move || worker::Worker::new(session, &scene).run(in_rx, |o| out_tx.send(o).is_ok()));
+    if worker.is_err() {
+        send_json(
+            &mut socket,
+            &ServerMsg::Error {
+                message: "cannot start a worker thread".into(),
+            },
+        )
+        .await;
+        return;
+    }
+    let mut window = (Instant::now(), 0u32);
+    loop {
+        tokio::select! {
+            incoming = socket.recv() => {
+                let Some(Ok(msg)) = incoming else { break };
+                let text = match msg {
+                    Message::Text(t) => t.to_string(),
+                    Message::Binary(_) => {
+                        let e = ServerMsg::Error { message: "expected JSON text messages".into() };
+                        if !send_json(&mut socket, &e).await { break }
+                        continue;
+                    }
+                    Message::Close(_) => break,
+                    _ => continue,
+                };
+                if window.0.elapsed() > Duration::from_secs(1) {
+                    window = (Instant::now(), 0);
+                }
+                window.1 += 1;
+                if window.1 > MAX_MESSAGES_PER_SECOND {
+                    let e = ServerMsg::Error {
+                        message: format!("more than {MAX_MESSAGES_PER_SECOND} messages per second; this one was dropped"),
+                    };
+                    if !send_json(&mut socket, &e).await { break }
+                    continue;
+                }
+                match protocol::parse_client(&text) {
+                    Ok(m) => {
+                        if in_tx.send(m).is_err() { break }
+                    }
+                    Err(message) => {
+                        if !send_json(&mut socket, &ServerMsg::Error { message }).await { break }
+                    }
+                }
+            }
+            out = out_rx.recv() => {
+                let ok = match out {
+                    Some(Outgoing::Json(m)) => send_json(&mut socket, &m).await,
+                    Some(Outgoing::Jpeg(b)) => socket.send(Message::Binary(b.into())).await.is_ok(),
+                    None => false,
+                };
+                if !ok { break }
+            }
+        }
+    }
+    // Dropping `in_tx` ends the worker.
+}

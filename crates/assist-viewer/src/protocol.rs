@@ -1,0 +1,299 @@
+//! The viewer's messages, version 1. Every client message is one JSON text frame
+//! `{"type": …, …}`; unknown types and unknown fields are refused, and every error is
+//! answered with an `error` message while the session goes on. The server sends JSON
+//! text frames and, after each `frame` message, one binary frame holding its JPEG.
+
+use assist_core::{Action, Camera, DMat4, InstanceId, Intrinsics, Pose};
+use serde::{Deserialize, Serialize};
+
+/// Bumped when a message changes meaning.
+pub const PROTOCOL_VERSION: u32 = 1;
+
+/// Largest client message accepted, in bytes (an instruction or an action list fits with
+/// room to spare; a larger message is answered with an error).
+pub const MAX_MESSAGE_BYTES: usize = 64 * 1024;
+
+/// Largest frame a client may ask for, each way.
+pub const MAX_FRAME_SIDE: u32 = 2048;
+
+/// A view as the page holds it: camera-to-world in the OpenGL convention (+x right, +y
+/// up, looking −z), row-major, with a vertical field of view and the canvas size.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct View {
+    pub world_from_camera: [[f64; 4]; 4],
+    pub fov_y_degrees: f64,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// What the frame shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Output {
+    #[default]
+    Rgb,
+    Depth,
+    Panoptic,
+}
+
+/// A drag's operation, in the paper's keys: `t`, `r`, `x`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DragOp {
+    Translate,
+    Rotate,
+    Scale,
+}
+
+/// Where a drag is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DragPhase {
+    /// The amount so far (the preview replaces the previous one).
+    Move,
+    /// Keep the last amount as one undo step.
+    Commit,
+    /// Back to where the drag started.
+    Cancel,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ClientMsg {
+    /// The view to render (the newest one wins; older ones are dropped).
+    View {
+        view: View,
+    },
+    /// Select the node under pixel `(x, y)` of the current view (nothing there: none).
+    Click {
+        x: f64,
+        y: f64,
+    },
+    /// Select a node by id (`null`: none).
+    Select {
+        id: Option<InstanceId>,
+    },
+    /// Delete (`-`) or replicate (`+`) the selected node.
+    Delete,
+    Replicate,
+    /// Drag the selected node: metres for translate, degrees for rotate, a factor for
+    /// scale; `axis` is `x`, `y`, `z` (world) or `view` (translate in the image plane:
+    /// `amount` is then ignored and `dx`, `dy` are in pixels).
+    Drag {
+        op: DragOp,
+        axis: String,
+        #[serde(default)]
+        amount: f64,
+        #[serde(default)]
+        dx: f64,
+        #[serde(default)]
+        dy: f64,
+        phase: DragPhase,
+    },
+    /// A plain-language instruction (the parser of `assist edit`), relative to the view.
+    Text {
+        text: String,
+        /// Resolve and show the actions without applying them.
+        #[serde(default)]
+        dry_run: bool,
+    },
+    /// Actions in the JSON form of `assist edit --actions`.
+    Actions {
+        actions: Vec<Action>,
+    },
+    Undo,
+    Redo,
+    Output {
+        output: Output,
+    },
+    /// Save to the scene's own path or to `path` (a name beside it); `force` to replace.
+    Save {
+        #[serde(default)]
+        path: Option<String>,
+        #[serde(default)]
+        force: bool,
+    },
+}
+
+/// A node as the page lists it and draws its box.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct NodeState {
+    pub id: InstanceId,
+    pub label: String,
+    pub background: bool,
+    /// The box's eight corners in world coordinates.
+    pub corners: Vec<[f64; 3]>,
+}
+
+/// A dataset camera the page can jump to.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CameraState {
+    pub name: String,
+    pub view: View,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum ServerMsg {
+    Hello {
+        version: u32,
+        scene: String,
+        up: [f64; 3],
+        cameras: Vec<CameraState>,
+        max_message_bytes: usize,
+    },
+    State {
+        nodes: Vec<NodeState>,
+        selected: Option<InstanceId>,
+        undo: usize,
+        redo: usize,
+        log: Vec<String>,
+    },
+    /// The next binary message is this frame's JPEG.
+    Frame {
+        seq: u64,
+        width: u32,
+        height: u32,
+        output: Output,
+        /// A low-resolution frame; the full one follows when the view rests.
+        preview: bool,
+        milliseconds: f64,
+    },
+    /// Actions resolved from a `text` message (applied unless it was a dry run).
+    Resolved {
+        text: String,
+        actions: Vec<serde_json::Value>,
+        applied: bool,
+    },
+    Saved {
+        path: String,
+    },
+    Error {
+        message: String,
+    },
+}
+
+/// Reads one client message: size, JSON, known type and fields, then values.
+pub fn parse_client(text: &str) -> Result<ClientMsg, String> {
+    if text.len() > MAX_MESSAGE_BYTES {
+        return Err(format!(
+            "message of {} bytes; expected at most {MAX_MESSAGE_BYTES}",
+            text.len()
+        ));
+    }
+    let msg: ClientMsg = serde_json::from_str(text).map_err(|e| format!("bad message: {e}"))?;
+    if let ClientMsg::View { view } = &msg {
+        view.camera()?;
+    }
+    Ok(msg)
+}
+
+impl View {
+    /// The camera this view describes; errors name the field.
+    pub fn camera(&self) -> Result<Camera, String> {
+        let (w, h) = (self.width, self.height);
+        if w == 0 || h == 0 || w > MAX_FRAME_SIDE || h > MAX_FRAME_SIDE {
+            return Err(format!(
+                "view.width/height: expected 1 to {MAX_FRAME_SIDE} pixels, got {w}×{h}"
+            ));
+        }
+        if !(self.fov_y_degrees.is_finite() && (1.0..=170.0).contains(&self.fov_y_degrees)) {
+            return Err(format!(
+                "view.fov_y_degrees: expected 1 to 170, got {}",
+                self.fov_y_degrees
+            ));
+        }
+        let m = self.world_from_camera;
+        let f = 0.5 * h as f64 / (0.5 * self.fov_y_degrees.to_radians()).tan();
+        let intrinsics = Intrinsics {
+            width: w,
+            height: h,
+            fx: f,
+            fy: f,
+            cx: 0.5 * w as f64,
+            cy: 0.5 * h as f64,
+            distortion: Default::default(),
+        };
+        let pose = Pose::from_matrix(
+            DMat4::from_cols_array_2d(&m).transpose(),
+            "view.world_from_camera",
+        )
+        .map_err(|e| e.to_string())?;
+        Ok(Camera { intrinsics, pose })
+    }
+
+    /// The view of a camera (its vertical field of view; principal point assumed central).
+    pub fn of_camera(c: &Camera) -> View {
+        let m = c.pose.to_matrix().transpose().to_cols_array_2d();
+        let h = c.height();
+        View {
+            world_from_camera: m,
+            fov_y_degrees: (2.0 * (0.5 * h as f64 / c.intrinsics.fy).atan()).to_degrees(),
+            width: c.width(),
+            height: h,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn view_json(extra: &str) -> String {
+        format!(
+            r#"{{"type":"view","view":{{"world_from_camera":[[1,0,0,0],[0,1,0,0],[0,0,1,2],[0,0,0,1]],"fov_y_degrees":50,"width":64,"height":48{extra}}}}}"#
+        )
+    }
+
+    #[test]
+    fn messages_parse_and_bad_ones_are_named() {
+        assert!(matches!(
+            parse_client(&view_json("")),
+            Ok(ClientMsg::View { .. })
+        ));
+        assert!(matches!(
+            parse_client(r#"{"type":"undo"}"#),
+            Ok(ClientMsg::Undo)
+        ));
+        let e = parse_client(r#"{"type":"fly"}"#).unwrap_err();
+        assert!(e.contains("unknown variant"), "{e}");
+        let e = parse_client(&view_json(r#","extra":1"#)).unwrap_err();
+        assert!(e.contains("unknown field"), "{e}");
+        let e = parse_client("{not json").unwrap_err();
+        assert!(e.starts_with("bad message"), "{e}");
+        let big = format!(
+            r#"{{"type":"text","text":"{}"}}"#,
+            "a".repeat(MAX_MESSAGE_BYTES)
+        );
+        assert!(parse_client(&big).unwrap_err().contains("at most"));
+        let e =
+            parse_client(&view_json("").replace("\"width\":64", "\"width\":100000")).unwrap_err();
+        assert!(e.contains("view.width"), "{e}");
+        let skew = view_json("").replace("[1,0,0,0]", "[2,0,0,0]");
+        let e = parse_client(&skew).unwrap_err();
+        assert!(e.contains("view.world_from_camera"), "{e}");
+    }
+
+    #[test]
+    fn a_camera_round_trips_through_a_view() {
+        let c = View {
+            world_from_camera: [
+                [1.0, 0.0, 0.0, 0.3],
+                [0.0, 0.0, -1.0, -2.0],
+                [0.0, 1.0, 0.0, 0.5],
+                [0.0, 0.0, 0.0, 1.0],
+            ],
+            fov_y_degrees: 40.0,
+            width: 80,
+            height: 60,
+        }
+        .camera()
+        .unwrap();
+        let v = View::of_camera(&c);
+        assert!((v.fov_y_degrees - 40.0).abs() < 1e-9);
+        let c2 = v.camera().unwrap();
+        assert!((c2.pose.center() - c.pose.center()).length() < 1e-12);
+        assert!((c2.intrinsics.fy - c.intrinsics.fy).abs() < 1e-9);
+    }
+}

@@ -1,0 +1,457 @@
+//! One client's worker: a thread that owns the client's [`Session`], applies its messages
+//! in order and renders. Views are coalesced (only the newest is rendered); after any
+//! change a low-resolution preview goes out at once, and the full frame follows only if no
+//! new message arrived meanwhile.
+
+use std::collections::VecDeque;
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{Receiver, TryRecvError};
+use std::time::Instant;
+
+use assist_core::{
+    Action, ActionConfig, AxisSpec, Camera, DVec3, InstanceId, Operation, SceneNode,
+};
+use assist_data::visual::{depth_image, ids_image};
+use assist_session::{RenderRequest, Session, Steps};
+
+use crate::protocol::{ClientMsg, DragOp, DragPhase, NodeState, Output, ServerMsg, View};
+
+/// What the worker sends back: a JSON message, or a frame's JPEG bytes.
+#[derive(Debug)]
+pub enum Outgoing {
+    Json(ServerMsg),
+    Jpeg(Vec<u8>),
+}
+
+/// Preview frames have this fraction of the full frame's width and height.
+pub const PREVIEW_DIVISOR: u32 = 4;
+
+/// JPEG quality of the frames.
+const JPEG_QUALITY: u8 = 85;
+
+/// The state of a drag in progress: the undo depth before it began, and whether a preview
+/// edit is applied.
+struct Drag {
+    applied: bool,
+}
+
+pub struct Worker {
+    session: Session,
+    /// Where `save` without a path writes.
+    scene_path: PathBuf,
+    view: Option<View>,
+    output: Output,
+    seq: u64,
+    drag: Option<Drag>,
+    log: Vec<String>,
+}
+
+impl Worker {
+    pub fn new(session: Session, scene_path: &Path) -> Self {
+        Worker {
+            session,
+            scene_path: scene_path.to_path_buf(),
+            view: None,
+            output: Output::Rgb,
+            seq: 0,
+            drag: None,
+            log: Vec::new(),
+        }
+    }
+
+    /// Handles messages until the channel closes; `send` returns false when the client is
+    /// gone.
+    pub fn run(mut self, rx: Receiver<ClientMsg>, send: impl Fn(Outgoing) -> bool) {
+        let mut pending: VecDeque<ClientMsg> = VecDeque::new();
+        if !send(Outgoing::Json(self.state())) {
+            return;
+        }
+        loop {
+            if pending.is_empty() {
+                match rx.recv() {
+                    Ok(m) => pending.push_back(m),
+                    Err(_) => return,
+                }
+            }
+            loop {
+                match rx.try_recv() {
+                    Ok(m) => pending.push_back(m),
+                    Err(TryRecvError::Empty) => break,
+                    Err(TryRecvError::Disconnected) => return,
+                }
+            }
+            let mut dirty = false;
+            let mut state = false;
+            while let Some(m) = pending.pop_front() {
+                let (d, s) = self.handle(m, &send);
+                dirty |= d;
+                state |= s;
+            }
+            if state && !send(Outgoing::Json(self.state())) {
+                return;
+            }
+            if !dirty {
+                continue;
+            }
+            if !self.frame(true, &send) {
+                return;
+            }
+            // Full resolution only if nothing newer is waiting.
+            match rx.try_recv() {
+                Ok(m) => {
+                    pending.push_back(m);
+                    continue;
+                }
+                Err(TryRecvError::Disconnected) => return,
+                Err(TryRecvError::Empty) => {}
+            }
+            if !self.frame(false, &send) {
+                return;
+            }
+        }
+    }
+
+    fn error(&self, send: &impl Fn(Outgoing) -> bool, message: impl Into<String>) {
+        send(Outgoing::Json(ServerMsg::Error {
+            message: message.into(),
+        }));
+    }
+
+    /// Applies one message; returns (the frame changed, the scene state changed).
+    fn handle(&mut self, m: ClientMsg, send: &impl Fn(Outgoing) -> bool) -> (bool, bool) {
+        let r: Result<(bool, bool), String> = match m {
+            ClientMsg::View { view } => {
+                self.view = Some(view);
+                Ok((true, false))
+            }
+            ClientMsg::Output { output } => {
+                self.output = output;
+                Ok((true, false))
+            }
+            ClientMsg::Click { x, y } => self.click(x, y),
+            ClientMsg::Select { id } => self
+                .session
+                .select(id)
+                .map(|_| (true, true))
+                .map_err(|e| e.to_string()),
+            ClientMsg::Delete => self.on_selected(Operation::Delete, ActionConfig::default()),
+            ClientMsg::Replicate => self.on_selected(Operation::Replicate, ActionConfig::default()),
+            ClientMsg::Drag {
+                op,
+                axis,
+                amount,
+                dx,
+                dy,
+                phase,
+            } => self.drag(op, &axis, amount, (dx, dy), phase),
+            ClientMsg::Text { text, dry_run } => self.text(&text, dry_run, send),
+            ClientMsg::Actions { actions } => self
+                .session
+                .apply_with(&actions, Steps::One)
+                .map(|edits| {
+                    self.log.push(format!("{} action(s) applied", edits.len()));
+                    (true, true)
+                })
+                .map_err(|e| e.to_string()),
+            ClientMsg::Undo => Ok(if self.session.undo() {
+                self.log.push("undo".into());
+                (true, true)
+            } else {
+                (false, false)
+            }),
+            ClientMsg::Redo => Ok(if self.session.redo() {
+                self.log.push("redo".into());
+                (true, true)
+            } else {
+                (false, false)
+            }),
+            ClientMsg::Save { path, force } => self.save(path.as_deref(), force, send),
+        };
+        r.unwrap_or_else(|message| {
+            self.error(send, message);
+            (false, false)
+        })
+    }
+
+    fn camera(&self) -> Result<Camera, String> {
+        self.view
+            .as_ref()
+            .ok_or_else(|| "no view yet: send a view message first".to_string())?
+            .camera()
+    }
+
+    fn click(&mut self, x: f64, y: f64) -> Result<(bool, bool), String> {
+        let cam = self.camera()?;
+        let id = self.session.pick(&cam, x, y).map_err(|e| e.to_string())?;
+        self.session.select(id).map_err(|e| e.to_string())?;
+        Ok((true, true))
+    }
+
+    fn selected(&self) -> Result<InstanceId, String> {
+        self.session
+            .description()
+            .selected
+            .ok_or_else(|| "no object selected: click one first".to_string())
+    }
+
+    fn on_selected(&mut self, op: Operation, config: ActionConfig) -> Result<(bool, bool), String> {
+        let id = self.selected()?;
+        let action = Action::new(id, op, config);
+        self.session
+            .apply_with(&[action], Steps::One)
+            .map_err(|e| e.to_string())?;
+        if op == Operation::Delete {
+            self.session.select(None).map_err(|e| e.to_string())?;
+        }
+        self.log.push(format!("{} object {id}", op_name(op)));
+        Ok((true, true))
+    }
+
+    /// A drag: each move undoes the previous preview and applies the new amount; commit
+    /// keeps it as one undo step; cancel undoes it.
+    fn drag(
+        &mut self,
+        op: DragOp,
+        axis: &str,
+        amount: f64,
+        (dx, dy): (f64, f64),
+        phase: DragPhase,
+    ) -> Result<(bool, bool), String> {
+        let id = self.selected()?;
+        let applied = self.drag.as_ref().is_some_and(|d| d.applied);
+        if applied {
+            self.session.undo();
+        }
+        self.drag = None;
+        if phase == DragPhase::Cancel {
+            return Ok((true, true));
+        }
+        let config = self.drag_config(op, axis, amount, (dx, dy), id)?;
+        let operation = match op {
+            DragOp::Translate => Operation::Translate,
+            DragOp::Rotate => Operation::Rotate,
+            DragOp::Scale => Operation::Scale,
+        };
+        self.session
+            .apply_with(&[Action::new(id, operation, config)], Steps::One)
+            .map_err(|e| e.to_string())?;
+        if phase == DragPhase::Commit {
+            self.log.push(format!("{} object {id}", op_name(operation)));
+        } else {
+            self.drag = Some(Drag { applied: true });
+        }
+        Ok((true, phase == DragPhase::Commit))
+    }
+
+    fn drag_config(
+        &self,
+        op: DragOp,
+        axis: &str,
+        amount: f64,
+        (dx, dy): (f64, f64),
+        id: InstanceId,
+    ) -> Result<ActionConfig, String> {
+        let mut c = ActionConfig::default();
+        if !(amount.is_finite() && dx.is_finite() && dy.is_finite()) {
+            return Err("drag: expected finite amounts".into());
+        }
+        match (op, axis) {
+            (DragOp::Translate, "view") => {
+                // Pixels → world at the object's depth, in the image plane.
+                let cam = self.camera()?;
+                let node = self
+                    .session
+                    .node(id)
+                    .ok_or_else(|| format!("no node {id}"))?;
+                let centre = node.world_from_local.translation;
+                let depth = (centre - cam.pose.center())
+                    .dot(cam.pose.forward())
+                    .max(1e-3);
+                let m = cam.pose.to_matrix();
+                let right = m.x_axis.truncate();
+                let up = m.y_axis.truncate();
+                let v: DVec3 = (right * dx - up * dy) * depth / cam.intrinsics.fx;
+                c.vector = Some(v.to_array());
+                c.unit = Some("units".into());
+            }
+            (_, "x" | "y" | "z" | "-x" | "-y" | "-z") => {
+                c.axis = Some(AxisSpec::Name(axis.to_string()));
+                match op {
+                    DragOp::Translate => {
+                        c.distance = Some(amount);
+                        c.unit = Some("m".into());
+                    }
+                    DragOp::Rotate => c.degrees = Some(amount),
+                    DragOp::Scale => c.factor = Some(amount),
+                }
+            }
+            (DragOp::Scale, "all") => c.factor = Some(amount),
+            _ => {
+                return Err(format!(
+                    "drag.axis: expected x, y, z, -x, -y, -z (or view for translate, all for scale), got {axis:?}"
+                ));
+            }
+        }
+        Ok(c)
+    }
+
+    fn text(
+        &mut self,
+        text: &str,
+        dry_run: bool,
+        send: &impl Fn(Outgoing) -> bool,
+    ) -> Result<(bool, bool), String> {
+        let cam = self.camera().ok();
+        let resolved = self
+            .session
+            .resolve(text, cam.as_ref())
+            .map_err(|e| e.to_string())?;
+        let actions = resolved
+            .actions
+            .iter()
+            .map(|a| serde_json::to_value(a).unwrap_or(serde_json::Value::Null))
+            .collect();
+        if !dry_run {
+            self.session
+                .install(resolved, Steps::One)
+                .map_err(|e| e.to_string())?;
+            self.log.push(text.to_string());
+        }
+        send(Outgoing::Json(ServerMsg::Resolved {
+            text: text.to_string(),
+            actions,
+            applied: !dry_run,
+        }));
+        Ok((!dry_run, !dry_run))
+    }
+
+    fn save(
+        &mut self,
+        path: Option<&str>,
+        force: bool,
+        send: &impl Fn(Outgoing) -> bool,
+    ) -> Result<(bool, bool), String> {
+        let target = match path {
+            None => self.scene_path.clone(),
+            Some(p) => {
+                let ok = !p.is_empty()
+                    && !p.contains(['/', '\\'])
+                    && !p.starts_with('.')
+                    && p.ends_with(".assist");
+                if !ok {
+                    return Err(format!(
+                        "save.path: expected a NAME.assist beside the scene (no folders), got {p:?}"
+                    ));
+                }
+                self.scene_path.parent().unwrap_or(Path::new(".")).join(p)
+            }
+        };
+        // Saving over the opened scene is what "save" means; anything else needs force.
+        let force = force || target == self.scene_path;
+        self.session
+            .save(&target, force)
+            .map_err(|e| e.to_string())?;
+        self.log.push(format!("saved {}", target.display()));
+        send(Outgoing::Json(ServerMsg::Saved {
+            path: target.display().to_string(),
+        }));
+        Ok((false, true))
+    }
+
+    pub fn state(&self) -> ServerMsg {
+        let d = self.session.description();
+        ServerMsg::State {
+            nodes: d.nodes.iter().map(node_state).collect(),
+            selected: d.selected,
+            undo: self.session.undo_steps(),
+            redo: self.session.redo_steps(),
+            log: self.log.iter().rev().take(50).rev().cloned().collect(),
+        }
+    }
+
+    /// Renders the current view (a preview or the full frame) and sends it.
+    fn frame(&mut self, preview: bool, send: &impl Fn(Outgoing) -> bool) -> bool {
+        let Some(view) = self.view else {
+            return true;
+        };
+        let cam = match view.camera() {
+            Ok(c) => c,
+            Err(e) => {
+                self.error(send, e);
+                return true;
+            }
+        };
+        let size = if preview {
+            Some((
+                (view.width / PREVIEW_DIVISOR).max(1),
+                (view.height / PREVIEW_DIVISOR).max(1),
+            ))
+        } else {
+            None
+        };
+        let t = Instant::now();
+        let req = RenderRequest {
+            size,
+            highlight: true,
+            ..RenderRequest::default()
+        };
+        let frame = match self.session.render(&cam, &req) {
+            Ok(f) => f,
+            Err(e) => {
+                self.error(send, e.to_string());
+                return true;
+            }
+        };
+        let (w, h) = (frame.width, frame.height);
+        let img = match self.output {
+            Output::Rgb => frame.rgb,
+            Output::Depth => depth_image(w, h, &frame.depth).data,
+            Output::Panoptic => ids_image(w, h, &frame.panoptic).data,
+        };
+        let jpeg = encode_jpeg(&img, w, h);
+        self.seq += 1;
+        send(Outgoing::Json(ServerMsg::Frame {
+            seq: self.seq,
+            width: w,
+            height: h,
+            output: self.output,
+            preview,
+            milliseconds: t.elapsed().as_secs_f64() * 1e3,
+        })) && send(Outgoing::Jpeg(jpeg))
+    }
+}
+
+fn op_name(op: Operation) -> &'static str {
+    match op {
+        Operation::Select => "selected",
+        Operation::Translate => "moved",
+        Operation::Rotate => "rotated",
+        Operation::Scale => "scaled",
+        Operation::Replicate => "duplicated",
+        Operation::Delete => "deleted",
+        Operation::Add => "added",
+        Operation::Swap => "swapped",
+    }
+}
+
+pub fn node_state(n: &SceneNode) -> NodeState {
+    NodeState {
+        id: n.id,
+        label: n.label.clone(),
+        background: n.is_background(),
+        corners: n.world_corners().iter().map(|c| c.to_array()).collect(),
+    }
+}
+
+/// RGB floats in [0, 1] → a baseline JPEG.
+pub fn encode_jpeg(rgb: &[f32], w: u32, h: u32) -> Vec<u8> {
+    let bytes: Vec<u8> = rgb
+        .iter()
+        .map(|v| (v.clamp(0.0, 1.0) * 255.0 + 0.5) as u8)
+        .collect();
+    let mut out = Vec::new();
+    let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, JPEG_QUALITY);
+    // Sizes are bounded by the protocol and the buffer matches them, so this cannot fail.
+    let _ = image::ImageEncoder::write_image(enc, &bytes, w, h, image::ExtendedColorType::Rgb8);
+    out
+}

@@ -1,0 +1,289 @@
+//! The viewer's protocol over a real socket: a client connects, gets the scene, renders,
+//! selects, edits, undoes and saves; bad messages get error replies and the session goes
+//! on; a non-loopback viewer refuses clients without its token.
+
+use std::collections::BTreeMap;
+use std::net::{IpAddr, Ipv4Addr};
+use std::sync::Arc;
+use std::time::Duration;
+
+use assist_core::{DVec3, NodeSpace, Scene, SceneNode, Similarity3};
+use assist_field::{Field, OccupancyGrid};
+use assist_scene::{NeuralScene, NodeField};
+use assist_testkit::TempDir;
+use assist_viewer::{ViewerOptions, start};
+use futures_util::{SinkExt, StreamExt};
+use serde_json::{Value, json};
+use tokio_tungstenite::tungstenite::Message;
+
+fn node(id: u16, label: &str, half: f64, at: DVec3) -> SceneNode {
+    SceneNode {
+        id,
+        label: label.into(),
+        embedding: None,
+        field: format!("f{id}"),
+        half_size: DVec3::splat(half),
+        world_from_local: Similarity3::from_translation(at),
+        space: NodeSpace::Box,
+    }
+}
+
+/// A grey background box with a red and a green cube, saved as `scene.assist`.
+fn scene_on_disk(dir: &TempDir) -> std::path::PathBuf {
+    let nodes = vec![
+        node(0, "background", 1.5, DVec3::ZERO),
+        node(1, "red box", 0.08, DVec3::new(-0.15, 0.0, 0.05)),
+        node(2, "green box", 0.08, DVec3::new(0.15, 0.0, 0.05)),
+    ];
+    let fields = [
+        Field::constant(3.0, [0.5, 0.5, 0.5], false, 1),
+        Field::constant(3000.0, [0.9, 0.1, 0.1], false, 2),
+        Field::constant(3000.0, [0.1, 0.8, 0.2], false, 3),
+    ];
+    let mut map = BTreeMap::new();
+    for (n, f) in nodes.iter().zip(fields) {
+        let nf = NodeField::new(f.unwrap(), OccupancyGrid::new(16), n.half_size);
+        map.insert(n.field.clone(), Arc::new(nf));
+    }
+    let scene = NeuralScene {
+        scene: Scene {
+            nodes,
+            up: DVec3::Z,
+            meters_per_unit: 1.0,
+            background_color: [0.0; 3],
+            backdrop: Default::default(),
+            selected: None,
+            near: 0.0,
+        },
+        fields: map,
+    };
+    let path = dir.join("scene.assist");
+    assist_scene::scene_file::save(&path, &scene, json!({}), false).unwrap();
+    path
+}
+
+type Ws =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+/// The next JSON message (binary frames are returned as `{"jpeg": len}`).
+async fn next(ws: &mut Ws) -> Value {
+    loop {
+        let m = tokio::time::timeout(Duration::from_secs(60), ws.next())
+            .await
+            .expect("a message within 60 s")
+            .expect("open")
+            .expect("valid");
+        match m {
+            Message::Text(t) => return serde_json::from_str(&t).unwrap(),
+            Message::Binary(b) => return json!({"jpeg": b.len(), "head": [b[0], b[1]]}),
+            _ => continue,
+        }
+    }
+}
+
+/// Reads until a message of `kind` arrives.
+async fn until(ws: &mut Ws, kind: &str) -> Value {
+    for _ in 0..50 {
+        let m = next(ws).await;
+        if m["type"] == kind {
+            return m;
+        }
+    }
+    panic!("no {kind} message");
+}
+
+/// Reads until a full (not preview) frame and its JPEG arrive.
+async fn full_frame(ws: &mut Ws) -> Value {
+    loop {
+        let m = until(ws, "frame").await;
+        let jpeg = next(ws).await;
+        assert_eq!(
+            jpeg["head"],
+            json!([0xff, 0xd8]),
+            "a JPEG follows the frame"
+        );
+        if m["preview"] == false {
+            return m;
+        }
+    }
+}
+
+async fn send(ws: &mut Ws, v: Value) {
+    ws.send(Message::Text(v.to_string().into())).await.unwrap();
+}
+
+fn view() -> Value {
+    // Looking along +y from y = −0.8, slightly down: both cubes in view.
+    json!({"type": "view", "view": {
+        "world_from_camera": [[1,0,0,0],[0,0,-1,-0.8],[0,1,0,0.05],[0,0,0,1]],
+        "fov_y_degrees": 40, "width": 64, "height": 48}})
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_renders_selects_edits_undoes_and_saves() {
+    let dir = TempDir::new("viewer-protocol");
+    let path = scene_on_disk(&dir);
+    let running = start(ViewerOptions {
+        scene: path.clone(),
+        data: None,
+        host: IpAddr::V4(Ipv4Addr::LOCALHOST),
+        port: 0,
+        token: None,
+    })
+    .await
+    .unwrap();
+    assert!(running.token.is_none());
+    // The page itself is served.
+    let page = tokio::net::TcpStream::connect(running.addr).await.unwrap();
+    drop(page);
+    let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{}/ws", running.addr))
+        .await
+        .unwrap();
+    let hello = next(&mut ws).await;
+    assert_eq!(hello["type"], "hello");
+    assert_eq!(hello["version"], 1);
+    assert!(!hello["cameras"].as_array().unwrap().is_empty());
+    let state = until(&mut ws, "state").await;
+    assert_eq!(state["nodes"].as_array().unwrap().len(), 3);
+
+    send(&mut ws, view()).await;
+    let f = full_frame(&mut ws).await;
+    assert_eq!(
+        (f["width"].as_u64(), f["height"].as_u64()),
+        (Some(64), Some(48))
+    );
+
+    // Bad messages: error replies, and the session goes on.
+    ws.send(Message::Text("{not json".into())).await.unwrap();
+    assert!(
+        until(&mut ws, "error").await["message"]
+            .as_str()
+            .unwrap()
+            .contains("bad message")
+    );
+    send(&mut ws, json!({"type": "fly"})).await;
+    assert!(
+        until(&mut ws, "error").await["message"]
+            .as_str()
+            .unwrap()
+            .contains("unknown variant")
+    );
+    send(&mut ws, json!({"type": "text", "text": "x".repeat(70_000)})).await;
+    assert!(
+        until(&mut ws, "error").await["message"]
+            .as_str()
+            .unwrap()
+            .contains("at most")
+    );
+    send(&mut ws, json!({"type": "save", "path": "../escape.assist"})).await;
+    let e = until(&mut ws, "error").await;
+    assert!(e["message"].as_str().unwrap().contains("save.path"), "{e}");
+    assert!(!dir.join("../escape.assist").exists());
+    send(&mut ws, json!({"type": "delete"})).await;
+    assert!(
+        until(&mut ws, "error").await["message"]
+            .as_str()
+            .unwrap()
+            .contains("no object selected")
+    );
+
+    // Click the red cube (left of centre): selected.
+    send(&mut ws, json!({"type": "click", "x": 20.0, "y": 22.0})).await;
+    let s = until(&mut ws, "state").await;
+    assert_eq!(s["selected"], 1, "{s}");
+    // Delete it, then undo.
+    send(&mut ws, json!({"type": "delete"})).await;
+    let s = until(&mut ws, "state").await;
+    assert!(s["nodes"].as_array().unwrap().iter().all(|n| n["id"] != 1));
+    assert_eq!(s["undo"], 1);
+    send(&mut ws, json!({"type": "undo"})).await;
+    let s = until(&mut ws, "state").await;
+    assert!(s["nodes"].as_array().unwrap().iter().any(|n| n["id"] == 1));
+    // A drag previews, then commits as one undo step.
+    send(&mut ws, json!({"type": "select", "id": 2})).await;
+    until(&mut ws, "state").await;
+    for k in 1..=3 {
+        send(&mut ws, json!({"type": "drag", "op": "translate", "axis": "x", "amount": 0.01 * k as f64, "phase": "move"})).await;
+    }
+    send(
+        &mut ws,
+        json!({"type": "drag", "op": "translate", "axis": "x", "amount": 0.03, "phase": "commit"}),
+    )
+    .await;
+    let s = until(&mut ws, "state").await;
+    let green = s["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["id"] == 2)
+        .unwrap()
+        .clone();
+    let cx: f64 = green["corners"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c[0].as_f64().unwrap())
+        .sum::<f64>()
+        / 8.0;
+    assert!((cx - 0.18).abs() < 1e-9, "moved 3 cm along x: {cx}");
+    assert_eq!(
+        s["undo"], 1,
+        "after delete and undo, the drag is the one undo step: {s}"
+    );
+    // A typed instruction.
+    send(
+        &mut ws,
+        json!({"type": "text", "text": "move the red box 5 cm up"}),
+    )
+    .await;
+    let r = until(&mut ws, "resolved").await;
+    assert_eq!(r["applied"], true);
+    assert_eq!(r["actions"][0]["operation"], "translate");
+    send(
+        &mut ws,
+        json!({"type": "text", "text": "move the purple box up"}),
+    )
+    .await;
+    let e = until(&mut ws, "error").await;
+    assert!(e["message"].as_str().unwrap().contains("purple"), "{e}");
+    // Save beside the scene; it loads again.
+    send(&mut ws, json!({"type": "save", "path": "edited.assist"})).await;
+    let saved = until(&mut ws, "saved").await;
+    assert!(saved["path"].as_str().unwrap().ends_with("edited.assist"));
+    let again = assist_session::Session::open(&dir.join("edited.assist")).unwrap();
+    assert_eq!(again.nodes().len(), 3);
+    send(&mut ws, json!({"type": "save", "path": "edited.assist"})).await;
+    let e = until(&mut ws, "error").await;
+    assert!(
+        e["message"].as_str().unwrap().contains("exists"),
+        "never overwritten without force: {e}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_non_loopback_viewer_needs_its_token() {
+    let dir = TempDir::new("viewer-token");
+    let path = scene_on_disk(&dir);
+    let running = start(ViewerOptions {
+        scene: path,
+        data: None,
+        host: IpAddr::V4(Ipv4Addr::UNSPECIFIED),
+        port: 0,
+        token: None,
+    })
+    .await
+    .unwrap();
+    let token = running.token.clone().expect("a generated token");
+    assert!(token.len() >= 16);
+    assert!(running.url.contains(&token));
+    let port = running.addr.port();
+    for bad in ["", "?token=wrong"] {
+        let r = tokio_tungstenite::connect_async(format!("ws://127.0.0.1:{port}/ws{bad}")).await;
+        assert!(r.is_err(), "refused without the token ({bad:?})");
+    }
+    let (mut ws, _) =
+        tokio_tungstenite::connect_async(format!("ws://127.0.0.1:{port}/ws?token={token}"))
+            .await
+            .unwrap();
+    assert_eq!(next(&mut ws).await["type"], "hello");
+}

@@ -1,0 +1,61 @@
+//! `assist view SCENE.assist`: the interactive viewer in a browser.
+
+use std::net::IpAddr;
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::Args;
+
+#[derive(Args, Debug)]
+pub struct ViewArgs {
+    /// Trained scene directory (NAME.assist).
+    pub scene: PathBuf,
+    /// Dataset whose training cameras the page lists (default: an orbit around the scene).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Port to listen on (0: any free port).
+    #[arg(long, default_value_t = 7007)]
+    pub port: u16,
+    /// Address to listen on. Anything but a loopback address needs a token.
+    #[arg(long, default_value = "127.0.0.1")]
+    pub host: IpAddr,
+    /// Token clients must present (generated and printed when the host is not loopback).
+    #[arg(long)]
+    pub token: Option<String>,
+    /// Print the URL as JSON (`{"url": …, "addr": …}`) once listening.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(a: ViewArgs) -> anyhow::Result<()> {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("starting the server runtime")?;
+    rt.block_on(async move {
+        let running = assist_viewer::start(assist_viewer::ViewerOptions {
+            scene: a.scene.clone(),
+            data: a.data.clone(),
+            host: a.host,
+            port: a.port,
+            token: a.token.clone(),
+        })
+        .await
+        .with_context(|| format!("viewer for {}", a.scene.display()))?;
+        if a.json {
+            println!(
+                "{}",
+                serde_json::json!({"url": running.url, "addr": running.addr.to_string()})
+            );
+        } else {
+            eprintln!("assist view: open {}", running.url);
+            eprintln!(
+                "(Ctrl+C stops the server; edits are saved only with the page's save button)"
+            );
+        }
+        use std::io::Write;
+        let _ = std::io::stdout().flush();
+        running.wait().await.context("viewer server")
+    })
+}
