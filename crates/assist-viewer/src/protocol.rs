@@ -122,6 +122,8 @@ pub struct NodeState {
     pub id: InstanceId,
     pub label: String,
     pub background: bool,
+    /// Its colour in panoptic frames (sRGB bytes).
+    pub color: [u8; 3],
     /// The box's eight corners in world coordinates.
     pub corners: Vec<[f64; 3]>,
 }

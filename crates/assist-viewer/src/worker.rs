@@ -439,6 +439,7 @@ pub fn node_state(n: &SceneNode) -> NodeState {
         id: n.id,
         label: n.label.clone(),
         background: n.is_background(),
+        color: assist_data::visual::id_color(n.id).map(|c| (c.clamp(0.0, 1.0) * 255.0 + 0.5) as u8),
         corners: n.world_corners().iter().map(|c| c.to_array()).collect(),
     }
 }

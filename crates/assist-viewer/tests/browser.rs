@@ -1,0 +1,132 @@
+//! The viewer in a real browser: Debian's chromium, headless, driven by puppeteer-core
+//! (which never downloads a browser) on a scene trained from `assist synth`. The steps and
+//! their checks are in `browser/drive.mjs`; screenshots of each step go to a folder this
+//! test prints.
+//!
+//! Needs `chromium` (or `CHROMIUM=path`), `node`, and `npm ci` run in `tests/browser`.
+//! Without them the test skips loudly; `.ci/run` installs them and sets
+//! `ASSIST_REQUIRE_BROWSER=1`, which turns the skip into a failure.
+
+use std::net::{IpAddr, Ipv4Addr};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use assist_core::Camera;
+use assist_data::synth::{SynthConfig, generate};
+use assist_session::{RenderRequest, Session, TrainConfig, TrainJob};
+use assist_viewer::{ViewerOptions, start};
+
+fn which(name: &str) -> Option<PathBuf> {
+    std::env::var_os("PATH").and_then(|paths| {
+        std::env::split_paths(&paths)
+            .map(|d| d.join(name))
+            .find(|p| p.is_file())
+    })
+}
+
+/// What the browser test needs, or why it cannot run.
+fn tools() -> Result<(PathBuf, PathBuf, PathBuf), String> {
+    let chromium = std::env::var_os("CHROMIUM")
+        .map(PathBuf::from)
+        .or_else(|| which("chromium"))
+        .ok_or("no chromium (apt-get install chromium, or set CHROMIUM)")?;
+    let node = which("node").ok_or("no node in PATH")?;
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/browser");
+    if !dir.join("node_modules/puppeteer-core").is_dir() {
+        return Err(format!(
+            "puppeteer-core is not installed: run npm ci in {}",
+            dir.display()
+        ));
+    }
+    Ok((chromium, node, dir))
+}
+
+#[test]
+fn the_viewer_works_in_a_real_browser() {
+    let (chromium, node, dir) = match tools() {
+        Ok(t) => t,
+        Err(why) => {
+            if std::env::var("ASSIST_REQUIRE_BROWSER").as_deref() == Ok("1") {
+                panic!("browser test required but cannot run: {why}");
+            }
+            eprintln!("SKIPPED the_viewer_works_in_a_real_browser: {why}");
+            return;
+        }
+    };
+    let work = std::env::temp_dir().join(format!("assist-viewer-browser-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&work);
+    std::fs::create_dir_all(&work).unwrap();
+    let data = work.join("synth");
+    let cfg = SynthConfig {
+        seed: 5,
+        views: 24,
+        width: 128,
+        height: 96,
+        objects: 3,
+        spp: 2,
+        shadow_samples: 2,
+    };
+    generate(&cfg, &data, false, &|_, _| {}).unwrap();
+    let scene = work.join("scene.assist");
+    TrainJob::new(TrainConfig {
+        data: data.clone(),
+        out: scene.clone(),
+        iters: 1_000_000,
+        max_time: Some(25.0),
+        ..TrainConfig::default()
+    })
+    .run(|_| {})
+    .unwrap();
+
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    let running = rt
+        .block_on(start(ViewerOptions {
+            scene: scene.clone(),
+            data: Some(data.clone()),
+            host: IpAddr::V4(Ipv4Addr::LOCALHOST),
+            port: 0,
+            token: None,
+        }))
+        .unwrap();
+    // Kept after the run (CI artefacts): under the workspace's target folder.
+    let shots = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../target/viewer-browser-test")
+        .join(format!("screenshots-{}", std::process::id()));
+    eprintln!("browser test screenshots: {}", shots.display());
+    let out = Command::new(node)
+        .arg(dir.join("drive.mjs"))
+        .arg(&running.url)
+        .arg(&shots)
+        .arg(&chromium)
+        .current_dir(&dir)
+        .output()
+        .expect("node runs");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    eprintln!("{stdout}");
+    let report: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap_or(""))
+        .unwrap_or_else(|e| panic!("no report from the browser ({e}); stderr:\n{stderr}"));
+    assert!(
+        out.status.success() && report["ok"] == true,
+        "browser steps failed: {report}\nstderr:\n{stderr}"
+    );
+    // Save-as wrote a scene beside the opened one, and it renders.
+    let saved = PathBuf::from(report["saved"].as_str().unwrap());
+    assert_eq!(saved, work.join("browser-saved.assist"));
+    let s = Session::open(&saved).unwrap();
+    let ds = assist_data::load(&data, &assist_data::LoadOptions::default()).unwrap();
+    let cam: Camera = ds.frames[0].camera;
+    let f = s.render(&cam, &RenderRequest::default()).unwrap();
+    assert_eq!(f.width, 128);
+    // The instruction moved the object up by 3 cm on top of the drag.
+    let id = report["target"]["id"].as_u64().unwrap() as u16;
+    let before = Session::open(&scene).unwrap();
+    let z0 = before.node(id).unwrap().world_from_local.translation.z;
+    let z1 = s.node(id).unwrap().world_from_local.translation.z;
+    assert!((z1 - z0 - 0.03).abs() < 0.02, "moved up: {z0} → {z1}");
+    drop(rt);
+}

@@ -1,0 +1,167 @@
+// Drives the viewer page in headless chromium as a user would: it loads and shows a frame;
+// a click selects an object (its row is highlighted, its pixels change); `-` deletes it
+// (its colour leaves the panoptic frame); Ctrl+Z brings it back; `t` + drag moves it (its
+// mask's centroid moves the way the pointer did); a typed instruction applies; save-as
+// writes a scene. Prints one JSON object of measurements; exits 1 on the first failure.
+// Usage: node drive.mjs URL SHOTS_DIR CHROMIUM
+import puppeteer from "puppeteer-core";
+import { mkdirSync } from "node:fs";
+
+const [url, shots, chromium] = process.argv.slice(2);
+mkdirSync(shots, { recursive: true });
+const out = { steps: [] };
+const browser = await puppeteer.launch({
+  executablePath: chromium,
+  headless: true,
+  args: ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"],
+});
+let step = 0;
+function fail(msg) {
+  out.error = msg;
+  console.log(JSON.stringify(out));
+  process.exit(1);
+}
+try {
+  const page = await browser.newPage();
+  page.on("dialog", (d) => d.accept("browser-saved.assist"));
+  await page.setViewport({ width: 960, height: 480 });
+  await page.goto(url);
+  const shot = async (name) => {
+    step += 1;
+    await page.screenshot({ path: `${shots}/${String(step).padStart(2, "0")}-${name}.png` });
+    out.steps.push(name);
+  };
+  // Waits for a full frame newer than `after` (a frame count).
+  const fullFrame = async (after) => {
+    await page.waitForFunction(
+      (n) => window.__assist.frames > n && window.__assist.frame && !window.__assist.frame.preview,
+      { timeout: 120000 }, after);
+    await new Promise((r) => setTimeout(r, 100));
+  };
+  const frames = () => page.evaluate(() => window.__assist.frames);
+  // Pixels of the frame image, as the page shows it, with the mask of `color`.
+  const analyse = (color) => page.evaluate((color) => {
+    const img = document.getElementById("frame");
+    const c = document.createElement("canvas");
+    c.width = img.naturalWidth; c.height = img.naturalHeight;
+    const g = c.getContext("2d");
+    g.drawImage(img, 0, 0);
+    const d = g.getImageData(0, 0, c.width, c.height).data;
+    let n = 0, sx = 0, sy = 0, sum = 0;
+    for (let y = 0; y < c.height; y++) for (let x = 0; x < c.width; x++) {
+      const k = 4 * (y * c.width + x);
+      sum += d[k] + d[k + 1] + d[k + 2];
+      if (color && Math.abs(d[k] - color[0]) + Math.abs(d[k + 1] - color[1]) + Math.abs(d[k + 2] - color[2]) < 60) {
+        n += 1; sx += x; sy += y;
+      }
+    }
+    const r = img.getBoundingClientRect();
+    return { width: c.width, height: c.height, count: n,
+      centroid: n ? [r.left + (sx / n + 0.5) * r.width / c.width, r.top + (sy / n + 0.5) * r.height / c.height] : null,
+      mean: sum / (3 * c.width * c.height), data: Array.from(d) };
+  }, color);
+  const setOutput = async (o) => {
+    const n = await frames();
+    await page.select("#output", o);
+    await fullFrame(n);
+  };
+
+  // 1. The page loads and shows a frame.
+  await fullFrame(0);
+  const first = await analyse(null);
+  if (!(first.width > 0 && first.mean > 5)) fail(`no visible frame: ${JSON.stringify({ w: first.width, mean: first.mean })}`);
+  await shot("loaded");
+  const state0 = await page.evaluate(() => window.__assist.state);
+  const objects = state0.nodes.filter((n) => !n.background);
+  // The object to work on: the one covering most panoptic pixels.
+  await setOutput("panoptic");
+  let best = null;
+  for (const o of objects) {
+    const a = await analyse(o.color);
+    if (!best || a.count > best.a.count) best = { o, a };
+  }
+  if (!best || best.a.count < 20) fail("no object visible in the panoptic frame");
+  const target = best.o;
+  out.target = { id: target.id, label: target.label, pixels: best.a.count };
+  await shot("panoptic");
+  await setOutput("rgb");
+  const before = await analyse(null);
+
+  // 2. A click on its pixels selects it: its row is highlighted and its pixels change.
+  let n = await frames();
+  await page.mouse.click(best.a.centroid[0], best.a.centroid[1]);
+  await page.waitForFunction((id) => window.__assist.state.selected === id, { timeout: 60000 }, target.id);
+  await fullFrame(n);
+  const row = await page.$eval(`.node[data-id="${target.id}"]`, (e) => e.classList.contains("selected"));
+  if (!row) fail("the selected row is not highlighted");
+  const after = await analyse(null);
+  let changed = 0;
+  for (let k = 0; k < after.data.length; k += 4) {
+    if (Math.abs(after.data[k] - before.data[k]) + Math.abs(after.data[k + 1] - before.data[k + 1]) + Math.abs(after.data[k + 2] - before.data[k + 2]) > 60) changed += 1;
+  }
+  out.highlighted_pixels = changed;
+  if (changed < 0.3 * best.a.count) fail(`the selection changed only ${changed} pixels`);
+  await shot("selected");
+
+  // 3. `-` deletes it: gone from the state and from the panoptic frame.
+  await setOutput("panoptic");
+  n = await frames();
+  await page.keyboard.press("-");
+  await page.waitForFunction((id) => !window.__assist.state.nodes.some((x) => x.id === id), { timeout: 60000 }, target.id);
+  await fullFrame(n);
+  const gone = await analyse(target.color);
+  out.pixels_after_delete = gone.count;
+  if (gone.count > 0.05 * best.a.count) fail(`after delete ${gone.count} pixels still have its colour`);
+  await shot("deleted");
+
+  // 4. Ctrl+Z brings it back.
+  n = await frames();
+  await page.keyboard.down("Control"); await page.keyboard.press("z"); await page.keyboard.up("Control");
+  await page.waitForFunction((id) => window.__assist.state.nodes.some((x) => x.id === id), { timeout: 60000 }, target.id);
+  await fullFrame(n);
+  const back = await analyse(target.color);
+  out.pixels_after_undo = back.count;
+  if (back.count < 0.8 * best.a.count) fail(`after undo only ${back.count} of ${best.a.count} pixels are back`);
+  await shot("undone");
+
+  // 5. Select it again, `t` + drag right: its mask's centroid moves right.
+  n = await frames();
+  await page.mouse.click(back.centroid[0], back.centroid[1]);
+  await page.waitForFunction((id) => window.__assist.state.selected === id, { timeout: 60000 }, target.id);
+  await fullFrame(n);
+  await page.keyboard.press("t");
+  const [x0, y0] = back.centroid;
+  await page.mouse.move(x0, y0);
+  await page.mouse.down();
+  for (let k = 1; k <= 8; k++) await page.mouse.move(x0 + 10 * k, y0, { steps: 1 });
+  await page.mouse.up();
+  n = await frames();
+  await page.keyboard.press("Enter");
+  await page.waitForFunction(() => window.__assist.state.log.some((l) => l.startsWith("moved")), { timeout: 60000 });
+  await fullFrame(n);
+  const moved = await analyse(target.color);
+  out.centroid_before = back.centroid; out.centroid_after = moved.centroid;
+  if (!moved.centroid || moved.centroid[0] - back.centroid[0] < 20) fail(`the drag moved the mask by ${moved.centroid && moved.centroid[0] - back.centroid[0]} px, expected about 80 to the right`);
+  await shot("dragged");
+
+  // 6. A typed instruction applies.
+  await setOutput("rgb");
+  await page.click("#text");
+  await page.keyboard.type(`move the ${target.label} 3 cm up`);
+  await page.keyboard.press("Enter");
+  await page.waitForFunction(() => window.__assist.resolved && window.__assist.resolved.applied, { timeout: 60000 });
+  out.resolved = await page.evaluate(() => window.__assist.resolved.actions);
+  await shot("instruction");
+
+  // 7. Save as (the prompt answers browser-saved.assist).
+  await page.click("#saveas");
+  await page.waitForFunction(() => window.__assist.saved, { timeout: 60000 });
+  out.saved = await page.evaluate(() => window.__assist.saved);
+  await shot("saved");
+  out.ok = true;
+  console.log(JSON.stringify(out));
+} catch (e) {
+  fail(String(e && e.stack || e));
+} finally {
+  await browser.close();
+}
