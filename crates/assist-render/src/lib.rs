@@ -13,15 +13,17 @@
 
 mod batch;
 mod composite;
+mod drag;
 mod prune;
 mod render;
 mod sample;
 
 pub use batch::{BatchOutput, Behind, CompositeGrad, GradFn, RayOutputs, composite_batch};
 pub use composite::{Composite, RaySample, composite, composite_backward};
+pub use drag::{DragCache, render_camera_moving};
 pub use prune::{PRUNE_EPS, PRUNE_MIN_PER_RAY, PruneScratch, PruneStats, prune_occluded};
 pub use render::{
     HIGHLIGHT, NodeLayer, Query, RenderOptions, RenderScratch, RenderedImage, query_fields,
-    render_camera, render_rays,
+    query_node, render_camera, render_rays,
 };
-pub use sample::{NodeSamples, RayBatch, SampleOptions, Traced, sample_rays};
+pub use sample::{NodeSamples, RayBatch, SampleOptions, Traced, sample_rays, sample_rays_node};

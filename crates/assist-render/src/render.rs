@@ -6,7 +6,7 @@ use assist_core::{Camera, InstanceId};
 use assist_field::{Precision, Tape};
 
 use crate::batch::{BatchOutput, composite_batch};
-use crate::sample::{RayBatch, SampleOptions, Traced, sample_rays};
+use crate::sample::{NodeSamples, RayBatch, SampleOptions, Traced, sample_rays};
 use assist_scene::NeuralScene;
 
 #[derive(Debug, Clone)]
@@ -64,6 +64,64 @@ pub struct RenderedImage {
     pub layers: Vec<NodeLayer>,
 }
 
+impl RenderedImage {
+    /// An image of `camera`'s size with every output zero (layers for each node when asked).
+    pub fn empty(scene: &NeuralScene, camera: &Camera, layers: bool) -> Self {
+        let (w, h) = (camera.width(), camera.height());
+        let n = (w * h) as usize;
+        RenderedImage {
+            width: w,
+            height: h,
+            rgb: vec![0.0; 3 * n],
+            depth: vec![0.0; n],
+            opacity: vec![0.0; n],
+            panoptic: vec![0; n],
+            layers: if layers {
+                scene
+                    .scene
+                    .nodes
+                    .iter()
+                    .map(|nd| NodeLayer {
+                        id: nd.id,
+                        rgb: vec![0.0; 3 * n],
+                        opacity: vec![0.0; n],
+                    })
+                    .collect()
+            } else {
+                Vec::new()
+            },
+        }
+    }
+
+    /// Writes a batch's composited rays into pixels `pixels` (`cos`: each ray's cosine to
+    /// the camera axis, turning distance into z-depth).
+    pub fn write_batch(
+        &mut self,
+        scene: &NeuralScene,
+        out: &BatchOutput,
+        pixels: &[usize],
+        cos: &[f32],
+    ) {
+        let nn = scene.scene.nodes.len();
+        for (r, &q) in pixels.iter().enumerate() {
+            let c = out.rays[r];
+            self.rgb[3 * q..3 * q + 3].copy_from_slice(&c.rgb);
+            self.opacity[q] = c.opacity;
+            self.depth[q] = if c.opacity > 1e-3 {
+                c.depth / c.opacity * cos[r]
+            } else {
+                0.0
+            };
+            self.panoptic[q] = out.winner(r).map(|k| scene.scene.nodes[k].id).unwrap_or(0);
+            for (k, layer) in self.layers.iter_mut().enumerate() {
+                let a = out.nodes[r * nn + k];
+                layer.rgb[3 * q..3 * q + 3].copy_from_slice(&a.rgb);
+                layer.opacity[q] = a.opacity;
+            }
+        }
+    }
+}
+
 /// How fields are queried.
 #[derive(Debug, Clone, Copy)]
 pub enum Query {
@@ -82,38 +140,43 @@ pub enum Query {
 pub fn query_fields(scene: &NeuralScene, traced: &mut Traced, tapes: &mut Vec<Tape>, q: Query) {
     tapes.resize_with(traced.nodes.len(), Tape::default);
     for (ns, tape) in traced.nodes.iter_mut().zip(tapes.iter_mut()) {
-        ns.prepare_outputs(matches!(q, Query::Train));
-        if ns.is_empty() {
-            continue;
-        }
-        let nf = scene.field_of(ns.node);
-        // The outputs are moved out while the samples are borrowed.
-        let mut sigma = std::mem::take(&mut ns.sigma);
-        let mut rgb = std::mem::take(&mut ns.rgb);
-        match q {
-            Query::Train => nf
-                .field
-                .forward_train(&ns.samples(), tape, &mut sigma, &mut rgb),
-            Query::Render {
-                precision,
-                highlight,
-            } => {
-                nf.field
-                    .forward_at(precision, &ns.samples(), tape, &mut sigma, &mut rgb);
-                if let Some((id, add)) = highlight
-                    && scene.scene.nodes[ns.node].id == id
-                {
-                    for px in rgb.chunks_exact_mut(3) {
-                        for c in 0..3 {
-                            px[c] = (px[c] + add[c]).min(1.0);
-                        }
+        query_node(scene, ns, tape, q);
+    }
+}
+
+/// Queries one node's samples (see [`query_fields`]).
+pub fn query_node(scene: &NeuralScene, ns: &mut NodeSamples, tape: &mut Tape, q: Query) {
+    ns.prepare_outputs(matches!(q, Query::Train));
+    if ns.is_empty() {
+        return;
+    }
+    let nf = scene.field_of(ns.node);
+    // The outputs are moved out while the samples are borrowed.
+    let mut sigma = std::mem::take(&mut ns.sigma);
+    let mut rgb = std::mem::take(&mut ns.rgb);
+    match q {
+        Query::Train => nf
+            .field
+            .forward_train(&ns.samples(), tape, &mut sigma, &mut rgb),
+        Query::Render {
+            precision,
+            highlight,
+        } => {
+            nf.field
+                .forward_at(precision, &ns.samples(), tape, &mut sigma, &mut rgb);
+            if let Some((id, add)) = highlight
+                && scene.scene.nodes[ns.node].id == id
+            {
+                for px in rgb.chunks_exact_mut(3) {
+                    for c in 0..3 {
+                        px[c] = (px[c] + add[c]).min(1.0);
                     }
                 }
             }
         }
-        ns.sigma = sigma;
-        ns.rgb = rgb;
     }
+    ns.sigma = sigma;
+    ns.rgb = rgb;
 }
 
 /// Reusable buffers for rendering.
@@ -157,72 +220,49 @@ pub fn render_camera(
     image: u32,
     opts: &RenderOptions,
 ) -> RenderedImage {
-    let (w, h) = (camera.width(), camera.height());
-    let n = (w * h) as usize;
-    let nn = scene.scene.nodes.len();
-    let mut img = RenderedImage {
-        width: w,
-        height: h,
-        rgb: vec![0.0; 3 * n],
-        depth: vec![0.0; n],
-        opacity: vec![0.0; n],
-        panoptic: vec![0; n],
-        layers: if opts.layers {
-            scene
-                .scene
-                .nodes
-                .iter()
-                .map(|nd| NodeLayer {
-                    id: nd.id,
-                    rgb: vec![0.0; 3 * n],
-                    opacity: vec![0.0; n],
-                })
-                .collect()
-        } else {
-            Vec::new()
-        },
-    };
-    let forward = camera.pose.forward();
+    let mut img = RenderedImage::empty(scene, camera, opts.layers);
     let mut sc = RenderScratch::default();
     sc.rays.near = scene.scene.near as f32;
-    let mut cos = Vec::new();
-    let mut pixels = Vec::new();
+    let (mut pixels, mut cos) = (Vec::new(), Vec::new());
     let mut p = 0usize;
-    while p < n {
-        let end = (p + opts.rays_per_batch.max(1)).min(n);
-        sc.rays.clear();
-        cos.clear();
-        pixels.clear();
-        for q in p..end {
-            let (i, j) = ((q as u32) % w, (q as u32) / w);
-            if let Some(ray) = camera.pixel_ray(i, j) {
-                cos.push(ray.dir.dot(forward) as f32);
-                sc.rays.push(&ray, image);
-                pixels.push(q);
-            }
-        }
+    while let Some(end) = camera_batch(camera, image, p, opts, &mut sc.rays, &mut pixels, &mut cos)
+    {
         render_rays(scene, opts, &mut sc);
-        for (r, &q) in pixels.iter().enumerate() {
-            let c = sc.out.rays[r];
-            img.rgb[3 * q..3 * q + 3].copy_from_slice(&c.rgb);
-            img.opacity[q] = c.opacity;
-            img.depth[q] = if c.opacity > 1e-3 {
-                c.depth / c.opacity * cos[r]
-            } else {
-                0.0
-            };
-            img.panoptic[q] = sc
-                .out
-                .winner(r)
-                .map(|k| scene.scene.nodes[k].id)
-                .unwrap_or(0);
-            for (k, layer) in img.layers.iter_mut().enumerate() {
-                let a = sc.out.nodes[r * nn + k];
-                layer.rgb[3 * q..3 * q + 3].copy_from_slice(&a.rgb);
-                layer.opacity[q] = a.opacity;
-            }
-        }
+        img.write_batch(scene, &sc.out, &pixels, &cos);
         p = end;
     }
     img
+}
+
+/// Fills `rays` with the camera rays of pixels `p..` (at most `opts.rays_per_batch`),
+/// recording each ray's pixel and its cosine to the camera axis; returns the next pixel,
+/// or `None` when every pixel is done.
+pub(crate) fn camera_batch(
+    camera: &Camera,
+    image: u32,
+    p: usize,
+    opts: &RenderOptions,
+    rays: &mut RayBatch,
+    pixels: &mut Vec<usize>,
+    cos: &mut Vec<f32>,
+) -> Option<usize> {
+    let w = camera.width();
+    let n = (w * camera.height()) as usize;
+    if p >= n {
+        return None;
+    }
+    let forward = camera.pose.forward();
+    let end = (p + opts.rays_per_batch.max(1)).min(n);
+    rays.clear();
+    cos.clear();
+    pixels.clear();
+    for q in p..end {
+        let (i, j) = ((q as u32) % w, (q as u32) / w);
+        if let Some(ray) = camera.pixel_ray(i, j) {
+            cos.push(ray.dir.dot(forward) as f32);
+            rays.push(&ray, image);
+            pixels.push(q);
+        }
+    }
+    Some(end)
 }

@@ -158,25 +158,36 @@ pub fn sample_rays(scene: &NeuralScene, rays: &RayBatch, opts: &SampleOptions, o
     out.rays = rays.len();
     out.nodes.resize_with(n_nodes, NodeSamples::default);
     for (k, ns) in out.nodes.iter_mut().enumerate() {
-        ns.node = k;
-        ns.clear();
-        let blocks: Vec<NodeSamples> = (0..rays.len().div_ceil(BLOCK))
-            .into_par_iter()
-            .map(|b| {
-                let mut local = NodeSamples::default();
-                let mut steps = Vec::new();
-                for r in b * BLOCK..((b + 1) * BLOCK).min(rays.len()) {
-                    local.start.push(local.t.len() as u32);
-                    sample_node(scene, k, rays, r, opts, &mut steps, &mut local);
-                }
-                local
-            })
-            .collect();
-        for blk in &blocks {
-            ns.append(blk);
-        }
-        ns.start.push(ns.t.len() as u32);
+        sample_rays_node(scene, k, rays, opts, ns);
     }
+}
+
+/// Samples node `k` of `scene` along every ray of `rays` into `ns` (its buffers reused).
+pub fn sample_rays_node(
+    scene: &NeuralScene,
+    k: usize,
+    rays: &RayBatch,
+    opts: &SampleOptions,
+    ns: &mut NodeSamples,
+) {
+    ns.node = k;
+    ns.clear();
+    let blocks: Vec<NodeSamples> = (0..rays.len().div_ceil(BLOCK))
+        .into_par_iter()
+        .map(|b| {
+            let mut local = NodeSamples::default();
+            let mut steps = Vec::new();
+            for r in b * BLOCK..((b + 1) * BLOCK).min(rays.len()) {
+                local.start.push(local.t.len() as u32);
+                sample_node(scene, k, rays, r, opts, &mut steps, &mut local);
+            }
+            local
+        })
+        .collect();
+    for blk in &blocks {
+        ns.append(blk);
+    }
+    ns.start.push(ns.t.len() as u32);
 }
 
 fn sample_node(

@@ -17,11 +17,14 @@ mod train_job;
 use std::path::Path;
 
 use assist_core::{Action, Camera, Edit, InstanceId, Scene, SceneNode};
-use assist_render::{HIGHLIGHT, RenderOptions, RenderScratch, render_camera, render_rays};
+use assist_render::{
+    HIGHLIGHT, RenderOptions, RenderScratch, render_camera, render_camera_moving, render_rays,
+};
 use assist_scene::{EditError, Editor, NeuralScene, SceneFileError};
 
 pub use assist_data::Output;
 pub use assist_lang::Resolved;
+pub use assist_render::DragCache;
 pub use assist_render::RenderedImage as Frame;
 pub use cameras::{CameraSource, NamedCamera, Orbit, SplitChoice, dataset_cameras, orbit};
 pub use render_job::{DatasetOutput, Highlight, RenderJob, RenderSummary, ViewDone};
@@ -254,6 +257,27 @@ impl Session {
             &camera,
             req.image.unwrap_or(u32::MAX),
             &self.options(req),
+        ))
+    }
+
+    /// Renders like [`Session::render`], keeping in `cache` what does not change while node
+    /// `moving` alone is edited under the same camera (a drag): then only that node is
+    /// sampled and queried again. The image is the same as `render`'s.
+    pub fn render_moving(
+        &self,
+        camera: &Camera,
+        req: &RenderRequest,
+        moving: InstanceId,
+        cache: &mut DragCache,
+    ) -> Result<Frame> {
+        let camera = Self::sized(camera, req.size)?;
+        Ok(render_camera_moving(
+            &self.editor.scene,
+            &camera,
+            req.image.unwrap_or(u32::MAX),
+            &self.options(req),
+            moving,
+            cache,
         ))
     }
 

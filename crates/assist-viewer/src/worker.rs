@@ -12,7 +12,7 @@ use assist_core::{
     Action, ActionConfig, AxisSpec, Camera, DVec3, InstanceId, Operation, SceneNode,
 };
 use assist_data::visual::{depth_image, ids_image};
-use assist_session::{RenderRequest, Session, Steps};
+use assist_session::{DragCache, RenderRequest, Session, Steps};
 
 use crate::protocol::{ClientMsg, DragOp, DragPhase, NodeState, Output, ServerMsg, View};
 
@@ -43,6 +43,8 @@ pub struct Worker {
     output: Output,
     seq: u64,
     drag: Option<Drag>,
+    /// What a drag's frames keep between updates (the camera and the other nodes stay).
+    cache: DragCache,
     log: Vec<String>,
 }
 
@@ -55,6 +57,7 @@ impl Worker {
             output: Output::Rgb,
             seq: 0,
             drag: None,
+            cache: DragCache::default(),
             log: Vec::new(),
         }
     }
@@ -93,6 +96,14 @@ impl Worker {
             if !dirty {
                 continue;
             }
+            // While a node is dragged, full frames come from the drag cache at once.
+            if self.drag.is_some() {
+                if !self.frame(false, &send) {
+                    return;
+                }
+                continue;
+            }
+            self.cache.clear();
             if !self.frame(true, &send) {
                 return;
             }
@@ -395,7 +406,14 @@ impl Worker {
             highlight: true,
             ..RenderRequest::default()
         };
-        let frame = match self.session.render(&cam, &req) {
+        let selected = self.session.description().selected;
+        let rendered = match (&self.drag, selected) {
+            (Some(_), Some(id)) if !preview => {
+                self.session.render_moving(&cam, &req, id, &mut self.cache)
+            }
+            _ => self.session.render(&cam, &req),
+        };
+        let frame = match rendered {
             Ok(f) => f,
             Err(e) => {
                 self.error(send, e.to_string());

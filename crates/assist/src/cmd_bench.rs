@@ -16,6 +16,9 @@ pub enum BenchCommand {
     /// Background priors: each built-in fill (push-pull, exemplar) against a dataset's
     /// `background/` ground truth under the objects, and its time per view.
     Prior(PriorBenchArgs),
+    /// The viewer's latency on a trained scene: preview frame, full frame, drag update
+    /// (with the drag cache), and preview frames/s with 1, 2 and 4 clients.
+    View(crate::cmd_bench_view::ViewBenchArgs),
 }
 
 #[derive(Args, Debug)]
@@ -50,6 +53,7 @@ pub fn run(c: BenchCommand) -> anyhow::Result<()> {
     match c {
         BenchCommand::Field(a) => field(a),
         BenchCommand::Prior(a) => prior(a),
+        BenchCommand::View(a) => crate::cmd_bench_view::run(a),
     }
 }
 

@@ -11,6 +11,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod cmd_bench;
+mod cmd_bench_view;
 mod cmd_dataset;
 mod cmd_demo;
 mod cmd_edit;

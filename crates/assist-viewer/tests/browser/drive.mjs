@@ -135,10 +135,11 @@ try {
   await page.mouse.down();
   for (let k = 1; k <= 8; k++) await page.mouse.move(x0 + 10 * k, y0, { steps: 1 });
   await page.mouse.up();
-  n = await frames();
   await page.keyboard.press("Enter");
   await page.waitForFunction(() => window.__assist.state.log.some((l) => l.startsWith("moved")), { timeout: 60000 });
-  await fullFrame(n);
+  // The frame rendered after the committed state (drag previews may still be arriving).
+  await page.waitForFunction(() => window.__assist.frame && window.__assist.frame.seq > window.__assist.stateSeq && !window.__assist.frame.preview, { timeout: 120000 });
+  await new Promise((r) => setTimeout(r, 100));
   const moved = await analyse(target.color);
   out.centroid_before = back.centroid; out.centroid_after = moved.centroid;
   if (!moved.centroid || moved.centroid[0] - back.centroid[0] < 20) fail(`the drag moved the mask by ${moved.centroid && moved.centroid[0] - back.centroid[0]} px, expected about 80 to the right`);
