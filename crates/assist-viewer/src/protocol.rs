@@ -35,6 +35,10 @@ pub enum Output {
     Rgb,
     Depth,
     Panoptic,
+    /// The selected node alone (its own colour over black).
+    Selected,
+    /// The background node alone.
+    Background,
 }
 
 /// A drag's operation, in the paper's keys: `t`, `r`, `x`.
@@ -107,6 +111,9 @@ pub enum ClientMsg {
     Output {
         output: Output,
     },
+    /// Write the current view at full size (RGB, depth, instance ids) as a one-view
+    /// dataset in a new folder beside the scene.
+    SaveView,
     /// Save to the scene's own path or to `path` (a name beside it); `force` to replace.
     Save {
         #[serde(default)]

@@ -12,6 +12,7 @@ use assist_core::{
     Action, ActionConfig, AxisSpec, Camera, DVec3, InstanceId, Operation, SceneNode,
 };
 use assist_data::visual::{depth_image, ids_image};
+use assist_data::{DatasetWriter, Instance, Output as WriterOutput, ViewImages, WriterConfig};
 use assist_session::{DragCache, RenderRequest, Session, Steps};
 
 use crate::protocol::{ClientMsg, DragOp, DragPhase, NodeState, Output, ServerMsg, View};
@@ -177,6 +178,7 @@ impl Worker {
                 (false, false)
             }),
             ClientMsg::Save { path, force } => self.save(path.as_deref(), force, send),
+            ClientMsg::SaveView => self.save_view(send),
         };
         r.unwrap_or_else(|message| {
             self.error(send, message);
@@ -369,6 +371,63 @@ impl Worker {
         Ok((false, true))
     }
 
+    /// Writes the current view through the dataset writer into `NAME-view-K/` beside the
+    /// scene (the first K not taken).
+    fn save_view(&mut self, send: &impl Fn(Outgoing) -> bool) -> Result<(bool, bool), String> {
+        let cam = self.camera()?;
+        let frame = self
+            .session
+            .render(&cam, &RenderRequest::default())
+            .map_err(|e| e.to_string())?;
+        let parent = self.scene_path.parent().unwrap_or(Path::new("."));
+        let stem = self
+            .scene_path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "scene".into());
+        let dir = (1..10_000)
+            .map(|k| parent.join(format!("{stem}-view-{k}")))
+            .find(|d| !d.exists())
+            .ok_or("save view: no free folder name")?;
+        let d = self.session.description();
+        let cfg = WriterConfig {
+            outputs: vec![
+                WriterOutput::Rgb,
+                WriterOutput::Depth,
+                WriterOutput::Panoptic,
+            ],
+            meters_per_unit: d.meters_per_unit,
+            world_up: d.up.to_array(),
+            instances: d
+                .nodes
+                .iter()
+                .filter(|n| !n.is_background())
+                .map(|n| Instance {
+                    id: n.id,
+                    label: n.label.clone(),
+                    bbox: None,
+                })
+                .collect(),
+            ..WriterConfig::default()
+        };
+        let w = DatasetWriter::create(&dir, cfg, false).map_err(|e| e.to_string())?;
+        let view = ViewImages {
+            width: frame.width,
+            height: frame.height,
+            rgb: &frame.rgb,
+            depth: &frame.depth,
+            panoptic: &frame.panoptic,
+            ..Default::default()
+        };
+        w.write(0, "view", &cam, &view).map_err(|e| e.to_string())?;
+        w.finish().map_err(|e| e.to_string())?;
+        self.log.push(format!("view saved in {}", dir.display()));
+        send(Outgoing::Json(ServerMsg::Saved {
+            path: dir.display().to_string(),
+        }));
+        Ok((false, true))
+    }
+
     pub fn state(&self) -> ServerMsg {
         let d = self.session.description();
         ServerMsg::State {
@@ -401,9 +460,20 @@ impl Worker {
             None
         };
         let t = Instant::now();
+        let alone = match self.output {
+            Output::Selected => self.session.description().selected,
+            Output::Background => self
+                .session
+                .nodes()
+                .iter()
+                .find(|n| n.is_background())
+                .map(|n| n.id),
+            _ => None,
+        };
         let req = RenderRequest {
             size,
-            highlight: true,
+            highlight: alone.is_none(),
+            layers: alone.is_some(),
             ..RenderRequest::default()
         };
         let selected = self.session.description().selected;
@@ -425,6 +495,12 @@ impl Worker {
             Output::Rgb => frame.rgb,
             Output::Depth => depth_image(w, h, &frame.depth).data,
             Output::Panoptic => ids_image(w, h, &frame.panoptic).data,
+            Output::Selected | Output::Background => {
+                match frame.layers.iter().find(|l| Some(l.id) == alone) {
+                    Some(l) => l.rgb.clone(),
+                    None => vec![0.0; 3 * (w * h) as usize],
+                }
+            }
         };
         let jpeg = encode_jpeg(&img, w, h);
         self.seq += 1;

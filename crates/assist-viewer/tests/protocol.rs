@@ -246,6 +246,19 @@ async fn a_client_renders_selects_edits_undoes_and_saves() {
     .await;
     let e = until(&mut ws, "error").await;
     assert!(e["message"].as_str().unwrap().contains("purple"), "{e}");
+    // The background alone, then the view saved as a labelled one-view dataset.
+    send(&mut ws, json!({"type": "output", "output": "background"})).await;
+    let f = full_frame(&mut ws).await;
+    assert_eq!(f["output"], "background");
+    send(&mut ws, json!({"type": "output", "output": "rgb"})).await;
+    full_frame(&mut ws).await;
+    send(&mut ws, json!({"type": "save_view"})).await;
+    let saved = until(&mut ws, "saved").await;
+    let view_dir = std::path::PathBuf::from(saved["path"].as_str().unwrap());
+    assert_eq!(view_dir, dir.join("scene-view-1"));
+    let ds = assist_data::load(&view_dir, &assist_data::LoadOptions::default()).unwrap();
+    assert_eq!(ds.frames.len(), 1);
+    assert!(view_dir.join("panoptic/view.png").is_file());
     // Save beside the scene; it loads again.
     send(&mut ws, json!({"type": "save", "path": "edited.assist"})).await;
     let saved = until(&mut ws, "saved").await;
