@@ -1,7 +1,9 @@
 //! Re-rendering one camera while one node moves (a viewer's drag): the other nodes'
-//! samples and field outputs along every ray do not change, so they are kept; each update
-//! re-samples and re-queries the moving node alone and composites again. The result is
-//! the same image [`render_camera`] gives (tested bit for bit).
+//! samples and field outputs along every ray do not change, so they are kept, and so is
+//! the last image. Each update samples the moving node again, and only the rays that cross
+//! its box before or after the move are queried and composited again; every other pixel
+//! keeps its value. The result is the same image [`render_camera`] gives (tested bit for
+//! bit).
 
 use std::sync::Arc;
 
@@ -13,7 +15,7 @@ use crate::batch::{BatchOutput, Behind, composite_batch};
 use crate::render::{
     Query, RenderOptions, RenderedImage, camera_batch, query_fields, query_node, render_camera,
 };
-use crate::sample::{RayBatch, SampleOptions, Traced, sample_rays, sample_rays_node};
+use crate::sample::{NodeSamples, RayBatch, SampleOptions, Traced, sample_rays, sample_rays_node};
 
 /// What a cached frame depends on besides the moving node's pose.
 #[derive(Debug, Clone, PartialEq)]
@@ -46,8 +48,17 @@ struct Batch {
 pub struct DragCache {
     key: Option<Key>,
     batches: Vec<Batch>,
+    /// The last image rendered with this cache.
+    image: Option<RenderedImage>,
     tape: Tape,
     out: BatchOutput,
+    /// Work buffers of an update: the moving node's new samples, the affected rays and
+    /// their samples.
+    fresh: NodeSamples,
+    affected: Vec<usize>,
+    sub: Traced,
+    pixels: Vec<usize>,
+    cos: Vec<f32>,
 }
 
 impl DragCache {
@@ -61,6 +72,7 @@ impl DragCache {
     pub fn clear(&mut self) {
         self.key = None;
         self.batches.clear();
+        self.image = None;
     }
 }
 
@@ -128,17 +140,47 @@ pub fn render_camera_moving(
     };
     let behind = Behind::of(&scene.scene);
     let key = key(scene, camera, image, opts, k);
-    let mut img = RenderedImage::empty(scene, camera, opts.layers);
-    if cache.key.as_ref() == Some(&key) {
-        for b in cache.batches.iter_mut() {
-            sample_rays_node(scene, k, &b.rays, &so, &mut b.traced.nodes[k]);
-            query_node(scene, &mut b.traced.nodes[k], &mut cache.tape, q);
-            composite_batch(&mut b.traced, behind, &mut cache.out, None);
-            img.write_batch(scene, &cache.out, &b.pixels, &b.cos);
+    if cache.key.as_ref() == Some(&key)
+        && let Some(mut img) = cache.image.take()
+    {
+        let c = &mut *cache;
+        for b in c.batches.iter_mut() {
+            sample_rays_node(scene, k, &b.rays, &so, &mut c.fresh);
+            let old = &b.traced.nodes[k];
+            c.affected.clear();
+            c.affected.extend(
+                (0..b.rays.len())
+                    .filter(|&r| !old.range(r).is_empty() || !c.fresh.range(r).is_empty()),
+            );
+            if !c.affected.is_empty() {
+                c.sub.rays = c.affected.len();
+                c.sub
+                    .nodes
+                    .resize_with(b.traced.nodes.len(), NodeSamples::default);
+                for (j, ns) in b.traced.nodes.iter().enumerate() {
+                    if j == k {
+                        c.fresh.gather_rays(&c.affected, false, &mut c.sub.nodes[j]);
+                        query_node(scene, &mut c.sub.nodes[j], &mut c.tape, q);
+                    } else {
+                        ns.gather_rays(&c.affected, true, &mut c.sub.nodes[j]);
+                    }
+                }
+                composite_batch(&mut c.sub, behind, &mut c.out, None);
+                c.pixels.clear();
+                c.cos.clear();
+                for &r in &c.affected {
+                    c.pixels.push(b.pixels[r]);
+                    c.cos.push(b.cos[r]);
+                }
+                img.write_batch(scene, &c.out, &c.pixels, &c.cos);
+            }
+            std::mem::swap(&mut b.traced.nodes[k], &mut c.fresh);
         }
+        cache.image = Some(img.clone());
         return img;
     }
     cache.clear();
+    let mut img = RenderedImage::empty(scene, camera, opts.layers);
     let mut tapes = Vec::new();
     let mut p = 0usize;
     loop {
@@ -170,5 +212,6 @@ pub fn render_camera_moving(
         p = end;
     }
     cache.key = Some(key);
+    cache.image = Some(img.clone());
     img
 }

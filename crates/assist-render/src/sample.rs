@@ -123,6 +123,31 @@ impl NodeSamples {
         // `o.start` holds the block-local start of each of its rays (no trailing end).
         self.start.extend(o.start.iter().map(|s| s + base));
     }
+    /// The samples of rays `rays` (in that order) as a batch of `rays.len()` rays, with
+    /// their field outputs when `with_outputs`.
+    pub(crate) fn gather_rays(&self, rays: &[usize], with_outputs: bool, out: &mut NodeSamples) {
+        out.node = self.node;
+        out.clear();
+        out.sigma.clear();
+        out.rgb.clear();
+        for &r in rays {
+            out.start.push(out.t.len() as u32);
+            let g = self.range(r);
+            for a in 0..3 {
+                out.pos[a].extend_from_slice(&self.pos[a][g.clone()]);
+                out.dir[a].extend_from_slice(&self.dir[a][g.clone()]);
+            }
+            out.image.extend_from_slice(&self.image[g.clone()]);
+            out.t.extend_from_slice(&self.t[g.clone()]);
+            out.dt.extend_from_slice(&self.dt[g.clone()]);
+            if with_outputs {
+                out.sigma.extend_from_slice(&self.sigma[g.clone()]);
+                out.rgb.extend_from_slice(&self.rgb[3 * g.start..3 * g.end]);
+            }
+        }
+        out.start.push(out.t.len() as u32);
+    }
+
     /// Sizes the output and gradient buffers to the sample count (zeroed gradients).
     pub fn prepare_outputs(&mut self, with_grad: bool) {
         let n = self.len();
