@@ -16,7 +16,7 @@ mod train_job;
 
 use std::path::Path;
 
-use assist_core::{Action, Camera, Edit, InstanceId, Scene, SceneNode};
+use assist_core::{Action, Camera, DVec3, Edit, InstanceId, Scene, SceneNode};
 use assist_render::{
     HIGHLIGHT, RenderOptions, RenderScratch, render_camera, render_camera_moving, render_rays,
 };
@@ -304,6 +304,37 @@ impl Session {
             let n = &scene.scene.nodes[k];
             (!n.is_background()).then_some(n.id)
         }))
+    }
+
+    /// The world point of the surface seen at pixel `(x, y)` of `camera` (the expected
+    /// depth of the composited weight along the pixel's ray); `None` where the ray meets
+    /// nearly nothing.
+    pub fn surface(&self, camera: &Camera, x: f64, y: f64) -> Result<Option<DVec3>> {
+        let (w, h) = (camera.width() as f64, camera.height() as f64);
+        if !(0.0..w).contains(&x) || !(0.0..h).contains(&y) {
+            return Err(request(
+                "surface",
+                format!("pixel ({x}, {y}) is outside the {w}×{h} image"),
+            ));
+        }
+        let Some(ray) = camera.ray(x, y) else {
+            return Ok(None);
+        };
+        let scene = &self.editor.scene;
+        let mut sc = RenderScratch::default();
+        sc.rays.near = scene.scene.near as f32;
+        sc.rays.push(&ray, u32::MAX);
+        render_rays(scene, &self.options(&RenderRequest::default()), &mut sc);
+        let c = sc.out.rays[0];
+        if c.opacity < 0.5 {
+            return Ok(None);
+        }
+        Ok(Some(ray.origin + ray.dir * (c.depth / c.opacity) as f64))
+    }
+
+    /// Another scene's description (nodes, units; no weights), for cross-scene edits.
+    pub fn describe(path: &Path) -> Result<Scene> {
+        Ok(assist_scene::scene_file::load_scene_json(path)?.0)
     }
 
     /// Saves scene, fields and history atomically (`force` to replace an existing `path`).

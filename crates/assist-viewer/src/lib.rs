@@ -66,10 +66,15 @@ pub struct ViewerOptions {
     pub port: u16,
     /// Required on a non-loopback host; generated when not given.
     pub token: Option<String>,
+    /// Other scenes clients may take nodes from (by file name).
+    pub others: Vec<PathBuf>,
+    /// A folder of scenes clients may take nodes from (by relative path).
+    pub scenes: Option<PathBuf>,
 }
 
 struct App {
     scene: PathBuf,
+    others: worker::OtherScenes,
     token: Option<String>,
     hello: ServerMsg,
 }
@@ -136,9 +141,25 @@ pub async fn start(opts: ViewerOptions) -> Result<Running, ViewerError> {
             message: "expected at least 8 characters".into(),
         });
     }
+    for p in &opts.others {
+        Session::describe(p)?;
+    }
+    if let Some(d) = &opts.scenes
+        && !d.is_dir()
+    {
+        return Err(ViewerError::Options {
+            what: "scenes",
+            message: format!("{} is not a folder", d.display()),
+        });
+    }
+    let others = worker::OtherScenes {
+        named: opts.others.clone(),
+        folder: opts.scenes.clone(),
+    };
     let hello = ServerMsg::Hello {
         version: PROTOCOL_VERSION,
         scene: scene_name(&opts.scene),
+        others: others.names(),
         up: description.up.to_array(),
         cameras: cameras
             .iter()
@@ -151,6 +172,7 @@ pub async fn start(opts: ViewerOptions) -> Result<Running, ViewerError> {
     };
     let app = Arc::new(App {
         scene: opts.scene.clone(),
+        others,
         token: token.clone(),
         hello,
     });
@@ -257,9 +279,12 @@ async fn client(mut socket: WebSocket, app: Arc<App>) {
     let (in_tx, in_rx) = std::sync::mpsc::channel::<ClientMsg>();
     let (out_tx, mut out_rx) = tokio::sync::mpsc::unbounded_channel::<Outgoing>();
     let scene = app.scene.clone();
+    let others = app.others.clone();
     let worker = std::thread::Builder::new()
         .name("assist-view-client".into())
-        .spawn(move || worker::Worker::new(session, &scene).run(in_rx, |o| out_tx.send(o).is_ok()));
+        .spawn(move || {
+            worker::Worker::new(session, &scene, others).run(in_rx, |o| out_tx.send(o).is_ok())
+        });
     if worker.is_err() {
         send_json(
             &mut socket,

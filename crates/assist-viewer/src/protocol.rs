@@ -106,6 +106,23 @@ pub enum ClientMsg {
     Actions {
         actions: Vec<Action>,
     },
+    /// List another scene's nodes (`c`): a scene named on the command line, or a path
+    /// under the server's `--scenes` folder.
+    Open {
+        scene: String,
+    },
+    /// Add a node of another scene (`a`) at the surface under pixel `(x, y)`.
+    AddFrom {
+        scene: String,
+        node: InstanceId,
+        x: f64,
+        y: f64,
+    },
+    /// Swap the selected node with a node of another scene (`s`).
+    SwapWith {
+        scene: String,
+        node: InstanceId,
+    },
     Undo,
     Redo,
     Output {
@@ -148,6 +165,8 @@ pub enum ServerMsg {
     Hello {
         version: u32,
         scene: String,
+        /// Other scenes a client may open by name (`--scenes` allows more).
+        others: Vec<String>,
         up: [f64; 3],
         cameras: Vec<CameraState>,
         max_message_bytes: usize,
@@ -177,6 +196,11 @@ pub enum ServerMsg {
     },
     Saved {
         path: String,
+    },
+    /// Another scene's nodes, after `open`.
+    Other {
+        scene: String,
+        nodes: Vec<NodeState>,
     },
     Error {
         message: String,

@@ -36,7 +36,57 @@ struct Drag {
     applied: bool,
 }
 
+/// The scenes a client may take nodes from: those named on the command line (by file
+/// name) and any under one folder (relative paths without `..`).
+#[derive(Debug, Clone, Default)]
+pub struct OtherScenes {
+    pub named: Vec<PathBuf>,
+    pub folder: Option<PathBuf>,
+}
+
+impl OtherScenes {
+    /// The path a client's scene name stands for.
+    pub fn resolve(&self, name: &str) -> Result<PathBuf, String> {
+        if let Some(p) = self
+            .named
+            .iter()
+            .find(|p| p.file_name().is_some_and(|f| f.to_string_lossy() == name))
+        {
+            return Ok(p.clone());
+        }
+        let Some(dir) = &self.folder else {
+            return Err(format!(
+                "scene {name:?} is not one of the scenes this viewer was given ({}); name other scenes on the command line or give --scenes DIR",
+                self.names().join(", ")
+            ));
+        };
+        let rel = Path::new(name);
+        let plain = !name.is_empty()
+            && rel
+                .components()
+                .all(|c| matches!(c, std::path::Component::Normal(_)));
+        if !plain {
+            return Err(format!(
+                "scene {name:?}: expected a path inside the scenes folder (no .., no absolute path)"
+            ));
+        }
+        let p = dir.join(rel);
+        if !p.join("scene.json").is_file() {
+            return Err(format!("scene {name:?}: no scene.json in {}", p.display()));
+        }
+        Ok(p)
+    }
+
+    pub fn names(&self) -> Vec<String> {
+        self.named
+            .iter()
+            .filter_map(|p| p.file_name().map(|f| f.to_string_lossy().into_owned()))
+            .collect()
+    }
+}
+
 pub struct Worker {
+    others: OtherScenes,
     session: Session,
     /// Where `save` without a path writes.
     scene_path: PathBuf,
@@ -50,8 +100,9 @@ pub struct Worker {
 }
 
 impl Worker {
-    pub fn new(session: Session, scene_path: &Path) -> Self {
+    pub fn new(session: Session, scene_path: &Path, others: OtherScenes) -> Self {
         Worker {
+            others,
             session,
             scene_path: scene_path.to_path_buf(),
             view: None,
@@ -165,6 +216,9 @@ impl Worker {
                     (true, true)
                 })
                 .map_err(|e| e.to_string()),
+            ClientMsg::Open { scene } => self.open(&scene, send),
+            ClientMsg::AddFrom { scene, node, x, y } => self.add_from(&scene, node, x, y),
+            ClientMsg::SwapWith { scene, node } => self.swap_with(&scene, node),
             ClientMsg::Undo => Ok(if self.session.undo() {
                 self.log.push("undo".into());
                 (true, true)
@@ -184,6 +238,74 @@ impl Worker {
             self.error(send, message);
             (false, false)
         })
+    }
+
+    fn open(
+        &mut self,
+        name: &str,
+        send: &impl Fn(Outgoing) -> bool,
+    ) -> Result<(bool, bool), String> {
+        let path = self.others.resolve(name)?;
+        let other = Session::describe(&path).map_err(|e| e.to_string())?;
+        send(Outgoing::Json(ServerMsg::Other {
+            scene: name.to_string(),
+            nodes: other.nodes.iter().map(node_state).collect(),
+        }));
+        Ok((false, false))
+    }
+
+    fn add_from(
+        &mut self,
+        name: &str,
+        node: InstanceId,
+        x: f64,
+        y: f64,
+    ) -> Result<(bool, bool), String> {
+        let path = self.others.resolve(name)?;
+        let cam = self.camera()?;
+        let at = self
+            .session
+            .surface(&cam, x, y)
+            .map_err(|e| e.to_string())?
+            .ok_or("add: no surface under that pixel to put the node on")?;
+        let other = Session::describe(&path).map_err(|e| e.to_string())?;
+        let n = other
+            .nodes
+            .iter()
+            .find(|n| n.id == node)
+            .ok_or_else(|| format!("scene {name:?} has no node {node}"))?;
+        // The node rests on the surface: its centre half its height above the point.
+        let up = self.session.description().up.normalize();
+        let scale = self.session.description().meters_per_unit / other.meters_per_unit;
+        let half = (n.half_size * n.world_from_local.scale).z / scale.max(1e-12);
+        let centre = at + up * half;
+        let config = ActionConfig {
+            scene: Some(path.display().to_string()),
+            node: Some(assist_core::NodeRef::Id(node)),
+            position: Some(centre.to_array()),
+            unit: Some("units".into()),
+            ..ActionConfig::default()
+        };
+        let edits = self
+            .session
+            .apply_with(&[Action::new(0, Operation::Add, config)], Steps::One)
+            .map_err(|e| e.to_string())?;
+        if let Some(assist_core::Edit::Add { imported }) = edits.first() {
+            let id = imported.node.id;
+            self.session.select(Some(id)).map_err(|e| e.to_string())?;
+            self.log.push(format!("added object {id} from {name}"));
+        }
+        Ok((true, true))
+    }
+
+    fn swap_with(&mut self, name: &str, node: InstanceId) -> Result<(bool, bool), String> {
+        let path = self.others.resolve(name)?;
+        let config = ActionConfig {
+            scene: Some(path.display().to_string()),
+            with: Some(assist_core::NodeRef::Id(node)),
+            ..ActionConfig::default()
+        };
+        self.on_selected(Operation::Swap, config)
     }
 
     fn camera(&self) -> Result<Camera, String> {

@@ -90,6 +90,8 @@ fn the_viewer_works_in_a_real_browser() {
             host: IpAddr::V4(Ipv4Addr::LOCALHOST),
             port: 0,
             token: None,
+            others: Vec::new(),
+            scenes: None,
         }))
         .unwrap();
     // Kept after the run (CI artefacts): under the workspace's target folder.

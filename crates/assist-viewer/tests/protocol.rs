@@ -30,6 +30,10 @@ fn node(id: u16, label: &str, half: f64, at: DVec3) -> SceneNode {
 
 /// A grey background box with a red and a green cube, saved as `scene.assist`.
 fn scene_on_disk(dir: &TempDir) -> std::path::PathBuf {
+    scene_at(&dir.join("scene.assist"))
+}
+
+fn scene_at(path: &std::path::Path) -> std::path::PathBuf {
     let nodes = vec![
         node(0, "background", 1.5, DVec3::ZERO),
         node(1, "red box", 0.08, DVec3::new(-0.15, 0.0, 0.05)),
@@ -57,9 +61,8 @@ fn scene_on_disk(dir: &TempDir) -> std::path::PathBuf {
         },
         fields: map,
     };
-    let path = dir.join("scene.assist");
-    assist_scene::scene_file::save(&path, &scene, json!({}), false).unwrap();
-    path
+    assist_scene::scene_file::save(path, &scene, json!({}), false).unwrap();
+    path.to_path_buf()
 }
 
 type Ws =
@@ -123,12 +126,17 @@ fn view() -> Value {
 async fn a_client_renders_selects_edits_undoes_and_saves() {
     let dir = TempDir::new("viewer-protocol");
     let path = scene_on_disk(&dir);
+    std::fs::create_dir_all(dir.join("library/shelf")).unwrap();
+    let other = scene_at(&dir.join("other.assist"));
+    scene_at(&dir.join("library/shelf/lamp.assist"));
     let running = start(ViewerOptions {
         scene: path.clone(),
         data: None,
         host: IpAddr::V4(Ipv4Addr::LOCALHOST),
         port: 0,
         token: None,
+        others: vec![other.clone()],
+        scenes: Some(dir.join("library")),
     })
     .await
     .unwrap();
@@ -230,6 +238,62 @@ async fn a_client_renders_selects_edits_undoes_and_saves() {
         s["undo"], 1,
         "after delete and undo, the drag is the one undo step: {s}"
     );
+    // Cross-scene: open a scene given on the command line, or one under --scenes; paths
+    // outside are refused.
+    assert_eq!(hello["others"], json!(["other.assist"]));
+    send(&mut ws, json!({"type": "open", "scene": "other.assist"})).await;
+    let o = until(&mut ws, "other").await;
+    assert_eq!(o["nodes"].as_array().unwrap().len(), 3);
+    send(
+        &mut ws,
+        json!({"type": "open", "scene": "shelf/lamp.assist"}),
+    )
+    .await;
+    assert_eq!(until(&mut ws, "other").await["scene"], "shelf/lamp.assist");
+    for bad in [
+        "../scene.assist",
+        "/etc",
+        "shelf/../../scene.assist",
+        "missing.assist",
+    ] {
+        send(&mut ws, json!({"type": "open", "scene": bad})).await;
+        let e = until(&mut ws, "error").await;
+        assert!(
+            e["message"].as_str().unwrap().contains("scene"),
+            "{bad}: {e}"
+        );
+    }
+    // `a`: the other scene's red box added on the surface under a pixel, selected.
+    send(
+        &mut ws,
+        json!({"type": "add_from", "scene": "other.assist", "node": 1, "x": 32.0, "y": 40.0}),
+    )
+    .await;
+    let s = until(&mut ws, "state").await;
+    assert_eq!(s["nodes"].as_array().unwrap().len(), 4, "{s}");
+    let added = s["selected"].as_u64().unwrap();
+    assert!(added > 2, "{s}");
+    send(&mut ws, json!({"type": "undo"})).await;
+    let s = until(&mut ws, "state").await;
+    assert_eq!(s["nodes"].as_array().unwrap().len(), 3);
+    // `s`: the selected green box swapped for the other scene's red box.
+    send(&mut ws, json!({"type": "select", "id": 2})).await;
+    until(&mut ws, "state").await;
+    send(
+        &mut ws,
+        json!({"type": "swap_with", "scene": "other.assist", "node": 1}),
+    )
+    .await;
+    let s = until(&mut ws, "state").await;
+    let ids: Vec<u64> = s["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|n| n["id"].as_u64().unwrap())
+        .collect();
+    assert!(!ids.contains(&2) && ids.len() == 3, "{s}");
+    send(&mut ws, json!({"type": "undo"})).await;
+    until(&mut ws, "state").await;
     // A typed instruction.
     send(
         &mut ws,
@@ -283,6 +347,8 @@ async fn a_non_loopback_viewer_needs_its_token() {
         host: IpAddr::V4(Ipv4Addr::UNSPECIFIED),
         port: 0,
         token: None,
+        others: Vec::new(),
+        scenes: None,
     })
     .await
     .unwrap();

@@ -10,6 +10,11 @@ use clap::Args;
 pub struct ViewArgs {
     /// Trained scene directory (NAME.assist).
     pub scene: PathBuf,
+    /// Other scenes the page may take nodes from (`c`, then `a` to add, `s` to swap).
+    pub others: Vec<PathBuf>,
+    /// A folder of scenes the page may take nodes from too (by relative path).
+    #[arg(long)]
+    pub scenes: Option<PathBuf>,
     /// Dataset whose training cameras the page lists (default: an orbit around the scene).
     #[arg(long)]
     pub data: Option<PathBuf>,
@@ -40,6 +45,8 @@ pub fn run(a: ViewArgs) -> anyhow::Result<()> {
             host: a.host,
             port: a.port,
             token: a.token.clone(),
+            others: a.others.clone(),
+            scenes: a.scenes.clone(),
         })
         .await
         .with_context(|| format!("viewer for {}", a.scene.display()))?;
