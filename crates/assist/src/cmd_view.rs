@@ -27,6 +27,9 @@ pub struct ViewArgs {
     /// Token clients must present (generated and printed when the host is not loopback).
     #[arg(long)]
     pub token: Option<String>,
+    /// Open the page in the desktop's browser (xdg-open) once listening.
+    #[arg(long)]
+    pub open: bool,
     /// Print the URL as JSON (`{"url": …, "addr": …}`) once listening.
     #[arg(long)]
     pub json: bool,
@@ -60,6 +63,17 @@ pub fn run(a: ViewArgs) -> anyhow::Result<()> {
             eprintln!(
                 "(Ctrl+C stops the server; edits are saved only with the page's save button)"
             );
+        }
+        if a.open {
+            match std::process::Command::new("xdg-open")
+                .arg(&running.url)
+                .spawn()
+            {
+                Ok(_) => {}
+                Err(e) => {
+                    eprintln!("assist view: could not open a browser ({e}); open the URL above")
+                }
+            }
         }
         use std::io::Write;
         let _ = std::io::stdout().flush();
