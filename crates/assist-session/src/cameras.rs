@@ -103,6 +103,19 @@ fn one() -> u32 {
 }
 
 impl CameraSource {
+    /// A dataset's training cameras, or the default orbit when there is no dataset (what a
+    /// viewer opens with).
+    pub fn train_or_orbit(data: Option<&Path>) -> Self {
+        match data {
+            Some(path) => CameraSource::Dataset {
+                path: path.to_path_buf(),
+                split: SplitChoice::Train,
+                downscale: 1,
+            },
+            None => CameraSource::Orbit(Orbit::default()),
+        }
+    }
+
     /// The cameras, for `scene` (an orbit frames its objects).
     pub fn cameras(&self, scene: &Scene) -> Result<Vec<NamedCamera>> {
         match self {

@@ -281,14 +281,19 @@ impl Session {
         ))
     }
 
-    /// The node seen at pixel `(x, y)` of `camera` (the one with the largest share of
-    /// the composited weight, as in the instance output); `None` for the background or
-    /// nothing.
-    pub fn pick(&self, camera: &Camera, x: f64, y: f64) -> Result<Option<InstanceId>> {
+    /// Renders the ray of pixel `(x, y)` alone: the ray and its composited outputs
+    /// (`None` when the pixel has no ray); `what` names the request in errors.
+    fn trace_pixel(
+        &self,
+        what: &str,
+        camera: &Camera,
+        x: f64,
+        y: f64,
+    ) -> Result<Option<(assist_core::Ray, RenderScratch)>> {
         let (w, h) = (camera.width() as f64, camera.height() as f64);
         if !(0.0..w).contains(&x) || !(0.0..h).contains(&y) {
             return Err(request(
-                "pick",
+                what,
                 format!("pixel ({x}, {y}) is outside the {w}×{h} image"),
             ));
         }
@@ -300,8 +305,19 @@ impl Session {
         sc.rays.near = scene.scene.near as f32;
         sc.rays.push(&ray, u32::MAX);
         render_rays(scene, &self.options(&RenderRequest::default()), &mut sc);
+        Ok(Some((ray, sc)))
+    }
+
+    /// The node seen at pixel `(x, y)` of `camera` (the one with the largest share of
+    /// the composited weight, as in the instance output); `None` for the background or
+    /// nothing.
+    pub fn pick(&self, camera: &Camera, x: f64, y: f64) -> Result<Option<InstanceId>> {
+        let Some((_, sc)) = self.trace_pixel("pick", camera, x, y)? else {
+            return Ok(None);
+        };
+        let nodes = &self.editor.scene.scene.nodes;
         Ok(sc.out.winner(0).and_then(|k| {
-            let n = &scene.scene.nodes[k];
+            let n = &nodes[k];
             (!n.is_background()).then_some(n.id)
         }))
     }
@@ -310,26 +326,28 @@ impl Session {
     /// depth of the composited weight along the pixel's ray); `None` where the ray meets
     /// nearly nothing.
     pub fn surface(&self, camera: &Camera, x: f64, y: f64) -> Result<Option<DVec3>> {
-        let (w, h) = (camera.width() as f64, camera.height() as f64);
-        if !(0.0..w).contains(&x) || !(0.0..h).contains(&y) {
-            return Err(request(
-                "surface",
-                format!("pixel ({x}, {y}) is outside the {w}×{h} image"),
-            ));
-        }
-        let Some(ray) = camera.ray(x, y) else {
+        let Some((ray, sc)) = self.trace_pixel("surface", camera, x, y)? else {
             return Ok(None);
         };
-        let scene = &self.editor.scene;
-        let mut sc = RenderScratch::default();
-        sc.rays.near = scene.scene.near as f32;
-        sc.rays.push(&ray, u32::MAX);
-        render_rays(scene, &self.options(&RenderRequest::default()), &mut sc);
         let c = sc.out.rays[0];
         if c.opacity < 0.5 {
             return Ok(None);
         }
         Ok(Some(ray.origin + ray.dir * (c.depth / c.opacity) as f64))
+    }
+
+    /// The scene's objects as a dataset writer lists them (id and label; the background
+    /// is not an instance).
+    pub fn instances(&self) -> Vec<assist_data::Instance> {
+        self.nodes()
+            .iter()
+            .filter(|n| !n.is_background())
+            .map(|n| assist_data::Instance {
+                id: n.id,
+                label: n.label.clone(),
+                bbox: None,
+            })
+            .collect()
     }
 
     /// Another scene's description (nodes, units; no weights), for cross-scene edits.

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use assist_core::InstanceId;
-use assist_data::{DatasetWriter, Instance, Layer, Output, ViewImages, WriterConfig};
+use assist_data::{DatasetWriter, Layer, Output, ViewImages, WriterConfig};
 use assist_render::{HIGHLIGHT, RenderOptions, render_camera};
 use assist_scene::NeuralScene;
 use serde::{Deserialize, Serialize};
@@ -105,16 +105,7 @@ impl Session {
         } else {
             None
         };
-        let instances = self
-            .nodes()
-            .iter()
-            .filter(|n| !n.is_background())
-            .map(|n| Instance {
-                id: n.id,
-                label: n.label.clone(),
-                bbox: None,
-            })
-            .collect();
+        let instances = self.instances();
         let cfg = WriterConfig {
             outputs: job.outputs.clone(),
             meters_per_unit: scene.scene.meters_per_unit,

@@ -26,7 +26,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use serde::Deserialize;
 
-use assist_session::{CameraSource, Session, SplitChoice};
+use assist_session::{CameraSource, Session};
 use protocol::{CameraState, ClientMsg, MAX_MESSAGE_BYTES, PROTOCOL_VERSION, ServerMsg, View};
 pub use worker::{Outgoing, PREVIEW_DIVISOR, encode_jpeg};
 
@@ -121,15 +121,7 @@ fn new_token() -> String {
 pub async fn start(opts: ViewerOptions) -> Result<Running, ViewerError> {
     let session = Session::open(&opts.scene)?;
     let description = session.description().clone();
-    let cameras = match &opts.data {
-        Some(path) => CameraSource::Dataset {
-            path: path.clone(),
-            split: SplitChoice::Train,
-            downscale: 1,
-        },
-        None => CameraSource::Orbit(Default::default()),
-    }
-    .cameras(&description)?;
+    let cameras = CameraSource::train_or_orbit(opts.data.as_deref()).cameras(&description)?;
     let token = if opts.host.is_loopback() {
         opts.token.clone()
     } else {
@@ -253,26 +245,14 @@ async fn client(mut socket: WebSocket, app: Arc<App>) {
         return;
     }
     let path = app.scene.clone();
-    let session = match tokio::task::spawn_blocking(move || Session::open(&path)).await {
-        Ok(Ok(s)) => s,
-        Ok(Err(e)) => {
-            send_json(
-                &mut socket,
-                &ServerMsg::Error {
-                    message: e.to_string(),
-                },
-            )
-            .await;
-            return;
-        }
-        Err(e) => {
-            send_json(
-                &mut socket,
-                &ServerMsg::Error {
-                    message: e.to_string(),
-                },
-            )
-            .await;
+    let opened = match tokio::task::spawn_blocking(move || Session::open(&path)).await {
+        Ok(r) => r.map_err(|e| e.to_string()),
+        Err(e) => Err(e.to_string()),
+    };
+    let session = match opened {
+        Ok(s) => s,
+        Err(message) => {
+            send_json(&mut socket, &ServerMsg::Error { message }).await;
             return;
         }
     };

@@ -12,7 +12,7 @@ use assist_core::{
     Action, ActionConfig, AxisSpec, Camera, DVec3, InstanceId, Operation, SceneNode,
 };
 use assist_data::visual::{depth_image, ids_image};
-use assist_data::{DatasetWriter, Instance, Output as WriterOutput, ViewImages, WriterConfig};
+use assist_data::{DatasetWriter, Output as WriterOutput, ViewImages, WriterConfig};
 use assist_session::{DragCache, RenderRequest, Session, Steps};
 
 use crate::protocol::{ClientMsg, DragOp, DragPhase, NodeState, Output, ServerMsg, View};
@@ -520,16 +520,7 @@ impl Worker {
             ],
             meters_per_unit: d.meters_per_unit,
             world_up: d.up.to_array(),
-            instances: d
-                .nodes
-                .iter()
-                .filter(|n| !n.is_background())
-                .map(|n| Instance {
-                    id: n.id,
-                    label: n.label.clone(),
-                    bbox: None,
-                })
-                .collect(),
+            instances: self.session.instances(),
             ..WriterConfig::default()
         };
         let w = DatasetWriter::create(&dir, cfg, false).map_err(|e| e.to_string())?;

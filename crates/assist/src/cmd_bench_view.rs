@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use assist_core::{Action, ActionConfig, AxisSpec, Camera, Operation};
-use assist_session::{CameraSource, DragCache, RenderRequest, Session, SplitChoice, Steps};
+use assist_session::{CameraSource, DragCache, RenderRequest, Session, Steps};
 use assist_viewer::{PREVIEW_DIVISOR, encode_jpeg};
 use clap::Args;
 
@@ -50,15 +50,7 @@ pub fn run(a: ViewBenchArgs) -> anyhow::Result<()> {
         bail!("--frames: expected at least 3, got {}", a.frames);
     }
     let mut s = Session::open(&a.scene)?;
-    let source = match &a.data {
-        Some(p) => CameraSource::Dataset {
-            path: p.clone(),
-            split: SplitChoice::Train,
-            downscale: 1,
-        },
-        None => CameraSource::Orbit(Default::default()),
-    };
-    let cams = source.cameras(s.description())?;
+    let cams = CameraSource::train_or_orbit(a.data.as_deref()).cameras(s.description())?;
     let cam: Camera = cams.first().context("no camera to view from")?.camera;
     let full = Some((a.width, a.height));
     let preview = Some((
