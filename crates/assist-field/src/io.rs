@@ -54,7 +54,15 @@ pub fn to_bytes(field: &Field, occupancy: Option<&OccupancyGrid>) -> Result<Vec<
         bufs.push((name.clone(), shape_of(field, name, *len), bytes, Dtype::F32));
     }
     if let Some(o) = occupancy {
-        let bytes: Vec<u8> = o.density.iter().flat_map(|v| v.to_le_bytes()).collect();
+        // A cell still in warm-up is occupied whatever its estimate: it is saved as never
+        // measured (infinite), which loads as occupied.
+        let bytes: Vec<u8> = o
+            .density
+            .iter()
+            .enumerate()
+            .map(|(c, &d)| if o.warming(c) { f32::INFINITY } else { d })
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
         let r = o.res as usize;
         bufs.push(("occupancy.density".into(), vec![r, r, r], bytes, Dtype::F32));
     }

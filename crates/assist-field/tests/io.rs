@@ -35,6 +35,18 @@ fn round_trip_with_occupancy() {
     let occ2 = occ2.unwrap();
     assert_eq!(occ2.bits, occ.bits);
     assert_eq!(occ2.density, occ.density);
+    // A grid in warm-up: its warming cells load as occupied (saved as never measured),
+    // whatever their estimate, and the others as they are.
+    let mut warm = OccupancyGrid::new(8);
+    warm.start_warmup(4);
+    warm.update_from(&vec![0.0; warm.cells()]);
+    assert_eq!(warm.occupied_fraction(), 1.0);
+    warm.warmup[..256].fill(0);
+    warm.refresh_bits();
+    save(&p, &field, Some(&warm)).unwrap();
+    let occ3 = load(&p).unwrap().1.unwrap();
+    assert_eq!(occ3.bits, warm.bits);
+    assert_eq!(occ3.occupied_fraction(), 0.5);
     // Without occupancy.
     let bytes = to_bytes(&field, None).unwrap();
     assert!(from_bytes(Path::new("x"), &bytes).unwrap().1.is_none());

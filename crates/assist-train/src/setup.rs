@@ -137,7 +137,7 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
             "background".to_string(),
             Arc::new(NodeField::with_space(
                 field,
-                OccupancyGrid::new(opts.background_grid),
+                training_grid(opts.background_grid),
                 half,
                 space,
             )),
@@ -152,7 +152,7 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
             key,
             Arc::new(NodeField::new(
                 field,
-                OccupancyGrid::new(opts.object_grid),
+                training_grid(opts.object_grid),
                 nb.obb.half_size,
             )),
         );
@@ -173,6 +173,17 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
         near,
     };
     Ok(NeuralScene { scene, fields })
+}
+
+/// Refresh samples each occupancy cell takes before training may empty it (see
+/// [`OccupancyGrid::start_warmup`]).
+pub const OCCUPANCY_WARMUP: u8 = 4;
+
+/// A new node's occupancy grid: every cell occupied until its warm-up is over.
+fn training_grid(res: u32) -> OccupancyGrid {
+    let mut g = OccupancyGrid::new(res);
+    g.start_warmup(OCCUPANCY_WARMUP);
+    g
 }
 
 /// Where an object box comes from.
