@@ -54,8 +54,8 @@ pub fn to_bytes(field: &Field, occupancy: Option<&OccupancyGrid>) -> Result<Vec<
         bufs.push((name.clone(), shape_of(field, name, *len), bytes, Dtype::F32));
     }
     if let Some(o) = occupancy {
-        // A cell still in warm-up is occupied whatever its estimate: it is saved as never
-        // measured (infinite), which loads as occupied.
+        // A cell still in warm-up, or known to hold a surface, is occupied whatever its
+        // estimate: it is saved as never measured (infinite), which loads as occupied.
         let bytes: Vec<u8> = o
             .density
             .iter()
@@ -185,6 +185,18 @@ pub fn from_bytes(path: &Path, bytes: &[u8]) -> Result<(Field, Option<OccupancyG
         .map_err(|e| fmt_err(path, format!("metadata.config: {e}")))?;
     cfg.validate()
         .map_err(|e| fmt_err(path, format!("metadata.config: {e}")))?;
+    // The parameters the configuration asks for must be in the file before anything is
+    // allocated for them (a forged config could otherwise ask for gigabytes).
+    let want = crate::field::ParamLayout::new(&cfg).total as u64 * 4;
+    if want > bytes.len() as u64 {
+        return Err(fmt_err(
+            path,
+            format!(
+                "metadata.config: asks for {want} bytes of parameters, but the file holds {}",
+                bytes.len()
+            ),
+        ));
+    }
     let mut field = Field::new(cfg, 0).map_err(|e| fmt_err(path, e.to_string()))?;
     let groups = field.layout.groups(&field.config);
     let mut expected: Vec<&str> = groups.iter().map(|g| g.0.as_str()).collect();

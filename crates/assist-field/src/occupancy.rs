@@ -29,6 +29,10 @@ pub struct OccupancyGrid {
     /// Per cell, refresh samples still to take before its estimate may empty it (empty
     /// vector = none; see [`start_warmup`](Self::start_warmup)). Not saved.
     pub warmup: Vec<u8>,
+    /// Cells known to hold a surface (one bit per cell; empty vector = none), e.g. where
+    /// depth maps end rays: occupied whatever their estimate, since a random point in a
+    /// cell rarely lands on a thin surface. Not saved: saved as never measured.
+    pub kept: Vec<u64>,
 }
 
 /// One sample of a marched ray: distance along the (unit) direction and interval length.
@@ -51,7 +55,23 @@ impl OccupancyGrid {
             step_factor: Vec::new(),
             empty: Vec::new(),
             warmup: Vec::new(),
+            kept: Vec::new(),
         }
+    }
+
+    /// Marks the cells where `kept[c]` holds as holding a surface (see
+    /// [`kept`](Self::kept)) and refreshes the bits. A cell both empty and kept is empty.
+    pub fn set_kept(&mut self, kept: &[bool]) {
+        assert_eq!(kept.len(), self.cells(), "one flag per cell");
+        self.kept = kept
+            .chunks(64)
+            .map(|c| {
+                c.iter()
+                    .enumerate()
+                    .fold(0u64, |w, (i, &e)| w | (u64::from(e) << i))
+            })
+            .collect();
+        self.refresh_bits();
     }
 
     /// Keeps every cell occupied until it has been sampled `samples` times by the
@@ -102,8 +122,8 @@ impl OccupancyGrid {
 
     /// Whether cell `c` is in warm-up (occupied whatever its estimate) and not known empty.
     pub fn warming(&self, c: usize) -> bool {
-        self.warmup.get(c).is_some_and(|&w| w > 0)
-            && self.empty.get(c / 64).is_none_or(|&e| e >> (c % 64) & 1 == 0)
+        let bit = |v: &[u64]| v.get(c / 64).is_some_and(|&e| e >> (c % 64) & 1 == 1);
+        (self.warmup.get(c).is_some_and(|&w| w > 0) || bit(&self.kept)) && !bit(&self.empty)
     }
 
     pub fn cells(&self) -> usize {
@@ -286,7 +306,7 @@ impl OccupancyGrid {
             })
             .sum();
         let thr = self.threshold.min((sum / self.density.len() as f64) as f32);
-        let (warm, empty) = (&self.warmup, &self.empty);
+        let (warm, empty, kept) = (&self.warmup, &self.empty, &self.kept);
         self.bits
             .par_iter_mut()
             .zip(self.density.par_chunks(64))
@@ -295,7 +315,8 @@ impl OccupancyGrid {
                 let mut word = 0u64;
                 for (i, &d) in chunk.iter().enumerate() {
                     let c = k * 64 + i;
-                    let warming = warm.get(c).is_some_and(|&w| w > 0)
+                    let warming = (warm.get(c).is_some_and(|&w| w > 0)
+                        || kept.get(k).is_some_and(|&e| e >> i & 1 == 1))
                         && empty.get(k).is_none_or(|&e| e >> i & 1 == 0);
                     if warming || d * factor(c) > thr {
                         word |= 1 << i;

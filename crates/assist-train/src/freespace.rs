@@ -45,16 +45,26 @@ pub fn carve_scene(scene: &mut NeuralScene, views: &[View]) -> CarveStats {
             continue;
         };
         let res = nf.occupancy.res;
-        let empty = free_cells(node, res, views);
+        let (empty, kept) = carve_cells(node, res, views);
         let frac = empty.iter().filter(|&&e| e).count() as f64 / empty.len().max(1) as f64;
-        Arc::make_mut(nf).occupancy.set_empty(&empty);
+        let occ = &mut Arc::make_mut(nf).occupancy;
+        occ.set_empty(&empty);
+        occ.set_kept(&kept);
         stats.push((node.field.clone(), frac));
     }
     stats
 }
 
 /// The cells of `node`'s `res`³ grid the depth maps show to be empty.
-pub fn free_cells(node: &SceneNode, res: u32, views: &[View]) -> Vec<bool> {
+#[cfg(test)]
+fn free_cells(node: &SceneNode, res: u32, views: &[View]) -> Vec<bool> {
+    carve_cells(node, res, views).0
+}
+
+/// The cells of `node`'s `res`³ grid the depth maps show to be empty, and those where at
+/// least [`MIN_FREE_RAYS`] of them end on this node's surface (kept occupied in training,
+/// whatever a random point in them says).
+pub fn carve_cells(node: &SceneNode, res: u32, views: &[View]) -> (Vec<bool>, Vec<bool>) {
     let r = res as usize;
     let n = r * r * r;
     let pixels: usize = views.iter().map(|v| v.width * v.height).sum();
@@ -87,10 +97,13 @@ pub fn free_cells(node: &SceneNode, res: u32, views: &[View]) -> Vec<bool> {
     // outside every view) can never be trained: its initial haze would only float in front
     // of a novel view (the demo's test views had fog 0.1–0.7 m from the camera).
     let unobserved_too = node.is_background() && dense_depth(views);
-    free.iter()
+    let empty = free
+        .iter()
         .zip(&hit)
         .map(|(&f, &h)| h == 0 && (f >= MIN_FREE_RAYS || (unobserved_too && f == 0)))
-        .collect()
+        .collect();
+    let kept = hit.iter().map(|&h| h >= MIN_FREE_RAYS).collect();
+    (empty, kept)
 }
 
 /// Whether every view has depth at (nearly) every pixel: depth sensors leave holes on
@@ -278,6 +291,11 @@ mod tests {
         );
         let (below, n) = count(&empty, -0.2, -0.06);
         assert_eq!(below, n, "cells below the plane are never reached");
+        // The plane's cells are the kept ones (held occupied in training), and only they.
+        let (_, kept) = carve_cells(&node, res, &views);
+        let (on, n_on) = count(&kept, 0.0, 0.05);
+        assert!(on * 10 >= n_on * 9, "{on} of {n_on} plane cells kept");
+        assert_eq!(count(&kept, 0.1, 0.4).0, 0, "cells above the plane kept");
         // Depth with holes: what no ray reaches is kept.
         let mut holed = views.clone();
         for v in &mut holed {
