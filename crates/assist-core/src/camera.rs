@@ -24,6 +24,12 @@ pub struct Intrinsics {
     pub distortion: Distortion,
 }
 
+/// Largest image side a camera may declare (pixels).
+pub const MAX_IMAGE_SIDE: u32 = 32_768;
+/// Largest image a camera may declare (pixels): 256 M, far above any camera's, so that a
+/// declared size can never overflow a buffer size or exhaust memory before a file is read.
+pub const MAX_IMAGE_PIXELS: u64 = 1 << 28;
+
 impl Intrinsics {
     /// Validates sizes and focal lengths; `field` prefixes error messages.
     pub fn validate(&self, field: &str) -> Result<(), CoreError> {
@@ -32,6 +38,18 @@ impl Intrinsics {
                 format!("{field}.w/h"),
                 format!(
                     "expected a positive image size, got {}x{}",
+                    self.width, self.height
+                ),
+            ));
+        }
+        if self.width > MAX_IMAGE_SIDE
+            || self.height > MAX_IMAGE_SIDE
+            || self.width as u64 * self.height as u64 > MAX_IMAGE_PIXELS
+        {
+            return Err(CoreError::invalid(
+                format!("{field}.w/h"),
+                format!(
+                    "{}x{} is larger than supported (at most {MAX_IMAGE_SIDE} pixels a side and {MAX_IMAGE_PIXELS} in all)",
                     self.width, self.height
                 ),
             ));

@@ -93,6 +93,42 @@ fn missing(op: Operation, id: InstanceId, scene: &Scene) -> ActionError {
 
 /// Applies one validated edit.
 pub fn apply(scene: &mut Scene, edit: &Edit) -> Result<(), ActionError> {
+    let before = scene.clone();
+    apply_unchecked(scene, edit)?;
+    // An edit may not leave a node the scene file cannot hold (a 1e308 m move twice is
+    // infinite): the scene is restored and the edit refused.
+    let bad = scene
+        .nodes
+        .iter()
+        .filter(|n| before.node(n.id) != Some(*n))
+        .find_map(|n| n.check().err().map(|e| (n.id, e)));
+    if let Some((id, (field, message))) = bad {
+        *scene = before;
+        return Err(ActionError::NotAllowed {
+            operation: edit_operation(edit).0,
+            id,
+            message: format!("refused: it would leave node {id} with {field}: {message}"),
+        });
+    }
+    Ok(())
+}
+
+/// The operation of an edit, and the node it acts on.
+fn edit_operation(edit: &Edit) -> (Operation, InstanceId) {
+    match edit {
+        Edit::Select { id } => (Operation::Select, *id),
+        Edit::Translate { id, .. } => (Operation::Translate, *id),
+        Edit::Rotate { id, .. } => (Operation::Rotate, *id),
+        Edit::Scale { id, .. } => (Operation::Scale, *id),
+        Edit::Replicate { id, .. } => (Operation::Replicate, *id),
+        Edit::Delete { id } => (Operation::Delete, *id),
+        Edit::Add { imported } => (Operation::Add, imported.node.id),
+        Edit::Swap { a, .. } => (Operation::Swap, *a),
+        Edit::SwapIn { id, .. } => (Operation::Swap, *id),
+    }
+}
+
+fn apply_unchecked(scene: &mut Scene, edit: &Edit) -> Result<(), ActionError> {
     let get = |scene: &mut Scene, op: Operation, id: InstanceId| -> Result<usize, ActionError> {
         scene
             .nodes

@@ -80,6 +80,65 @@ impl SceneNode {
     }
 }
 
+/// Largest coordinate a node may be placed at (world units): far beyond any capture, and
+/// far below where f64 arithmetic on poses breaks down.
+pub const MAX_COORDINATE: f64 = 1e9;
+/// Scale factors a node may have (relative to its trained size).
+pub const SCALE_RANGE: (f64, f64) = (1e-6, 1e6);
+
+impl SceneNode {
+    /// Why this node's box and pose cannot be saved and loaded again, if they cannot:
+    /// every value finite, the box positive, the rotation a unit quaternion, the scale in
+    /// [`SCALE_RANGE`] and the position within [`MAX_COORDINATE`]. Returns the field and
+    /// the message.
+    pub fn check(&self) -> Result<(), (&'static str, String)> {
+        let hs = self.half_size.to_array();
+        if !hs.iter().all(|v| v.is_finite() && *v > 0.0) {
+            return Err((
+                "half_size",
+                format!("expected 3 positive numbers, got {hs:?}"),
+            ));
+        }
+        let p = &self.world_from_local;
+        let vals: Vec<f64> = p
+            .rotation
+            .to_array()
+            .into_iter()
+            .chain(p.translation.to_array())
+            .chain(p.scale.to_array())
+            .collect();
+        if !vals.iter().all(|v| v.is_finite()) {
+            return Err(("world_from_local", "expected finite numbers".into()));
+        }
+        let (lo, hi) = SCALE_RANGE;
+        if p.scale.min_element() < lo || p.scale.max_element() > hi {
+            return Err((
+                "world_from_local.scale",
+                format!(
+                    "expected every factor from {lo:e} to {hi:e}, got {:?}",
+                    p.scale.to_array()
+                ),
+            ));
+        }
+        if p.translation.abs().max_element() > MAX_COORDINATE {
+            return Err((
+                "world_from_local.translation",
+                format!(
+                    "expected coordinates within ±{MAX_COORDINATE:e}, got {:?}",
+                    p.translation.to_array()
+                ),
+            ));
+        }
+        if (p.rotation.length() - 1.0).abs() > 1e-3 {
+            return Err((
+                "world_from_local.rotation",
+                "expected a unit quaternion".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// What a ray shows past its last sample, where the nodes leave it transparent.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]

@@ -25,6 +25,13 @@ pub fn load(dir: &Path) -> Result<Dataset> {
         let v = read_json(&file)?;
         let top = Node::root(&v, &file);
         let angle = top.req("camera_angle_x")?.positive_f64()?;
+        if angle >= std::f64::consts::PI {
+            return Err(crate::error::DataError::field(
+                &file,
+                "camera_angle_x",
+                format!("expected a horizontal field of view below π radians (180°), got {angle}"),
+            ));
+        }
         for fr in top.req("frames")?.items()? {
             let image_path = resolve_image_path(dir, fr.req("file_path")?.str()?);
             let (w, h) = match size {
@@ -69,5 +76,6 @@ pub fn load(dir: &Path) -> Result<Dataset> {
         bounds,
         normalization,
         mask_folder: None,
+        prior_folder: None,
     })
 }

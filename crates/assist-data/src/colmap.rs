@@ -212,5 +212,6 @@ pub fn load_dataset(model_dir: &Path, format: Format) -> Result<Dataset> {
         bounds,
         normalization,
         mask_folder: None,
+        prior_folder: None,
     })
 }

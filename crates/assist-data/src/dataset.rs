@@ -178,6 +178,8 @@ pub struct Dataset {
     pub normalization: Normalization,
     /// Instance masks found in a `masks/` folder beside the images ([`crate::masks`]).
     pub mask_folder: Option<crate::masks::MaskFolder>,
+    /// Background priors from `LoadOptions::prior_dir` ([`crate::priors`]).
+    pub prior_folder: Option<crate::priors::PriorFolder>,
 }
 
 /// Options for loading.
@@ -190,6 +192,8 @@ pub struct LoadOptions {
     /// Make every camera this many times smaller (see [`crate::downscale`]); 1 = as the
     /// dataset is (0, the `Default`, means 1 here; the CLI refuses 0).
     pub downscale: u32,
+    /// A folder of background priors made elsewhere ([`crate::priors`]).
+    pub prior_dir: Option<std::path::PathBuf>,
 }
 
 impl Dataset {

@@ -28,6 +28,7 @@ mod load;
 pub mod masks;
 pub mod nerfstudio;
 pub mod npy;
+pub mod priors;
 pub mod synth;
 pub mod validate;
 pub mod visual;

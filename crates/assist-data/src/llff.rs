@@ -174,5 +174,6 @@ pub fn load(dir: &Path, factor: Option<u32>) -> Result<Dataset> {
         bounds,
         normalization,
         mask_folder: None,
+        prior_folder: None,
     })
 }

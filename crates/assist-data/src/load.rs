@@ -85,7 +85,31 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<Dataset> {
             message: "the dataset has no frames".into(),
         });
     }
+    // Every reader's cameras meet the same limits (a Blender `camera_angle_x` ≥ π gives a
+    // focal length of zero or less; a declared size must not overflow a buffer).
+    for f in &ds.frames {
+        let i = &f.camera.intrinsics;
+        i.validate(&format!("frame {:?}", f.name))
+            .map_err(|e| DataError::core(&f.image_path, e))?;
+        let m = f.camera.pose.world_from_camera;
+        let finite = m
+            .matrix3
+            .to_cols_array()
+            .iter()
+            .chain(&m.translation.to_array())
+            .all(|v| v.is_finite());
+        if !finite {
+            return Err(DataError::field(
+                &f.image_path,
+                format!("frame {:?}.transform_matrix", f.name),
+                "expected finite numbers",
+            ));
+        }
+    }
     ds.mask_folder = crate::masks::attach_mask_folder(&mut ds, opts.downscale.max(1))?;
+    if let Some(dir) = &opts.prior_dir {
+        ds.prior_folder = Some(crate::priors::attach_prior_folder(&mut ds, dir)?);
+    }
     crate::downscale::apply(&mut ds, opts.downscale.max(1))?;
     Ok(ds)
 }

@@ -286,5 +286,6 @@ pub fn load(file: &Path) -> Result<Dataset> {
         bounds,
         normalization,
         mask_folder: None,
+        prior_folder: None,
     })
 }

@@ -33,6 +33,9 @@ pub struct FieldConfig {
     pub num_images: usize,
 }
 
+/// Most images a field keeps appearance codes for.
+pub const MAX_IMAGES: usize = 1 << 20;
+
 impl FieldConfig {
     /// Nerfacto's field: 16 levels × 2 features, T = 2^19, resolutions 16 → 2048, 64-wide
     /// nets, geometry feature 15, SH degree 4, appearance embedding 32.
@@ -121,6 +124,18 @@ impl FieldConfig {
             return bad(
                 "sh_degree",
                 format!("expected 1 to 4, got {}", self.sh_degree),
+            );
+        }
+        if self.appearance_dim > 256 {
+            return bad(
+                "appearance_dim",
+                format!("expected 0 to 256, got {}", self.appearance_dim),
+            );
+        }
+        if self.num_images > MAX_IMAGES {
+            return bad(
+                "num_images",
+                format!("expected at most {MAX_IMAGES}, got {}", self.num_images),
             );
         }
         if self.appearance_dim > 0 && self.num_images == 0 {

@@ -101,7 +101,11 @@ fn bad_files_give_clear_errors() {
     let views: Vec<(String, safetensors::tensor::TensorView)> = st.tensors();
     mixed = safetensors::serialize(views, Some(md)).unwrap();
     let e = err(&mixed);
-    assert!(e.contains("shape") && e.contains("expected"), "{e}");
+    // (The file is too small for the config's parameters: refused before their shapes.)
+    assert!(
+        (e.contains("shape") && e.contains("expected")) || e.contains("asks for"),
+        "{e}"
+    );
     // Wrong format or version in the metadata.
     let st = safetensors::SafeTensors::deserialize(&good).unwrap();
     for (k, v, needle) in [
@@ -113,6 +117,28 @@ fn bad_files_give_clear_errors() {
         let b = safetensors::serialize(st.tensors(), Some(md)).unwrap();
         let e = err(&b);
         assert!(e.contains(needle), "{e}");
+    }
+    // A forged config asking for a huge appearance table or hash grid is refused before
+    // anything is allocated for it (it used to panic with a capacity overflow, or abort).
+    for (k, v, needle) in [
+        ("num_images", 1usize << 40, "num_images"),
+        ("appearance_dim", 1 << 30, "appearance_dim"),
+        ("num_images", 1 << 20, "asks for"),
+        ("log2_table_size", 24, "asks for"),
+    ] {
+        let mut cfg = serde_json::to_value(small()).unwrap();
+        cfg[k] = serde_json::json!(v);
+        if k == "num_images" {
+            cfg["appearance_dim"] = serde_json::json!(32);
+        }
+        let mut md = good_metadata();
+        md.insert("config".to_string(), cfg.to_string());
+        let b = safetensors::serialize(st.tensors(), Some(md)).unwrap();
+        let e = err(&b);
+        assert!(
+            e.contains(needle) && e.contains("metadata.config"),
+            "{k}: {e}"
+        );
     }
     // A missing tensor, and an unknown one.
     let md = good_metadata();

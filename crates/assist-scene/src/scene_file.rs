@@ -90,6 +90,8 @@ pub fn save_with_history(
             path: dir.to_path_buf(),
         });
     }
+    // Nothing is written that would not load again.
+    check_scenes(&dir.join("scene.json"), Some(&scene.scene), history)?;
     let io = |p: &Path| {
         let p = p.to_path_buf();
         move |e| SceneFileError::Io { path: p, source: e }
@@ -221,6 +223,7 @@ pub fn load_with_history(
     } else {
         History::default()
     };
+    check_scenes(&hist_path, None, &history)?;
     let mut fields = BTreeMap::new();
     let keys: Vec<(String, String)> = scene
         .nodes
@@ -355,42 +358,31 @@ fn check_node(
     f: &dyn Fn(&str) -> String,
     n: &SceneNode,
 ) -> Result<(), SceneFileError> {
-    let hs = n.half_size.to_array();
-    if !hs.iter().all(|v| v.is_finite() && *v > 0.0) {
-        return Err(invalid(
-            file,
-            f("half_size"),
-            format!("expected 3 positive numbers, got {hs:?}"),
-        ));
+    n.check()
+        .map_err(|(field, message)| invalid(file, f(field), message))
+}
+
+/// Every node of `scene` (when given) and of every history snapshot holds values a scene
+/// file can hold (checked before saving and when loading).
+fn check_scenes(
+    file: &Path,
+    scene: Option<&Scene>,
+    history: &History,
+) -> Result<(), SceneFileError> {
+    let check = |prefix: String, s: &Scene| -> Result<(), SceneFileError> {
+        for (i, n) in s.nodes.iter().enumerate() {
+            check_node(file, &|x: &str| format!("{prefix}nodes[{i}].{x}"), n)?;
+        }
+        Ok(())
+    };
+    if let Some(s) = scene {
+        check(String::new(), s)?;
     }
-    let p = &n.world_from_local;
-    let vals: Vec<f64> = p
-        .rotation
-        .to_array()
-        .into_iter()
-        .chain(p.translation.to_array())
-        .chain(p.scale.to_array())
-        .collect();
-    if !vals.iter().all(|v| v.is_finite()) {
-        return Err(invalid(
-            file,
-            f("world_from_local"),
-            "expected finite numbers",
-        ));
+    for (k, s) in history.undo.iter().enumerate() {
+        check(format!("undo[{k}]."), s)?;
     }
-    if p.scale.min_element() <= 0.0 {
-        return Err(invalid(
-            file,
-            f("world_from_local.scale"),
-            "expected every factor > 0",
-        ));
-    }
-    if (p.rotation.length() - 1.0).abs() > 1e-3 {
-        return Err(invalid(
-            file,
-            f("world_from_local.rotation"),
-            "expected a unit quaternion",
-        ));
+    for (k, s) in history.redo.iter().enumerate() {
+        check(format!("redo[{k}]."), s)?;
     }
     Ok(())
 }

@@ -38,6 +38,11 @@ impl Appearance {
     }
 }
 
+/// Fewest samples a training step may take.
+pub const MIN_BATCH_SAMPLES: usize = 1 << 10;
+/// Most samples a training step may take (2²⁴: about 2 GB of activations).
+pub const MAX_BATCH_SAMPLES: usize = 1 << 24;
+
 /// Loss weights the user sets; `None` keeps the rule's value (see [`Lambdas`]).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 #[serde(default)]
@@ -71,6 +76,10 @@ pub struct TrainConfig {
     /// Background prior under the objects (`None` also sets λ1 = λ2 = 0 when the dataset
     /// supplies no inpainted images).
     pub prior: PriorKind,
+    /// Background priors made elsewhere: per training image, the view inpainted without
+    /// its objects, and optionally its depth (see [`assist_data::priors`]). They replace
+    /// the built-in fill where present.
+    pub prior_dir: Option<PathBuf>,
     pub lambdas: LambdaOverrides,
     /// Object boxes overriding the dataset's and the carved ones.
     pub boxes: Option<PathBuf>,
@@ -100,6 +109,7 @@ impl Default for TrainConfig {
             batch_samples: t.batch_samples,
             object_rays: t.object_ray_fraction,
             prior: PriorKind::default(),
+            prior_dir: None,
             lambdas: LambdaOverrides::default(),
             boxes: None,
             appearance: Appearance::Auto,
@@ -121,6 +131,10 @@ pub enum TrainEvent {
     Loading { images: usize, data: PathBuf },
     /// The background prior: the share of object-covered pixels other views see.
     Prior { seen_share: f64 },
+    /// Background priors read from a folder (`TrainConfig::prior_dir`).
+    UserPrior {
+        folder: assist_data::priors::PriorFolder,
+    },
     /// Free space carved from the depth maps, per node (share of its grid cells).
     Carved { nodes: Vec<(String, f64)> },
     /// The views have no instance masks; `unused` are mask folders for other sizes.
@@ -183,6 +197,23 @@ impl TrainJob {
                 ),
             ));
         }
+        if !(MIN_BATCH_SAMPLES..=MAX_BATCH_SAMPLES).contains(&c.batch_samples) {
+            return Err(request(
+                "batch_samples",
+                format!(
+                    "expected {MIN_BATCH_SAMPLES} to {MAX_BATCH_SAMPLES}, got {}",
+                    c.batch_samples
+                ),
+            ));
+        }
+        if let Some(t) = c.max_time
+            && !(t.is_finite() && t > 0.0)
+        {
+            return Err(request(
+                "max_time",
+                format!("expected a positive number of seconds, got {t}"),
+            ));
+        }
         if !(0.0..=1.0).contains(&c.object_rays) {
             return Err(request(
                 "object_rays",
@@ -214,6 +245,7 @@ impl TrainJob {
         };
         let load_opts = LoadOptions {
             downscale: c.downscale,
+            prior_dir: c.prior_dir.clone(),
             ..Default::default()
         };
         let ds = assist_data::load(&c.data, &load_opts).map_err(SessionError::Data)?;
@@ -228,6 +260,11 @@ impl TrainJob {
             images: n_train,
             data: c.data.clone(),
         });
+        if let Some(folder) = &ds.prior_folder {
+            on_event(&TrainEvent::UserPrior {
+                folder: folder.clone(),
+            });
+        }
         let mut views = load_views(&ds, Split::Train, background_color(&ds))?;
         // A depth prior the user supplies (a monocular model's) has an unknown scale; one
         // the built-in fill makes from the dataset's depth is metric.
@@ -279,7 +316,12 @@ impl TrainJob {
         }
         let mut last_occupancy = std::time::Instant::now();
         let report = trainer.run(|s, t| {
-            let occupancy = (last_occupancy.elapsed().as_secs_f64() > 10.0).then(|| {
+            let occupancy = (last_occupancy.elapsed().as_secs_f64()
+                > std::env::var("DBG_EVERY")
+                    .ok()
+                    .and_then(|v| v.parse().ok())
+                    .unwrap_or(10.0))
+            .then(|| {
                 last_occupancy = std::time::Instant::now();
                 t.occupancy()
             });

@@ -50,6 +50,9 @@ pub struct InfoArgs {
     /// Skip decoding every file (only parse the dataset description).
     #[arg(long)]
     pub no_validate: bool,
+    /// Also report a folder of background priors made elsewhere (as `train --prior-dir`).
+    #[arg(long)]
+    pub prior_dir: Option<PathBuf>,
 }
 
 pub fn run(cmd: DatasetCommand) -> anyhow::Result<()> {
@@ -122,6 +125,7 @@ pub fn load_options(
     format: Option<&str>,
     llff_factor: Option<u32>,
     downscale: u32,
+    prior_dir: Option<PathBuf>,
 ) -> anyhow::Result<LoadOptions> {
     let format = match format {
         Some(f) => Some(Format::parse(f).with_context(|| {
@@ -133,11 +137,17 @@ pub fn load_options(
         format,
         llff_factor,
         downscale,
+        prior_dir,
     })
 }
 
 fn info(a: InfoArgs) -> anyhow::Result<()> {
-    let opts = load_options(a.format.as_deref(), a.llff_factor, a.downscale)?;
+    let opts = load_options(
+        a.format.as_deref(),
+        a.llff_factor,
+        a.downscale,
+        a.prior_dir.clone(),
+    )?;
     let ds = assist_data::load(&a.path, &opts)?;
     let report = if a.no_validate {
         None
@@ -221,6 +231,7 @@ pub fn describe(ds: &Dataset) -> Value {
         "has_instance_masks": ds.frames.iter().any(|f| f.instance_mask_path.is_some()),
         "has_depth": ds.frames.iter().any(|f| f.depth_path.is_some()),
         "mask_folder": ds.mask_folder,
+        "prior_folder": ds.prior_folder,
         "instances": ds.instances.iter().map(|inst| json!({
             "id": inst.id,
             "label": inst.label,
@@ -294,6 +305,15 @@ fn print_text(ds: &Dataset, v: &Value) {
             extras.join(", ")
         }
     );
+    if let Some(p) = &ds.prior_folder {
+        println!(
+            "priors    {} of {} training images in {} ({} with depth)",
+            p.images,
+            p.train_frames,
+            p.folder.display(),
+            p.depths
+        );
+    }
     if let Some(m) = &ds.mask_folder {
         let kind = match m.encoding {
             assist_data::masks::MaskEncoding::Ids => "instance-valued".to_string(),

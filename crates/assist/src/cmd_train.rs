@@ -38,6 +38,12 @@ pub struct TrainArgs {
     /// (none also sets λ1 = λ2 = 0).
     #[arg(long, default_value = "multi-view")]
     pub prior: String,
+    /// Background priors made elsewhere (the paper's inpainting path): a folder with, per
+    /// training image, that view with its objects inpainted (NAME.png or .jpg, the image's
+    /// size), and optionally depth/NAME.npy (float32, any scale) or depth/NAME.png. They
+    /// replace the built-in fill; images without one keep it.
+    #[arg(long)]
+    pub prior_dir: Option<PathBuf>,
     #[arg(long)]
     pub lambda_bg_rgb: Option<f32>,
     #[arg(long)]
@@ -114,6 +120,7 @@ impl TrainArgs {
             batch_samples: self.batch_samples,
             object_rays: self.object_rays,
             prior,
+            prior_dir: self.prior_dir.clone(),
             lambdas: LambdaOverrides {
                 bg_rgb: self.lambda_bg_rgb,
                 bg_depth: self.lambda_bg_depth,
@@ -175,6 +182,22 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
     let outcome = job.run(|ev| match ev {
         TrainEvent::Loading { images, data } if text => {
             eprintln!("loading {images} training images from {} …", data.display());
+        }
+        TrainEvent::UserPrior { folder } if text => {
+            eprintln!(
+                "background prior from {}: {} of {} training images ({} with depth){}",
+                folder.folder.display(),
+                folder.images,
+                folder.train_frames,
+                folder.depths,
+                match folder.missing.first() {
+                    Some(m) => format!(
+                        "; {} (e.g. {m}) keep the built-in fill",
+                        folder.missing.len()
+                    ),
+                    None => String::new(),
+                }
+            );
         }
         TrainEvent::Prior { seen_share } if text => eprintln!(
             "background prior: {:.0}% of the pixels objects cover are seen by other views, the rest filled by push-pull",

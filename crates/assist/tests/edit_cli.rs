@@ -159,3 +159,73 @@ fn bad_input_is_refused_and_the_scene_is_untouched() {
     let (ok, _, err) = assist(&["edit", s(&a), "--do", "delete the duck", "--out", s(&a)]);
     assert!(!ok && err.contains("--force"), "{err}");
 }
+
+/// Edits that would leave a pose the scene file cannot hold (infinite after two 1e308 m
+/// moves, or a scale beyond the limits after repeated scaling) are refused, naming the
+/// action; the scene on disk is untouched and still loads; `--force` onto the same scene
+/// cannot lose it either.
+#[test]
+fn edits_that_would_save_an_unloadable_scene_are_refused() {
+    let tmp = assist_testkit::TempDir::new("cli-unloadable");
+    let scene = tmp.path().join("a.assist");
+    write_scene(&scene);
+    let before = snapshot(&scene);
+    let many_scales = vec!["make the mug 1000 times bigger"; 120].join(", then ");
+    for text in [
+        "move the mug 1e308 m left, then move it 1e308 m left",
+        many_scales.as_str(),
+    ] {
+        for out in [s(&tmp.path().join("b.assist")), s(&scene)] {
+            let args = vec!["edit", s(&scene), "--do", text, "--out", out, "--force"];
+            let (ok, _, err) = assist(&args);
+            assert!(!ok, "accepted: {text}");
+            assert!(!err.contains("panicked"), "{err}");
+            assert!(
+                err.contains("refused") && (err.contains("translate") || err.contains("scale")),
+                "the error should name the action: {err}"
+            );
+            assert_eq!(snapshot(&scene), before, "the scene changed");
+        }
+    }
+    let (ok, _, err) = assist(&[
+        "edit",
+        s(&scene),
+        "--do",
+        "move the mug 1 cm left",
+        "--dry-run",
+    ]);
+    assert!(ok, "the scene no longer loads: {err}");
+}
+
+/// A corrupted history (a snapshot with an infinite pose, as older builds could write) is
+/// an error naming history.json and the snapshot's field; undo cannot write it.
+#[test]
+fn a_history_snapshot_that_cannot_load_is_an_error_naming_it() {
+    let tmp = assist_testkit::TempDir::new("cli-bad-history");
+    let a = tmp.path().join("a.assist");
+    write_scene(&a);
+    let scene = tmp.path().join("b.assist");
+    let (ok, _, err) = assist(&[
+        "edit",
+        s(&a),
+        "--do",
+        "move the mug 1 cm left",
+        "--out",
+        s(&scene),
+    ]);
+    assert!(ok, "{err}");
+    let hist = scene.join("history.json");
+    let mut h: serde_json::Value = serde_json::from_slice(&std::fs::read(&hist).unwrap()).unwrap();
+    h["undo"][0]["nodes"][1]["world_from_local"]["scale"] = serde_json::json!([1e300, 1.0, 1.0]);
+    std::fs::write(&hist, serde_json::to_vec(&h).unwrap()).unwrap();
+    let before = snapshot(&scene);
+    let c = tmp.path().join("c.assist");
+    let (ok, _, err) = assist(&["edit", s(&scene), "--undo", "1", "--out", s(&c)]);
+    assert!(!ok, "undo of a corrupted history succeeded");
+    assert!(!c.exists());
+    assert!(
+        err.contains("history.json") && err.contains("undo[0].nodes[1].world_from_local.scale"),
+        "{err}"
+    );
+    assert_eq!(snapshot(&scene), before);
+}

@@ -1,0 +1,132 @@
+//! Regression tests for the hostile inputs of the reliability issue: each case used to
+//! panic or abort; each must now be a clear error (file and field named, exit 1, no
+//! panic, nothing allocated from a header before it is checked).
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use assist_testkit::TempDir;
+
+fn assist(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_assist"))
+        .args(args)
+        .output()
+        .expect("run assist")
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Fails cleanly (exit 1, no panic, no abort), naming every needle.
+fn refused(out: &Output, needles: &[&str]) -> String {
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(!err.contains("panicked"), "panic: {err}");
+    for n in needles {
+        assert!(err.contains(n), "error should mention {n:?}: {err}");
+    }
+    err
+}
+
+/// A one-frame nerfstudio capture declaring a `w`×`h` image (the image itself is tiny).
+fn capture(tmp: &TempDir, name: &str, w: u64, h: u64) -> std::path::PathBuf {
+    let dir = tmp.join(name);
+    std::fs::create_dir_all(dir.join("images")).unwrap();
+    image::RgbImage::new(4, 4)
+        .save(dir.join("images/a.png"))
+        .unwrap();
+    let tf = serde_json::json!({
+        "camera_model": "OPENCV",
+        "fl_x": 100.0, "fl_y": 100.0, "cx": 2.0, "cy": 2.0, "w": w, "h": h,
+        "frames": [{"file_path": "images/a.png", "transform_matrix":
+            [[1,0,0,0],[0,1,0,0],[0,0,1,2],[0,0,0,1]]}]
+    });
+    std::fs::write(dir.join("transforms.json"), tf.to_string()).unwrap();
+    dir
+}
+
+#[test]
+fn huge_declared_images_are_refused_before_anything_is_allocated() {
+    let tmp = TempDir::new("huge-images");
+    for (w, h) in [
+        (65_536, 65_536),
+        (100_000, 100_000),
+        (1 << 31, 4),
+        (20_000, 20_000),
+    ] {
+        let data = capture(&tmp, &format!("c{w}x{h}"), w, h);
+        for args in [
+            vec!["dataset", "info", s(&data)],
+            vec![
+                "train",
+                s(&data),
+                "--out",
+                &format!("{}.assist", data.display()),
+                "--iters",
+                "1",
+            ],
+        ] {
+            let out = assist(&args);
+            // (2^31 does not fit the field's type: the reader's own error.)
+            let needles: &[&str] = if w == 1 << 31 {
+                &["transforms.json", "w"]
+            } else {
+                &["larger than supported", "w/h"]
+            };
+            refused(&out, needles);
+        }
+    }
+}
+
+#[test]
+fn a_blender_field_of_view_of_half_a_turn_or_more_is_refused() {
+    let tmp = TempDir::new("blender-fov");
+    for fov in [std::f64::consts::PI, 4.0, 7.0] {
+        let dir = tmp.join(format!("fov{fov}"));
+        std::fs::create_dir_all(dir.join("train")).unwrap();
+        image::RgbaImage::new(4, 4)
+            .save(dir.join("train/r_0.png"))
+            .unwrap();
+        let tf = serde_json::json!({
+            "camera_angle_x": fov,
+            "frames": [{"file_path": "./train/r_0", "transform_matrix":
+                [[1,0,0,0],[0,1,0,0],[0,0,1,2],[0,0,0,1]]}]
+        });
+        std::fs::write(dir.join("transforms_train.json"), tf.to_string()).unwrap();
+        let out = assist(&["dataset", "info", s(&dir)]);
+        let err = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(!out.status.success(), "fov {fov} accepted");
+        assert!(!err.contains("panicked"), "{err}");
+        assert!(
+            err.contains("camera_angle_x") || err.contains("fx/fy") || err.contains("fx"),
+            "fov {fov}: {err}"
+        );
+    }
+}
+
+#[test]
+fn an_absurd_batch_size_or_time_budget_is_refused() {
+    let tmp = TempDir::new("absurd-batch");
+    let data = capture(&tmp, "small", 4, 4);
+    let out_scene = tmp.join("x.assist");
+    for (flag, value, needle) in [
+        ("--batch-samples", "18446744073709551615", "batch-samples"),
+        ("--batch-samples", "3", "batch-samples"),
+        ("--max-time", "-5", "max-time"),
+        ("--max-time", "NaN", "max-time"),
+    ] {
+        let arg = format!("{flag}={value}");
+        let out = assist(&[
+            "train",
+            s(&data),
+            "--out",
+            s(&out_scene),
+            &arg,
+            "--iters",
+            "1",
+        ]);
+        refused(&out, &[needle]);
+        assert!(!out_scene.exists(), "{flag} {value}: a scene was written");
+    }
+}
