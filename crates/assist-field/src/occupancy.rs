@@ -605,21 +605,7 @@ mod tests {
 
     #[test]
     fn an_update_part_refreshes_its_cells_and_decays_the_others() {
-        use crate::FieldConfig;
-        // A field whose density is the same everywhere: zero output weights, one bias.
-        let cfg = FieldConfig {
-            levels: 4,
-            log2_table_size: 10,
-            base_resolution: 4,
-            max_resolution: 32,
-            appearance_dim: 0,
-            num_images: 0,
-            ..FieldConfig::nerfacto(0)
-        };
-        let mut field = Field::new(cfg, 3).unwrap();
-        let d2 = field.layout.density[1];
-        field.params[d2.w..d2.w + d2.out * d2.inp_pad].fill(0.0);
-        field.params[d2.b] = 5.0f32.ln();
+        let field = constant_field(5.0);
         let mut sigma0 = [0.0f32];
         field.density([&[0.3], &[0.6], &[0.9]], &mut sigma0);
         let sigma0 = sigma0[0];
