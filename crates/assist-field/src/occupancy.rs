@@ -35,6 +35,18 @@ pub struct OccupancyGrid {
     pub kept: Vec<u64>,
 }
 
+/// One bit per flag, 64 to a word (flag `c` is bit `c % 64` of word `c / 64`).
+fn pack_bits(flags: &[bool]) -> Vec<u64> {
+    flags
+        .chunks(64)
+        .map(|c| {
+            c.iter()
+                .enumerate()
+                .fold(0u64, |w, (i, &e)| w | (u64::from(e) << i))
+        })
+        .collect()
+}
+
 /// One sample of a marched ray: distance along the (unit) direction and interval length.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Step {
@@ -63,14 +75,7 @@ impl OccupancyGrid {
     /// [`kept`](Self::kept)) and refreshes the bits. A cell both empty and kept is empty.
     pub fn set_kept(&mut self, kept: &[bool]) {
         assert_eq!(kept.len(), self.cells(), "one flag per cell");
-        self.kept = kept
-            .chunks(64)
-            .map(|c| {
-                c.iter()
-                    .enumerate()
-                    .fold(0u64, |w, (i, &e)| w | (u64::from(e) << i))
-            })
-            .collect();
+        self.kept = pack_bits(kept);
         self.refresh_bits();
     }
 
@@ -95,14 +100,7 @@ impl OccupancyGrid {
     /// and refreshes the bits.
     pub fn set_empty(&mut self, empty: &[bool]) {
         assert_eq!(empty.len(), self.cells(), "one flag per cell");
-        self.empty = empty
-            .chunks(64)
-            .map(|c| {
-                c.iter()
-                    .enumerate()
-                    .fold(0u64, |w, (i, &e)| w | (u64::from(e) << i))
-            })
-            .collect();
+        self.empty = pack_bits(empty);
         self.refresh_bits();
     }
 
