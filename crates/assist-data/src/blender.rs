@@ -37,7 +37,14 @@ pub fn load(dir: &Path) -> Result<Dataset> {
             let (w, h) = match size {
                 Some(s) => s,
                 None => {
-                    let s = image_dimensions(&image_path)?;
+                    // The first image sets every frame's size: name where it was listed.
+                    let s = image_dimensions(&image_path).map_err(|e| {
+                        DataError::field(
+                            &file,
+                            format!("{}.file_path", fr.path()),
+                            format!("the first frame's image sets the size of all: {e}"),
+                        )
+                    })?;
                     size = Some(s);
                     s
                 }

@@ -8,7 +8,7 @@ use crate::colmap_model::{ColmapCamera, ColmapImage, ColmapModel, ColmapPoint, m
 use crate::error::{DataError, Result};
 
 fn lines(path: &Path) -> Result<Vec<(usize, String)>> {
-    let text = std::fs::read_to_string(path).map_err(|e| DataError::io(path, e))?;
+    let text = crate::json::read_text(path)?;
     Ok(text
         .lines()
         .enumerate()

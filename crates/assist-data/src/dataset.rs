@@ -197,6 +197,29 @@ pub struct LoadOptions {
 }
 
 impl Dataset {
+    /// A stable digest of what a scene is trained from: the format, and each frame's name,
+    /// split and pose (to 1e-5 world units). It does not depend on the image size, so
+    /// `--downscale` keeps it; a different capture (or a reordered split) changes it.
+    pub fn fingerprint(&self) -> String {
+        // FNV-1a, 64 bits: stable across builds and platforms (std's hasher is not).
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        let mut eat = |bytes: &[u8]| {
+            for &b in bytes {
+                h ^= b as u64;
+                h = h.wrapping_mul(0x0100_0000_01b3);
+            }
+        };
+        eat(format!("{:?}", self.format).as_bytes());
+        for f in &self.frames {
+            eat(f.name.as_bytes());
+            eat(&[0, f.split as u8]);
+            for v in f.camera.pose.to_matrix().to_cols_array() {
+                eat(&((v * 1e5).round() as i64).to_le_bytes());
+            }
+        }
+        format!("{h:016x}")
+    }
+
     pub fn frames_in(&self, split: Split) -> impl Iterator<Item = &Frame> {
         self.frames.iter().filter(move |f| f.split == split)
     }

@@ -49,6 +49,9 @@ pub enum DataError {
     /// Writing would replace something the user has.
     #[error("{path}: already exists; pass --force to overwrite", path = path.display())]
     Exists { path: PathBuf },
+    /// An output folder that may not be written (not assist's, in use, no space).
+    #[error(transparent)]
+    Output(#[from] assist_fs::FsError),
 }
 
 pub type Result<T, E = DataError> = std::result::Result<T, E>;

@@ -15,8 +15,13 @@ const NONFINITE_TAG: &str = "\u{0}assist-nonfinite:";
 
 /// Reads and parses a JSON file.
 pub fn read_json(path: &Path) -> Result<Value> {
-    let text = std::fs::read_to_string(path).map_err(|e| DataError::io(path, e))?;
+    let text = read_text(path)?;
     parse_json(path, &text)
+}
+
+/// Reads a UTF-8 text file (an error names the line and byte of the first bad byte).
+pub fn read_text(path: &Path) -> Result<String> {
+    Ok(assist_fs::read_text(path)?)
 }
 
 pub fn parse_json(path: &Path, text: &str) -> Result<Value> {

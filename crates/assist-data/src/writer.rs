@@ -228,9 +228,39 @@ pub fn depth_mm(depth: &[f32], meters_per_unit: f64) -> Vec<u16> {
         .collect()
 }
 
+fn check_config(dir: &Path, cfg: &WriterConfig) -> Result<()> {
+    if cfg.outputs.is_empty() {
+        return Err(DataError::field(
+            dir,
+            "outputs",
+            "expected at least one output",
+        ));
+    }
+    if !(cfg.meters_per_unit.is_finite() && cfg.meters_per_unit > 0.0) {
+        return Err(DataError::field(
+            dir,
+            "meters_per_unit",
+            format!("expected a positive number, got {}", cfg.meters_per_unit),
+        ));
+    }
+    if dir.is_file() {
+        return Err(DataError::field(
+            dir,
+            "output folder",
+            "is a file; expected a folder to write the dataset into",
+        ));
+    }
+    Ok(())
+}
+
 /// Writes views into a dataset folder; views may be written from several threads.
 pub struct DatasetWriter {
+    /// The folder the dataset is for.
     dir: PathBuf,
+    /// Where its files are written: a staging folder beside `dir` (swapped into place by
+    /// [`DatasetWriter::finish`]) or `dir` itself ([`DatasetWriter::create_in`]).
+    root: PathBuf,
+    staging: Option<assist_fs::Staging>,
     cfg: WriterConfig,
     classes: BTreeMap<u16, u16>,
     class_names: Vec<String>,
@@ -238,45 +268,48 @@ pub struct DatasetWriter {
 }
 
 impl DatasetWriter {
-    /// Creates the folders. A non-empty `dir` is refused unless `force` (files of the same
-    /// names are then replaced, others left alone).
+    /// A writer whose dataset appears at `dir` whole, or not at all: the views are written
+    /// into a staging folder beside it, swapped into place by [`DatasetWriter::finish`]
+    /// (dropping the writer unfinished leaves `dir` as it was). An existing non-empty `dir`
+    /// is replaced only with `force`, and only when assist wrote it.
     pub fn create(dir: &Path, cfg: WriterConfig, force: bool) -> Result<Self> {
-        if cfg.outputs.is_empty() {
-            return Err(DataError::field(
-                dir,
-                "outputs",
-                "expected at least one output",
-            ));
-        }
-        if !(cfg.meters_per_unit.is_finite() && cfg.meters_per_unit > 0.0) {
-            return Err(DataError::field(
-                dir,
-                "meters_per_unit",
-                format!("expected a positive number, got {}", cfg.meters_per_unit),
-            ));
-        }
-        if dir.is_file() {
-            return Err(DataError::field(
-                dir,
-                "output folder",
-                "is a file; expected a folder to write the dataset into",
-            ));
-        }
+        check_config(dir, &cfg)?;
+        assist_fs::check_replaceable(dir, force)?;
+        let staging = assist_fs::Staging::begin(dir, "writing a dataset")?;
+        let root = staging.dir().to_path_buf();
+        Self::open(dir, root, Some(staging), cfg)
+    }
+
+    /// A writer that writes straight into `dir`, which must be missing or empty (a folder
+    /// inside a dataset that is itself being staged).
+    pub fn create_in(dir: &Path, cfg: WriterConfig) -> Result<Self> {
+        check_config(dir, &cfg)?;
         let non_empty = dir.is_dir()
             && std::fs::read_dir(dir)
                 .map_err(|e| DataError::io(dir, e))?
                 .next()
                 .is_some();
-        if non_empty && !force {
+        if non_empty || dir.is_file() {
             return Err(DataError::Exists { path: dir.into() });
         }
+        Self::open(dir, dir.to_path_buf(), None, cfg)
+    }
+
+    fn open(
+        dir: &Path,
+        root: PathBuf,
+        staging: Option<assist_fs::Staging>,
+        cfg: WriterConfig,
+    ) -> Result<Self> {
         for o in &cfg.outputs {
-            let d = dir.join(cfg.folder(*o));
+            let d = root.join(cfg.folder(*o));
             std::fs::create_dir_all(&d).map_err(|e| DataError::io(&d, e))?;
         }
         let (classes, class_names) = semantic_classes(&cfg.instances);
         Ok(DatasetWriter {
             dir: dir.to_path_buf(),
+            root,
+            staging,
             cfg,
             classes,
             class_names,
@@ -351,7 +384,7 @@ impl DatasetWriter {
         self.check(name, v)?;
         let (w, h) = (v.width, v.height);
         let file = |o: Output, ext: &str| {
-            self.dir
+            self.root
                 .join(self.cfg.folder(o))
                 .join(format!("{name}.{ext}"))
         };
@@ -403,7 +436,7 @@ impl DatasetWriter {
                             data.extend_from_slice(&layer.rgb[k * 3..k * 3 + 3]);
                             data.push(a);
                         }
-                        let d = self.dir.join("objects").join(layer.id.to_string());
+                        let d = self.root.join("objects").join(layer.id.to_string());
                         std::fs::create_dir_all(&d).map_err(|e| DataError::io(&d, e))?;
                         let img = ImageF32 {
                             width: w,
@@ -442,8 +475,9 @@ impl DatasetWriter {
         Ok(())
     }
 
-    /// Writes `transforms.json` and the legends; returns the number of views written.
-    pub fn finish(self) -> Result<usize> {
+    /// Writes `transforms.json` and the legends and, for a staged writer, swaps the
+    /// dataset into place; returns the number of views written.
+    pub fn finish(mut self) -> Result<usize> {
         let frames: Vec<Value> =
             std::mem::take(&mut *self.frames.lock().unwrap_or_else(|e| e.into_inner()))
                 .into_values()
@@ -463,7 +497,7 @@ impl DatasetWriter {
             }
         }
         let pretty = |v: &Value| serde_json::to_string_pretty(v).expect("JSON values serialise");
-        write_atomic(&self.dir.join("transforms.json"), pretty(&tj).as_bytes())?;
+        write_atomic(&self.root.join("transforms.json"), pretty(&tj).as_bytes())?;
         if self.wants(Output::Panoptic) {
             let legend: serde_json::Map<String, Value> =
                 std::iter::once(("0".to_string(), json!("background")))
@@ -474,7 +508,7 @@ impl DatasetWriter {
                     )
                     .collect();
             write_atomic(
-                &self.dir.join("panoptic_legend.json"),
+                &self.root.join("panoptic_legend.json"),
                 pretty(&Value::Object(legend)).as_bytes(),
             )?;
         }
@@ -486,9 +520,12 @@ impl DatasetWriter {
                 .map(|(k, n)| (k.to_string(), json!(n)))
                 .collect();
             write_atomic(
-                &self.dir.join("semantic_legend.json"),
+                &self.root.join("semantic_legend.json"),
                 pretty(&Value::Object(sem)).as_bytes(),
             )?;
+        }
+        if let Some(staging) = self.staging.take() {
+            staging.commit()?;
         }
         Ok(n)
     }
@@ -589,7 +626,7 @@ mod tests {
         // A non-empty folder is refused without force; a wrong-sized view is an error.
         assert!(matches!(
             DatasetWriter::create(&dir, cfg.clone(), false),
-            Err(DataError::Exists { .. })
+            Err(DataError::Output(assist_fs::FsError::Exists { .. }))
         ));
         let w = DatasetWriter::create(&dir, cfg, true).unwrap();
         let short = ViewImages {

@@ -33,6 +33,8 @@ pub enum SceneFileError {
     Exists { path: PathBuf },
     #[error(transparent)]
     Field(#[from] assist_field::FieldError),
+    #[error(transparent)]
+    Output(#[from] assist_fs::FsError),
 }
 
 fn invalid(path: &Path, field: impl Into<String>, message: impl Into<String>) -> SceneFileError {
@@ -85,96 +87,60 @@ pub fn save_with_history(
     info: serde_json::Value,
     force: bool,
 ) -> Result<(), SceneFileError> {
-    if dir.exists() && !force {
-        return Err(SceneFileError::Exists {
-            path: dir.to_path_buf(),
-        });
-    }
     // Nothing is written that would not load again.
     check_scenes(&dir.join("scene.json"), Some(&scene.scene), history)?;
+    // Replace only what assist wrote, claim the name against other processes, and write a
+    // complete folder beside it before swapping it in.
+    assist_fs::check_replaceable(dir, force)?;
+    let staging = assist_fs::Staging::begin(dir, "saving a scene")?;
+    let tmp = staging.dir().to_path_buf();
     let io = |p: &Path| {
         let p = p.to_path_buf();
         move |e| SceneFileError::Io { path: p, source: e }
     };
-    let name = dir
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "scene.assist".into());
-    let parent = dir
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    std::fs::create_dir_all(parent).map_err(io(parent))?;
-    let tmp = parent.join(format!(".{name}.tmp-{}", std::process::id()));
-    if tmp.exists() {
-        std::fs::remove_dir_all(&tmp).map_err(io(&tmp))?;
-    }
     std::fs::create_dir_all(tmp.join("fields")).map_err(io(&tmp))?;
-    let result = (|| {
-        for node in &scene.scene.nodes {
-            if !valid_key(&node.field) {
-                return Err(invalid(
-                    dir,
-                    format!("nodes[id={}].field", node.id),
-                    format!(
-                        "field key {:?} must be letters, digits, '_' or '-'",
-                        node.field
-                    ),
-                ));
-            }
+    for node in &scene.scene.nodes {
+        if !valid_key(&node.field) {
+            return Err(invalid(
+                dir,
+                format!("nodes[id={}].field", node.id),
+                format!(
+                    "field key {:?} must be letters, digits, '_' or '-'",
+                    node.field
+                ),
+            ));
         }
-        let mut keys = history.field_keys();
-        keys.extend(scene.scene.nodes.iter().map(|n| n.field.clone()));
-        for key in &keys {
-            let nf = scene.fields.get(key).ok_or_else(|| {
-                invalid(
-                    dir,
-                    "fields",
-                    format!("no weights loaded for field key {key:?}"),
-                )
-            })?;
-            assist_field::io::save(&field_path(&tmp, key), &nf.field, Some(&nf.occupancy))?;
-        }
-        if !history.is_empty() {
-            let text = serde_json::to_string(history)
-                .map_err(|e| invalid(dir, "history.json", format!("cannot serialise: {e}")))?;
-            let p = tmp.join("history.json");
-            std::fs::write(&p, text).map_err(io(&p))?;
-        }
-        let json = SceneJson {
-            format: FORMAT.into(),
-            version: VERSION,
-            scene: scene.scene.clone(),
-            info,
-        };
-        let text = serde_json::to_string_pretty(&json)
-            .map_err(|e| invalid(dir, "scene.json", format!("cannot serialise: {e}")))?;
-        let p = tmp.join("scene.json");
-        std::fs::write(&p, text).map_err(io(&p))?;
-        // Swap into place: the old directory is moved aside first and removed last.
-        let old = parent.join(format!(".{name}.old-{}", std::process::id()));
-        let had_old = dir.exists();
-        if had_old {
-            std::fs::rename(dir, &old).map_err(io(dir))?;
-        }
-        if let Err(e) = std::fs::rename(&tmp, dir) {
-            if had_old {
-                let _ = std::fs::rename(&old, dir);
-            }
-            return Err(SceneFileError::Io {
-                path: dir.to_path_buf(),
-                source: e,
-            });
-        }
-        if had_old {
-            let _ = std::fs::remove_dir_all(&old);
-        }
-        Ok(())
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_dir_all(&tmp);
     }
-    result
+    let mut keys = history.field_keys();
+    keys.extend(scene.scene.nodes.iter().map(|n| n.field.clone()));
+    for key in &keys {
+        let nf = scene.fields.get(key).ok_or_else(|| {
+            invalid(
+                dir,
+                "fields",
+                format!("no weights loaded for field key {key:?}"),
+            )
+        })?;
+        assist_field::io::save(&field_path(&tmp, key), &nf.field, Some(&nf.occupancy))?;
+    }
+    if !history.is_empty() {
+        let text = serde_json::to_string(history)
+            .map_err(|e| invalid(dir, "history.json", format!("cannot serialise: {e}")))?;
+        let p = tmp.join("history.json");
+        std::fs::write(&p, text).map_err(io(&p))?;
+    }
+    let json = SceneJson {
+        format: FORMAT.into(),
+        version: VERSION,
+        scene: scene.scene.clone(),
+        info,
+    };
+    let text = serde_json::to_string_pretty(&json)
+        .map_err(|e| invalid(dir, "scene.json", format!("cannot serialise: {e}")))?;
+    let p = tmp.join("scene.json");
+    std::fs::write(&p, text).map_err(io(&p))?;
+    staging.commit()?;
+    Ok(())
 }
 
 /// Loads and validates a scene directory (or its `scene.json`).
@@ -209,10 +175,7 @@ pub fn load_with_history(
     let (scene, info) = read_scene_json(&file)?;
     let hist_path = dir.join("history.json");
     let history: History = if hist_path.exists() {
-        let text = std::fs::read_to_string(&hist_path).map_err(|e| SceneFileError::Io {
-            path: hist_path.clone(),
-            source: e,
-        })?;
+        let text = assist_fs::read_text(&hist_path)?;
         serde_json::from_str(&text).map_err(|e| {
             invalid(
                 &hist_path,
@@ -285,10 +248,7 @@ pub fn load_field(
 
 fn read_scene_json(file: &Path) -> Result<(Scene, serde_json::Value), SceneFileError> {
     let file = file.to_path_buf();
-    let text = std::fs::read_to_string(&file).map_err(|e| SceneFileError::Io {
-        path: file.clone(),
-        source: e,
-    })?;
+    let text = assist_fs::read_text(&file)?;
     let raw: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
         invalid(
             &file,
@@ -343,14 +303,53 @@ fn read_scene_json(file: &Path) -> Result<(Scene, serde_json::Value), SceneFileE
         }
         check_node(&file, &f, n)?;
     }
-    if !(scene.meters_per_unit.is_finite() && scene.meters_per_unit > 0.0) {
+    check_scene_values(&file, "", &scene)?;
+    Ok((scene, json.info))
+}
+
+/// The scene-wide values: units, up, near plane, background colour, and a selection that
+/// names one of the scene's nodes.
+fn check_scene_values(file: &Path, prefix: &str, s: &Scene) -> Result<(), SceneFileError> {
+    let f = |x: &str| format!("{prefix}{x}");
+    if !(s.meters_per_unit.is_finite() && s.meters_per_unit > 0.0) {
         return Err(invalid(
-            &file,
-            "meters_per_unit",
-            "expected a positive number",
+            file,
+            f("meters_per_unit"),
+            format!("expected a positive number, got {}", s.meters_per_unit),
         ));
     }
-    Ok((scene, json.info))
+    let up = s.up;
+    if !(up.is_finite() && up.length() > 1e-9) {
+        return Err(invalid(
+            file,
+            f("up"),
+            format!("expected a finite non-zero direction, got {up:?}"),
+        ));
+    }
+    if !(s.near.is_finite() && (0.0..=1e9).contains(&s.near)) {
+        return Err(invalid(
+            file,
+            f("near"),
+            format!("expected 0 to 1e9 world units, got {}", s.near),
+        ));
+    }
+    if s.background_color.iter().any(|c| !c.is_finite()) {
+        return Err(invalid(
+            file,
+            f("background_color"),
+            format!("expected finite numbers, got {:?}", s.background_color),
+        ));
+    }
+    if let Some(id) = s.selected
+        && s.node(id).is_none()
+    {
+        return Err(invalid(
+            file,
+            f("selected"),
+            format!("no node with id {id} in the scene"),
+        ));
+    }
+    Ok(())
 }
 
 fn check_node(
@@ -373,7 +372,7 @@ fn check_scenes(
         for (i, n) in s.nodes.iter().enumerate() {
             check_node(file, &|x: &str| format!("{prefix}nodes[{i}].{x}"), n)?;
         }
-        Ok(())
+        check_scene_values(file, &prefix, s)
     };
     if let Some(s) = scene {
         check(String::new(), s)?;

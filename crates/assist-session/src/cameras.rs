@@ -176,11 +176,17 @@ pub fn orbit(scene: &Scene, o: &Orbit) -> Result<Vec<NamedCamera>> {
     let half_diag = ((hi - lo) * 0.5).length().max(1e-6);
     let fov_x = o.fov_deg.to_radians();
     let fov_y = 2.0 * ((0.5 * fov_x).tan() * o.height as f64 / o.width as f64).atan();
-    let r = o
-        .radius
-        .unwrap_or(1.15 * half_diag / (0.5 * fov_y.min(fov_x)).sin());
-    if !(r.is_finite() && r > 0.0) {
-        return bad(format!("radius: expected a positive distance, got {r}"));
+    let r = match o.radius {
+        Some(r) if !(r.is_finite() && r > 0.0) => {
+            return bad(format!("radius: expected a positive distance, got {r}"));
+        }
+        Some(r) => r,
+        None => 1.15 * half_diag / (0.5 * fov_y.min(fov_x)).sin(),
+    };
+    if !(r.is_finite() && centre.is_finite() && (centre.length() + r) < 1e12) {
+        return bad(format!(
+            "the scene's objects span {lo:.3?} to {hi:.3?}: no orbit around them fits in finite space (give a radius, or fix the scene's boxes)"
+        ));
     }
     let up = scene.up.normalize();
     let a = if up.x.abs() > 0.9 { DVec3::Y } else { DVec3::X };

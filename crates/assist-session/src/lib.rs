@@ -44,6 +44,9 @@ pub enum SessionError {
     Data(assist_data::DataError),
     #[error(transparent)]
     Train(#[from] assist_train::TrainError),
+    /// An output folder that may not be written (not assist's, in use, no space).
+    #[error(transparent)]
+    Output(assist_fs::FsError),
     /// A request that cannot be served (a size, a pixel, an id).
     #[error("{what}: {message}")]
     Request { what: String, message: String },

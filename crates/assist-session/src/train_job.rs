@@ -239,6 +239,13 @@ impl TrainJob {
     pub fn run(&self, mut on_event: impl FnMut(&TrainEvent)) -> Result<TrainOutcome> {
         self.validate()?;
         let c = &self.config;
+        // Before any work: replace only what assist wrote, claim the output against a
+        // second process (this also proves its folder writable) for the whole run.
+        if !c.resume {
+            assist_fs::check_replaceable(&c.out, c.force).map_err(SessionError::Output)?;
+        }
+        let _lock = assist_fs::lock(&c.out, &format!("assist train {}", c.data.display()))
+            .map_err(SessionError::Output)?;
         let user_boxes = match &c.boxes {
             Some(p) => assist_data::boxes::read_boxes(p).map_err(SessionError::Data)?,
             None => Vec::new(),
@@ -255,6 +262,47 @@ impl TrainJob {
                 "data",
                 format!("{}: the dataset has no training frames", c.data.display()),
             ));
+        }
+        // A resumed run: the same dataset, iterations left, and more time (checked before
+        // the images are read).
+        let fingerprint = ds.fingerprint();
+        let mut max_time = c.max_time;
+        if c.resume {
+            let (_, info) = assist_scene::scene_file::load_scene_json(&c.out)?;
+            let state = ResumeState::from_info(&info).map_err(|m| {
+                request(
+                    "resume",
+                    format!("{}: {m}", c.out.join("scene.json").display()),
+                )
+            })?;
+            let before = info.get("dataset_fingerprint").and_then(|v| v.as_str());
+            if let Some(before) = before.filter(|b| *b != fingerprint)
+                && !c.force
+            {
+                return Err(request(
+                    "resume",
+                    format!(
+                        "{} was trained on another dataset ({}, fingerprint {before}); {} has fingerprint {fingerprint} (other frames or poses). Pass --force to continue on it anyway",
+                        c.out.display(),
+                        info.get("dataset")
+                            .and_then(|v| v.as_str())
+                            .unwrap_or("path not recorded"),
+                        c.data.display()
+                    ),
+                ));
+            }
+            if state.iteration >= c.iters {
+                return Err(request(
+                    "iters",
+                    format!(
+                        "{} has already trained {} iterations; a resumed run continues up to --iters (raise it to train more)",
+                        c.out.display(),
+                        state.iteration
+                    ),
+                ));
+            }
+            // A resumed run's time budget is additional: it counts from where it stopped.
+            max_time = max_time.map(|t| state.elapsed_seconds + t);
         }
         on_event(&TrainEvent::Loading {
             images: n_train,
@@ -277,6 +325,14 @@ impl TrainJob {
             });
         }
         let (mut scene, resume) = self.scene(&ds, &views, user_boxes)?;
+        // Room for a checkpoint beside the previous one (the swap holds both for a moment).
+        let bytes: usize = scene
+            .fields
+            .values()
+            .map(|f| 4 * f.field.param_count())
+            .sum();
+        assist_fs::check_space(&c.out, 2 * bytes as u64 + (64 << 20))
+            .map_err(SessionError::Output)?;
         let carved = assist_train::carve_scene(&mut scene, &views);
         if !carved.is_empty() {
             on_event(&TrainEvent::Carved { nodes: carved });
@@ -297,7 +353,7 @@ impl TrainJob {
         });
         let opts = TrainOptions {
             iters: c.iters,
-            max_time: c.max_time,
+            max_time,
             batch_samples: c.batch_samples,
             object_ray_fraction: c.object_rays,
             downscale: c.downscale,
@@ -308,6 +364,10 @@ impl TrainJob {
             checkpoint_every: c.checkpoint_every,
             poison_at: c.poison_at,
             cancel: Some(self.cancel.clone()),
+            provenance: serde_json::Map::from_iter([
+                ("dataset".to_string(), c.data.display().to_string().into()),
+                ("dataset_fingerprint".to_string(), fingerprint.into()),
+            ]),
             ..Default::default()
         };
         let mut trainer = Trainer::new(scene, views, opts)?;
@@ -316,12 +376,7 @@ impl TrainJob {
         }
         let mut last_occupancy = std::time::Instant::now();
         let report = trainer.run(|s, t| {
-            let occupancy = (last_occupancy.elapsed().as_secs_f64()
-                > std::env::var("DBG_EVERY")
-                    .ok()
-                    .and_then(|v| v.parse().ok())
-                    .unwrap_or(10.0))
-            .then(|| {
+            let occupancy = (last_occupancy.elapsed().as_secs_f64() > 10.0).then(|| {
                 last_occupancy = std::time::Instant::now();
                 t.occupancy()
             });

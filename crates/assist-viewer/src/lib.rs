@@ -245,11 +245,18 @@ async fn client(mut socket: WebSocket, app: Arc<App>) {
         return;
     }
     let path = app.scene.clone();
-    let opened = match tokio::task::spawn_blocking(move || Session::open(&path)).await {
+    // The file's stamp is taken before it is read: a save in between makes the stamp older
+    // than the session, so a later save is refused rather than lost.
+    let opened = tokio::task::spawn_blocking(move || {
+        let stamp = worker::disk_stamp(&path);
+        Session::open(&path).map(|s| (s, stamp))
+    })
+    .await;
+    let opened = match opened {
         Ok(r) => r.map_err(|e| e.to_string()),
         Err(e) => Err(e.to_string()),
     };
-    let session = match opened {
+    let (session, stamp) = match opened {
         Ok(s) => s,
         Err(message) => {
             send_json(&mut socket, &ServerMsg::Error { message }).await;
@@ -263,7 +270,9 @@ async fn client(mut socket: WebSocket, app: Arc<App>) {
     let worker = std::thread::Builder::new()
         .name("assist-view-client".into())
         .spawn(move || {
-            worker::Worker::new(session, &scene, others).run(in_rx, |o| out_tx.send(o).is_ok())
+            worker::Worker::new(session, &scene, others)
+                .with_disk_stamp(stamp)
+                .run(in_rx, |o| out_tx.send(o).is_ok())
         });
     if worker.is_err() {
         send_json(

@@ -97,6 +97,18 @@ pub struct Worker {
     /// What a drag's frames keep between updates (the camera and the other nodes stay).
     cache: DragCache,
     log: Vec<String>,
+    /// The opened scene's `scene.json` as this worker last read or wrote it: a save over
+    /// the scene is refused when another process changed it since.
+    disk: Option<u64>,
+}
+
+/// A digest of a scene's `scene.json` (`None` when it cannot be read).
+pub fn disk_stamp(scene: &Path) -> Option<u64> {
+    use std::hash::{Hash, Hasher};
+    let bytes = std::fs::read(scene.join("scene.json")).ok()?;
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    bytes.hash(&mut h);
+    Some(h.finish())
 }
 
 impl Worker {
@@ -111,6 +123,7 @@ impl Worker {
             drag: None,
             cache: DragCache::default(),
             log: Vec::new(),
+            disk: None,
         }
     }
 
@@ -460,6 +473,12 @@ impl Worker {
         Ok((!dry_run, !dry_run))
     }
 
+    /// The stamp of the scene on disk when the session was read (see [`disk_stamp`]).
+    pub fn with_disk_stamp(mut self, stamp: Option<u64>) -> Self {
+        self.disk = stamp;
+        self
+    }
+
     fn save(
         &mut self,
         path: Option<&str>,
@@ -482,10 +501,22 @@ impl Worker {
             }
         };
         // Saving over the opened scene is what "save" means; anything else needs force.
-        let force = force || target == self.scene_path;
+        let over_own = target == self.scene_path;
+        let force = force || over_own;
+        // Held across the check and the write, so no other process saves in between.
+        let _lock = assist_fs::lock(&target, "assist view").map_err(|e| e.to_string())?;
+        if over_own && disk_stamp(&target) != self.disk {
+            return Err(format!(
+                "save: {} was changed by another program since this viewer opened it; save under another name (save as) to keep both",
+                target.display()
+            ));
+        }
         self.session
             .save(&target, force)
             .map_err(|e| e.to_string())?;
+        if over_own {
+            self.disk = disk_stamp(&target);
+        }
         self.log.push(format!("saved {}", target.display()));
         send(Outgoing::Json(ServerMsg::Saved {
             path: target.display().to_string(),

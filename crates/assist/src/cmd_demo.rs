@@ -35,12 +35,7 @@ pub struct DemoArgs {
     /// Training time of the second scene (the source of the inserted object), seconds.
     #[arg(long, default_value_t = 30.0)]
     pub other_seconds: f64,
-    /// Replace an output folder that was not written by a previous demo.
-    #[arg(long)]
-    pub force: bool,
 }
-
-const MARKER: &str = ".assist-demo";
 
 fn train(data: &Path, out: &Path, seconds: f64, seed: u64) -> anyhow::Result<()> {
     // `assist train`'s defaults (declared once, in the job's configuration).
@@ -96,20 +91,12 @@ fn instruction(scene: &Scene, other: &Scene, other_path: &str) -> anyhow::Result
 
 pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     let out = &a.out;
-    if out.exists() && !out.join(MARKER).exists() && !a.force {
-        let non_empty = std::fs::read_dir(out)
-            .map(|mut d| d.next().is_some())
-            .unwrap_or(true);
-        if non_empty {
-            bail!(
-                "{}: exists and was not written by `assist demo`; pass --force to replace it, or --out elsewhere",
-                out.display()
-            );
-        }
-    }
+    // A previous demo's folder is rewritten; a folder assist did not write never is.
+    assist_fs::check_replaceable(out, true)?;
+    let _lock = assist_fs::lock(out, "assist demo")?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    std::fs::write(out.join(MARKER), "written by assist demo\n")
-        .with_context(|| format!("writing {}", out.join(MARKER).display()))?;
+    std::fs::write(out.join(assist_fs::MARKER), "written by assist demo\n")
+        .with_context(|| format!("writing {}", out.join(assist_fs::MARKER).display()))?;
     let t0 = std::time::Instant::now();
     let (data_a, data_b) = (out.join("scene"), out.join("other"));
     let cfg = SynthConfig {

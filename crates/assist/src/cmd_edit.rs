@@ -34,7 +34,8 @@ pub struct EditArgs {
     pub dry_run: bool,
     #[arg(long)]
     pub json: bool,
-    /// Replace --out if it exists.
+    /// Replace --out if it exists (only a scene assist wrote; give the scene itself to
+    /// edit in place).
     #[arg(long)]
     pub force: bool,
     /// Interpret left/right/forward/back relative to this dataset's camera (with --frame).
@@ -52,8 +53,7 @@ pub struct EditArgs {
 /// Reads an edit script: JSON Lines (blank lines and `#` comments skipped), a JSON array,
 /// or a single (possibly pretty-printed) JSON object. Errors name the file and line.
 pub fn read_actions(path: &Path) -> anyhow::Result<Vec<Action>> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("reading actions file {}", path.display()))?;
+    let text = assist_fs::read_text(path)?;
     let t = text.trim_start();
     if t.starts_with('[') {
         return serde_json::from_str(&text).map_err(|e| {
@@ -129,6 +129,16 @@ pub fn run(a: EditArgs) -> anyhow::Result<()> {
     if sources.iter().filter(|s| **s).count() != 1 {
         bail!("give exactly one of --do TEXT, --actions FILE, or --undo/--redo N");
     }
+    // A read-modify-write: the scene (and --out) are claimed from loading to saving, so a
+    // second process editing either gets an error instead of silently losing an edit.
+    let mut _locks = Vec::new();
+    if !a.dry_run {
+        _locks.push(assist_fs::lock(&a.scene, "assist edit")?);
+        if let Some(out) = &a.out {
+            assist_fs::check_replaceable(out, a.force)?;
+            _locks.push(assist_fs::lock(out, "assist edit")?);
+        }
+    }
     let mut session =
         Session::open(&a.scene).with_context(|| format!("loading scene {}", a.scene.display()))?;
     let mpu = session.description().meters_per_unit;
@@ -167,9 +177,6 @@ pub fn run(a: EditArgs) -> anyhow::Result<()> {
         .out
         .as_ref()
         .context("--out NEW.assist is required (or --dry-run)")?;
-    if out.exists() && !a.force {
-        bail!("{} exists (pass --force to replace it)", out.display());
-    }
     let mut applied = Vec::new();
     if let Some(n) = a.undo {
         for i in 0..n {

@@ -121,12 +121,9 @@ fn job(a: &RenderArgs) -> anyhow::Result<RenderJob> {
 }
 
 pub fn run(a: RenderArgs) -> anyhow::Result<()> {
-    if a.out.exists() && std::fs::read_dir(&a.out)?.next().is_some() && !a.force {
-        bail!(
-            "{} exists and is not empty (pass --force to write into it)",
-            a.out.display()
-        );
-    }
+    // Before anything is loaded: --force replaces only what assist wrote (the new dataset
+    // is swapped in whole, never mixed with the old one's files).
+    assist_fs::check_replaceable(&a.out, a.force)?;
     let job = job(&a)?;
     let session =
         Session::open(&a.scene).with_context(|| format!("loading scene {}", a.scene.display()))?;

@@ -17,9 +17,11 @@ pub struct TrainArgs {
     /// Output scene directory (NAME.assist). Refused if it exists, unless --force.
     #[arg(long)]
     pub out: PathBuf,
+    /// Iterations to train in all (a resumed run continues up to this count).
     #[arg(long, default_value_t = TrainConfig::default().iters)]
     pub iters: usize,
-    /// Stop after this many seconds (the learning-rate schedule then runs on time).
+    /// Stop after this many seconds (the learning-rate schedule then runs on time). With
+    /// --resume, this many seconds more than the scene was trained already.
     #[arg(long)]
     pub max_time: Option<f64>,
     /// Train on images N times smaller (from images_N/ folders beside the images where
@@ -76,9 +78,12 @@ pub struct TrainArgs {
     /// Seconds between checkpoints (written atomically to --out).
     #[arg(long, default_value_t = TrainConfig::default().checkpoint_every)]
     pub checkpoint_every: f64,
-    /// Continue training the scene in --out.
+    /// Continue training the scene in --out (from its last checkpoint). Refused when the
+    /// dataset differs from the one it was trained on, unless --force.
     #[arg(long)]
     pub resume: bool,
+    /// Replace --out if assist wrote it (a folder assist did not write is never replaced);
+    /// with --resume, continue on a different dataset.
     #[arg(long)]
     pub force: bool,
     /// Print one JSON object (the report) instead of text.
@@ -164,6 +169,17 @@ pub(crate) fn flag_error(e: assist_session::SessionError) -> anyhow::Error {
 pub fn run(a: TrainArgs) -> anyhow::Result<()> {
     let job = TrainJob::new(a.config()?);
     job.validate().map_err(flag_error)?;
+    // Ctrl+C or SIGTERM: stop after the current step and save; a second one quits at once.
+    let cancel = job.cancel_handle();
+    let _ = ctrlc::set_handler(move || {
+        if cancel.swap(true, std::sync::atomic::Ordering::SeqCst) {
+            eprintln!("\ninterrupted again: quitting without saving");
+            std::process::exit(130);
+        }
+        eprintln!(
+            "\ninterrupted: saving the scene trained so far (interrupt again to quit without saving)"
+        );
+    });
     let show = !a.json && std::io::stderr().is_terminal();
     let bar = ProgressBar::new(1000);
     if !show {
@@ -272,6 +288,15 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
     let report = &outcome.report;
     if a.json {
         println!("{}", serde_json::to_string_pretty(report)?);
+    } else if report.cancelled {
+        eprintln!(
+            "interrupted at iteration {} ({:.1} s): saved {}\ncontinue with: assist train {} --out {} --resume",
+            report.iterations,
+            report.seconds,
+            outcome.out.display(),
+            a.data.display(),
+            outcome.out.display()
+        );
     } else {
         eprintln!(
             "trained {} iterations in {:.1} s ({:.0} rays/s, {:.2} M samples/s); last batch PSNR {:.2} dB\nsaved {}",
@@ -290,6 +315,10 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
             .map(|(n, t)| format!("{n} {:.1}", t * per_step))
             .collect();
         eprintln!("ms per step: {}", parts.join(", "));
+    }
+    if report.cancelled {
+        // Saved, but not finished: scripts must not mistake it for a complete run.
+        std::process::exit(130);
     }
     Ok(())
 }

@@ -127,7 +127,7 @@ fn writer(dir: &Path, cfg: &SynthConfig, objects: Option<&[Object]>) -> Result<D
         extra: extra.as_object().cloned().unwrap_or_default(),
         ..WriterConfig::default()
     };
-    DatasetWriter::create(dir, cfg, false)
+    DatasetWriter::create_in(dir, cfg)
 }
 
 struct Job {
@@ -213,47 +213,15 @@ pub fn generate(
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<SynthSummary> {
     cfg.validate()?;
-    let non_empty = out.is_dir()
-        && std::fs::read_dir(out)
-            .map_err(|e| DataError::io(out, e))?
-            .next()
-            .is_some();
-    if (non_empty || out.is_file()) && !force {
-        return Err(DataError::Exists { path: out.into() });
-    }
+    assist_fs::check_replaceable(out, force)?;
     let mut rng = Rng::new(cfg.seed);
     let scene = build_scene(&mut rng, cfg.objects);
     let cams = cameras(&mut rng, cfg.views, cfg.width, cfg.height);
     let edits = make_edits(&scene, &mut rng);
-    let parent = out
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    std::fs::create_dir_all(parent).map_err(|e| DataError::io(parent, e))?;
-    let name = out
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "synth".into());
-    let tmp = parent.join(format!(".{name}.tmp-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&tmp);
-    let result = write_all(cfg, &tmp, &scene, &cams, &edits, progress);
-    if let Err(e) = result {
-        let _ = std::fs::remove_dir_all(&tmp);
-        return Err(e);
-    }
-    // Swap into place; an old folder (with --force) is removed only after the new one is in.
-    let old = parent.join(format!(".{name}.old-{}", std::process::id()));
-    if out.exists() {
-        std::fs::rename(out, &old).map_err(|e| DataError::io(out, e))?;
-    }
-    std::fs::rename(&tmp, out).map_err(|e| DataError::io(out, e))?;
-    if old.exists() {
-        let _ = if old.is_dir() {
-            std::fs::remove_dir_all(&old)
-        } else {
-            std::fs::remove_file(&old)
-        };
-    }
+    // Written whole beside `out` and swapped into place.
+    let staging = assist_fs::Staging::begin(out, "synth")?;
+    write_all(cfg, staging.dir(), &scene, &cams, &edits, progress)?;
+    staging.commit()?;
     let test = (0..cfg.views).filter(|&i| is_test(i)).count();
     Ok(SynthSummary {
         out: out.to_path_buf(),

@@ -389,6 +389,9 @@ impl Trainer {
     pub fn info(&self, elapsed: f64) -> serde_json::Value {
         let mut v = serde_json::to_value(self.resume_state(elapsed)).expect("plain numbers");
         v["options"] = serde_json::to_value(&self.opts).expect("plain values");
+        for (k, x) in &self.opts.provenance {
+            v[k] = x.clone();
+        }
         v
     }
 

@@ -99,6 +99,10 @@ pub struct TrainOptions {
     /// says `cancelled`; the scene is as trained so far).
     #[serde(skip)]
     pub cancel: Option<Arc<AtomicBool>>,
+    /// Further keys written into the scene file's `info` with every save (where the scene
+    /// came from: the dataset and its fingerprint).
+    #[serde(skip)]
+    pub provenance: serde_json::Map<String, serde_json::Value>,
 }
 
 impl Default for TrainOptions {
@@ -120,6 +124,7 @@ impl Default for TrainOptions {
             prune_eps: 0.0,
             poison_at: None,
             cancel: None,
+            provenance: serde_json::Map::new(),
         }
     }
 }

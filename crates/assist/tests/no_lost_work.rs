@@ -1,0 +1,437 @@
+//! No lost work (the reliability issue, part 3 and 4): `--force` replaces only folders
+//! assist wrote, a render replaces its folder whole, a second process cannot lose an edit,
+//! Ctrl+C saves, `--resume` refuses another dataset and adds time, stale temporaries go.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use assist_testkit::TempDir;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_assist"))
+}
+
+fn assist(args: &[&str]) -> Output {
+    bin().args(args).output().expect("run assist")
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn ok(out: &Output) -> String {
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{err}");
+    err
+}
+
+fn refused(out: &Output, needles: &[&str]) -> String {
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    for n in needles {
+        assert!(err.contains(n), "error should mention {n:?}: {err}");
+    }
+    err
+}
+
+/// A tiny built-in capture and a scene trained on it for a few iterations.
+fn scene(tmp: &TempDir) -> (PathBuf, PathBuf) {
+    let data = tmp.join("cap");
+    ok(&assist(&[
+        "synth",
+        "--out",
+        s(&data),
+        "--views",
+        "8",
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "--objects",
+        "3",
+        "--spp",
+        "1",
+        "--shadow-samples",
+        "1",
+    ]));
+    let sc = tmp.join("s.assist");
+    ok(&assist(&[
+        "train",
+        s(&data),
+        "--out",
+        s(&sc),
+        "--iters",
+        "3",
+        "--batch-samples",
+        "4096",
+    ]));
+    (data, sc)
+}
+
+fn info(scene: &Path) -> serde_json::Value {
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(scene.join("scene.json")).unwrap()).unwrap();
+    v["info"].clone()
+}
+
+/// Hidden temporaries beside `dir`'s entries (`.NAME.tmp-*`, `.NAME.old-*`, locks).
+fn leftovers(dir: &Path) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains(".tmp-") || n.contains(".old-") || n.ends_with(".lock"))
+        .collect()
+}
+
+#[test]
+fn force_never_replaces_a_folder_assist_did_not_write() {
+    let tmp = TempDir::new("force-marker");
+    let (data, sc) = scene(&tmp);
+    let precious = tmp.join("precious");
+    std::fs::create_dir_all(&precious).unwrap();
+    std::fs::write(precious.join("precious.txt"), "keep me").unwrap();
+    let p = s(&precious);
+    for args in [
+        vec![
+            "synth", "--out", p, "--views", "6", "--width", "16", "--height", "16", "--force",
+        ],
+        vec!["train", s(&data), "--out", p, "--iters", "1", "--force"],
+        vec![
+            "edit",
+            s(&sc),
+            "--do",
+            "delete the ball",
+            "--out",
+            p,
+            "--force",
+        ],
+        vec![
+            "render",
+            s(&sc),
+            "--out",
+            p,
+            "--frames",
+            "1",
+            "--size",
+            "16x12",
+            "--force",
+        ],
+    ] {
+        refused(&assist(&args), &["precious", "not written by assist"]);
+        assert_eq!(
+            std::fs::read_to_string(precious.join("precious.txt")).unwrap(),
+            "keep me",
+            "{args:?}"
+        );
+        assert_eq!(std::fs::read_dir(&precious).unwrap().count(), 1, "{args:?}");
+    }
+    // What assist wrote it may replace.
+    ok(&assist(&[
+        "edit",
+        s(&sc),
+        "--do",
+        "delete the ball",
+        "--out",
+        s(&sc),
+        "--force",
+    ]));
+    assert!(
+        leftovers(tmp.path()).is_empty(),
+        "{:?}",
+        leftovers(tmp.path())
+    );
+}
+
+#[test]
+fn render_force_writes_a_fresh_folder_never_a_mix() {
+    let tmp = TempDir::new("render-fresh");
+    let (_, sc) = scene(&tmp);
+    let out = tmp.join("r");
+    ok(&assist(&[
+        "render",
+        s(&sc),
+        "--out",
+        s(&out),
+        "--frames",
+        "5",
+        "--size",
+        "24x18",
+        "--outputs",
+        "rgb,panoptic",
+    ]));
+    assert_eq!(std::fs::read_dir(out.join("images")).unwrap().count(), 5);
+    assert!(out.join("panoptic_legend.json").is_file());
+    ok(&assist(&[
+        "render",
+        s(&sc),
+        "--out",
+        s(&out),
+        "--frames",
+        "2",
+        "--size",
+        "16x12",
+        "--outputs",
+        "rgb",
+        "--force",
+    ]));
+    assert_eq!(std::fs::read_dir(out.join("images")).unwrap().count(), 2);
+    assert!(
+        !out.join("panoptic_legend.json").exists(),
+        "the old render's legend survived"
+    );
+    assert!(!out.join("panoptic").exists());
+    assert!(
+        leftovers(tmp.path()).is_empty(),
+        "{:?}",
+        leftovers(tmp.path())
+    );
+}
+
+#[test]
+fn stale_temporaries_of_a_killed_save_are_removed_by_the_next_write() {
+    let tmp = TempDir::new("stale");
+    let (_, sc) = scene(&tmp);
+    // What a save killed mid-way leaves: a half-written copy and a moved-aside old folder.
+    std::fs::create_dir_all(tmp.join(".s.assist.tmp-4000001/fields")).unwrap();
+    std::fs::write(
+        tmp.join(".s.assist.tmp-4000001/fields/x.safetensors"),
+        [0u8; 64],
+    )
+    .unwrap();
+    std::fs::create_dir_all(tmp.join(".s.assist.old-4000002")).unwrap();
+    ok(&assist(&[
+        "edit",
+        s(&sc),
+        "--do",
+        "delete the ball",
+        "--out",
+        s(&sc),
+        "--force",
+    ]));
+    assert!(
+        leftovers(tmp.path()).is_empty(),
+        "{:?}",
+        leftovers(tmp.path())
+    );
+}
+
+#[test]
+fn two_editors_of_one_scene_never_lose_an_edit() {
+    let tmp = TempDir::new("concurrent-edit");
+    let (_, sc) = scene(&tmp);
+    let mut applied = 0;
+    for round in 0..5 {
+        let spawn = |dist: &str| {
+            bin()
+                .args([
+                    "edit",
+                    s(&sc),
+                    "--do",
+                    &format!("move the ball {dist} cm left"),
+                    "--out",
+                    s(&sc),
+                    "--force",
+                ])
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap()
+        };
+        let (a, b) = (spawn("1"), spawn("2"));
+        for c in [a, b] {
+            let out = c.wait_with_output().unwrap();
+            let err = String::from_utf8_lossy(&out.stderr);
+            if out.status.success() {
+                applied += 1;
+            } else {
+                assert!(
+                    err.contains("in use by another assist process"),
+                    "round {round}: {err}"
+                );
+            }
+        }
+    }
+    // Every edit that said it saved is in the scene's history: one undo step each.
+    let hist: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(sc.join("history.json")).unwrap()).unwrap();
+    assert_eq!(hist["undo"].as_array().unwrap().len(), applied);
+    assert!(applied >= 5, "at least one edit per round succeeds");
+    assert!(
+        leftovers(tmp.path()).is_empty(),
+        "{:?}",
+        leftovers(tmp.path())
+    );
+}
+
+#[test]
+fn training_refuses_an_unwritable_output_before_it_starts() {
+    let tmp = TempDir::new("unwritable");
+    let (data, _) = scene(&tmp);
+    std::fs::write(tmp.join("file"), "not a folder").unwrap();
+    let t = Instant::now();
+    let out = assist(&[
+        "train",
+        s(&data),
+        "--out",
+        s(&tmp.join("file/x.assist")),
+        "--max-time",
+        "30",
+    ]);
+    let err = refused(&out, &["file"]);
+    assert!(!err.contains("loading"), "training started: {err}");
+    assert!(t.elapsed() < Duration::from_secs(20));
+}
+
+/// Starts training and returns the child once its nodes are listed (training begins).
+fn start_training(data: &Path, out: &Path, extra: &[&str]) -> std::process::Child {
+    let mut child = bin()
+        .args(["train", s(data), "--out", s(out), "--iters", "1000000"])
+        .args(extra)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stderr = child.stderr.take().unwrap();
+    let mut lines = BufReader::new(stderr).lines();
+    for line in lines.by_ref() {
+        if line.unwrap().starts_with("nodes:") {
+            break;
+        }
+    }
+    // Keep draining stderr so the child never blocks on a full pipe.
+    std::thread::spawn(move || for _ in lines {});
+    child
+}
+
+#[test]
+fn an_interrupt_saves_the_scene_and_resume_continues_it() {
+    let tmp = TempDir::new("sigint");
+    let (data, _) = scene(&tmp);
+    let out = tmp.join("run.assist");
+    let child = start_training(&data, &out, &["--checkpoint-every", "1000"]);
+    std::thread::sleep(Duration::from_millis(1500));
+    let pid = child.id().to_string();
+    assert!(
+        Command::new("kill")
+            .args(["-INT", &pid])
+            .status()
+            .unwrap()
+            .success()
+    );
+    let res = child.wait_with_output().unwrap();
+    assert_eq!(
+        res.status.code(),
+        Some(130),
+        "an interrupted run is not a success"
+    );
+    let i = info(&out);
+    let it = i["iteration"].as_u64().unwrap();
+    assert!(it > 0, "{i}");
+    // SIGTERM too.
+    let child = start_training(
+        &data,
+        &tmp.join("term.assist"),
+        &["--checkpoint-every", "1000"],
+    );
+    std::thread::sleep(Duration::from_millis(800));
+    let pid = child.id().to_string();
+    assert!(
+        Command::new("kill")
+            .args(["-TERM", &pid])
+            .status()
+            .unwrap()
+            .success()
+    );
+    assert_eq!(child.wait_with_output().unwrap().status.code(), Some(130));
+    assert!(tmp.join("term.assist/scene.json").is_file());
+
+    // --max-time on resume is additional time: it trains on.
+    let before = i["elapsed_seconds"].as_f64().unwrap();
+    ok(&assist(&[
+        "train",
+        s(&data),
+        "--out",
+        s(&out),
+        "--resume",
+        "--max-time",
+        "1",
+    ]));
+    let j = info(&out);
+    assert!(j["iteration"].as_u64().unwrap() > it, "{j}");
+    assert!(
+        j["elapsed_seconds"].as_f64().unwrap() >= before + 0.9,
+        "{j}"
+    );
+    // Nothing left to do is an error, not a silent success.
+    let n = j["iteration"].as_u64().unwrap().to_string();
+    refused(
+        &assist(&[
+            "train",
+            s(&data),
+            "--out",
+            s(&out),
+            "--resume",
+            "--iters",
+            &n,
+        ]),
+        &["--iters", "already trained"],
+    );
+}
+
+#[test]
+fn resume_refuses_another_dataset_unless_forced() {
+    let tmp = TempDir::new("resume-other");
+    let (_, sc) = scene(&tmp);
+    let other = tmp.join("other");
+    ok(&assist(&[
+        "synth",
+        "--out",
+        s(&other),
+        "--views",
+        "8",
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "--objects",
+        "3",
+        "--seed",
+        "9",
+        "--spp",
+        "1",
+        "--shadow-samples",
+        "1",
+    ]));
+    let it = info(&sc)["iteration"].as_u64().unwrap();
+    refused(
+        &assist(&[
+            "train",
+            s(&other),
+            "--out",
+            s(&sc),
+            "--resume",
+            "--iters",
+            "10",
+        ]),
+        &["another dataset", "fingerprint", "--force"],
+    );
+    assert_eq!(
+        info(&sc)["iteration"].as_u64().unwrap(),
+        it,
+        "the scene was touched"
+    );
+    ok(&assist(&[
+        "train",
+        s(&other),
+        "--out",
+        s(&sc),
+        "--resume",
+        "--iters",
+        "5",
+        "--force",
+    ]));
+    assert_eq!(info(&sc)["iteration"].as_u64().unwrap(), 5);
+}
