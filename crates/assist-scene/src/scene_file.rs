@@ -143,6 +143,29 @@ pub fn save_with_history(
     Ok(())
 }
 
+/// Parses and validates a `history.json` (every snapshot as a scene file must hold it);
+/// `path` names the file in errors.
+pub fn parse_history(path: &Path, text: &str) -> Result<History, SceneFileError> {
+    let history: History = serde_json::from_str(text).map_err(|e| {
+        invalid(
+            path,
+            format!("line {} column {}", e.line(), e.column()),
+            format!("not an edit history: {e}"),
+        )
+    })?;
+    check_scenes(path, None, &history)?;
+    Ok(history)
+}
+
+/// Parses and validates the text of a `scene.json` (no weights); `path` names the file in
+/// errors.
+pub fn parse_scene_json(
+    path: &Path,
+    text: &str,
+) -> Result<(Scene, serde_json::Value), SceneFileError> {
+    scene_json_from_text(path, text)
+}
+
 /// Loads and validates a scene directory (or its `scene.json`).
 pub fn load(path: &Path) -> Result<(NeuralScene, serde_json::Value), SceneFileError> {
     let (scene, _, info) = load_with_history(path)?;
@@ -175,18 +198,10 @@ pub fn load_with_history(
     let (scene, info) = read_scene_json(&file)?;
     let hist_path = dir.join("history.json");
     let history: History = if hist_path.exists() {
-        let text = assist_fs::read_text(&hist_path)?;
-        serde_json::from_str(&text).map_err(|e| {
-            invalid(
-                &hist_path,
-                format!("line {} column {}", e.line(), e.column()),
-                format!("not an edit history: {e}"),
-            )
-        })?
+        parse_history(&hist_path, &assist_fs::read_text(&hist_path)?)?
     } else {
         History::default()
     };
-    check_scenes(&hist_path, None, &history)?;
     let mut fields = BTreeMap::new();
     let keys: Vec<(String, String)> = scene
         .nodes
@@ -249,7 +264,15 @@ pub fn load_field(
 fn read_scene_json(file: &Path) -> Result<(Scene, serde_json::Value), SceneFileError> {
     let file = file.to_path_buf();
     let text = assist_fs::read_text(&file)?;
-    let raw: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
+    scene_json_from_text(&file, &text)
+}
+
+fn scene_json_from_text(
+    file: &Path,
+    text: &str,
+) -> Result<(Scene, serde_json::Value), SceneFileError> {
+    let file = file.to_path_buf();
+    let raw: serde_json::Value = serde_json::from_str(text).map_err(|e| {
         invalid(
             &file,
             format!("line {} column {}", e.line(), e.column()),
