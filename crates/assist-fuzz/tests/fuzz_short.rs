@@ -9,7 +9,7 @@ use std::time::Duration;
 fn every_parser_survives_mutated_real_inputs() {
     // The real seeds come from the shared data; without it the built-in seeds still run.
     let _ = assist_testkit::shared_data("fuzz_short");
-    let out = assist_testkit::TempDir(assist_fuzz::scratch_base().join("short"));
+    let out = assist_testkit::TempDir(assist_fuzz::scratch_base());
     let targets = assist_fuzz::targets::all();
     let names: Vec<&str> = targets.iter().map(|t| t.name).collect();
     for want in [

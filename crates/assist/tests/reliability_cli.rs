@@ -130,3 +130,87 @@ fn an_absurd_batch_size_or_time_budget_is_refused() {
         assert!(!out_scene.exists(), "{flag} {value}: a scene was written");
     }
 }
+
+#[test]
+fn bad_scene_values_are_blamed_on_the_scene_not_on_flags_never_passed() {
+    let tmp = TempDir::new("scene-values");
+    let data = tmp.join("cap");
+    let ok = |out: Output| {
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        )
+    };
+    ok(assist(&[
+        "synth",
+        "--out",
+        s(&data),
+        "--views",
+        "8",
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "--objects",
+        "3",
+        "--spp",
+        "1",
+        "--shadow-samples",
+        "1",
+    ]));
+    let sc = tmp.join("s.assist");
+    ok(assist(&[
+        "train",
+        s(&data),
+        "--out",
+        s(&sc),
+        "--iters",
+        "2",
+        "--batch-samples",
+        "4096",
+    ]));
+    let edit_json = |name: &str, f: &dyn Fn(&mut serde_json::Value)| {
+        let dir = tmp.join(name);
+        std::fs::create_dir_all(dir.join("fields")).unwrap();
+        for e in std::fs::read_dir(sc.join("fields")).unwrap() {
+            let e = e.unwrap();
+            std::fs::copy(e.path(), dir.join("fields").join(e.file_name())).unwrap();
+        }
+        let mut v: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(sc.join("scene.json")).unwrap()).unwrap();
+        f(&mut v);
+        std::fs::write(dir.join("scene.json"), v.to_string()).unwrap();
+        dir
+    };
+    // A selection naming no node: the scene file's field, not `--select`.
+    let sel = edit_json("sel.assist", &|v| v["selected"] = 99.into());
+    let out = assist(&[
+        "render",
+        s(&sel),
+        "--out",
+        s(&tmp.join("r1")),
+        "--frames",
+        "1",
+    ]);
+    let err = refused(&out, &["scene.json", "selected", "99"]);
+    assert!(!err.contains("--select"), "{err}");
+    // Boxes too large to orbit: the scene's boxes, not `--radius`.
+    let big = edit_json("big.assist", &|v| {
+        v["nodes"][1]["half_size"] = serde_json::json!([1e6, 1e6, 1e6]);
+        v["nodes"][1]["world_from_local"]["scale"] = serde_json::json!([1e6, 1e6, 1e6]);
+    });
+    let out = assist(&[
+        "render",
+        s(&big),
+        "--out",
+        s(&tmp.join("r2")),
+        "--frames",
+        "1",
+    ]);
+    let err = refused(&out, &["boxes"]);
+    assert!(
+        !err.contains("--radius") && !err.contains("got inf"),
+        "{err}"
+    );
+}

@@ -51,6 +51,8 @@ fn main() {
         failed |= r.panics > 0;
     }
     if failed {
+        eprintln!("failing inputs kept in {}", out.display());
         std::process::exit(1);
     }
+    let _ = std::fs::remove_dir_all(&out);
 }
