@@ -48,6 +48,7 @@ pub const MAX_BATCH_SAMPLES: usize = 1 << 24;
 #[serde(default)]
 pub struct LambdaOverrides {
     pub bg_rgb: Option<f32>,
+    pub bg_opacity: Option<f32>,
     pub bg_depth: Option<f32>,
     pub obj_acc: Option<f32>,
     pub obj_rgb: Option<f32>,
@@ -448,6 +449,7 @@ pub fn lambdas(c: &TrainConfig, dataset_inpaint: bool) -> Lambdas {
     let o = &c.lambdas;
     for (slot, v) in [
         (&mut l.bg_rgb, o.bg_rgb),
+        (&mut l.bg_opacity, o.bg_opacity),
         (&mut l.bg_depth, o.bg_depth),
         (&mut l.obj_acc, o.obj_acc),
         (&mut l.obj_rgb, o.obj_rgb),

@@ -48,6 +48,10 @@ pub struct TrainArgs {
     pub prior_dir: Option<PathBuf>,
     #[arg(long)]
     pub lambda_bg_rgb: Option<f32>,
+    /// Weight of an opaque background where its prior speaks (ours; default 0: it lets a
+    /// prior reach the background behind objects, but can cover objects with background).
+    #[arg(long)]
+    pub lambda_bg_opacity: Option<f32>,
     #[arg(long)]
     pub lambda_bg_depth: Option<f32>,
     #[arg(long)]
@@ -128,6 +132,7 @@ impl TrainArgs {
             prior_dir: self.prior_dir.clone(),
             lambdas: LambdaOverrides {
                 bg_rgb: self.lambda_bg_rgb,
+                bg_opacity: self.lambda_bg_opacity,
                 bg_depth: self.lambda_bg_depth,
                 obj_acc: self.lambda_obj_acc,
                 obj_rgb: self.lambda_obj_rgb,
@@ -266,12 +271,13 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
                     .map(|(k, f)| format!("{k} {:.1}%", f * 100.0))
                     .collect();
                 eprintln!(
-                    "         pruned {} of {} samples; samples/ray {:.1?} terms: comp {:.5} bg_rgb {:.5} bg_depth {:.5} obj_acc {:.5} obj_rgb {:.5} obj_share {:.5} dist {:.5}; occupied: {}",
+                    "         pruned {} of {} samples; samples/ray {:.1?} terms: comp {:.5} bg_rgb {:.5} bg_opacity {:.5} bg_depth {:.5} obj_acc {:.5} obj_rgb {:.5} obj_share {:.5} dist {:.5}; occupied: {}",
                     s.pruned,
                     s.candidates,
                     s.samples_per_ray,
                     s.comp_rgb,
                     s.bg_rgb,
+                    s.bg_opacity,
                     s.bg_depth,
                     s.obj_acc,
                     s.obj_rgb,

@@ -194,6 +194,10 @@ fn training_follows_a_supplied_prior_under_the_objects() {
             "150",
             "--seed",
             "1",
+            // An opaque background where the prior speaks: without it the premultiplied
+            // colour term is met by a background left transparent behind the objects.
+            "--lambda-bg-opacity",
+            "0.5",
         ];
         if let Some(p) = extra {
             args.extend(["--prior-dir", s(p)]);

@@ -273,6 +273,7 @@ impl Trainer {
             s.obj_rgb += v.obj_rgb as f64;
             s.obj_share += v.obj_share as f64;
             s.bg_rgb += v.bg_rgb as f64;
+            s.bg_opacity += v.bg_opacity as f64;
             s.bg_depth += v.bg_depth as f64;
             g_wq[0] += v.d_depth_wq[0];
             g_wq[1] += v.d_depth_wq[1];
@@ -284,9 +285,11 @@ impl Trainer {
         s.obj_share /= nr;
         s.distortion /= nr;
         s.bg_rgb /= nr;
+        s.bg_opacity /= nr;
         s.bg_depth /= nr;
         s.loss = s.comp_rgb
             + lam.bg_rgb as f64 * s.bg_rgb
+            + lam.bg_opacity as f64 * s.bg_opacity
             + lam.bg_depth as f64 * s.bg_depth
             + lam.obj_acc as f64 * s.obj_acc
             + lam.obj_rgb as f64 * s.obj_rgb

@@ -34,6 +34,7 @@ pub(super) struct RayTerms {
     pub(super) obj_share: f32,
     pub(super) distortion: f32,
     pub(super) bg_rgb: f32,
+    pub(super) bg_opacity: f32,
     pub(super) bg_depth: f32,
     pub(super) d_depth_wq: [f32; 2],
 }
@@ -93,18 +94,19 @@ impl Objective<'_> {
         let pw = t.prior_weight;
         let pb = &per[b];
         if let Some(inp) = t.inpaint {
-            // The background is what every ray ends on: opaque wherever the prior speaks
-            // for it. Without the opacity part the premultiplied colour term is also met by
-            // a background left transparent behind objects, which renders as whatever lies
-            // past it once they move (desk's background under objects fell to 11.5 dB).
+            // The premultiplied colour term is also met by a background left transparent
+            // behind objects, which renders as whatever lies past it once they move;
+            // `bg_opacity` asks the background to be opaque wherever the prior speaks for
+            // it (see `Lambdas::bg_opacity` for why it is off by default).
             let (v, dc, d_o) = losses::premultiplied_rgb(pb.rgb, pb.opacity, inp);
             let (vo, dob) = losses::opacity(pb.opacity, 1.0);
-            terms.bg_rgb = pw * (v + vo);
+            terms.bg_rgb = pw * v;
+            terms.bg_opacity = pw * vo;
             if let Some((_, gn)) = grads.as_mut() {
                 for ch in 0..3 {
                     gn[b].rgb[ch] += pw * lam.bg_rgb * dc[ch] / n;
                 }
-                gn[b].opacity += pw * lam.bg_rgb * (d_o + dob) / n;
+                gn[b].opacity += pw * (lam.bg_rgb * d_o + lam.bg_opacity * dob) / n;
             }
         }
         if let Some(d) = t.depth {
@@ -143,6 +145,7 @@ mod tests {
             + l.obj_share * v.obj_share
             + l.distortion * v.distortion
             + l.bg_rgb * v.bg_rgb
+            + l.bg_opacity * v.bg_opacity
             + l.bg_depth * v.bg_depth) as f64
             / obj.n_rays as f64
     }
@@ -208,6 +211,7 @@ mod tests {
             let obj = Objective {
                 lam: Lambdas {
                     distortion: 0.3,
+                    bg_opacity: 0.4,
                     ..Lambdas::default()
                 },
                 n_rays: 4.0,
