@@ -435,3 +435,60 @@ fn resume_refuses_another_dataset_unless_forced() {
     ]));
     assert_eq!(info(&sc)["iteration"].as_u64().unwrap(), 5);
 }
+
+#[test]
+fn a_second_writer_of_an_output_in_use_gets_a_clear_error() {
+    let tmp = TempDir::new("busy-out");
+    let (data, sc) = scene(&tmp);
+    let out = tmp.join("shared.assist");
+    let child = start_training(&data, &out, &["--checkpoint-every", "0.2"]);
+    std::thread::sleep(Duration::from_millis(600));
+    for args in [
+        vec![
+            "edit",
+            s(&sc),
+            "--do",
+            "delete the ball",
+            "--out",
+            s(&out),
+            "--force",
+        ],
+        vec![
+            "train",
+            s(&data),
+            "--out",
+            s(&out),
+            "--force",
+            "--iters",
+            "1",
+        ],
+    ] {
+        refused(
+            &assist(&args),
+            &[
+                "shared.assist",
+                "in use by another assist process",
+                "assist train",
+            ],
+        );
+    }
+    let pid = child.id().to_string();
+    assert!(
+        Command::new("kill")
+            .args(["-INT", &pid])
+            .status()
+            .unwrap()
+            .success()
+    );
+    assert_eq!(child.wait_with_output().unwrap().status.code(), Some(130));
+    // Once it is done, the output is free again.
+    ok(&assist(&[
+        "edit",
+        s(&sc),
+        "--do",
+        "delete the ball",
+        "--out",
+        s(&out),
+        "--force",
+    ]));
+}

@@ -214,3 +214,29 @@ fn bad_scene_values_are_blamed_on_the_scene_not_on_flags_never_passed() {
         "{err}"
     );
 }
+
+#[test]
+fn reader_errors_name_the_file_the_frame_and_the_byte() {
+    let tmp = TempDir::new("reader-errors");
+    let bl = tmp.join("bl");
+    std::fs::create_dir_all(bl.join("train")).unwrap();
+    std::fs::write(bl.join("train/r_0.png"), "not a png").unwrap();
+    std::fs::write(
+        bl.join("transforms_train.json"),
+        r#"{"camera_angle_x": 0.7, "frames": [{"file_path": "./train/r_0", "transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,4],[0,0,0,1]]}]}"#,
+    )
+    .unwrap();
+    refused(
+        &assist(&["dataset", "info", s(&bl)]),
+        &["transforms_train.json", "frames[0].file_path", "r_0.png"],
+    );
+    std::fs::write(
+        bl.join("transforms_train.json"),
+        b"{\"camera_angle_x\": 0.7,\n \"frames\": [\xff]}",
+    )
+    .unwrap();
+    refused(
+        &assist(&["dataset", "info", s(&bl)]),
+        &["transforms_train.json", "line 2, byte 36", "not UTF-8"],
+    );
+}
