@@ -17,24 +17,11 @@ const CHECKPOINT_EVERY: f64 = 0.4;
 /// and save).
 const SLACK: f64 = 3.0;
 
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_assist"))
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-fn ok(out: &Output) {
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
+mod common;
+use common::{bin, leftovers, ok, s};
 
 fn assist(args: &[&str]) -> Output {
-    bin().args(args).output().expect("run assist")
+    common::run(args)
 }
 
 /// A small deterministic generator of kill moments.
@@ -76,40 +63,14 @@ fn assert_loads(scene: &Path, tmp: &TempDir, when: &str) {
 }
 
 fn info(scene: &Path) -> serde_json::Value {
-    let v: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(scene.join("scene.json")).unwrap()).unwrap();
-    v["info"].clone()
-}
-
-fn leftovers(dir: &Path) -> Vec<String> {
-    std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .filter(|n| n.contains(".tmp-") || n.contains(".old-") || n.ends_with(".lock"))
-        .collect()
+    common::scene_info(scene)
 }
 
 #[test]
 fn kill_9_during_training_and_edit_saves_loses_at_most_one_checkpoint() {
     let tmp = TempDir::new("kill9");
     let data = tmp.join("cap");
-    ok(&assist(&[
-        "synth",
-        "--out",
-        s(&data),
-        "--views",
-        "8",
-        "--width",
-        "32",
-        "--height",
-        "24",
-        "--objects",
-        "3",
-        "--spp",
-        "1",
-        "--shadow-samples",
-        "1",
-    ]));
+    common::tiny_capture(&data, 0);
     let sc = tmp.join("s.assist");
     let mut rng = Lcg(17);
     let every = CHECKPOINT_EVERY.to_string();

@@ -9,81 +9,19 @@ use std::time::{Duration, Instant};
 
 use assist_testkit::TempDir;
 
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_assist"))
-}
+mod common;
+use common::{bin, leftovers, ok, refused, s, tiny_capture};
 
 fn assist(args: &[&str]) -> Output {
-    bin().args(args).output().expect("run assist")
+    common::run(args)
 }
 
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-fn ok(out: &Output) -> String {
-    let err = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(out.status.success(), "{err}");
-    err
-}
-
-fn refused(out: &Output, needles: &[&str]) -> String {
-    let err = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert_eq!(out.status.code(), Some(1), "{err}");
-    assert!(!err.contains("panicked"), "{err}");
-    for n in needles {
-        assert!(err.contains(n), "error should mention {n:?}: {err}");
-    }
-    err
-}
-
-/// A tiny built-in capture and a scene trained on it for a few iterations.
 fn scene(tmp: &TempDir) -> (PathBuf, PathBuf) {
-    let data = tmp.join("cap");
-    ok(&assist(&[
-        "synth",
-        "--out",
-        s(&data),
-        "--views",
-        "8",
-        "--width",
-        "32",
-        "--height",
-        "24",
-        "--objects",
-        "3",
-        "--spp",
-        "1",
-        "--shadow-samples",
-        "1",
-    ]));
-    let sc = tmp.join("s.assist");
-    ok(&assist(&[
-        "train",
-        s(&data),
-        "--out",
-        s(&sc),
-        "--iters",
-        "3",
-        "--batch-samples",
-        "4096",
-    ]));
-    (data, sc)
+    common::tiny_scene(tmp.path())
 }
 
 fn info(scene: &Path) -> serde_json::Value {
-    let v: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(scene.join("scene.json")).unwrap()).unwrap();
-    v["info"].clone()
-}
-
-/// Hidden temporaries beside `dir`'s entries (`.NAME.tmp-*`, `.NAME.old-*`, locks).
-fn leftovers(dir: &Path) -> Vec<String> {
-    std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .filter(|n| n.contains(".tmp-") || n.contains(".old-") || n.ends_with(".lock"))
-        .collect()
+    common::scene_info(scene)
 }
 
 #[test]
@@ -386,25 +324,7 @@ fn resume_refuses_another_dataset_unless_forced() {
     let tmp = TempDir::new("resume-other");
     let (_, sc) = scene(&tmp);
     let other = tmp.join("other");
-    ok(&assist(&[
-        "synth",
-        "--out",
-        s(&other),
-        "--views",
-        "8",
-        "--width",
-        "32",
-        "--height",
-        "24",
-        "--objects",
-        "3",
-        "--seed",
-        "9",
-        "--spp",
-        "1",
-        "--shadow-samples",
-        "1",
-    ]));
+    tiny_capture(&other, 9);
     let it = info(&sc)["iteration"].as_u64().unwrap();
     refused(
         &assist(&[

@@ -2,31 +2,16 @@
 //! panic or abort; each must now be a clear error (file and field named, exit 1, no
 //! panic, nothing allocated from a header before it is checked).
 
-use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 use assist_testkit::TempDir;
 
+mod common;
+
+use common::{refused, s};
+
 fn assist(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_assist"))
-        .args(args)
-        .output()
-        .expect("run assist")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-/// Fails cleanly (exit 1, no panic, no abort), naming every needle.
-fn refused(out: &Output, needles: &[&str]) -> String {
-    let err = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert_eq!(out.status.code(), Some(1), "{err}");
-    assert!(!err.contains("panicked"), "panic: {err}");
-    for n in needles {
-        assert!(err.contains(n), "error should mention {n:?}: {err}");
-    }
-    err
+    common::run(args)
 }
 
 /// A one-frame nerfstudio capture declaring a `w`×`h` image (the image itself is tiny).
@@ -134,42 +119,7 @@ fn an_absurd_batch_size_or_time_budget_is_refused() {
 #[test]
 fn bad_scene_values_are_blamed_on_the_scene_not_on_flags_never_passed() {
     let tmp = TempDir::new("scene-values");
-    let data = tmp.join("cap");
-    let ok = |out: Output| {
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        )
-    };
-    ok(assist(&[
-        "synth",
-        "--out",
-        s(&data),
-        "--views",
-        "8",
-        "--width",
-        "32",
-        "--height",
-        "24",
-        "--objects",
-        "3",
-        "--spp",
-        "1",
-        "--shadow-samples",
-        "1",
-    ]));
-    let sc = tmp.join("s.assist");
-    ok(assist(&[
-        "train",
-        s(&data),
-        "--out",
-        s(&sc),
-        "--iters",
-        "2",
-        "--batch-samples",
-        "4096",
-    ]));
+    let (_, sc) = common::tiny_scene(tmp.path());
     let edit_json = |name: &str, f: &dyn Fn(&mut serde_json::Value)| {
         let dir = tmp.join(name);
         std::fs::create_dir_all(dir.join("fields")).unwrap();

@@ -75,3 +75,90 @@ pub fn assist(args: &[&str]) -> (bool, String, String) {
 pub fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
+
+/// The built binary as a command.
+pub fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_assist"))
+}
+
+/// Runs the built binary and returns its output.
+pub fn run(args: &[&str]) -> std::process::Output {
+    bin().args(args).output().expect("run assist")
+}
+
+/// Succeeds (or fails the test with its stderr); returns stderr.
+pub fn ok(out: &std::process::Output) -> String {
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{err}");
+    err
+}
+
+/// Fails cleanly (exit 1, no panic), naming every needle; returns stderr.
+pub fn refused(out: &std::process::Output, needles: &[&str]) -> String {
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(!err.contains("panicked"), "panic: {err}");
+    for n in needles {
+        assert!(err.contains(n), "error should mention {n:?}: {err}");
+    }
+    err
+}
+
+/// A tiny built-in capture (8 views of 32×24, 3 objects) at `dir`.
+pub fn tiny_capture(dir: &Path, seed: u64) {
+    let seed = seed.to_string();
+    ok(&run(&[
+        "synth",
+        "--out",
+        s(dir),
+        "--views",
+        "8",
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "--objects",
+        "3",
+        "--seed",
+        &seed,
+        "--spp",
+        "1",
+        "--shadow-samples",
+        "1",
+    ]));
+}
+
+/// `tiny_capture` at `root/cap` and a scene trained on it for 3 iterations at
+/// `root/s.assist`.
+pub fn tiny_scene(root: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
+    let data = root.join("cap");
+    tiny_capture(&data, 0);
+    let sc = root.join("s.assist");
+    ok(&run(&[
+        "train",
+        s(&data),
+        "--out",
+        s(&sc),
+        "--iters",
+        "3",
+        "--batch-samples",
+        "4096",
+    ]));
+    (data, sc)
+}
+
+/// The `info` of a scene's `scene.json` (training state, provenance).
+pub fn scene_info(scene: &Path) -> serde_json::Value {
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(scene.join("scene.json")).unwrap()).unwrap();
+    v["info"].clone()
+}
+
+/// Temporaries and lock files left in `dir` (`.NAME.tmp-*`, `.NAME.old-*`, `*.lock`).
+pub fn leftovers(dir: &Path) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains(".tmp-") || n.contains(".old-") || n.ends_with(".lock"))
+        .collect()
+}
