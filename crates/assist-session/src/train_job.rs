@@ -268,14 +268,11 @@ impl TrainJob {
         // the images are read).
         let fingerprint = ds.fingerprint();
         let mut max_time = c.max_time;
+        let mut resume = None;
         if c.resume {
             let (_, info) = assist_scene::scene_file::load_scene_json(&c.out)?;
-            let state = ResumeState::from_info(&info).map_err(|m| {
-                request(
-                    "resume",
-                    format!("{}: {m}", c.out.join("scene.json").display()),
-                )
-            })?;
+            let state = resume_state(&c.out, &info)?;
+            resume = Some(state);
             let before = info.get("dataset_fingerprint").and_then(|v| v.as_str());
             if let Some(before) = before.filter(|b| *b != fingerprint)
                 && !c.force
@@ -325,7 +322,7 @@ impl TrainJob {
                 seen_share: mv.filled_pixels as f64 / mv.hole_pixels as f64,
             });
         }
-        let (mut scene, resume) = self.scene(&ds, &views, user_boxes)?;
+        let mut scene = self.scene(&ds, &views, user_boxes)?;
         // Room for a checkpoint beside the previous one (the swap holds both for a moment).
         let bytes: usize = scene
             .fields
@@ -399,23 +396,16 @@ impl TrainJob {
         })
     }
 
-    /// A new scene for the dataset, or the one being resumed with its state.
+    /// A new scene for the dataset, or the one being resumed.
     fn scene(
         &self,
         ds: &Dataset,
         views: &[assist_train::View],
         boxes: Vec<assist_data::boxes::BoxOverride>,
-    ) -> Result<(NeuralScene, Option<ResumeState>)> {
+    ) -> Result<NeuralScene> {
         let c = &self.config;
         if c.resume {
-            let (scene, info) = assist_scene::scene_file::load(&c.out)?;
-            let state = ResumeState::from_info(&info).map_err(|m| {
-                request(
-                    "resume",
-                    format!("{}: {m}", c.out.join("scene.json").display()),
-                )
-            })?;
-            return Ok((scene, Some(state)));
+            return Ok(assist_scene::scene_file::load(&c.out)?.0);
         }
         let appearance = match c.appearance {
             Appearance::On => true,
@@ -434,8 +424,18 @@ impl TrainJob {
             background_space: c.background,
             ..Default::default()
         };
-        Ok((build_scene(ds, views, &so)?, None))
+        Ok(build_scene(ds, views, &so)?)
     }
+}
+
+/// Where a saved run stands, from its scene file's `info` (errors name the file).
+fn resume_state(out: &std::path::Path, info: &serde_json::Value) -> Result<ResumeState> {
+    ResumeState::from_info(info).map_err(|m| {
+        request(
+            "resume",
+            format!("{}: {m}", out.join("scene.json").display()),
+        )
+    })
 }
 
 /// The loss weights of a run: the defaults, the background-prior terms off when there is
