@@ -99,6 +99,12 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         .with_context(|| format!("writing {}", out.join(assist_fs::MARKER).display()))?;
     let t0 = std::time::Instant::now();
     let (data_a, data_b) = (out.join("scene"), out.join("other"));
+    // A demo folder from before output markers: its datasets are the demo's own.
+    for d in [&data_a, &data_b] {
+        if d.is_dir() && !assist_fs::has_marker(d) && d.join("transforms.json").is_file() {
+            std::fs::remove_dir_all(d).with_context(|| format!("removing {}", d.display()))?;
+        }
+    }
     let cfg = SynthConfig {
         seed: a.seed,
         ..SynthConfig::default()
