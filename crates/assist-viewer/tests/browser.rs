@@ -71,8 +71,8 @@ fn the_viewer_works_in_a_real_browser() {
     TrainJob::new(TrainConfig {
         data: data.clone(),
         out: scene.clone(),
-        iters: 1_000_000,
-        max_time: Some(25.0),
+        // Bounded by iterations, not time: the scene is as good on a loaded host.
+        iters: 300,
         ..TrainConfig::default()
     })
     .run(|_| {})
