@@ -35,9 +35,10 @@ pub struct RenderArgs {
     /// Comma-separated: rgb, depth, panoptic, semantic, objects, background.
     #[arg(long, default_value = "rgb,depth,panoptic")]
     pub outputs: String,
-    /// Highlight this instance id (default: the scene's selection, if any).
-    #[arg(long)]
-    pub select: Option<u16>,
+    /// Highlight this object: an instance id or a name ("ball", "the red mug"), found as
+    /// `edit` finds objects (default: the scene's selection, if any).
+    #[arg(long, value_name = "ID|NAME")]
+    pub select: Option<String>,
     /// Do not highlight the scene's selection.
     #[arg(long)]
     pub no_highlight: bool,
@@ -79,7 +80,7 @@ fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
 }
 
 /// The command line as a job.
-fn job(a: &RenderArgs) -> anyhow::Result<RenderJob> {
+fn job(a: &RenderArgs, select: Option<u16>) -> anyhow::Result<RenderJob> {
     let outputs = Output::parse_list(&a.outputs).map_err(|m| anyhow::anyhow!("--outputs: {m}"))?;
     let cameras = if a.cameras == "orbit" {
         let (width, height) = parse_size(&a.size)?;
@@ -104,7 +105,7 @@ fn job(a: &RenderArgs) -> anyhow::Result<RenderJob> {
             downscale: a.downscale,
         }
     };
-    let highlight = match (a.no_highlight, a.select) {
+    let highlight = match (a.no_highlight, select) {
         (true, _) => Highlight::None,
         (false, Some(id)) => Highlight::Node(id),
         (false, None) => Highlight::Selected,
@@ -124,9 +125,23 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     // Before anything is loaded: --force replaces only what assist wrote (the new dataset
     // is swapped in whole, never mixed with the old one's files).
     assist_fs::check_replaceable(&a.out, a.force)?;
-    let job = job(&a)?;
-    let session =
+    let mut session =
         Session::open(&a.scene).with_context(|| format!("loading scene {}", a.scene.display()))?;
+    let select = match &a.select {
+        None => None,
+        Some(t) => match t.trim().parse::<u16>() {
+            Ok(id) => Some(id),
+            // A name: found as an instruction finds it (candidates listed when unclear).
+            Err(_) => {
+                let mpu = session.description().meters_per_unit;
+                let r = session
+                    .resolve(&format!("select the {t}"), None)
+                    .map_err(|e| anyhow::anyhow!("--select {t:?}: {e}"))?;
+                r.edits.first().map(|e| e.to_action(mpu).instance_id)
+            }
+        },
+    };
+    let job = job(&a, select)?;
     let bar = crate::progress::bar(std::io::stderr().is_terminal(), "render");
     let done = session
         .run_render(&job, |v| {

@@ -7,6 +7,7 @@ use anyhow::Context;
 use assist_session::{Appearance, LambdaOverrides, TrainConfig, TrainEvent, TrainJob};
 use assist_train::BackgroundSpace;
 use assist_train::PriorKind;
+use assist_train::StopReason;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
@@ -258,13 +259,20 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
                 s.iteration, s.loss, s.psnr, s.rays
             ));
             if let Some(occupancy) = occupancy.as_ref().filter(|_| verbose) {
-                let ms: Vec<f64> = s.phase.named()[..6]
+                let ms: Vec<String> = s.phase.named()[..6]
                     .iter()
-                    .map(|p| (p.1 * 1e4).round() / 10.0)
+                    .map(|(n, t)| format!("{n} {:.0}", t * 1e3))
                     .collect();
                 eprintln!(
-                    "it {:>6}  {:>5.1}s  loss {:.5}  psnr {:.2}  rays {}  samples {}  lr {:.2e}  ms {ms:.0?}",
-                    s.iteration, s.elapsed, s.loss, s.psnr, s.rays, s.samples, s.lr,
+                    "it {:>6}  {:>5.1}s  loss {:.5}  psnr {:.2}  rays {}  samples {}  lr {:.2e}  ms per phase: {}",
+                    s.iteration,
+                    s.elapsed,
+                    s.loss,
+                    s.psnr,
+                    s.rays,
+                    s.samples,
+                    s.lr,
+                    ms.join(", ")
                 );
                 let occ: Vec<String> = occupancy
                     .iter()
@@ -304,8 +312,17 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
             outcome.out.display()
         );
     } else {
+        let why = match report.stopped_by {
+            StopReason::Iterations => format!("reached --iters {}", a.iters),
+            StopReason::Time => format!(
+                "--max-time {} s was spent before --iters {}",
+                a.max_time.unwrap_or_default(),
+                a.iters
+            ),
+            StopReason::Cancelled => "interrupted".to_string(),
+        };
         eprintln!(
-            "trained {} iterations in {:.1} s ({:.0} rays/s, {:.2} M samples/s); last batch PSNR {:.2} dB\nsaved {}",
+            "trained {} iterations in {:.1} s ({why}; {:.0} rays/s, {:.2} M samples/s); last batch PSNR {:.2} dB\nsaved {}",
             report.iterations,
             report.seconds,
             report.rays_per_sec,

@@ -144,3 +144,27 @@ fn demo_runs_end_to_end() {
     // 5 objects + background, one deleted, one copy, one inserted.
     assert_eq!(edited.scene.nodes.len(), 7);
 }
+
+#[test]
+fn select_takes_a_name_as_edit_does() {
+    let tmp = assist_testkit::TempDir::new("render-select-name");
+    let (_, sc) = common::tiny_scene(tmp.path());
+    let render = |sel: &str, out: &str| {
+        common::run(&[
+            "render",
+            common::s(&sc),
+            "--out",
+            common::s(&tmp.join(out)),
+            "--frames",
+            "1",
+            "--size",
+            "16x12",
+            "--select",
+            sel,
+        ])
+    };
+    common::ok(&render("ball", "by-name"));
+    common::ok(&render("2", "by-id"));
+    common::refused(&render("duck", "nothing"), &["--select", "duck", "ball"]);
+    common::refused(&render("99", "no-id"), &["--select", "99"]);
+}

@@ -39,7 +39,9 @@ mod options;
 mod rays;
 
 use objective::Objective;
-pub use options::{Lambdas, PhaseTimes, ResumeState, StepStats, TrainOptions, TrainReport};
+pub use options::{
+    Lambdas, PhaseTimes, ResumeState, StepStats, StopReason, TrainOptions, TrainReport,
+};
 use rays::Target;
 
 /// Smallest scale the depth prior's affine map may take.
@@ -408,17 +410,19 @@ impl Trainer {
         let mut phases = PhaseTimes::default();
         let mut saved: Option<PathBuf> = None;
         let mut cancelled = false;
-        loop {
+        let stopped_by = loop {
             let elapsed = self.elapsed_before + start.elapsed().as_secs_f64();
-            if self.iteration >= self.opts.iters || self.opts.max_time.is_some_and(|t| elapsed >= t)
-            {
-                break;
+            if self.iteration >= self.opts.iters {
+                break StopReason::Iterations;
+            }
+            if self.opts.max_time.is_some_and(|t| elapsed >= t) {
+                break StopReason::Time;
             }
             if let Some(c) = &self.opts.cancel
                 && c.load(std::sync::atomic::Ordering::Relaxed)
             {
                 cancelled = true;
-                break;
+                break StopReason::Cancelled;
             }
             match self.step(elapsed) {
                 Ok(s) => {
@@ -449,7 +453,7 @@ impl Trainer {
                 }
                 last_ckpt = Instant::now();
             }
-        }
+        };
         let secs = start.elapsed().as_secs_f64();
         phases.other = secs - phases.total();
         Ok(TrainReport {
@@ -461,6 +465,7 @@ impl Trainer {
             phases,
             depth_scale_shift: self.depth_wq,
             cancelled,
+            stopped_by,
         })
     }
 }

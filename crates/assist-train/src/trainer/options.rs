@@ -182,6 +182,21 @@ pub struct TrainReport {
     pub depth_scale_shift: [f32; 2],
     /// Whether the run was stopped by [`TrainOptions::cancel`].
     pub cancelled: bool,
+    /// What ended the run.
+    pub stopped_by: StopReason,
+}
+
+/// What ended a training run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StopReason {
+    /// The iteration budget (`iters`) was reached.
+    #[default]
+    Iterations,
+    /// The time budget (`max_time`) was spent.
+    Time,
+    /// [`TrainOptions::cancel`] was set (an interrupt).
+    Cancelled,
 }
 
 /// Seconds in each phase of a training step or run.
