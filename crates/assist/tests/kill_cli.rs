@@ -18,7 +18,7 @@ const CHECKPOINT_EVERY: f64 = 0.4;
 const SLACK: f64 = 3.0;
 
 mod common;
-use common::{bin, leftovers, ok, s};
+use common::{bin, ok, s};
 
 fn assist(args: &[&str]) -> Output {
     common::run(args)
@@ -138,11 +138,7 @@ fn kill_9_during_training_and_edit_saves_loses_at_most_one_checkpoint() {
         "0.3",
     ]));
     assert!(info(&sc)["iteration"].as_u64().unwrap() >= it);
-    assert!(
-        leftovers(tmp.path()).is_empty(),
-        "{:?}",
-        leftovers(tmp.path())
-    );
+    common::assert_no_leftovers(tmp.path());
     eprintln!("training: worst loss over {KILLS} kills {worst_loss:.2} s");
 
     // Edit saves, in place.
@@ -157,15 +153,7 @@ fn kill_9_during_training_and_edit_saves_loses_at_most_one_checkpoint() {
     };
     // Kill moments spread over an edit's whole run (load, apply, save).
     let t = Instant::now();
-    ok(&assist(&[
-        "edit",
-        s(&sc),
-        "--do",
-        "move the ball 1 cm left",
-        "--out",
-        s(&sc),
-        "--force",
-    ]));
+    ok(&common::edit_in_place(&sc, "move the ball 1 cm left"));
     let edit_secs = t.elapsed().as_secs_f64();
     for k in 0..KILLS {
         let n = undo_len(&sc);
@@ -192,18 +180,6 @@ fn kill_9_during_training_and_edit_saves_loses_at_most_one_checkpoint() {
             "edit kill {k}: history went from {n} to {m}"
         );
     }
-    ok(&assist(&[
-        "edit",
-        s(&sc),
-        "--do",
-        "move the ball 1 cm right",
-        "--out",
-        s(&sc),
-        "--force",
-    ]));
-    assert!(
-        leftovers(tmp.path()).is_empty(),
-        "{:?}",
-        leftovers(tmp.path())
-    );
+    ok(&common::edit_in_place(&sc, "move the ball 1 cm right"));
+    common::assert_no_leftovers(tmp.path());
 }

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use assist_testkit::TempDir;
 
 mod common;
-use common::{bin, leftovers, ok, refused, s, tiny_capture};
+use common::{bin, ok, refused, s, tiny_capture};
 
 fn assist(args: &[&str]) -> Output {
     common::run(args)
@@ -67,20 +67,8 @@ fn force_never_replaces_a_folder_assist_did_not_write() {
         assert_eq!(std::fs::read_dir(&precious).unwrap().count(), 1, "{args:?}");
     }
     // What assist wrote it may replace.
-    ok(&assist(&[
-        "edit",
-        s(&sc),
-        "--do",
-        "delete the ball",
-        "--out",
-        s(&sc),
-        "--force",
-    ]));
-    assert!(
-        leftovers(tmp.path()).is_empty(),
-        "{:?}",
-        leftovers(tmp.path())
-    );
+    ok(&common::edit_in_place(&sc, "delete the ball"));
+    common::assert_no_leftovers(tmp.path());
 }
 
 #[test]
@@ -121,11 +109,7 @@ fn render_force_writes_a_fresh_folder_never_a_mix() {
         "the old render's legend survived"
     );
     assert!(!out.join("panoptic").exists());
-    assert!(
-        leftovers(tmp.path()).is_empty(),
-        "{:?}",
-        leftovers(tmp.path())
-    );
+    common::assert_no_leftovers(tmp.path());
 }
 
 #[test]
@@ -140,20 +124,8 @@ fn stale_temporaries_of_a_killed_save_are_removed_by_the_next_write() {
     )
     .unwrap();
     std::fs::create_dir_all(tmp.join(".s.assist.old-4000002")).unwrap();
-    ok(&assist(&[
-        "edit",
-        s(&sc),
-        "--do",
-        "delete the ball",
-        "--out",
-        s(&sc),
-        "--force",
-    ]));
-    assert!(
-        leftovers(tmp.path()).is_empty(),
-        "{:?}",
-        leftovers(tmp.path())
-    );
+    ok(&common::edit_in_place(&sc, "delete the ball"));
+    common::assert_no_leftovers(tmp.path());
 }
 
 #[test]
@@ -197,11 +169,7 @@ fn two_editors_of_one_scene_never_lose_an_edit() {
         serde_json::from_slice(&std::fs::read(sc.join("history.json")).unwrap()).unwrap();
     assert_eq!(hist["undo"].as_array().unwrap().len(), applied);
     assert!(applied >= 5, "at least one edit per round succeeds");
-    assert!(
-        leftovers(tmp.path()).is_empty(),
-        "{:?}",
-        leftovers(tmp.path())
-    );
+    common::assert_no_leftovers(tmp.path());
 }
 
 #[test]

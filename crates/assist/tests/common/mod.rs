@@ -162,3 +162,14 @@ pub fn leftovers(dir: &Path) -> Vec<String> {
         .filter(|n| n.contains(".tmp-") || n.contains(".old-") || n.ends_with(".lock"))
         .collect()
 }
+
+/// `assist edit SCENE --do TEXT --out SCENE --force`: an in-place edit.
+pub fn edit_in_place(scene: &Path, text: &str) -> std::process::Output {
+    run(&["edit", s(scene), "--do", text, "--out", s(scene), "--force"])
+}
+
+/// No temporaries or lock files are left in `dir`.
+pub fn assert_no_leftovers(dir: &Path) {
+    let left = leftovers(dir);
+    assert!(left.is_empty(), "{left:?}");
+}
