@@ -310,6 +310,13 @@ pub fn write_rgb_png(path: &Path, img: &ImageF32) -> Result<()> {
 }
 
 /// 8-bit grey PNG.
+/// Writes 8-bit RGB bytes (3 per pixel) as a PNG, atomically.
+pub fn write_rgb8_png(path: &Path, w: u32, h: u32, data: &[u8]) -> Result<()> {
+    let png =
+        encode_png(w, h, data, image::ExtendedColorType::Rgb8).map_err(|e| png_err(path, e))?;
+    write_atomic(path, &png)
+}
+
 pub fn write_gray8_png(path: &Path, w: u32, h: u32, data: &[u8]) -> Result<()> {
     let png = encode_png(w, h, data, image::ExtendedColorType::L8).map_err(|e| png_err(path, e))?;
     write_atomic(path, &png)

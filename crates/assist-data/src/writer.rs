@@ -132,6 +132,10 @@ pub struct WriterConfig {
     /// The scene's objects (not the background), for the legends and `instances`.
     pub instances: Vec<Instance>,
     pub id_images: IdImages,
+    /// A fixed list of semantic class names (class 0 first, then one per label), so that
+    /// class ids stay the same across many datasets (a generator's samples); empty = the
+    /// classes of `instances` ([`semantic_classes`]).
+    pub classes: Vec<String>,
     /// Further top-level keys of `transforms.json` (the writer's own keys win).
     pub extra: serde_json::Map<String, Value>,
 }
@@ -145,6 +149,7 @@ impl Default for WriterConfig {
             world_up: [0.0, 0.0, 1.0],
             instances: Vec::new(),
             id_images: IdImages::default(),
+            classes: Vec::new(),
             extra: serde_json::Map::new(),
         }
     }
@@ -305,7 +310,25 @@ impl DatasetWriter {
             let d = root.join(cfg.folder(*o));
             std::fs::create_dir_all(&d).map_err(|e| DataError::io(&d, e))?;
         }
-        let (classes, class_names) = semantic_classes(&cfg.instances);
+        let (classes, class_names) = if cfg.classes.is_empty() {
+            semantic_classes(&cfg.instances)
+        } else {
+            let mut of_id = BTreeMap::new();
+            for i in &cfg.instances {
+                let Some(k) = cfg.classes.iter().position(|c| *c == i.label) else {
+                    return Err(DataError::field(
+                        dir,
+                        "classes",
+                        format!(
+                            "instance {} is labelled {:?}, which is not one of the classes {:?}",
+                            i.id, i.label, cfg.classes
+                        ),
+                    ));
+                };
+                of_id.insert(i.id, k as u16);
+            }
+            (of_id, cfg.classes.clone())
+        };
         Ok(DatasetWriter {
             dir: dir.to_path_buf(),
             root,

@@ -6,11 +6,11 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use assist_core::{Action, ActionError, Edit, History, Scene, SceneSource};
 
-use crate::node::NeuralScene;
+use crate::node::{NeuralScene, NodeField};
 use crate::scene_file::{self, SceneFileError};
 
 #[derive(Debug, thiserror::Error)]
@@ -26,11 +26,17 @@ pub enum EditError {
 }
 
 /// Other scenes read from disk (`scene.json` only; weights are loaded when a node is added),
-/// each read once. Relative paths are taken as given (relative to the working directory).
-#[derive(Default)]
+/// each read once, and the fields imported from them, each loaded once (clones share both,
+/// so sessions forked from one another do not read a file twice). Relative paths are taken
+/// as given (relative to the working directory).
+#[derive(Default, Clone)]
 pub struct SceneFiles {
     cache: BTreeMap<String, Scene>,
+    fields: Arc<Mutex<BTreeMap<FieldKey, Arc<NodeField>>>>,
 }
+
+/// An imported field: its scene folder, key there, and the box and space it is loaded for.
+type FieldKey = (PathBuf, String, [u64; 3], bool);
 
 impl SceneFiles {
     pub fn dir_of(path: &str) -> PathBuf {
@@ -127,15 +133,39 @@ impl Editor {
         for (i, e) in edits.iter().enumerate() {
             if let Some(im) = imported(e) {
                 let dir = SceneFiles::dir_of(&im.source);
-                let nf = scene_file::load_field(
-                    &dir.join("scene.json"),
-                    &dir,
-                    &im.source_field,
-                    &format!("action {}: node {} field", i + 1, im.source_id),
-                    im.node.half_size,
-                    im.node.space,
-                )?;
-                new_fields.push((im.node.field.clone(), Arc::new(nf)));
+                let key: FieldKey = (
+                    dir.clone(),
+                    im.source_field.clone(),
+                    im.node.half_size.to_array().map(f64::to_bits),
+                    im.node.space.is_box(),
+                );
+                let cached = self
+                    .sources
+                    .fields
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .get(&key)
+                    .cloned();
+                let nf = match cached {
+                    Some(f) => f,
+                    None => {
+                        let f = Arc::new(scene_file::load_field(
+                            &dir.join("scene.json"),
+                            &dir,
+                            &im.source_field,
+                            &format!("action {}: node {} field", i + 1, im.source_id),
+                            im.node.half_size,
+                            im.node.space,
+                        )?);
+                        self.sources
+                            .fields
+                            .lock()
+                            .unwrap_or_else(|e| e.into_inner())
+                            .insert(key, f.clone());
+                        f
+                    }
+                };
+                new_fields.push((im.node.field.clone(), nf));
             }
         }
         for (k, f) in new_fields {
@@ -180,6 +210,17 @@ impl Editor {
             }
         }
         Ok(edits)
+    }
+
+    /// A new editor over this one's scene as it is now, without history, sharing the
+    /// scenes and fields already read from other scenes (weights are shared, not copied).
+    pub fn fork(&self) -> Editor {
+        Editor {
+            scene: self.scene.clone(),
+            history: History::default(),
+            info: self.info.clone(),
+            sources: self.sources.clone(),
+        }
     }
 
     pub fn undo(&mut self) -> bool {

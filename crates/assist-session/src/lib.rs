@@ -103,6 +103,20 @@ impl Session {
         }
     }
 
+    /// A new session over this one's scene as it is now, without undo history, sharing
+    /// its weights and the other scenes it has read (cheap: nothing is copied but the
+    /// scene description). A generator forks one per sample.
+    pub fn fork(&self) -> Session {
+        Session {
+            editor: self.editor.fork(),
+        }
+    }
+
+    /// The scene's `info` (training provenance: dataset, iterations, options).
+    pub fn info(&self) -> &serde_json::Value {
+        &self.editor.info
+    }
+
     pub fn scene(&self) -> &NeuralScene {
         &self.editor.scene
     }

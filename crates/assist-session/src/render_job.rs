@@ -75,10 +75,38 @@ impl Session {
         &self,
         cameras: &[NamedCamera],
         job: &DatasetOutput,
-        mut on_view: impl FnMut(&ViewDone),
+        on_view: impl FnMut(&ViewDone),
     ) -> Result<RenderSummary> {
         let scene = self.scene();
-        let highlight = match job.highlight {
+        let cfg = WriterConfig {
+            outputs: job.outputs.clone(),
+            meters_per_unit: scene.scene.meters_per_unit,
+            world_up: scene.scene.up.to_array(),
+            instances: self.instances(),
+            ..WriterConfig::default()
+        };
+        let writer = DatasetWriter::create(&job.out, cfg, job.force).map_err(SessionError::Data)?;
+        self.render_into(&writer, cameras, job.highlight, false, on_view)?;
+        let views = writer.finish().map_err(SessionError::Data)?;
+        Ok(RenderSummary {
+            views,
+            out: job.out.clone(),
+        })
+    }
+
+    /// Renders `cameras` into `writer` (views 0, 1, … in order), with each node's own
+    /// layer when the writer wants objects or `layers` is set; `on_view` sees each frame
+    /// once it is written. The caller finishes the writer.
+    pub fn render_into(
+        &self,
+        writer: &DatasetWriter,
+        cameras: &[NamedCamera],
+        highlight: Highlight,
+        layers: bool,
+        mut on_view: impl FnMut(&ViewDone),
+    ) -> Result<()> {
+        let scene = self.scene();
+        let highlight = match highlight {
             Highlight::Selected => scene.scene.selected,
             Highlight::None => None,
             Highlight::Node(id) => {
@@ -91,8 +119,7 @@ impl Session {
                 Some(id)
             }
         };
-        let wants = |o| job.outputs.contains(&o);
-        let background = if wants(Output::Background) {
+        let background = if writer.wants(Output::Background) {
             let mut s: NeuralScene = scene.clone();
             s.scene.nodes.retain(|n| n.is_background());
             if s.scene.nodes.is_empty() {
@@ -105,18 +132,9 @@ impl Session {
         } else {
             None
         };
-        let instances = self.instances();
-        let cfg = WriterConfig {
-            outputs: job.outputs.clone(),
-            meters_per_unit: scene.scene.meters_per_unit,
-            world_up: scene.scene.up.to_array(),
-            instances,
-            ..WriterConfig::default()
-        };
-        let writer = DatasetWriter::create(&job.out, cfg, job.force).map_err(SessionError::Data)?;
         let opts = RenderOptions {
             highlight: highlight.map(|id| (id, HIGHLIGHT)),
-            layers: wants(Output::Objects),
+            layers: layers || writer.wants(Output::Objects),
             ..Default::default()
         };
         let total = cameras.len();
@@ -140,7 +158,11 @@ impl Session {
                 rgb: &img.rgb,
                 depth: &img.depth,
                 panoptic: &img.panoptic,
-                layers: &layers,
+                layers: if writer.wants(Output::Objects) {
+                    &layers
+                } else {
+                    &[]
+                },
                 background: bg.as_ref().map(|b| b.rgb.as_slice()),
             };
             writer
@@ -153,10 +175,6 @@ impl Session {
                 frame: &img,
             });
         }
-        let views = writer.finish().map_err(SessionError::Data)?;
-        Ok(RenderSummary {
-            views,
-            out: job.out.clone(),
-        })
+        Ok(())
     }
 }

@@ -16,6 +16,7 @@ mod cmd_dataset;
 mod cmd_demo;
 mod cmd_edit;
 mod cmd_eval;
+mod cmd_generate;
 mod cmd_render;
 mod cmd_synth;
 mod cmd_train;
@@ -52,6 +53,8 @@ pub enum Command {
     Edit(cmd_edit::EditArgs),
     /// Render a trained scene from a dataset's cameras into a new labelled dataset.
     Render(cmd_render::RenderArgs),
+    /// Make many randomized, plausible, labelled variations of trained scenes (shardable).
+    Generate(cmd_generate::GenerateArgs),
     /// Open a trained scene in the interactive viewer (a page in your browser).
     View(cmd_view::ViewArgs),
     /// Measure the speed of hot paths.
@@ -70,6 +73,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Eval(a) => cmd_eval::run(a),
         Command::Edit(a) => cmd_edit::run(a),
         Command::Render(a) => cmd_render::run(a),
+        Command::Generate(a) => cmd_generate::run(a),
         Command::View(a) => cmd_view::run(a),
         Command::Bench { command } => cmd_bench::run(command),
     }

@@ -1,0 +1,432 @@
+//! assist-generate: randomized, physically plausible, labelled variations of trained
+//! scenes — `assist generate` and, later, Python's `assist.generate` — on the session layer.
+//!
+//! A sample is a pure function of (spec, seed, index): its random stream is
+//! `Rng::stream(seed, index)`, every base scene is prepared the same way in every process,
+//! and the sample's edits are *actions* applied through a [`Session`], written to its
+//! `actions.jsonl`, so `assist edit` + `assist render` replay it bit for bit. Samples are
+//! written atomically, each in its own folder, so shards of one run can share an output
+//! folder and a restart skips what is done; [`merge`] joins them into dataset-wide indices.
+//! The layout is documented in `docs/generate.md`.
+
+#![forbid(unsafe_code)]
+
+pub mod coco;
+mod merge;
+pub mod place;
+mod sample;
+pub mod spec;
+pub mod surface;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use assist_core::action::NodeRef;
+use assist_core::{Action, ActionConfig, Operation};
+use assist_data::Output;
+use assist_session::{NamedCamera, Session, SessionError, SplitChoice};
+
+pub use merge::{MergeSummary, RunEvent, RunOptions, RunSummary, merge};
+pub use sample::{GaveUp, SampleReport};
+pub use spec::Spec;
+
+use place::Shape;
+use spec::CameraFrom;
+use surface::{SeenView, SupportMap};
+
+#[derive(Debug, thiserror::Error)]
+pub enum GenError {
+    /// A spec value that cannot be used.
+    #[error("{path}: {field}: {message}", path = path.display())]
+    Spec {
+        path: PathBuf,
+        field: String,
+        message: String,
+    },
+    #[error(transparent)]
+    Session(#[from] SessionError),
+    #[error(transparent)]
+    Data(#[from] assist_data::DataError),
+    #[error(transparent)]
+    Output(#[from] assist_fs::FsError),
+    #[error("sample {index}: {message}")]
+    Sample { index: u64, message: String },
+    #[error("{path}: {message}", path = path.display())]
+    Folder { path: PathBuf, message: String },
+}
+
+pub type Result<T> = std::result::Result<T, GenError>;
+
+/// Which samples this process makes: those with `index % count == index_of_shard`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Shard {
+    /// 0-based.
+    pub index: u64,
+    pub count: u64,
+}
+
+impl Shard {
+    pub const ALL: Shard = Shard { index: 0, count: 1 };
+
+    /// `i/n` with `0 ≤ i < n`.
+    pub fn parse(s: &str) -> std::result::Result<Shard, String> {
+        let (i, n) = s
+            .split_once('/')
+            .ok_or_else(|| format!("expected i/n (e.g. 3/16, 0-based), got {s:?}"))?;
+        let i: u64 = i
+            .trim()
+            .parse()
+            .map_err(|_| format!("expected a shard index in {s:?}"))?;
+        let n: u64 = n
+            .trim()
+            .parse()
+            .map_err(|_| format!("expected a shard count in {s:?}"))?;
+        if n == 0 || i >= n {
+            return Err(format!(
+                "expected 0 ≤ i < n in i/n, got {s:?} (shards are numbered from 0)"
+            ));
+        }
+        Ok(Shard { index: i, count: n })
+    }
+
+    /// The shard of a Slurm array task (`SLURM_ARRAY_TASK_ID` − `SLURM_ARRAY_TASK_MIN` of
+    /// `SLURM_ARRAY_TASK_COUNT`) or a Kubernetes Indexed Job (`JOB_COMPLETION_INDEX` of
+    /// `JOB_COMPLETIONS`, which the Job's manifest sets), when one is set.
+    pub fn from_env(
+        get: impl Fn(&str) -> Option<String>,
+    ) -> std::result::Result<Option<Shard>, String> {
+        let num = |k: &str| -> std::result::Result<Option<u64>, String> {
+            match get(k) {
+                None => Ok(None),
+                Some(v) => v
+                    .trim()
+                    .parse()
+                    .map(Some)
+                    .map_err(|_| format!("{k}={v:?}: expected a whole number")),
+            }
+        };
+        if let Some(id) = num("SLURM_ARRAY_TASK_ID")? {
+            let count = num("SLURM_ARRAY_TASK_COUNT")?
+                .ok_or("SLURM_ARRAY_TASK_ID is set but SLURM_ARRAY_TASK_COUNT is not")?;
+            let min = num("SLURM_ARRAY_TASK_MIN")?.unwrap_or(0);
+            let index = id
+                .checked_sub(min)
+                .ok_or("SLURM_ARRAY_TASK_ID is below SLURM_ARRAY_TASK_MIN")?;
+            return Shard::parse(&format!("{index}/{count}")).map(Some);
+        }
+        if let Some(index) = num("JOB_COMPLETION_INDEX")? {
+            let count = num("JOB_COMPLETIONS")?.ok_or(
+                "JOB_COMPLETION_INDEX is set but JOB_COMPLETIONS is not (set it in the Job's env to its completions)",
+            )?;
+            return Shard::parse(&format!("{index}/{count}")).map(Some);
+        }
+        Ok(None)
+    }
+
+    pub fn owns(&self, sample: u64) -> bool {
+        sample % self.count == self.index
+    }
+}
+
+/// A base scene ready to sample from.
+pub(crate) struct Base {
+    pub path: PathBuf,
+    pub session: Session,
+    /// Cameras samples start from (the spec's split).
+    pub cameras: Vec<NamedCamera>,
+    /// The training views at low resolution, with the depth the scene shows there.
+    pub seen: Vec<SeenView>,
+    pub support: SupportMap,
+    /// Occupied shapes by field key.
+    pub shapes: BTreeMap<String, Option<Shape>>,
+    /// Each library entry as it stands when added to this scene.
+    pub library: Vec<LibNode>,
+}
+
+/// A library node as added to one base scene.
+#[derive(Clone)]
+pub(crate) struct LibNode {
+    pub scene: String,
+    pub id: u16,
+    pub label: String,
+    pub node: assist_core::SceneNode,
+    pub shape: Option<Shape>,
+}
+
+/// A prepared generation run.
+pub struct Generator {
+    pub spec: Spec,
+    pub(crate) bases: Vec<Base>,
+    pub(crate) classes: Vec<String>,
+    pub(crate) outputs: Vec<Output>,
+}
+
+/// Progress while preparing.
+pub trait Progress {
+    fn preparing(&mut self, _what: &str) {}
+}
+
+impl Progress for () {}
+
+impl Generator {
+    /// Loads the base scenes and library, and surveys each base scene's training views
+    /// (support surfaces, what was seen).
+    pub fn prepare(spec: Spec, progress: &mut dyn Progress) -> Result<Generator> {
+        let outputs = spec.output.outputs().map_err(|m| GenError::Spec {
+            path: "spec".into(),
+            field: "output.images".into(),
+            message: m,
+        })?;
+        let mut bases = Vec::new();
+        for (k, b) in spec.scenes.iter().enumerate() {
+            progress.preparing(&format!("loading {}", b.path.display()));
+            let session = Session::open(&b.path)?;
+            let data = match &b.data {
+                Some(d) => d.clone(),
+                None => match session.info().get("dataset").and_then(|v| v.as_str()) {
+                    Some(d) if Path::new(d).exists() => PathBuf::from(d),
+                    Some(d) => {
+                        return Err(GenError::Spec {
+                            path: b.path.clone(),
+                            field: format!("scenes[{k}].data"),
+                            message: format!(
+                                "the scene was trained from {d}, which is not there; give the dataset as data = \"…\""
+                            ),
+                        });
+                    }
+                    None => {
+                        return Err(GenError::Spec {
+                            path: b.path.clone(),
+                            field: format!("scenes[{k}].data"),
+                            message: "the scene does not record its training dataset; give it as data = \"…\" (its cameras and views are needed)".into(),
+                        });
+                    }
+                },
+            };
+            progress.preparing(&format!("reading the cameras of {}", data.display()));
+            let train = assist_session::dataset_cameras(&data, SplitChoice::Train, 1)?;
+            let cameras = match spec.cameras.from {
+                CameraFrom::Train | CameraFrom::Orbit => train.clone(),
+                CameraFrom::Test => assist_session::dataset_cameras(&data, SplitChoice::Test, 1)?,
+                CameraFrom::All => assist_session::dataset_cameras(&data, SplitChoice::All, 1)?,
+            };
+            progress.preparing(&format!(
+                "surveying {} training views for support surfaces",
+                train.len().min(48)
+            ));
+            let views = surface::small_views(&train, 96, 48);
+            let (seen, points) = surface::survey(session.scene(), &views);
+            let scene = session.description();
+            let mpu = scene.meters_per_unit;
+            let up = surface::UpFrame::new(scene.up);
+            // Raw shapes give the levels objects stood at (surfaces = "objects").
+            let raw: BTreeMap<String, Option<Shape>> = scene
+                .nodes
+                .iter()
+                .filter(|n| !n.is_background())
+                .map(|n| {
+                    let nf = &session.scene().fields[&n.field];
+                    let ax = place::up_axis(&n.world_from_local, scene.up);
+                    (n.field.clone(), Shape::of(nf, ax, |_| true))
+                })
+                .collect();
+            let all = surface::support_map(scene.up, &points, 0.01 / mpu, 0.005 / mpu, None)
+                .ok_or_else(|| GenError::Spec {
+                    path: b.path.clone(),
+                    field: "placement.surfaces".into(),
+                    message: "the training views show no upward-facing surface to place objects on"
+                        .into(),
+                })?;
+            // Each object's shape without what lies below the surface it stood on.
+            let mut shapes = BTreeMap::new();
+            for n in scene.nodes.iter().filter(|n| !n.is_background()) {
+                if shapes.contains_key(&n.field) {
+                    continue;
+                }
+                let nf = &session.scene().fields[&n.field];
+                let ax = place::up_axis(&n.world_from_local, scene.up);
+                let posed = place::Posed::of(n);
+                let centre = up.plane(n.world_from_local.translation);
+                let reach =
+                    (n.half_size * n.world_from_local.scale).max_element() * 1.5 + 0.03 / mpu;
+                let level = all.level_near(centre, reach);
+                let keep = |u: [f64; 3]| {
+                    let p = posed.world(u);
+                    level.is_none_or(|h| up.height(p) >= h - 0.002 / mpu)
+                };
+                let s = Shape::of(nf, ax, keep).or_else(|| raw[&n.field].clone());
+                shapes.insert(n.field.clone(), s);
+            }
+            let levels: Vec<f64> = scene
+                .nodes
+                .iter()
+                .filter(|n| !n.is_background())
+                .filter_map(|n| {
+                    let s = shapes.get(&n.field)?.as_ref()?;
+                    Some(place::Posed::of(n).bottom(s, up.up))
+                })
+                .collect();
+            let level = match spec.placement.surfaces {
+                spec::Surfaces::Objects => Some((levels.as_slice(), spec.placement.level_m / mpu)),
+                spec::Surfaces::All => None,
+            };
+            let support = surface::support_map(scene.up, &points, 0.01 / mpu, 0.005 / mpu, level)
+                .filter(|s| !s.allowed.is_empty())
+                .ok_or_else(|| GenError::Spec {
+                    path: b.path.clone(),
+                    field: "placement.surfaces".into(),
+                    message: "the training views show no upward-facing surface to place objects on"
+                        .into(),
+                })?;
+            let mut library = Vec::new();
+            for (j, l) in spec.library.iter().enumerate() {
+                library.push(lib_node(&session, j, l)?);
+            }
+            // A library node from this same scene keeps its cut shape; from elsewhere, its
+            // whole occupancy (that scene's surfaces are not surveyed).
+            let this = std::fs::canonicalize(&b.path).ok();
+            let library = library
+                .into_iter()
+                .map(|(mut ln, nf)| {
+                    let own = scene.nodes.iter().find(|n| n.id == ln.id);
+                    ln.shape = match own {
+                        Some(n)
+                            if this.as_deref().map(|p| p.to_string_lossy().to_string())
+                                == Some(ln.scene.clone()) =>
+                        {
+                            shapes[&n.field].clone()
+                        }
+                        _ => {
+                            let ax = place::up_axis(&ln.node.world_from_local, scene.up);
+                            Shape::of(&nf, ax, |_| true)
+                        }
+                    };
+                    ln
+                })
+                .collect();
+            bases.push(Base {
+                path: b.path.clone(),
+                session,
+                cameras,
+                seen,
+                support,
+                shapes,
+                library,
+            });
+        }
+        let mut classes = vec!["background".to_string()];
+        for b in &bases {
+            let mut nodes: Vec<_> = b
+                .session
+                .nodes()
+                .iter()
+                .filter(|n| !n.is_background())
+                .collect();
+            nodes.sort_by_key(|n| n.id);
+            for n in nodes {
+                if !classes.contains(&n.label) {
+                    classes.push(n.label.clone());
+                }
+            }
+        }
+        if let Some(b) = bases.first() {
+            for l in &b.library {
+                if !classes.contains(&l.label) {
+                    classes.push(l.label.clone());
+                }
+            }
+        }
+        Ok(Generator {
+            spec,
+            bases,
+            classes,
+            outputs,
+        })
+    }
+
+    /// Semantic classes of every sample: 0 = background, then the base scenes' labels (by
+    /// id) and the library's, in spec order.
+    pub fn classes(&self) -> &[String] {
+        &self.classes
+    }
+
+    /// What a folder of this run records about it (`generate.json`): the spec with
+    /// absolute paths and the classes; shards and restarts must agree on it.
+    pub fn manifest(&self) -> serde_json::Value {
+        serde_json::json!({
+            "format": "assist-generate",
+            "version": 1,
+            "spec": self.spec,
+            "classes": self.classes,
+        })
+    }
+}
+
+/// Adds library entry `j` to a fork of `session` where the node stands in its own scene,
+/// to learn how it stands in this one (units, orientation) and load its field.
+fn lib_node(
+    session: &Session,
+    j: usize,
+    l: &spec::LibraryEntry,
+) -> Result<(LibNode, std::sync::Arc<assist_scene::NodeField>)> {
+    let bad = |message: String| GenError::Spec {
+        path: l.scene.clone(),
+        field: format!("library[{j}]"),
+        message,
+    };
+    let scene_path = std::fs::canonicalize(&l.scene)
+        .map_err(|e| bad(format!("scene {}: {e}", l.scene.display())))?;
+    let scene_str = scene_path.to_string_lossy().to_string();
+    let other = Session::describe(&scene_path).map_err(|e| bad(e.to_string()))?;
+    let found = other.nodes.iter().find(|n| match &l.node {
+        NodeRef::Id(i) => n.id == *i,
+        NodeRef::Label(s) => n.label == *s,
+    });
+    let Some(src) = found else {
+        let have: Vec<String> = other
+            .nodes
+            .iter()
+            .map(|n| format!("{} {:?}", n.id, n.label))
+            .collect();
+        return Err(bad(format!(
+            "node {}: no such node in {} (it has {})",
+            l.node,
+            scene_path.display(),
+            have.join(", ")
+        )));
+    };
+    if src.is_background() {
+        return Err(bad(format!(
+            "node {}: is the background of {}; only objects can be added",
+            l.node,
+            scene_path.display()
+        )));
+    }
+    let mut fork = session.fork();
+    let id = fork.description().fresh_id();
+    let action = Action {
+        instance_id: id,
+        operation: Operation::Add,
+        config: ActionConfig {
+            scene: Some(scene_str.clone()),
+            node: Some(NodeRef::Id(src.id)),
+            ..Default::default()
+        },
+    };
+    fork.apply(&[action]).map_err(|e| bad(e.to_string()))?;
+    let node = fork
+        .node(id)
+        .cloned()
+        .ok_or_else(|| bad("the added node is missing".into()))?;
+    let nf = fork.scene().fields[&node.field].clone();
+    Ok((
+        LibNode {
+            scene: scene_str,
+            id: src.id,
+            label: src.label.clone(),
+            node,
+            shape: None,
+        },
+        nf,
+    ))
+}

@@ -1,0 +1,359 @@
+//! Running a generator into a folder (any shard of it, resumable) and joining the samples'
+//! annotations into dataset-wide files.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use serde::Serialize;
+use serde_json::{Value, json};
+
+use crate::sample::{SampleReport, io, pretty};
+use crate::{GenError, Generator, Result, Shard};
+
+/// Where and how a run writes.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    pub out: PathBuf,
+    pub shard: Shard,
+    /// Plan placements and write the actions and poses without rendering (into
+    /// `OUT/plans/`).
+    pub dry_run: bool,
+    /// Replace an `OUT` that assist wrote for another spec.
+    pub force: bool,
+}
+
+/// What a run reports as it goes.
+pub enum RunEvent<'a> {
+    /// The samples this process owns and how many of them are already done.
+    Start { owned: u64, done: u64 },
+    Sample {
+        report: &'a SampleReport,
+        /// Samples finished by this process so far (this one included).
+        finished: u64,
+        /// Samples left to make in this process.
+        left: u64,
+        elapsed: f64,
+    },
+}
+
+/// What a run did.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunSummary {
+    pub out: PathBuf,
+    pub shard: String,
+    pub made: u64,
+    pub skipped: u64,
+    pub seconds: f64,
+    pub samples_per_second: f64,
+    pub draws: u64,
+    pub rejected: u64,
+    pub gave_up: u64,
+    /// The merged indices when this run covered every sample (unsharded).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub merged: Option<MergeSummary>,
+}
+
+pub(crate) fn sample_dir(out: &Path, index: u64) -> PathBuf {
+    out.join("samples").join(format!("{index:06}"))
+}
+
+impl Generator {
+    /// Makes every sample of `opts.shard` that is not already in `opts.out`; an unsharded
+    /// run then merges the indices.
+    pub fn run(&self, opts: &RunOptions, mut on: impl FnMut(&RunEvent)) -> Result<RunSummary> {
+        let out = &opts.out;
+        self.claim(out, opts.force)?;
+        let kind = if opts.dry_run { "plans" } else { "samples" };
+        let owned: Vec<u64> = (0..self.spec.count)
+            .filter(|&i| opts.shard.owns(i))
+            .collect();
+        let dir_of = |i: u64| out.join(kind).join(format!("{i:06}"));
+        let todo: Vec<u64> = owned
+            .iter()
+            .copied()
+            .filter(|&i| !dir_of(i).join(assist_fs::MARKER).is_file())
+            .collect();
+        let skipped = owned.len() as u64 - todo.len() as u64;
+        on(&RunEvent::Start {
+            owned: owned.len() as u64,
+            done: skipped,
+        });
+        let t0 = Instant::now();
+        let (mut draws, mut rejected, mut gave_up) = (0u64, 0u64, 0u64);
+        for (k, &i) in todo.iter().enumerate() {
+            let target = dir_of(i);
+            let staging = assist_fs::Staging::begin(&target, &format!("generating sample {i}"))?;
+            let report = self.make(i, staging.dir(), opts.dry_run)?;
+            staging.commit()?;
+            draws += report.draws as u64;
+            rejected += report.rejected as u64;
+            gave_up += report.gave_up.len() as u64;
+            on(&RunEvent::Sample {
+                report: &report,
+                finished: k as u64 + 1,
+                left: (todo.len() - k - 1) as u64,
+                elapsed: t0.elapsed().as_secs_f64(),
+            });
+        }
+        let seconds = t0.elapsed().as_secs_f64();
+        let merged = if opts.shard.count == 1 && !opts.dry_run {
+            Some(merge(out, false)?)
+        } else {
+            None
+        };
+        Ok(RunSummary {
+            out: out.clone(),
+            shard: format!("{}/{}", opts.shard.index, opts.shard.count),
+            made: todo.len() as u64,
+            skipped,
+            seconds,
+            samples_per_second: if seconds > 0.0 {
+                todo.len() as f64 / seconds
+            } else {
+                0.0
+            },
+            draws,
+            rejected,
+            gave_up,
+            merged,
+        })
+    }
+
+    /// Makes `out` this run's folder: a new folder, or one this same spec started (a
+    /// restart, another shard). A folder another spec made is replaced only with `force`
+    /// (and only if assist wrote it); anything else is refused.
+    fn claim(&self, out: &Path, force: bool) -> Result<()> {
+        let manifest = self.manifest();
+        let file = out.join("generate.json");
+        if file.is_file() {
+            let text = assist_fs::read_text(&file)?;
+            let old: Value = serde_json::from_str(&text).map_err(|e| GenError::Folder {
+                path: file.clone(),
+                message: format!("not valid JSON: {e}"),
+            })?;
+            if old == manifest {
+                return Ok(());
+            }
+            if !force {
+                let what = ["spec", "classes", "format", "version"]
+                    .into_iter()
+                    .find(|k| old.get(k) != manifest.get(k))
+                    .unwrap_or("spec");
+                let detail = match (old.get("spec"), manifest.get("spec")) {
+                    (Some(Value::Object(a)), Some(Value::Object(b))) => a
+                        .keys()
+                        .chain(b.keys())
+                        .find(|k| a.get(*k) != b.get(*k))
+                        .map(|k| format!(" (spec field {k:?} differs)"))
+                        .unwrap_or_default(),
+                    _ => String::new(),
+                };
+                return Err(GenError::Folder {
+                    path: out.into(),
+                    message: format!(
+                        "was generated from another {what}{detail}; give another --out, or --force to replace it"
+                    ),
+                });
+            }
+            assist_fs::check_replaceable(out, true)?;
+            std::fs::remove_dir_all(out).map_err(|e| io(out, e))?;
+        } else {
+            assist_fs::check_replaceable(out, force)?;
+            if out.is_dir() {
+                std::fs::remove_dir_all(out).map_err(|e| io(out, e))?;
+            }
+        }
+        std::fs::create_dir_all(out.join("samples")).map_err(|e| io(out, e))?;
+        let marker = out.join(assist_fs::MARKER);
+        if !marker.exists() {
+            assist_data::image_io::write_atomic(&marker, b"written by assist generate\n")?;
+        }
+        assist_data::image_io::write_atomic(&file, &pretty(&manifest))?;
+        Ok(())
+    }
+}
+
+/// What a merge wrote.
+#[derive(Debug, Clone, Serialize)]
+pub struct MergeSummary {
+    pub samples: u64,
+    pub images: u64,
+    pub annotations: u64,
+    pub missing: Vec<u64>,
+}
+
+/// Joins the samples in `out` into `annotations/instances.json` (COCO instances, RLE
+/// masks), `annotations/panoptic.json` (COCO panoptic; its PNGs are the samples'
+/// `views/panoptic_coco/`, paths relative to `out`) and `index.json`. Missing samples are
+/// an error unless `partial`.
+pub fn merge(out: &Path, partial: bool) -> Result<MergeSummary> {
+    let file = out.join("generate.json");
+    if !file.is_file() {
+        return Err(GenError::Folder {
+            path: out.into(),
+            message: "has no generate.json: not a folder `assist generate` wrote".into(),
+        });
+    }
+    let manifest: Value =
+        serde_json::from_str(&assist_fs::read_text(&file)?).map_err(|e| GenError::Folder {
+            path: file.clone(),
+            message: format!("not valid JSON: {e}"),
+        })?;
+    let count = manifest["spec"]["count"].as_u64().unwrap_or(0);
+    let classes: Vec<String> = manifest["classes"]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .filter_map(|c| c.as_str().map(String::from))
+                .collect()
+        })
+        .unwrap_or_default();
+    let mut images = Vec::new();
+    let mut anns = Vec::new();
+    let mut pan = Vec::new();
+    let mut index = Vec::new();
+    let mut missing = Vec::new();
+    for i in 0..count {
+        let dir = sample_dir(out, i);
+        if !dir.join(assist_fs::MARKER).is_file() {
+            missing.push(i);
+            continue;
+        }
+        let sf = dir.join("sample.json");
+        let s: Value =
+            serde_json::from_str(&assist_fs::read_text(&sf)?).map_err(|e| GenError::Folder {
+                path: sf.clone(),
+                message: format!("not valid JSON: {e}"),
+            })?;
+        let rel = format!("samples/{i:06}");
+        for v in s["views"].as_array().into_iter().flatten() {
+            let name = v["name"].as_str().unwrap_or("");
+            let image_id = images.len() as u64 + 1;
+            let (w, h) = (
+                v["width"].as_u64().unwrap_or(0),
+                v["height"].as_u64().unwrap_or(0),
+            );
+            images.push(json!({
+                "id": image_id,
+                "file_name": format!("{rel}/views/images/{name}.png"),
+                "width": w,
+                "height": h,
+                "sample": i,
+                "view": name,
+            }));
+            let mut segments = Vec::new();
+            for o in v["objects"].as_array().into_iter().flatten() {
+                let Some(rle) = o["rle"].as_str() else {
+                    continue;
+                };
+                anns.push(json!({
+                    "id": anns.len() as u64 + 1,
+                    "image_id": image_id,
+                    "category_id": o["class"],
+                    "segmentation": {"size": [h, w], "counts": rle},
+                    "area": o["visible_pixels"],
+                    "bbox": o["bbox_visible"],
+                    "iscrowd": 0,
+                    "instance_id": o["id"],
+                    "bbox_amodal": o["bbox_amodal"],
+                    "visibility": o["visibility"],
+                }));
+                segments.push(json!({
+                    "id": o["id"],
+                    "category_id": o["class"],
+                    "area": o["visible_pixels"],
+                    "bbox": o["bbox_visible"],
+                    "iscrowd": 0,
+                }));
+            }
+            if v["background_pixels"].as_u64().unwrap_or(0) > 0 {
+                segments.push(json!({
+                    "id": 1 << 16,
+                    "category_id": 0,
+                    "area": v["background_pixels"],
+                    "bbox": v["background_bbox"],
+                    "iscrowd": 0,
+                }));
+            }
+            pan.push(json!({
+                "image_id": image_id,
+                "file_name": format!("{rel}/views/panoptic_coco/{name}.png"),
+                "segments_info": segments,
+            }));
+        }
+        index.push(json!({
+            "index": i,
+            "dir": rel,
+            "objects": s["objects"].as_array().map(|a| a.len()).unwrap_or(0),
+            "views": s["views"].as_array().map(|a| a.len()).unwrap_or(0),
+            "draws": s["draws"],
+            "rejected": s["rejected"],
+            "gave_up": s["gave_up"],
+        }));
+    }
+    if !missing.is_empty() && !partial {
+        let first: Vec<String> = missing.iter().take(10).map(|i| i.to_string()).collect();
+        return Err(GenError::Folder {
+            path: out.into(),
+            message: format!(
+                "{} of {count} samples are not made yet (first: {}); run the missing shards, or merge with --partial",
+                missing.len(),
+                first.join(", ")
+            ),
+        });
+    }
+    let things: Vec<Value> = classes
+        .iter()
+        .enumerate()
+        .skip(1)
+        .map(|(k, c)| json!({"id": k, "name": c, "supercategory": "object"}))
+        .collect();
+    let info = json!({"description": "assist generate", "version": "1"});
+    let instances = json!({
+        "info": info,
+        "images": images,
+        "annotations": anns,
+        "categories": things,
+    });
+    let mut pan_cats =
+        vec![json!({"id": 0, "name": "background", "supercategory": "background", "isthing": 0})];
+    pan_cats.extend(
+        classes
+            .iter()
+            .enumerate()
+            .skip(1)
+            .map(|(k, c)| json!({"id": k, "name": c, "supercategory": "object", "isthing": 1})),
+    );
+    let panoptic = json!({
+        "info": info,
+        "images": images,
+        "annotations": pan,
+        "categories": pan_cats,
+    });
+    let ad = out.join("annotations");
+    std::fs::create_dir_all(&ad).map_err(|e| io(&ad, e))?;
+    assist_data::image_io::write_atomic(&ad.join("instances.json"), &pretty(&instances))?;
+    assist_data::image_io::write_atomic(&ad.join("panoptic.json"), &pretty(&panoptic))?;
+    let draws: u64 = index.iter().map(|s| s["draws"].as_u64().unwrap_or(0)).sum();
+    let rejected: u64 = index
+        .iter()
+        .map(|s| s["rejected"].as_u64().unwrap_or(0))
+        .sum();
+    assist_data::image_io::write_atomic(
+        &out.join("index.json"),
+        &pretty(&json!({
+            "count": count,
+            "samples": index,
+            "missing": missing,
+            "draws": draws,
+            "rejected": rejected,
+            "classes": classes,
+        })),
+    )?;
+    Ok(MergeSummary {
+        samples: index.len() as u64,
+        images: images.len() as u64,
+        annotations: anns.len() as u64,
+        missing,
+    })
+}

@@ -1,0 +1,697 @@
+//! One sample: draw the rearrangement, express it as actions, apply them through a forked
+//! session, draw the cameras, render, annotate, and write the sample's folder atomically.
+
+use std::path::Path;
+
+use assist_core::action::{AxisSpec, NodeRef};
+use assist_core::{
+    Action, ActionConfig, Camera, DAffine3, DMat3, DQuat, DVec3, Distortion, Intrinsics, Operation,
+    Pose, Rng, Similarity3,
+};
+use assist_data::{DatasetWriter, WriterConfig};
+use assist_session::{Highlight, NamedCamera, Session, ViewDone};
+use serde::{Deserialize, Serialize};
+use serde_json::{Value, json};
+
+use crate::coco::{self, ViewObject};
+use crate::place::{self, Posed, Reject, Shape};
+use crate::spec::CameraFrom;
+use crate::{Base, GenError, Generator, Result};
+
+/// Something a sample did not get.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GaveUp {
+    /// What was to be placed: `"move 3 \"red mug\""` or `"add library[0] \"duck\""`.
+    pub what: String,
+    pub tries: u32,
+    /// The rejections, by reason.
+    pub reasons: Vec<(String, u32)>,
+    /// What became of it: `"stays"`, `"deleted"` or `"not added"`.
+    pub outcome: String,
+}
+
+/// What a finished sample reports.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SampleReport {
+    pub index: u64,
+    pub objects: usize,
+    pub draws: u32,
+    pub rejected: u32,
+    pub gave_up: Vec<GaveUp>,
+    pub views: usize,
+}
+
+/// An accepted draw (pose, yaw, scale, support height, occupied box) or the rejections by
+/// reason.
+type Drawn = std::result::Result<(Posed, f64, f64, f64, assist_core::Obb), Vec<(String, u32)>>;
+
+/// A placed object.
+struct Placed {
+    id: u16,
+    /// `None` for the scene's own object, `Some(k)` for library entry k.
+    library: Option<usize>,
+    yaw_deg: f64,
+    scale: f64,
+    centre: DVec3,
+    support: f64,
+}
+
+/// The drawn rearrangement of one sample.
+pub(crate) struct Plan {
+    pub index: u64,
+    pub base: usize,
+    pub actions: Vec<Action>,
+    placed: Vec<Placed>,
+    deleted: Vec<u16>,
+    pub gave_up: Vec<GaveUp>,
+    pub draws: u32,
+    pub rejected: u32,
+    rng: Rng,
+}
+
+fn action(id: u16, op: Operation, config: ActionConfig) -> Action {
+    Action {
+        instance_id: id,
+        operation: op,
+        config,
+    }
+}
+
+impl Generator {
+    /// Draws sample `index`'s rearrangement (no rendering).
+    pub(crate) fn plan(&self, index: u64) -> Result<Plan> {
+        let spec = &self.spec;
+        let mut rng = Rng::stream(spec.seed, index);
+        let bi = rng.below(self.bases.len() as u64) as usize;
+        let base = &self.bases[bi];
+        let scene = base.session.description();
+        let up = scene.up.normalize();
+        let mpu = scene.meters_per_unit;
+        let p = &spec.placement;
+        let mut own: Vec<_> = scene.nodes.iter().filter(|n| !n.is_background()).collect();
+        own.sort_by_key(|n| n.id);
+        let mut deleted = Vec::new();
+        let mut moving = Vec::new();
+        let mut staying = Vec::new();
+        for n in &own {
+            let keep = rng.f64() < spec.objects.keep;
+            let mv = rng.f64() < spec.objects.move_;
+            if !keep {
+                deleted.push(n.id);
+            } else if mv && base.shapes.get(&n.field).is_some_and(|s| s.is_some()) {
+                moving.push(*n);
+            } else {
+                staying.push(*n);
+            }
+        }
+        let counts: Vec<u32> = spec
+            .library
+            .iter()
+            .map(|l| l.min + rng.below((l.max - l.min) as u64 + 1) as u32)
+            .collect();
+        let shape_of =
+            |n: &assist_core::SceneNode| base.shapes.get(&n.field).and_then(|s| s.as_ref());
+        let gap = p.gap_m / mpu;
+        let mut obstacles: Vec<(u16, assist_core::Obb)> = Vec::new();
+        for n in &staying {
+            if let Some(s) = shape_of(n) {
+                obstacles.push((n.id, Posed::of(n).occupied_box(s)));
+            }
+        }
+        let mut plan = Plan {
+            index,
+            base: bi,
+            actions: Vec::new(),
+            placed: Vec::new(),
+            deleted,
+            gave_up: Vec::new(),
+            draws: 0,
+            rejected: 0,
+            rng: Rng::new(0),
+        };
+        // One object: up to `tries` draws of yaw, scale and a seen support cell.
+        let draw = |rng: &mut Rng,
+                    plan: &mut Plan,
+                    start: Posed,
+                    shape: &Shape,
+                    obstacles: &[(u16, assist_core::Obb)]|
+         -> Drawn {
+            let mut why: std::collections::BTreeMap<Reject, u32> = Default::default();
+            for _ in 0..p.tries {
+                plan.draws += 1;
+                let yaw = rng.range(p.yaw_deg[0], p.yaw_deg[1]);
+                let s = rng.range(p.scale[0], p.scale[1]);
+                let sup = &base.support;
+                let cell = sup.allowed[rng.below(sup.allowed.len() as u64) as usize];
+                let c = sup.cell_center(cell)
+                    + assist_core::DVec2::new(rng.f64() - 0.5, rng.f64() - 0.5) * sup.cell;
+                let mut cand = start;
+                cand.pose.rotation = place::yawed(start.pose.rotation, up, yaw);
+                cand.pose.scale = start.pose.scale * s;
+                let h = sup.frame.height(start.pose.translation);
+                cand.pose.translation = sup.frame.point(c, h);
+                let r = place::rest(&cand, shape, sup, p.flatness_m / mpu).and_then(
+                    |(posed, support)| {
+                        let b = posed.occupied_box(shape);
+                        if obstacles
+                            .iter()
+                            .any(|(_, o)| place::boxes_overlap(&b, o, gap))
+                        {
+                            Err(Reject::Overlap)
+                        } else {
+                            Ok((posed, support, b))
+                        }
+                    },
+                );
+                match r {
+                    Ok((posed, support, b)) => return Ok((posed, yaw, s, support, b)),
+                    Err(e) => {
+                        plan.rejected += 1;
+                        *why.entry(e).or_default() += 1;
+                    }
+                }
+            }
+            Err(why
+                .into_iter()
+                .map(|(r, k)| (r.name().to_string(), k))
+                .collect())
+        };
+        for n in &moving {
+            let shape = shape_of(n).expect("moving objects have shapes");
+            match draw(&mut rng, &mut plan, Posed::of(n), shape, &obstacles) {
+                Ok((posed, yaw, s, support, b)) => {
+                    obstacles.push((n.id, b));
+                    plan.placed.push(Placed {
+                        id: n.id,
+                        library: None,
+                        yaw_deg: yaw,
+                        scale: s,
+                        centre: posed.pose.translation,
+                        support,
+                    });
+                }
+                Err(reasons) => {
+                    let b = Posed::of(n).occupied_box(shape);
+                    let taken = obstacles
+                        .iter()
+                        .any(|(_, o)| place::boxes_overlap(&b, o, gap));
+                    let outcome = if taken {
+                        plan.deleted.push(n.id);
+                        "deleted (its place was taken)"
+                    } else {
+                        obstacles.push((n.id, b));
+                        "stays"
+                    };
+                    plan.gave_up.push(GaveUp {
+                        what: format!("move {} {:?}", n.id, n.label),
+                        tries: p.tries,
+                        reasons,
+                        outcome: outcome.into(),
+                    });
+                }
+            }
+        }
+        let mut next_id = scene.nodes.iter().map(|n| n.id).max().unwrap_or(0) + 1;
+        for (k, &count) in counts.iter().enumerate() {
+            let lib = &base.library[k];
+            for _ in 0..count {
+                let Some(shape) = &lib.shape else {
+                    plan.gave_up.push(GaveUp {
+                        what: format!("add library[{k}] {:?}", lib.label),
+                        tries: 0,
+                        reasons: vec![("its field has no occupied cell".into(), 1)],
+                        outcome: "not added".into(),
+                    });
+                    continue;
+                };
+                match draw(&mut rng, &mut plan, Posed::of(&lib.node), shape, &obstacles) {
+                    Ok((posed, yaw, s, support, b)) => {
+                        obstacles.push((next_id, b));
+                        plan.placed.push(Placed {
+                            id: next_id,
+                            library: Some(k),
+                            yaw_deg: yaw,
+                            scale: s,
+                            centre: posed.pose.translation,
+                            support,
+                        });
+                        next_id += 1;
+                    }
+                    Err(reasons) => plan.gave_up.push(GaveUp {
+                        what: format!("add library[{k}] {:?}", lib.label),
+                        tries: p.tries,
+                        reasons,
+                        outcome: "not added".into(),
+                    }),
+                }
+            }
+        }
+        // The rearrangement as actions, in world units.
+        let mut actions = Vec::new();
+        plan.deleted.sort();
+        for &id in &plan.deleted {
+            actions.push(action(id, Operation::Delete, ActionConfig::default()));
+        }
+        for pl in &plan.placed {
+            if let Some(k) = pl.library {
+                let lib = &base.library[k];
+                actions.push(action(
+                    pl.id,
+                    Operation::Add,
+                    ActionConfig {
+                        scene: Some(lib.scene.clone()),
+                        node: Some(NodeRef::Id(lib.id)),
+                        position: Some(pl.centre.to_array()),
+                        unit: Some("units".into()),
+                        ..Default::default()
+                    },
+                ));
+            }
+            actions.push(action(
+                pl.id,
+                Operation::Rotate,
+                ActionConfig {
+                    axis: Some(AxisSpec::Name("up".into())),
+                    degrees: Some(pl.yaw_deg),
+                    ..Default::default()
+                },
+            ));
+            if pl.scale != 1.0 {
+                actions.push(action(
+                    pl.id,
+                    Operation::Scale,
+                    ActionConfig {
+                        factor: Some(pl.scale),
+                        ..Default::default()
+                    },
+                ));
+            }
+            if pl.library.is_none() {
+                let now = scene
+                    .node(pl.id)
+                    .expect("own node")
+                    .world_from_local
+                    .translation;
+                actions.push(action(
+                    pl.id,
+                    Operation::Translate,
+                    ActionConfig {
+                        vector: Some((pl.centre - now).to_array()),
+                        unit: Some("units".into()),
+                        ..Default::default()
+                    },
+                ));
+            }
+        }
+        plan.actions = actions;
+        plan.rng = rng;
+        Ok(plan)
+    }
+
+    /// The sample's scene: a fork of its base with the plan's actions applied.
+    pub(crate) fn apply(&self, plan: &Plan) -> Result<Session> {
+        let mut s = self.bases[plan.base].session.fork();
+        s.apply(&plan.actions).map_err(|e| GenError::Sample {
+            index: plan.index,
+            message: format!("applying its actions: {e}"),
+        })?;
+        Ok(s)
+    }
+
+    /// Draws the sample's cameras (after its placement, from the same stream).
+    pub(crate) fn cameras(&self, plan: &mut Plan, session: &Session) -> Result<Vec<NamedCamera>> {
+        let c = &self.spec.cameras;
+        let o = &self.spec.output;
+        let base = &self.bases[plan.base];
+        let scene = session.description();
+        let up = scene.up.normalize();
+        let mpu = scene.meters_per_unit;
+        let rng = &mut plan.rng;
+        let target = c.look_at.as_ref().and_then(|r| {
+            scene
+                .nodes
+                .iter()
+                .find(|n| {
+                    !n.is_background()
+                        && match r {
+                            NodeRef::Id(i) => n.id == *i,
+                            NodeRef::Label(l) => n.label == *l,
+                        }
+                })
+                .map(|n| n.world_from_local.translation)
+        });
+        let bad = |m: String| GenError::Sample {
+            index: plan.index,
+            message: format!("cameras: {m}"),
+        };
+        let mut out = Vec::new();
+        for v in 0..c.views {
+            let camera = if c.from == CameraFrom::Orbit {
+                let (lo, hi) = objects_box(scene);
+                let centre = target.unwrap_or((lo + hi) * 0.5);
+                let half = ((hi - lo) * 0.5).length().max(1e-6);
+                let intr = Intrinsics::from_fov_x(o.width, o.height, c.fov_deg.to_radians());
+                let fov_y = 2.0
+                    * ((0.5 * c.fov_deg.to_radians()).tan() * o.height as f64 / o.width as f64)
+                        .atan();
+                let r = 1.15 * half / (0.5 * fov_y.min(c.fov_deg.to_radians())).sin();
+                let az = rng.range(0.0, std::f64::consts::TAU);
+                let el = rng
+                    .range(c.elevation_deg[0], c.elevation_deg[1])
+                    .to_radians();
+                let f = crate::surface::UpFrame::new(up);
+                let dir = (f.e1 * az.cos() + f.e2 * az.sin()) * el.cos() + up * el.sin();
+                let pose =
+                    Pose::look_at(centre + dir * r, centre, up).map_err(|e| bad(e.to_string()))?;
+                Camera {
+                    intrinsics: intr,
+                    pose,
+                }
+            } else {
+                let from = &base.cameras[rng.below(base.cameras.len() as u64) as usize];
+                let mut cam = Session::sized(&from.camera, Some((o.width, o.height)))?;
+                cam.intrinsics.distortion = Distortion::None;
+                // Jitter: a point in a ball, a turn about a random axis.
+                let radius = c.jitter_m / mpu;
+                let dp = loop {
+                    let d = DVec3::new(rng.f64(), rng.f64(), rng.f64()) * 2.0 - 1.0;
+                    if d.length_squared() <= 1.0 {
+                        break d * radius;
+                    }
+                };
+                let axis = loop {
+                    let d = DVec3::new(rng.normal(), rng.normal(), rng.normal());
+                    if d.length_squared() > 1e-9 {
+                        break d.normalize();
+                    }
+                };
+                let angle = rng.range(0.0, c.jitter_deg).to_radians();
+                let eye = cam.pose.center() + dp;
+                let pose = match target {
+                    Some(t) => Pose::look_at(eye, t, up).map_err(|e| bad(e.to_string()))?,
+                    None => {
+                        let r = DMat3::from_quat(DQuat::from_axis_angle(axis, angle))
+                            * cam.pose.rotation();
+                        Pose {
+                            world_from_camera: DAffine3::from_mat3_translation(r, eye),
+                        }
+                    }
+                };
+                cam.pose = pose;
+                cam
+            };
+            out.push(NamedCamera {
+                name: format!("v{v}"),
+                camera,
+            });
+        }
+        Ok(out)
+    }
+
+    /// Makes sample `index` into `dir` (a staging folder the caller commits).
+    pub(crate) fn make(&self, index: u64, dir: &Path, dry_run: bool) -> Result<SampleReport> {
+        let mut plan = self.plan(index)?;
+        let session = self.apply(&plan)?;
+        let cameras = self.cameras(&mut plan, &session)?;
+        let base = &self.bases[plan.base];
+        let scene = session.description();
+        let mpu = scene.meters_per_unit;
+        std::fs::create_dir_all(dir).map_err(|e| io(dir, e))?;
+        // The actions, one per line: `assist edit BASE --actions actions.jsonl` replays them.
+        let mut lines = String::new();
+        for a in &plan.actions {
+            lines.push_str(&serde_json::to_string(a).expect("actions serialise"));
+            lines.push('\n');
+        }
+        write(&dir.join("actions.jsonl"), lines.as_bytes())?;
+        let class_of =
+            |label: &str| self.classes.iter().position(|c| c == label).unwrap_or(0) as u16;
+        // Objects as they stand.
+        let up = scene.up.normalize();
+        let mut objects = Vec::new();
+        for n in scene.nodes.iter().filter(|n| !n.is_background()) {
+            let posed = Posed::of(n);
+            let placed = plan.placed.iter().find(|p| p.id == n.id);
+            let shape = match placed.and_then(|p| p.library) {
+                Some(k) => base.library[k].shape.clone(),
+                None => base.shapes.get(&n.field).cloned().flatten(),
+            };
+            let status = match placed {
+                Some(p) if p.library.is_some() => "added",
+                Some(_) => "moved",
+                None => "stays",
+            };
+            let mut o = json!({
+                "id": n.id,
+                "label": n.label,
+                "class": class_of(&n.label),
+                "status": status,
+                "pose": pose_json(&n.world_from_local),
+                "half_size": n.half_size.to_array(),
+            });
+            if let Some(p) = placed {
+                o["yaw_deg"] = json!(p.yaw_deg);
+                o["scale"] = json!(p.scale);
+                o["support"] = json!(p.support);
+                if let Some(k) = p.library {
+                    o["library"] = json!(k);
+                }
+            }
+            if let Some(s) = &shape {
+                let b = posed.occupied_box(s);
+                o["bottom"] = json!(posed.bottom(s, up));
+                o["occupied_box"] = json!({
+                    "center": b.center.to_array(),
+                    "half_size": b.half_size.to_array(),
+                    "rotation": rows(&b.rotation),
+                });
+            }
+            objects.push(o);
+        }
+        let mut views_json = Vec::new();
+        let mut scene_camera = serde_json::Map::new();
+        let mut scene_gt = serde_json::Map::new();
+        for (v, c) in cameras.iter().enumerate() {
+            let cam = &c.camera;
+            let i = &cam.intrinsics;
+            let r_c2w = cam.pose.rotation_opencv();
+            let r_w2c = r_c2w.transpose();
+            let t_w2c = -(r_w2c * cam.pose.center());
+            let mm = 1000.0 * mpu;
+            scene_camera.insert(
+                v.to_string(),
+                json!({
+                    "cam_K": [i.fx, 0.0, i.cx, 0.0, i.fy, i.cy, 0.0, 0.0, 1.0],
+                    "cam_R_w2c": flat(&r_w2c),
+                    "cam_t_w2c": (t_w2c * mm).to_array(),
+                    "depth_scale": 1.0,
+                    "width": i.width,
+                    "height": i.height,
+                }),
+            );
+            let gt: Vec<Value> = scene
+                .nodes
+                .iter()
+                .filter(|n| !n.is_background())
+                .map(|n| {
+                    let r = r_w2c * DMat3::from_quat(n.world_from_local.rotation);
+                    let t = r_w2c * n.world_from_local.translation + t_w2c;
+                    json!({
+                        "obj_id": class_of(&n.label),
+                        "inst_id": n.id,
+                        "cam_R_m2c": flat(&r),
+                        "cam_t_m2c": (t * mm).to_array(),
+                        "scale": n.world_from_local.scale.to_array(),
+                    })
+                })
+                .collect();
+            scene_gt.insert(v.to_string(), Value::Array(gt));
+        }
+        write(
+            &dir.join("scene_camera.json"),
+            &pretty(&Value::Object(scene_camera)),
+        )?;
+        write(
+            &dir.join("scene_gt.json"),
+            &pretty(&Value::Object(scene_gt)),
+        )?;
+        if !dry_run {
+            let cfg = WriterConfig {
+                outputs: self.outputs.clone(),
+                meters_per_unit: mpu,
+                world_up: scene.up.to_array(),
+                instances: session.instances(),
+                classes: self.classes.clone(),
+                ..WriterConfig::default()
+            };
+            let writer = DatasetWriter::create_in(&dir.join("views"), cfg)?;
+            let mut failed = None;
+            session.render_into(
+                &writer,
+                &cameras,
+                Highlight::None,
+                true,
+                |d: &ViewDone| match self.annotate(base, &session, d, &dir.join("views")) {
+                    Ok(j) => views_json.push(j),
+                    Err(e) => {
+                        failed.get_or_insert(e);
+                    }
+                },
+            )?;
+            if let Some(e) = failed {
+                return Err(e);
+            }
+            writer.finish()?;
+        }
+        let report = SampleReport {
+            index,
+            objects: objects.len(),
+            draws: plan.draws,
+            rejected: plan.rejected,
+            gave_up: plan.gave_up.clone(),
+            views: cameras.len(),
+        };
+        let sample = json!({
+            "index": index,
+            "seed": self.spec.seed,
+            "scene": base.path,
+            "objects": objects,
+            "deleted": plan.deleted,
+            "gave_up": plan.gave_up,
+            "draws": plan.draws,
+            "rejected": plan.rejected,
+            "views": views_json,
+            "rendered": !dry_run,
+        });
+        write(&dir.join("sample.json"), &pretty(&sample))?;
+        Ok(report)
+    }
+
+    /// A rendered view's annotations: each object's visible and amodal extent, its COCO
+    /// mask, the COCO panoptic image, and the unobserved-background mask.
+    fn annotate(
+        &self,
+        base: &Base,
+        session: &Session,
+        d: &ViewDone,
+        views: &Path,
+    ) -> Result<Value> {
+        let f = d.frame;
+        let (w, h) = (f.width as usize, f.height as usize);
+        let class_of =
+            |label: &str| self.classes.iter().position(|c| c == label).unwrap_or(0) as u16;
+        let mut objs = Vec::new();
+        for layer in &f.layers {
+            if layer.id == 0 {
+                continue;
+            }
+            let Some(n) = session.node(layer.id) else {
+                continue;
+            };
+            let vis = |q: usize| f.panoptic[q] == layer.id;
+            let amo = |q: usize| layer.opacity[q] >= 0.5 || f.panoptic[q] == layer.id;
+            let visible = (0..w * h).filter(|&q| vis(q)).count() as u64;
+            let amodal = (0..w * h).filter(|&q| amo(q)).count() as u64;
+            objs.push(ViewObject {
+                id: layer.id,
+                class: class_of(&n.label),
+                visible_pixels: visible,
+                amodal_pixels: amodal,
+                visibility: if amodal > 0 {
+                    visible as f64 / amodal as f64
+                } else {
+                    0.0
+                },
+                bbox_visible: coco::bbox(w, h, vis),
+                bbox_amodal: coco::bbox(w, h, amo),
+                rle: (visible > 0).then(|| coco::rle_string(&coco::rle_counts(w, h, vis))),
+            });
+        }
+        let name = &d.camera.name;
+        // COCO panoptic: segment id = instance id, background = 65536.
+        let mut rgb = vec![0u8; 3 * w * h];
+        for (q, &id) in f.panoptic.iter().enumerate() {
+            let s: u32 = if id == 0 { 1 << 16 } else { id as u32 };
+            rgb[3 * q] = (s & 255) as u8;
+            rgb[3 * q + 1] = (s >> 8 & 255) as u8;
+            rgb[3 * q + 2] = (s >> 16 & 255) as u8;
+        }
+        let pdir = views.join("panoptic_coco");
+        std::fs::create_dir_all(&pdir).map_err(|e| io(&pdir, e))?;
+        assist_data::image_io::write_rgb8_png(
+            &pdir.join(format!("{name}.png")),
+            w as u32,
+            h as u32,
+            &rgb,
+        )?;
+        let mask =
+            crate::surface::unobserved_mask(&base.seen, &d.camera.camera, &f.depth, &f.panoptic);
+        let unseen = mask.iter().filter(|&&m| m != 0).count();
+        let udir = views.join("unobserved");
+        std::fs::create_dir_all(&udir).map_err(|e| io(&udir, e))?;
+        assist_data::image_io::write_gray8_png(
+            &udir.join(format!("{name}.png")),
+            w as u32,
+            h as u32,
+            &mask,
+        )?;
+        let background = f.panoptic.iter().filter(|&&id| id == 0).count();
+        let background_bbox = coco::bbox(w, h, |q| f.panoptic[q] == 0);
+        Ok(json!({
+            "name": name,
+            "width": w,
+            "height": h,
+            "objects": objs,
+            "background_pixels": background,
+            "background_bbox": background_bbox,
+            "unobserved_pixels": unseen,
+        }))
+    }
+}
+
+fn objects_box(scene: &assist_core::Scene) -> (DVec3, DVec3) {
+    let mut lo = DVec3::splat(f64::INFINITY);
+    let mut hi = DVec3::splat(f64::NEG_INFINITY);
+    let has_objects = scene.nodes.iter().any(|n| !n.is_background());
+    for n in scene
+        .nodes
+        .iter()
+        .filter(|n| !has_objects || !n.is_background())
+    {
+        for c in n.world_corners() {
+            lo = lo.min(c);
+            hi = hi.max(c);
+        }
+    }
+    (lo, hi)
+}
+
+fn rows(m: &DMat3) -> Vec<[f64; 3]> {
+    (0..3).map(|r| m.row(r).to_array()).collect()
+}
+
+fn flat(m: &DMat3) -> Vec<f64> {
+    (0..3).flat_map(|r| m.row(r).to_array()).collect()
+}
+
+fn pose_json(p: &Similarity3) -> Value {
+    json!({
+        "rotation": rows(&DMat3::from_quat(p.rotation)),
+        "translation": p.translation.to_array(),
+        "scale": p.scale.to_array(),
+    })
+}
+
+pub(crate) fn pretty(v: &Value) -> Vec<u8> {
+    let mut s = serde_json::to_vec_pretty(v).expect("json serialises");
+    s.push(b'\n');
+    s
+}
+
+pub(crate) fn io(path: &Path, e: std::io::Error) -> GenError {
+    GenError::Data(assist_data::DataError::io(path, e))
+}
+
+pub(crate) fn write(path: &Path, bytes: &[u8]) -> Result<()> {
+    std::fs::write(path, bytes).map_err(|e| io(path, e))
+}

@@ -1,0 +1,187 @@
+//! `assist generate`: randomized, physically plausible, labelled variations of trained
+//! scenes (`docs/generate.md`), any shard of a run, resumable; `assist generate merge DIR`
+//! joins the shards' annotations.
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
+use assist_generate::{Generator, RunEvent, RunOptions, Shard, Spec};
+use clap::{Args, Subcommand};
+
+#[derive(Args, Debug)]
+#[command(args_conflicts_with_subcommands = true)]
+pub struct GenerateArgs {
+    #[command(subcommand)]
+    pub command: Option<GenerateCommand>,
+    /// The spec (TOML, or JSON by extension): base scenes, library, placement, cameras,
+    /// outputs (docs/generate.md).
+    #[arg(long, conflicts_with = "scene", required_unless_present = "scene")]
+    pub spec: Option<PathBuf>,
+    /// Without a spec: rearrange this scene's own objects with the default spec.
+    #[arg(long)]
+    pub scene: Option<PathBuf>,
+    /// The output folder (shared by every shard of a run).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Samples in the run (overrides the spec's `count`).
+    #[arg(long)]
+    pub count: Option<u64>,
+    /// Seed of the run (overrides the spec's `seed`).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Make only shard i of n (0-based): samples with index % n == i. Default: from
+    /// SLURM_ARRAY_TASK_ID/SLURM_ARRAY_TASK_COUNT or JOB_COMPLETION_INDEX/JOB_COMPLETIONS
+    /// when set, else every sample.
+    #[arg(long, value_name = "i/n")]
+    pub shard: Option<String>,
+    /// Plan placements and write the actions and poses (OUT/plans/) without rendering.
+    #[arg(long)]
+    pub dry_run: bool,
+    /// Replace an --out that assist generated from another spec.
+    #[arg(long)]
+    pub force: bool,
+    /// Print a JSON summary on stdout (progress stays on stderr).
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum GenerateCommand {
+    /// Join the samples of every shard into annotations/instances.json,
+    /// annotations/panoptic.json and index.json.
+    Merge {
+        /// The run's output folder.
+        dir: PathBuf,
+        /// Merge the samples present even if some are missing.
+        #[arg(long)]
+        partial: bool,
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+struct Prep(bool);
+
+impl assist_generate::Progress for Prep {
+    fn preparing(&mut self, what: &str) {
+        if self.0 {
+            eprintln!("{what} …");
+        }
+    }
+}
+
+pub fn run(a: GenerateArgs) -> anyhow::Result<()> {
+    if let Some(GenerateCommand::Merge { dir, partial, json }) = a.command {
+        let m = assist_generate::merge(&dir, partial)?;
+        if json {
+            println!("{}", serde_json::to_string_pretty(&m)?);
+        }
+        eprintln!(
+            "merged {} samples ({} images, {} annotations) in {}{}",
+            m.samples,
+            m.images,
+            m.annotations,
+            dir.display(),
+            if m.missing.is_empty() {
+                String::new()
+            } else {
+                format!("; {} missing", m.missing.len())
+            }
+        );
+        return Ok(());
+    }
+    let Some(out) = a.out.clone() else {
+        bail!("--out: expected the output folder");
+    };
+    let mut spec = match (&a.spec, &a.scene) {
+        (Some(p), _) => Spec::load(p)?,
+        (None, Some(s)) => Spec::for_scene(s),
+        (None, None) => bail!("expected --spec SPEC or --scene SCENE.assist"),
+    };
+    if let Some(c) = a.count {
+        spec.count = c;
+    }
+    if let Some(s) = a.seed {
+        spec.seed = s;
+    }
+    spec.check(a.spec.as_deref().unwrap_or(std::path::Path::new("--scene")))?;
+    let shard = match &a.shard {
+        Some(s) => Shard::parse(s).map_err(|m| anyhow::anyhow!("--shard: {m}"))?,
+        None => Shard::from_env(|k| std::env::var(k).ok())
+            .map_err(|m| anyhow::anyhow!("shard from the environment: {m}"))?
+            .unwrap_or(Shard::ALL),
+    };
+    let tty = std::io::stderr().is_terminal();
+    let generator = Generator::prepare(spec, &mut Prep(true)).context("preparing the run")?;
+    let bar = crate::progress::bar(tty, "generate");
+    let opts = RunOptions {
+        out: out.clone(),
+        shard,
+        dry_run: a.dry_run,
+        force: a.force,
+    };
+    let summary = generator.run(&opts, |e| match e {
+        RunEvent::Start { owned, done } => {
+            bar.set_length(*owned);
+            bar.set_position(*done);
+            if *done > 0 {
+                eprintln!("{done} of {owned} samples of this shard are already made; continuing");
+            }
+        }
+        RunEvent::Sample {
+            report,
+            finished,
+            left,
+            elapsed,
+        } => {
+            bar.inc(1);
+            let rate = *finished as f64 / elapsed.max(1e-9);
+            if !tty {
+                eprintln!(
+                    "sample {}: {} objects, {} draws ({} rejected){} · {:.2} samples/s, ETA {:.0} s",
+                    report.index,
+                    report.objects,
+                    report.draws,
+                    report.rejected,
+                    if report.gave_up.is_empty() {
+                        String::new()
+                    } else {
+                        format!(", gave up on {}", report.gave_up.len())
+                    },
+                    rate,
+                    *left as f64 / rate.max(1e-9)
+                );
+            }
+        }
+    })?;
+    bar.finish_and_clear();
+    eprintln!(
+        "{} {} samples into {} (shard {}; {} already there) in {:.1} s, {:.2} samples/s; {} of {} placement draws rejected, {} objects given up",
+        if a.dry_run { "planned" } else { "made" },
+        summary.made,
+        out.display(),
+        summary.shard,
+        summary.skipped,
+        summary.seconds,
+        summary.samples_per_second,
+        summary.rejected,
+        summary.draws,
+        summary.gave_up
+    );
+    if let Some(m) = &summary.merged {
+        eprintln!(
+            "wrote annotations/instances.json and annotations/panoptic.json ({} images, {} annotations) and index.json",
+            m.images, m.annotations
+        );
+    } else if !a.dry_run {
+        eprintln!(
+            "when every shard is done: assist generate merge {}",
+            out.display()
+        );
+    }
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    }
+    Ok(())
+}
