@@ -347,7 +347,7 @@ impl Generator {
         let mut out = Vec::new();
         for v in 0..c.views {
             let camera = if c.from == CameraFrom::Orbit {
-                let (lo, hi) = objects_box(scene);
+                let (lo, hi) = assist_session::objects_box(scene);
                 let centre = target.unwrap_or((lo + hi) * 0.5);
                 let half = ((hi - lo) * 0.5).length().max(1e-6);
                 let intr = Intrinsics::from_fov_x(o.width, o.height, c.fov_deg.to_radians());
@@ -647,23 +647,6 @@ impl Generator {
             "unobserved_pixels": unseen,
         }))
     }
-}
-
-fn objects_box(scene: &assist_core::Scene) -> (DVec3, DVec3) {
-    let mut lo = DVec3::splat(f64::INFINITY);
-    let mut hi = DVec3::splat(f64::NEG_INFINITY);
-    let has_objects = scene.nodes.iter().any(|n| !n.is_background());
-    for n in scene
-        .nodes
-        .iter()
-        .filter(|n| !has_objects || !n.is_background())
-    {
-        for c in n.world_corners() {
-            lo = lo.min(c);
-            hi = hi.max(c);
-        }
-    }
-    (lo, hi)
 }
 
 fn rows(m: &DMat3) -> Vec<[f64; 3]> {

@@ -130,7 +130,7 @@ impl CameraSource {
 }
 
 /// The world box around the scene's objects (or all nodes when it has none).
-fn objects_box(scene: &Scene) -> (DVec3, DVec3) {
+pub fn objects_box(scene: &Scene) -> (DVec3, DVec3) {
     let mut lo = DVec3::splat(f64::INFINITY);
     let mut hi = DVec3::splat(f64::NEG_INFINITY);
     let has_objects = scene.nodes.iter().any(|n| !n.is_background());

@@ -26,7 +26,9 @@ pub use assist_data::Output;
 pub use assist_lang::Resolved;
 pub use assist_render::DragCache;
 pub use assist_render::RenderedImage as Frame;
-pub use cameras::{CameraSource, NamedCamera, Orbit, SplitChoice, dataset_cameras, orbit};
+pub use cameras::{
+    CameraSource, NamedCamera, Orbit, SplitChoice, dataset_cameras, objects_box, orbit,
+};
 pub use render_job::{DatasetOutput, Highlight, RenderJob, RenderSummary, ViewDone};
 pub use train_job::{
     Appearance, LambdaOverrides, TrainConfig, TrainEvent, TrainJob, TrainOutcome, lambdas,
