@@ -89,7 +89,7 @@ impl OccupancyGrid {
     fn refresh_coarse(&mut self) {
         let r = self.res as usize;
         let b = BLOCK as usize;
-        if r % b != 0 || r < b {
+        if !r.is_multiple_of(b) || r < b {
             self.coarse.clear();
             return;
         }
