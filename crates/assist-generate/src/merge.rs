@@ -288,6 +288,7 @@ pub fn merge(out: &Path, partial: bool) -> Result<MergeSummary> {
             "views": s["views"].as_array().map(|a| a.len()).unwrap_or(0),
             "draws": s["draws"],
             "rejected": s["rejected"],
+            "rejections": s["rejections"],
             "gave_up": s["gave_up"],
         }));
     }
@@ -339,6 +340,14 @@ pub fn merge(out: &Path, partial: bool) -> Result<MergeSummary> {
         .iter()
         .map(|s| s["rejected"].as_u64().unwrap_or(0))
         .sum();
+    let mut by_reason = serde_json::Map::new();
+    for s in &index {
+        for (r, k) in s["rejections"].as_object().into_iter().flatten() {
+            let sum =
+                by_reason.get(r).and_then(|v| v.as_u64()).unwrap_or(0) + k.as_u64().unwrap_or(0);
+            by_reason.insert(r.clone(), json!(sum));
+        }
+    }
     assist_data::image_io::write_atomic(
         &out.join("index.json"),
         &pretty(&json!({
@@ -347,6 +356,7 @@ pub fn merge(out: &Path, partial: bool) -> Result<MergeSummary> {
             "missing": missing,
             "draws": draws,
             "rejected": rejected,
+            "rejections": by_reason,
             "classes": classes,
         })),
     )?;

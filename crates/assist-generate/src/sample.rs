@@ -66,6 +66,8 @@ pub(crate) struct Plan {
     pub gave_up: Vec<GaveUp>,
     pub draws: u32,
     pub rejected: u32,
+    /// Every rejected draw of the sample, by reason.
+    pub rejections: std::collections::BTreeMap<Reject, u32>,
     rng: Rng,
 }
 
@@ -127,6 +129,7 @@ impl Generator {
             gave_up: Vec::new(),
             draws: 0,
             rejected: 0,
+            rejections: Default::default(),
             rng: Rng::new(0),
         };
         // One object: up to `tries` draws of yaw, scale and a seen support cell.
@@ -168,6 +171,7 @@ impl Generator {
                     Err(e) => {
                         plan.rejected += 1;
                         *why.entry(e).or_default() += 1;
+                        *plan.rejections.entry(e).or_default() += 1;
                     }
                 }
             }
@@ -560,6 +564,11 @@ impl Generator {
             "gave_up": plan.gave_up,
             "draws": plan.draws,
             "rejected": plan.rejected,
+            "rejections": plan
+                .rejections
+                .iter()
+                .map(|(r, k)| (r.name().to_string(), json!(k)))
+                .collect::<serde_json::Map<String, Value>>(),
             "views": views_json,
             "rendered": !dry_run,
         });
