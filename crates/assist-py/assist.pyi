@@ -1,0 +1,101 @@
+"""assist: editable object-wise neural scenes (ASSIST) — load, edit in words or actions,
+render to numpy. Every library error is raised as `AssistError` with its message (the
+file, field, value or candidates)."""
+
+from os import PathLike
+from typing import Any, Optional, Sequence, Union
+
+import numpy as np
+import numpy.typing as npt
+
+_Path = Union[str, PathLike[str]]
+Action = dict[str, Any]
+
+class AssistError(Exception):
+    """An error of the assist library (bad file, field, value, unknown object, …)."""
+
+class Camera:
+    """Pinhole intrinsics and a 4×4 world-from-camera pose (OpenGL convention: the camera
+    looks down −z, y up)."""
+
+    name: str
+    split: Optional[str]
+    def __init__(
+        self,
+        pose: npt.NDArray[np.float64],
+        fx: float,
+        fy: float,
+        cx: float,
+        cy: float,
+        width: int,
+        height: int,
+        name: str = "camera",
+    ) -> None: ...
+    @property
+    def pose(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def width(self) -> int: ...
+    @property
+    def height(self) -> int: ...
+    @property
+    def intrinsics(self) -> tuple[float, float, float, float]:
+        """(fx, fy, cx, cy) in pixels."""
+
+class Dataset:
+    """A dataset's cameras (nerfstudio, Blender, COLMAP, LLFF, desk format)."""
+
+    cameras: list[Camera]
+    path: str
+    @staticmethod
+    def load(path: _Path) -> "Dataset": ...
+    def __len__(self) -> int: ...
+
+class Scene:
+    """A trained scene in memory: nodes, edits with undo and redo, rendering."""
+
+    @staticmethod
+    def load(path: _Path) -> "Scene":
+        """Opens a NAME.assist scene with its history."""
+    @property
+    def nodes(self) -> list[dict[str, Any]]:
+        """Dicts with id, label, background (bool), half_size (3,) and pose (4×4
+        world-from-box, scale included)."""
+    @property
+    def meters_per_unit(self) -> float: ...
+    def apply(self, what: Union[str, Action, Sequence[Action]]) -> list[Action]:
+        """Applies an instruction in words or actions as one undo step; returns the
+        resolved actions."""
+    def plan(self, what: Union[str, Action, Sequence[Action]]) -> list[Action]:
+        """What `apply` would do, without applying it."""
+    def undo(self) -> bool: ...
+    def redo(self) -> bool: ...
+    def select(self, id: Optional[int] = None) -> None: ...
+    def pick(self, camera: Camera, x: float, y: float) -> Optional[int]:
+        """The object seen at pixel (x, y), or None for the background."""
+    def add_from(
+        self,
+        scene_path: _Path,
+        node: Union[int, str],
+        position: Optional[Sequence[float]] = None,
+    ) -> list[Action]: ...
+    def save(self, path: _Path, force: bool = False) -> None: ...
+    def render(
+        self,
+        camera: Camera,
+        outputs: Sequence[str] = ("rgb", "depth", "instance"),
+        width: Optional[int] = None,
+        height: Optional[int] = None,
+    ) -> dict[str, np.ndarray]:
+        """rgb: H×W×3 float32 in [0, 1]; depth: H×W float32 metres; instance: H×W
+        uint16 (0 = background); opacity: H×W float32."""
+
+def orbit(
+    scene: Scene,
+    frames: int = 24,
+    width: int = 480,
+    height: int = 360,
+    fov: float = 50.0,
+    elevation: float = 30.0,
+    radius: Optional[float] = None,
+) -> list[Camera]: ...
+def cameras(path: _Path, split: str = "all") -> list[Camera]: ...

@@ -1,0 +1,494 @@
+//! `import assist`: Python over the session layer — load a scene, edit it in words or
+//! actions, undo and redo, pick, save, and render to numpy arrays (the GIL released while
+//! rendering). Every library error becomes `assist.AssistError` with the library's message;
+//! no panic crosses the boundary (pyo3 turns one into `PanicException`).
+
+#![forbid(unsafe_code)]
+
+use std::path::PathBuf;
+
+use assist_core::action::NodeRef;
+use assist_core::{Action, ActionConfig, Camera as CoreCamera, DMat4, Intrinsics, Operation, Pose};
+use assist_session::{Orbit, RenderRequest, Session, SplitChoice};
+use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray2};
+use pyo3::exceptions::PyException;
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+
+pyo3::create_exception!(
+    assist,
+    AssistError,
+    PyException,
+    "An error of the assist library (bad file, field, value, unknown object, …)."
+);
+
+fn err(e: impl std::fmt::Display) -> PyErr {
+    AssistError::new_err(e.to_string())
+}
+
+/// JSON text → Python objects (through the standard library's `json`).
+fn to_py<'py>(py: Python<'py>, v: &impl serde::Serialize) -> PyResult<Bound<'py, PyAny>> {
+    let s = serde_json::to_string(v).map_err(err)?;
+    py.import("json")?.call_method1("loads", (s,))
+}
+
+/// Python objects → a JSON value (through `json.dumps`).
+fn from_py(obj: &Bound<'_, PyAny>) -> PyResult<serde_json::Value> {
+    let s: String = obj
+        .py()
+        .import("json")?
+        .call_method1("dumps", (obj,))?
+        .extract()?;
+    serde_json::from_str(&s).map_err(err)
+}
+
+/// A camera: pinhole intrinsics and a pose (4×4 world-from-camera, OpenGL convention: the
+/// camera looks down −z, y up).
+#[pyclass(module = "assist", frozen)]
+#[derive(Clone)]
+struct Camera {
+    inner: CoreCamera,
+    #[pyo3(get)]
+    name: String,
+    #[pyo3(get)]
+    split: Option<String>,
+}
+
+#[pymethods]
+impl Camera {
+    /// `Camera(pose, fx, fy, cx, cy, width, height, name="camera")`: `pose` a 4×4
+    /// world-from-camera matrix (OpenGL convention).
+    #[new]
+    #[pyo3(signature = (pose, fx, fy, cx, cy, width, height, name = "camera".to_string()))]
+    fn new(
+        pose: PyReadonlyArray2<'_, f64>,
+        fx: f64,
+        fy: f64,
+        cx: f64,
+        cy: f64,
+        width: u32,
+        height: u32,
+        name: String,
+    ) -> PyResult<Self> {
+        let a = pose.as_array();
+        if a.shape() != [4, 4] {
+            return Err(err(format!(
+                "pose: expected a 4×4 matrix, got {:?}",
+                a.shape()
+            )));
+        }
+        let mut cols = [0.0; 16];
+        for c in 0..4 {
+            for r in 0..4 {
+                cols[c * 4 + r] = a[[r, c]];
+            }
+        }
+        let pose = Pose::from_matrix(DMat4::from_cols_array(&cols), "pose").map_err(err)?;
+        let intrinsics = Intrinsics {
+            width,
+            height,
+            fx,
+            fy,
+            cx,
+            cy,
+            distortion: Default::default(),
+        };
+        intrinsics.validate("camera").map_err(err)?;
+        Ok(Camera {
+            inner: CoreCamera { intrinsics, pose },
+            name,
+            split: None,
+        })
+    }
+
+    /// The 4×4 world-from-camera matrix.
+    #[getter]
+    fn pose<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let m = self.inner.pose.to_matrix().transpose().to_cols_array();
+        Ok(PyArray1::from_vec(py, m.to_vec())
+            .reshape([4, 4])?
+            .into_any())
+    }
+
+    #[getter]
+    fn width(&self) -> u32 {
+        self.inner.width()
+    }
+
+    #[getter]
+    fn height(&self) -> u32 {
+        self.inner.height()
+    }
+
+    /// `(fx, fy, cx, cy)` in pixels.
+    #[getter]
+    fn intrinsics(&self) -> (f64, f64, f64, f64) {
+        let i = &self.inner.intrinsics;
+        (i.fx, i.fy, i.cx, i.cy)
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "Camera({:?}, {}×{}{})",
+            self.name,
+            self.inner.width(),
+            self.inner.height(),
+            self.split
+                .as_ref()
+                .map(|s| format!(", split {s:?}"))
+                .unwrap_or_default()
+        )
+    }
+}
+
+/// A dataset's cameras (any format assist reads).
+#[pyclass(module = "assist", frozen)]
+struct Dataset {
+    #[pyo3(get)]
+    cameras: Vec<Camera>,
+    #[pyo3(get)]
+    path: PathBuf,
+}
+
+#[pymethods]
+impl Dataset {
+    /// Reads the dataset at `path` (every split).
+    #[staticmethod]
+    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Dataset> {
+        let p = path.clone();
+        let ds = py
+            .detach(|| assist_data::load(&p, &assist_data::LoadOptions::default()))
+            .map_err(err)?;
+        let cameras = ds
+            .frames
+            .iter()
+            .map(|f| Camera {
+                inner: f.camera,
+                name: f.name.clone(),
+                split: Some(f.split.name().to_string()),
+            })
+            .collect();
+        Ok(Dataset { cameras, path })
+    }
+
+    fn __len__(&self) -> usize {
+        self.cameras.len()
+    }
+}
+
+/// A trained scene in memory: nodes, edits with undo and redo, rendering.
+#[pyclass(module = "assist")]
+struct Scene {
+    session: Session,
+}
+
+fn node_ref(obj: &Bound<'_, PyAny>) -> PyResult<NodeRef> {
+    if let Ok(i) = obj.extract::<u16>() {
+        return Ok(NodeRef::Id(i));
+    }
+    if let Ok(s) = obj.extract::<String>() {
+        return Ok(NodeRef::Label(s));
+    }
+    Err(err("node: expected an id (int) or a label (str)"))
+}
+
+impl Scene {
+    fn actions_of(&self, edits: &[assist_core::Edit]) -> Vec<Action> {
+        let mpu = self.session.description().meters_per_unit;
+        edits.iter().map(|e| e.to_action(mpu)).collect()
+    }
+}
+
+#[pymethods]
+impl Scene {
+    /// Opens a `NAME.assist` scene with its history.
+    #[staticmethod]
+    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Scene> {
+        let session = py.detach(|| Session::open(&path)).map_err(err)?;
+        Ok(Scene { session })
+    }
+
+    /// The nodes: dicts with `id`, `label`, `half_size` (3,), `pose` (4×4 world-from-box,
+    /// scale included) and `background` (bool).
+    #[getter]
+    fn nodes<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        let out = PyList::empty(py);
+        for n in self.session.nodes() {
+            let d = PyDict::new(py);
+            d.set_item("id", n.id)?;
+            d.set_item("label", &n.label)?;
+            d.set_item("background", n.is_background())?;
+            d.set_item(
+                "half_size",
+                PyArray1::from_vec(py, n.half_size.to_array().to_vec()),
+            )?;
+            let m = n.world_from_local.to_affine();
+            let m4 = DMat4::from(m).transpose().to_cols_array();
+            d.set_item("pose", PyArray1::from_vec(py, m4.to_vec()).reshape([4, 4])?)?;
+            out.append(d)?;
+        }
+        Ok(out)
+    }
+
+    /// Metres per scene unit.
+    #[getter]
+    fn meters_per_unit(&self) -> f64 {
+        self.session.description().meters_per_unit
+    }
+
+    /// Applies an instruction in words (`"move the mug 10 cm left"`) or a list of actions
+    /// (`[{"instance_id": 3, "operation": "delete", "config": {}}]`) as one undo step;
+    /// returns the resolved actions as dicts (world units). Raises `AssistError` naming the
+    /// unknown object, the ambiguous candidates or the bad field.
+    fn apply<'py>(
+        &mut self,
+        py: Python<'py>,
+        what: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let edits = if let Ok(text) = what.extract::<String>() {
+            self.session.apply_text(&text, None).map_err(err)?
+        } else {
+            let v = from_py(what)?;
+            let actions: Vec<Action> = match v {
+                serde_json::Value::Array(_) => serde_json::from_value(v),
+                other => serde_json::from_value(other).map(|a| vec![a]),
+            }
+            .map_err(|e| err(format!("actions: {e}")))?;
+            self.session.apply(&actions).map_err(err)?
+        };
+        to_py(py, &self.actions_of(&edits))
+    }
+
+    /// What an instruction or actions would do, without applying them.
+    fn plan<'py>(
+        &mut self,
+        py: Python<'py>,
+        what: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let edits = if let Ok(text) = what.extract::<String>() {
+            self.session.resolve(&text, None).map_err(err)?.edits
+        } else {
+            let v = from_py(what)?;
+            let actions: Vec<Action> = match v {
+                serde_json::Value::Array(_) => serde_json::from_value(v),
+                other => serde_json::from_value(other).map(|a| vec![a]),
+            }
+            .map_err(|e| err(format!("actions: {e}")))?;
+            self.session.plan(&actions).map_err(err)?
+        };
+        to_py(py, &self.actions_of(&edits))
+    }
+
+    /// Undoes the last `apply`; False when there is nothing to undo.
+    fn undo(&mut self) -> bool {
+        self.session.undo()
+    }
+
+    /// Redoes the last undone `apply`; False when there is nothing to redo.
+    fn redo(&mut self) -> bool {
+        self.session.redo()
+    }
+
+    /// Selects (highlights) node `id`, or clears the selection with None.
+    #[pyo3(signature = (id=None))]
+    fn select(&mut self, id: Option<u16>) -> PyResult<()> {
+        self.session.select(id).map_err(err)
+    }
+
+    /// The object seen at pixel `(x, y)` of `camera`, or None for the background.
+    fn pick(&self, py: Python<'_>, camera: &Camera, x: f64, y: f64) -> PyResult<Option<u16>> {
+        let c = camera.inner;
+        let s = &self.session;
+        py.detach(|| s.pick(&c, x, y)).map_err(err)
+    }
+
+    /// Adds node `node` (id or label) of the scene at `scene_path`, its box centred at
+    /// `position` (world units) or where it stands there; returns the resolved actions.
+    #[pyo3(signature = (scene_path, node, position=None))]
+    fn add_from<'py>(
+        &mut self,
+        py: Python<'py>,
+        scene_path: PathBuf,
+        node: &Bound<'py, PyAny>,
+        position: Option<[f64; 3]>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let id = self.session.description().fresh_id();
+        let a = Action {
+            instance_id: id,
+            operation: Operation::Add,
+            config: ActionConfig {
+                scene: Some(scene_path.to_string_lossy().into_owned()),
+                node: Some(node_ref(node)?),
+                position,
+                unit: position.map(|_| "units".to_string()),
+                ..Default::default()
+            },
+        };
+        let edits = self.session.apply(&[a]).map_err(err)?;
+        to_py(py, &self.actions_of(&edits))
+    }
+
+    /// Saves scene, weights and history atomically (`force` to replace a scene assist
+    /// wrote).
+    #[pyo3(signature = (path, force=false))]
+    fn save(&self, py: Python<'_>, path: PathBuf, force: bool) -> PyResult<()> {
+        let s = &self.session;
+        py.detach(|| s.save(&path, force)).map_err(err)
+    }
+
+    /// Renders `camera`: a dict with any of `rgb` (H×W×3 float32 in [0, 1]), `depth`
+    /// (H×W float32 z-depth in metres, 0 where nothing is hit), `instance` (H×W uint16,
+    /// 0 = background) and `opacity` (H×W float32). `width`/`height` rescale the camera.
+    /// The selected node, if any, is highlighted as `assist render` does.
+    #[pyo3(signature = (camera, outputs=vec!["rgb".to_string(), "depth".to_string(), "instance".to_string()], width=None, height=None))]
+    fn render<'py>(
+        &self,
+        py: Python<'py>,
+        camera: &Camera,
+        outputs: Vec<String>,
+        width: Option<u32>,
+        height: Option<u32>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        for o in &outputs {
+            if !["rgb", "depth", "instance", "opacity"].contains(&o.as_str()) {
+                return Err(err(format!(
+                    "outputs: unknown output {o:?}; expected rgb, depth, instance or opacity"
+                )));
+            }
+        }
+        let size = match (width, height) {
+            (None, None) => None,
+            (Some(w), Some(h)) => Some((w, h)),
+            (Some(w), None) => {
+                let h = (camera.inner.height() as f64 * w as f64 / camera.inner.width() as f64)
+                    .round() as u32;
+                Some((w, h.max(1)))
+            }
+            (None, Some(h)) => {
+                let w = (camera.inner.width() as f64 * h as f64 / camera.inner.height() as f64)
+                    .round() as u32;
+                Some((w.max(1), h))
+            }
+        };
+        let req = RenderRequest {
+            size,
+            highlight: true,
+            ..Default::default()
+        };
+        let c = camera.inner;
+        let s = &self.session;
+        let frame = py.detach(|| s.render(&c, &req)).map_err(err)?;
+        let mpu = self.session.description().meters_per_unit as f32;
+        let (w, h) = (frame.width as usize, frame.height as usize);
+        // The frame's buffers become the arrays (no copy).
+        let assist_session::Frame {
+            rgb,
+            mut depth,
+            opacity,
+            panoptic,
+            ..
+        } = frame;
+        let (mut rgb, mut depth_m, mut opacity, mut panoptic) =
+            (Some(rgb), Some(&mut depth), Some(opacity), Some(panoptic));
+        let d = PyDict::new(py);
+        for o in &outputs {
+            match o.as_str() {
+                "rgb" => {
+                    if let Some(v) = rgb.take() {
+                        d.set_item("rgb", PyArray1::from_vec(py, v).reshape([h, w, 3])?)?
+                    }
+                }
+                "depth" => {
+                    if let Some(v) = depth_m.take() {
+                        if mpu != 1.0 {
+                            v.iter_mut().for_each(|z| *z *= mpu);
+                        }
+                        d.set_item(
+                            "depth",
+                            PyArray1::from_vec(py, std::mem::take(v)).reshape([h, w])?,
+                        )?
+                    }
+                }
+                "instance" => {
+                    if let Some(v) = panoptic.take() {
+                        d.set_item("instance", PyArray1::from_vec(py, v).reshape([h, w])?)?
+                    }
+                }
+                _ => {
+                    if let Some(v) = opacity.take() {
+                        d.set_item("opacity", PyArray1::from_vec(py, v).reshape([h, w])?)?
+                    }
+                }
+            }
+        }
+        Ok(d)
+    }
+
+    fn __repr__(&self) -> String {
+        format!("Scene({} nodes)", self.session.nodes().len())
+    }
+}
+
+/// `frames` cameras on a circle around `scene`'s objects, looking at their centre.
+#[pyfunction]
+#[pyo3(signature = (scene, frames=24, width=480, height=360, fov=50.0, elevation=30.0, radius=None))]
+fn orbit(
+    scene: &Scene,
+    frames: usize,
+    width: u32,
+    height: u32,
+    fov: f64,
+    elevation: f64,
+    radius: Option<f64>,
+) -> PyResult<Vec<Camera>> {
+    let o = Orbit {
+        frames,
+        width,
+        height,
+        fov_deg: fov,
+        elevation_deg: elevation,
+        radius,
+    };
+    let cams = assist_session::orbit(scene.session.description(), &o).map_err(err)?;
+    Ok(cams
+        .into_iter()
+        .map(|c| Camera {
+            inner: c.camera,
+            name: c.name,
+            split: None,
+        })
+        .collect())
+}
+
+/// The cameras of a dataset split (`"train"`, `"test"`, `"val"`, `"all"`).
+#[pyfunction]
+#[pyo3(signature = (path, split="all"))]
+fn cameras(py: Python<'_>, path: PathBuf, split: &str) -> PyResult<Vec<Camera>> {
+    let s = SplitChoice::parse(split).ok_or_else(|| {
+        err(format!(
+            "split: expected train, val, test, all or auto, got {split:?}"
+        ))
+    })?;
+    let cams = py
+        .detach(|| assist_session::dataset_cameras(&path, s, 1))
+        .map_err(err)?;
+    Ok(cams
+        .into_iter()
+        .map(|c| Camera {
+            inner: c.camera,
+            name: c.name,
+            split: Some(split.to_string()),
+        })
+        .collect())
+}
+
+#[pymodule]
+fn assist(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("AssistError", m.py().get_type::<AssistError>())?;
+    m.add_class::<Scene>()?;
+    m.add_class::<Camera>()?;
+    m.add_class::<Dataset>()?;
+    m.add_function(wrap_pyfunction!(orbit, m)?)?;
+    m.add_function(wrap_pyfunction!(cameras, m)?)?;
+    Ok(())
+}

@@ -1,0 +1,31 @@
+"""Fixtures: a small trained scene made with the `assist` binary (ASSIST_BIN)."""
+
+import os
+import subprocess
+from pathlib import Path
+
+import pytest
+
+
+def assist_bin():
+    b = os.environ.get("ASSIST_BIN")
+    if not b:
+        pytest.skip("ASSIST_BIN (the assist binary) is not set")
+    return b
+
+
+def run(*args):
+    out = subprocess.run([assist_bin(), *map(str, args)], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    return out
+
+
+@pytest.fixture(scope="session")
+def trained(tmp_path_factory):
+    """A synthetic capture (12 views of 48×36, 3 objects) and a scene trained on it."""
+    root = tmp_path_factory.mktemp("assist")
+    cap = root / "cap"
+    run("synth", "--out", cap, "--views", "12", "--width", "48", "--height", "36", "--objects", "3")
+    scene = root / "s.assist"
+    run("train", cap, "--out", scene, "--iters", "30")
+    return cap, scene, root

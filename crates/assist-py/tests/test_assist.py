@@ -1,0 +1,125 @@
+"""The Python API as a user meets it, checked against the CLI it shares its code with."""
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+import assist
+from conftest import run
+
+
+def test_render_equals_assist_render_bit_for_bit(trained):
+    cap, scene_path, root = trained
+    out = root / "cli-render"
+    run("render", scene_path, "--cameras", cap, "--split", "test", "--outputs", "rgb,depth,panoptic", "--out", out)
+    scene = assist.Scene.load(scene_path)
+    cams = [c for c in assist.Dataset.load(cap).cameras if c.split == "test"]
+    assert cams, "the capture has test views"
+    for cam in cams:
+        r = scene.render(cam)
+        assert r["rgb"].dtype == np.float32 and r["rgb"].shape == (cam.height, cam.width, 3)
+        png = np.array(Image.open(out / "images" / f"{cam.name}.png").convert("RGB"))
+        mine = np.round(np.clip(r["rgb"], 0, 1) * 255).astype(np.uint8)
+        assert np.array_equal(mine, png), cam.name
+        depth = np.load(out / "depth" / f"{cam.name}.npy")
+        assert np.array_equal(r["depth"], depth * np.float32(scene.meters_per_unit)), cam.name
+        ids = np.array(Image.open(out / "panoptic" / f"{cam.name}.png"))
+        assert np.array_equal(r["instance"], ids.astype(np.uint16)), cam.name
+
+
+def test_apply_text_equals_edit_dry_run(trained):
+    _, scene_path, _ = trained
+    scene = assist.Scene.load(scene_path)
+    label = scene.nodes[1]["label"]
+    text = f"move the {label} 10 cm left and rotate it 30 degrees"
+    cli = json.loads(run("edit", scene_path, "--do", text, "--dry-run", "--json").stdout)
+    assert scene.plan(text) == cli
+    assert scene.apply(text) == cli
+    before = scene.nodes[1]["pose"].copy()
+    assert scene.undo()
+    assert not np.array_equal(scene.nodes[1]["pose"], before)
+    assert scene.redo()
+    assert np.array_equal(scene.nodes[1]["pose"], before)
+
+
+def test_actions_undo_and_save(trained):
+    _, scene_path, root = trained
+    scene = assist.Scene.load(scene_path)
+    ids = [n["id"] for n in scene.nodes if not n["background"]]
+    done = scene.apply([{"instance_id": ids[0], "operation": "delete", "config": {}}])
+    assert done == [{"instance_id": ids[0], "operation": "delete", "config": {}}]
+    assert ids[0] not in [n["id"] for n in scene.nodes]
+    out = root / "saved.assist"
+    scene.save(out)
+    again = assist.Scene.load(out)
+    assert [n["id"] for n in again.nodes] == [n["id"] for n in scene.nodes]
+    with pytest.raises(assist.AssistError, match="--force|exists|not empty"):
+        scene.save(out)
+    scene.save(out, force=True)
+
+
+def test_pick_names_the_object_under_a_pixel(trained):
+    cap, scene_path, _ = trained
+    scene = assist.Scene.load(scene_path)
+    cam = assist.Dataset.load(cap).cameras[0]
+    r = scene.render(cam, outputs=["instance"])
+    ys, xs = np.nonzero(r["instance"])
+    if len(xs) == 0:
+        pytest.skip("no object in view")
+    y, x = int(ys[len(ys) // 2]), int(xs[len(xs) // 2])
+    assert scene.pick(cam, x + 0.5, y + 0.5) == int(r["instance"][y, x])
+
+
+def test_cameras_from_numpy_and_orbit(trained):
+    cap, scene_path, _ = trained
+    scene = assist.Scene.load(scene_path)
+    ds_cam = assist.Dataset.load(cap).cameras[0]
+    fx, fy, cx, cy = ds_cam.intrinsics
+    mine = assist.Camera(ds_cam.pose, fx, fy, cx, cy, ds_cam.width, ds_cam.height)
+    a = scene.render(mine, outputs=["rgb"])["rgb"]
+    b = scene.render(ds_cam, outputs=["rgb"])["rgb"]
+    assert np.array_equal(a, b)
+    small = scene.render(mine, outputs=["rgb", "opacity"], width=24)
+    assert small["rgb"].shape == (18, 24, 3) and small["opacity"].shape == (18, 24)
+    orbit = assist.orbit(scene, frames=3, width=32, height=24)
+    assert len(orbit) == 3 and orbit[0].width == 32
+
+
+def test_bad_input_raises_with_the_library_message(trained, tmp_path):
+    _, scene_path, _ = trained
+    with pytest.raises(assist.AssistError, match="nowhere.assist"):
+        assist.Scene.load(tmp_path / "nowhere.assist")
+    scene = assist.Scene.load(scene_path)
+    with pytest.raises(assist.AssistError, match="giraffe"):
+        scene.apply("delete the giraffe")
+    with pytest.raises(assist.AssistError, match="instance_id 999"):
+        scene.apply([{"instance_id": 999, "operation": "delete", "config": {}}])
+    with pytest.raises(assist.AssistError, match="unknown field"):
+        scene.apply([{"instance_id": 1, "operation": "delete", "config": {"colour": 1}}])
+    pose = np.eye(4)
+    pose[0, 3] = np.nan
+    with pytest.raises(assist.AssistError, match="pose"):
+        assist.Camera(pose, 50.0, 50.0, 24.0, 18.0, 48, 36)
+    with pytest.raises(assist.AssistError, match="outputs"):
+        scene.render(assist.orbit(scene, frames=1)[0], outputs=["normals"])
+    with pytest.raises(assist.AssistError, match="split"):
+        assist.cameras(tmp_path, split="sideways")
+
+
+def test_the_quickstart_example_runs(trained):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    cap, scene_path, root = trained
+    example = Path(__file__).resolve().parents[3] / "examples" / "python_quickstart.py"
+    out = subprocess.run(
+        [sys.executable, str(example), str(scene_path), str(cap), str(root / "qs")],
+        capture_output=True,
+        text=True,
+    )
+    assert out.returncode == 0, out.stderr
+    assert "AssistError:" in out.stdout and "batch (4," in out.stdout
+    assert (root / "qs" / "edited.assist" / "scene.json").is_file()
