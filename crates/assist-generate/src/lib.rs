@@ -27,7 +27,7 @@ use assist_data::Output;
 use assist_session::{NamedCamera, Session, SessionError, SplitChoice};
 
 pub use merge::{MergeSummary, RunEvent, RunOptions, RunSummary, merge};
-pub use sample::{GaveUp, SampleReport};
+pub use sample::{GaveUp, Sample, SampleReport, View};
 pub use spec::Spec;
 
 use place::Shape;

@@ -8,8 +8,8 @@ use assist_core::{
     Action, ActionConfig, Camera, DAffine3, DMat3, DQuat, DVec3, Distortion, Intrinsics, Operation,
     Pose, Rng, Similarity3,
 };
-use assist_data::{DatasetWriter, WriterConfig};
-use assist_session::{Highlight, NamedCamera, Session, ViewDone};
+use assist_data::{DatasetWriter, Layer, ViewImages, WriterConfig};
+use assist_session::{Frame, NamedCamera, RenderRequest, Session};
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
@@ -28,6 +28,40 @@ pub struct GaveUp {
     pub reasons: Vec<(String, u32)>,
     /// What became of it: `"stays"`, `"deleted"` or `"not added"`.
     pub outcome: String,
+}
+
+/// A sample in memory (see [`Generator::sample`]).
+pub struct Sample {
+    pub index: u64,
+    /// Its edits of the base scene.
+    pub actions: Vec<Action>,
+    /// `sample.json`: objects, deletions, give-ups, draws, per-view annotations.
+    pub record: Value,
+    /// BOP `scene_camera.json` and `scene_gt.json`.
+    pub scene_camera: Value,
+    pub scene_gt: Value,
+    /// The sample's objects (ids and labels).
+    pub instances: Vec<assist_data::Instance>,
+    pub meters_per_unit: f64,
+    pub up: [f64; 3],
+    /// Empty when not rendered.
+    pub views: Vec<View>,
+    pub report: SampleReport,
+}
+
+/// One rendered view of a sample.
+pub struct View {
+    pub camera: NamedCamera,
+    /// RGB, z-depth (scene units), opacity, instance ids, each object's own layer.
+    pub frame: Frame,
+    /// Semantic class per pixel (the generator's classes).
+    pub semantic: Vec<u16>,
+    /// 255 where the pixel shows background no training view observed.
+    pub unobserved: Vec<u8>,
+    /// The COCO panoptic PNG's RGB bytes.
+    pub coco_panoptic: Vec<u8>,
+    /// The background alone, RGB (when the spec asks for it).
+    pub background: Option<Vec<f32>>,
 }
 
 /// What a finished sample reports.
@@ -412,22 +446,16 @@ impl Generator {
         Ok(out)
     }
 
-    /// Makes sample `index` into `dir` (a staging folder the caller commits).
-    pub(crate) fn make(&self, index: u64, dir: &Path, dry_run: bool) -> Result<SampleReport> {
+    /// Sample `index` in memory: its actions, record, BOP files and (with `render`) its
+    /// rendered views with their annotations — what [`make`](Self::make) writes, and what
+    /// Python's `assist.generate` yields.
+    pub fn sample(&self, index: u64, render: bool) -> Result<Sample> {
         let mut plan = self.plan(index)?;
         let session = self.apply(&plan)?;
         let cameras = self.cameras(&mut plan, &session)?;
         let base = &self.bases[plan.base];
         let scene = session.description();
         let mpu = scene.meters_per_unit;
-        std::fs::create_dir_all(dir).map_err(|e| io(dir, e))?;
-        // The actions, one per line: `assist edit BASE --actions actions.jsonl` replays them.
-        let mut lines = String::new();
-        for a in &plan.actions {
-            lines.push_str(&serde_json::to_string(a).expect("actions serialise"));
-            lines.push('\n');
-        }
-        write(&dir.join("actions.jsonl"), lines.as_bytes())?;
         let class_of =
             |label: &str| self.classes.iter().position(|c| c == label).unwrap_or(0) as u16;
         // Objects as they stand.
@@ -511,41 +539,53 @@ impl Generator {
                 .collect();
             scene_gt.insert(v.to_string(), Value::Array(gt));
         }
-        write(
-            &dir.join("scene_camera.json"),
-            &pretty(&Value::Object(scene_camera)),
-        )?;
-        write(
-            &dir.join("scene_gt.json"),
-            &pretty(&Value::Object(scene_gt)),
-        )?;
-        if !dry_run {
-            let cfg = WriterConfig {
-                outputs: self.outputs.clone(),
-                meters_per_unit: mpu,
-                world_up: scene.up.to_array(),
-                instances: session.instances(),
-                classes: self.classes.clone(),
-                ..WriterConfig::default()
+        let mut views = Vec::new();
+        if render {
+            let background = if self.outputs.contains(&assist_data::Output::Background) {
+                let mut bg = session.scene().clone();
+                bg.scene.nodes.retain(|n| n.is_background());
+                Some(bg)
+            } else {
+                None
             };
-            let writer = DatasetWriter::create_in(&dir.join("views"), cfg)?;
-            let mut failed = None;
-            session.render_into(
-                &writer,
-                &cameras,
-                Highlight::None,
-                true,
-                |d: &ViewDone| match self.annotate(base, &session, d, &dir.join("views")) {
-                    Ok(j) => views_json.push(j),
-                    Err(e) => {
-                        failed.get_or_insert(e);
-                    }
-                },
-            )?;
-            if let Some(e) = failed {
-                return Err(e);
+            let req = RenderRequest {
+                layers: true,
+                ..Default::default()
+            };
+            for c in &cameras {
+                let frame = session.render(&c.camera, &req)?;
+                let bg = background.as_ref().map(|b| {
+                    assist_render::render_camera(
+                        b,
+                        &c.camera,
+                        u32::MAX,
+                        &assist_render::RenderOptions::default(),
+                    )
+                    .rgb
+                });
+                let (annotations, unobserved, coco_panoptic) =
+                    self.annotate(base, &session, &c.name, &c.camera, &frame);
+                views_json.push(annotations);
+                let semantic = frame
+                    .panoptic
+                    .iter()
+                    .map(|&id| {
+                        session
+                            .node(id)
+                            .filter(|n| !n.is_background())
+                            .map(|n| class_of(&n.label))
+                            .unwrap_or(0)
+                    })
+                    .collect();
+                views.push(View {
+                    camera: c.clone(),
+                    frame,
+                    semantic,
+                    unobserved,
+                    coco_panoptic,
+                    background: bg,
+                });
             }
-            writer.finish()?;
         }
         let report = SampleReport {
             index,
@@ -570,10 +610,88 @@ impl Generator {
                 .map(|(r, k)| (r.name().to_string(), json!(k)))
                 .collect::<serde_json::Map<String, Value>>(),
             "views": views_json,
-            "rendered": !dry_run,
+            "rendered": render,
         });
-        write(&dir.join("sample.json"), &pretty(&sample))?;
-        Ok(report)
+        Ok(Sample {
+            index,
+            actions: plan.actions.clone(),
+            record: sample,
+            scene_camera: Value::Object(scene_camera),
+            scene_gt: Value::Object(scene_gt),
+            instances: session.instances(),
+            meters_per_unit: mpu,
+            up: scene.up.to_array(),
+            views,
+            report,
+        })
+    }
+
+    /// Makes sample `index` into `dir` (a staging folder the caller commits).
+    pub(crate) fn make(&self, index: u64, dir: &Path, dry_run: bool) -> Result<SampleReport> {
+        let s = self.sample(index, !dry_run)?;
+        std::fs::create_dir_all(dir).map_err(|e| io(dir, e))?;
+        // The actions, one per line: `assist edit BASE --actions actions.jsonl` replays them.
+        let mut lines = String::new();
+        for a in &s.actions {
+            lines.push_str(&serde_json::to_string(a).expect("actions serialise"));
+            lines.push('\n');
+        }
+        write(&dir.join("actions.jsonl"), lines.as_bytes())?;
+        write(&dir.join("scene_camera.json"), &pretty(&s.scene_camera))?;
+        write(&dir.join("scene_gt.json"), &pretty(&s.scene_gt))?;
+        if !dry_run {
+            let cfg = WriterConfig {
+                outputs: self.outputs.clone(),
+                meters_per_unit: s.meters_per_unit,
+                world_up: s.up,
+                instances: s.instances.clone(),
+                classes: self.classes.clone(),
+                ..WriterConfig::default()
+            };
+            let vdir = dir.join("views");
+            let writer = DatasetWriter::create_in(&vdir, cfg)?;
+            for (k, v) in s.views.iter().enumerate() {
+                let f = &v.frame;
+                let layers: Vec<Layer> = f
+                    .layers
+                    .iter()
+                    .map(|l| Layer {
+                        id: l.id,
+                        rgb: &l.rgb,
+                        opacity: &l.opacity,
+                    })
+                    .collect();
+                let img = ViewImages {
+                    width: f.width,
+                    height: f.height,
+                    rgb: &f.rgb,
+                    depth: &f.depth,
+                    panoptic: &f.panoptic,
+                    layers: if writer.wants(assist_data::Output::Objects) {
+                        &layers
+                    } else {
+                        &[]
+                    },
+                    background: v.background.as_deref(),
+                };
+                writer.write(k, &v.camera.name, &v.camera.camera, &img)?;
+                let name = &v.camera.name;
+                let (w, h) = (f.width, f.height);
+                for (sub, what) in [("panoptic_coco", 0), ("unobserved", 1)] {
+                    let d = vdir.join(sub);
+                    std::fs::create_dir_all(&d).map_err(|e| io(&d, e))?;
+                    let file = d.join(format!("{name}.png"));
+                    if what == 0 {
+                        assist_data::image_io::write_rgb8_png(&file, w, h, &v.coco_panoptic)?;
+                    } else {
+                        assist_data::image_io::write_gray8_png(&file, w, h, &v.unobserved)?;
+                    }
+                }
+            }
+            writer.finish()?;
+        }
+        write(&dir.join("sample.json"), &pretty(&s.record))?;
+        Ok(s.report)
     }
 
     /// A rendered view's annotations: each object's visible and amodal extent, its COCO
@@ -582,10 +700,10 @@ impl Generator {
         &self,
         base: &Base,
         session: &Session,
-        d: &ViewDone,
-        views: &Path,
-    ) -> Result<Value> {
-        let f = d.frame;
+        name: &str,
+        camera: &Camera,
+        f: &Frame,
+    ) -> (Value, Vec<u8>, Vec<u8>) {
         let (w, h) = (f.width as usize, f.height as usize);
         let class_of =
             |label: &str| self.classes.iter().position(|c| c == label).unwrap_or(0) as u16;
@@ -616,7 +734,6 @@ impl Generator {
                 rle: (visible > 0).then(|| coco::rle_string(&coco::rle_counts(w, h, vis))),
             });
         }
-        let name = &d.camera.name;
         // COCO panoptic: segment id = instance id, background = 65536.
         let mut rgb = vec![0u8; 3 * w * h];
         for (q, &id) in f.panoptic.iter().enumerate() {
@@ -625,28 +742,11 @@ impl Generator {
             rgb[3 * q + 1] = (s >> 8 & 255) as u8;
             rgb[3 * q + 2] = (s >> 16 & 255) as u8;
         }
-        let pdir = views.join("panoptic_coco");
-        std::fs::create_dir_all(&pdir).map_err(|e| io(&pdir, e))?;
-        assist_data::image_io::write_rgb8_png(
-            &pdir.join(format!("{name}.png")),
-            w as u32,
-            h as u32,
-            &rgb,
-        )?;
-        let mask =
-            crate::surface::unobserved_mask(&base.seen, &d.camera.camera, &f.depth, &f.panoptic);
+        let mask = crate::surface::unobserved_mask(&base.seen, camera, &f.depth, &f.panoptic);
         let unseen = mask.iter().filter(|&&m| m != 0).count();
-        let udir = views.join("unobserved");
-        std::fs::create_dir_all(&udir).map_err(|e| io(&udir, e))?;
-        assist_data::image_io::write_gray8_png(
-            &udir.join(format!("{name}.png")),
-            w as u32,
-            h as u32,
-            &mask,
-        )?;
         let background = f.panoptic.iter().filter(|&&id| id == 0).count();
         let background_bbox = coco::bbox(w, h, |q| f.panoptic[q] == 0);
-        Ok(json!({
+        let j = json!({
             "name": name,
             "width": w,
             "height": h,
@@ -654,7 +754,8 @@ impl Generator {
             "background_pixels": background,
             "background_bbox": background_bbox,
             "unobserved_pixels": unseen,
-        }))
+        });
+        (j, mask, rgb)
     }
 }
 
