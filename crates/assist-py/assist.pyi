@@ -3,7 +3,7 @@ render to numpy. Every library error is raised as `AssistError` with its message
 file, field, value or candidates)."""
 
 from os import PathLike
-from typing import Any, Optional, Sequence, Union
+from typing import Any, Callable, Optional, Sequence, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -99,3 +99,35 @@ def orbit(
     radius: Optional[float] = None,
 ) -> list[Camera]: ...
 def cameras(path: _Path, split: str = "all") -> list[Camera]: ...
+
+class Samples:
+    """Samples of a generation spec, made on demand; iterate over it."""
+
+    def __iter__(self) -> "Samples": ...
+    def __next__(self) -> dict[str, Any]:
+        """index, actions, objects, gave_up, and views: each with name, camera, rgb
+        (H×W×3 float32), depth (H×W float32 metres), instance and semantic (H×W uint16),
+        unobserved (H×W bool: background no training view saw) and annotations."""
+    def __len__(self) -> int: ...
+
+def generate(
+    spec: Union[_Path, dict[str, Any]],
+    seed: Optional[int] = None,
+    count: Optional[int] = None,
+    start: int = 0,
+) -> Samples:
+    """Samples of a spec (a TOML/JSON file or a dict of the same fields, docs/generate.md),
+    without touching the disk; index i is the sample `assist generate` writes as i."""
+
+def train(
+    data: _Path,
+    out: _Path,
+    max_time: Optional[float] = None,
+    iters: Optional[int] = None,
+    callback: Optional[Callable[[dict[str, Any]], None]] = None,
+    **options: Any,
+) -> dict[str, Any]:
+    """Trains a scene as `assist train` does; options are its settings (downscale, seed,
+    resume, force, lambdas, …). The callback sees every event as a dict. Ctrl+C saves the
+    scene and raises KeyboardInterrupt. Returns the report (iterations, seconds,
+    stopped_by, final_stats)."""

@@ -29,3 +29,15 @@ def trained(tmp_path_factory):
     scene = root / "s.assist"
     run("train", cap, "--out", scene, "--iters", "30")
     return cap, scene, root
+
+
+@pytest.fixture(scope="session")
+def trained_more(tmp_path_factory):
+    """A capture with a table to stand on (20 views of 64×48) and a scene trained enough
+    for the generator to find it."""
+    root = tmp_path_factory.mktemp("assist-gen")
+    cap = root / "cap"
+    run("synth", "--out", cap, "--views", "20", "--width", "64", "--height", "48", "--objects", "3")
+    scene = root / "s.assist"
+    run("train", cap, "--out", scene, "--iters", "200")
+    return cap, scene, root

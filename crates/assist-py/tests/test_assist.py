@@ -123,3 +123,61 @@ def test_the_quickstart_example_runs(trained):
     assert out.returncode == 0, out.stderr
     assert "AssistError:" in out.stdout and "batch (4," in out.stdout
     assert (root / "qs" / "edited.assist" / "scene.json").is_file()
+
+
+def test_generate_yields_the_samples_assist_generate_writes(trained_more):
+    cap, scene_path, root = trained_more
+    spec = {
+        "count": 4,
+        "seed": 11,
+        "scenes": [{"path": str(scene_path)}],
+        "output": {"width": 32, "height": 24},
+    }
+    batches = []
+    samples = assist.generate(spec)
+    assert len(samples) == 4
+    for s in samples:
+        v = s["views"][0]
+        assert v["rgb"].shape == (24, 32, 3) and v["rgb"].dtype == np.float32
+        assert v["instance"].dtype == np.uint16 and v["semantic"].dtype == np.uint16
+        assert v["unobserved"].dtype == np.bool_
+        assert {a["operation"] for a in s["actions"]} <= {"delete", "rotate", "scale", "translate", "add"}
+        batches.append(v["rgb"])
+    batch = np.stack(batches)
+    assert batch.shape == (4, 24, 32, 3)
+    # The same indices on disk, by the CLI.
+    toml = root / "gen.toml"
+    toml.write_text(
+        f'count = 4\nseed = 11\n[[scenes]]\npath = "{scene_path}"\n[output]\nwidth = 32\nheight = 24\n'
+    )
+    out = root / "gen"
+    run("generate", "--spec", toml, "--out", out)
+    for i, rgb in enumerate(batches):
+        png = np.array(Image.open(out / "samples" / f"{i:06d}" / "views" / "images" / "v0.png").convert("RGB"))
+        assert np.array_equal(np.round(np.clip(rgb, 0, 1) * 255).astype(np.uint8), png), i
+    # A later start, and spec errors as exceptions.
+    assert next(iter(assist.generate(spec, start=3)))["index"] == 3
+    with pytest.raises(assist.AssistError, match="unknown field"):
+        assist.generate({"scenes": [{"path": str(scene_path)}], "colour": 1})
+    with pytest.raises(assist.AssistError, match="count"):
+        assist.generate(spec, count=0)
+
+
+def test_train_reports_and_calls_back(trained):
+    cap, _, root = trained
+    events = []
+    report = assist.train(cap, root / "py.assist", iters=4, callback=events.append, checkpoint_every=1e9)
+    assert report["iterations"] == 4 and report["stopped_by"] == "iterations"
+    kinds = [e["event"] for e in events]
+    assert "loading" in kinds and kinds.count("step") == 4 and kinds[-1] == "saved"
+    assert assist.Scene.load(root / "py.assist").nodes
+    # A callback that raises stops the run and its exception comes back.
+    def stop(e):
+        if e["event"] == "step":
+            raise RuntimeError("enough")
+    with pytest.raises(RuntimeError, match="enough"):
+        assist.train(cap, root / "py2.assist", iters=50, callback=stop)
+    with pytest.raises(assist.AssistError, match='unknown option "colour"'):
+        assist.train(cap, root / "py3.assist", colour=1)
+    with pytest.raises(assist.AssistError, match="nowhere"):
+        assist.train(root / "nowhere", root / "py4.assist", iters=1)
