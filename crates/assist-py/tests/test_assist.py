@@ -181,3 +181,47 @@ def test_train_reports_and_calls_back(trained):
         assist.train(cap, root / "py3.assist", colour=1)
     with pytest.raises(assist.AssistError, match="nowhere"):
         assist.train(root / "nowhere", root / "py4.assist", iters=1)
+
+
+def test_add_from_another_scene(trained):
+    _, scene_path, _ = trained
+    scene = assist.Scene.load(scene_path)
+    other = assist.Scene.load(scene_path)
+    src = next(n for n in other.nodes if not n["background"])
+    before = {n["id"] for n in scene.nodes}
+    done = scene.add_from(scene_path, src["label"], position=[0.0, 0.0, 0.8])
+    assert done[0]["operation"] == "add"
+    new = {n["id"] for n in scene.nodes} - before
+    assert len(new) == 1
+    node = next(n for n in scene.nodes if n["id"] in new)
+    assert node["label"] == src["label"]
+    assert np.allclose(node["pose"][:3, 3], [0.0, 0.0, 0.8])
+    with pytest.raises(assist.AssistError, match="giraffe"):
+        scene.add_from(scene_path, "giraffe")
+
+
+def test_ctrl_c_saves_the_scene_and_raises_keyboard_interrupt(trained):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    cap, _, root = trained
+    out = root / "interrupted.assist"
+    code = (
+        "import assist, sys\n"
+        "def cb(e):\n"
+        "    if e['event'] == 'step' and e['stats']['iteration'] == 1:\n"
+        "        print('training', flush=True)\n"
+        f"assist.train({str(cap)!r}, {str(out)!r}, iters=100000, callback=cb, checkpoint_every=1e9)\n"
+    )
+    p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert p.stdout.readline().strip() == "training"
+    time.sleep(1.0)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode != 0
+    assert "KeyboardInterrupt" in err, err
+    assert (out / "scene.json").is_file(), "the interrupted run saved the scene"
+    info = __import__("json").loads((out / "scene.json").read_text())["info"]
+    assert 1 <= info["iteration"] < 100000
