@@ -225,3 +225,21 @@ def test_ctrl_c_saves_the_scene_and_raises_keyboard_interrupt(trained):
     assert (out / "scene.json").is_file(), "the interrupted run saved the scene"
     info = __import__("json").loads((out / "scene.json").read_text())["info"]
     assert 1 <= info["iteration"] < 100000
+
+
+def test_select_highlights_and_checks_the_id(trained):
+    cap, scene_path, _ = trained
+    scene = assist.Scene.load(scene_path)
+    cam = assist.Dataset.load(cap).cameras[0]
+    plain = scene.render(cam, outputs=["rgb", "instance"])
+    seen = sorted(set(np.unique(plain["instance"]).tolist()) - {0})
+    if not seen:
+        pytest.skip("no object in view")
+    scene.select(seen[0])
+    lit = scene.render(cam, outputs=["rgb"])["rgb"]
+    mask = plain["instance"] == seen[0]
+    assert not np.array_equal(lit[mask], plain["rgb"][mask]), "the selection is highlighted"
+    scene.select(None)
+    assert np.array_equal(scene.render(cam, outputs=["rgb"])["rgb"], plain["rgb"])
+    with pytest.raises(assist.AssistError, match="no node with id 999"):
+        scene.select(999)
