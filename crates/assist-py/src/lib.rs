@@ -192,6 +192,16 @@ fn node_ref(obj: &Bound<'_, PyAny>) -> PyResult<NodeRef> {
     Err(err("node: expected an id (int) or a label (str)"))
 }
 
+/// One action (a dict) or a list of them.
+fn actions_from(what: &Bound<'_, PyAny>) -> PyResult<Vec<Action>> {
+    let v = from_py(what)?;
+    match v {
+        serde_json::Value::Array(_) => serde_json::from_value(v),
+        other => serde_json::from_value(other).map(|a| vec![a]),
+    }
+    .map_err(|e| err(format!("actions: {e}")))
+}
+
 impl Scene {
     fn actions_of(&self, edits: &[assist_core::Edit]) -> Vec<Action> {
         let mpu = self.session.description().meters_per_unit;
@@ -248,12 +258,7 @@ impl Scene {
         let edits = if let Ok(text) = what.extract::<String>() {
             self.session.apply_text(&text, None).map_err(err)?
         } else {
-            let v = from_py(what)?;
-            let actions: Vec<Action> = match v {
-                serde_json::Value::Array(_) => serde_json::from_value(v),
-                other => serde_json::from_value(other).map(|a| vec![a]),
-            }
-            .map_err(|e| err(format!("actions: {e}")))?;
+            let actions = actions_from(what)?;
             self.session.apply(&actions).map_err(err)?
         };
         to_py(py, &self.actions_of(&edits))
@@ -268,12 +273,7 @@ impl Scene {
         let edits = if let Ok(text) = what.extract::<String>() {
             self.session.resolve(&text, None).map_err(err)?.edits
         } else {
-            let v = from_py(what)?;
-            let actions: Vec<Action> = match v {
-                serde_json::Value::Array(_) => serde_json::from_value(v),
-                other => serde_json::from_value(other).map(|a| vec![a]),
-            }
-            .map_err(|e| err(format!("actions: {e}")))?;
+            let actions = actions_from(what)?;
             self.session.plan(&actions).map_err(err)?
         };
         to_py(py, &self.actions_of(&edits))

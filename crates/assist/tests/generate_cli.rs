@@ -33,6 +33,39 @@ fn tree(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
     out
 }
 
+/// `generate_check.py OUT TABLE` with the Python of `ASSIST_PYTHON` (pycocotools); skips
+/// loudly without one unless `ASSIST_REQUIRE_PYTHON` is set.
+fn pycoco_check(out: &Path, table: f64) {
+    match std::env::var("ASSIST_PYTHON") {
+        Ok(py) => {
+            let o = Command::new(py)
+                .arg(concat!(
+                    env!("CARGO_MANIFEST_DIR"),
+                    "/tests/generate_check.py"
+                ))
+                .arg(out)
+                .arg(table.to_string())
+                .output()
+                .unwrap();
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(
+                o.status.success(),
+                "generate_check.py on {}: {err}",
+                out.display()
+            );
+            eprintln!("generate_check.py: {}", String::from_utf8_lossy(&o.stdout));
+        }
+        Err(_) if std::env::var("ASSIST_REQUIRE_PYTHON").is_ok() => {
+            panic!(
+                "ASSIST_REQUIRE_PYTHON is set but ASSIST_PYTHON (a python with pycocotools) is not"
+            )
+        }
+        Err(_) => eprintln!(
+            "SKIPPED the pycocotools check: set ASSIST_PYTHON to a python with pycocotools, numpy and pillow"
+        ),
+    }
+}
+
 fn spec(dir: &Path, scene: &Path, extra: &str) -> PathBuf {
     let p = dir.join(format!("spec{}.toml", extra.len()));
     std::fs::write(
@@ -302,30 +335,7 @@ fn generate_shards_replays_and_annotations() {
             serde_json::from_slice(&std::fs::read(cap.join("transforms.json")).unwrap()).unwrap();
         t["table_top_z"].as_f64().unwrap_or(0.75)
     };
-    match std::env::var("ASSIST_PYTHON") {
-        Ok(py) => {
-            let o = Command::new(py)
-                .arg(concat!(
-                    env!("CARGO_MANIFEST_DIR"),
-                    "/tests/generate_check.py"
-                ))
-                .arg(&full)
-                .arg(table.to_string())
-                .output()
-                .unwrap();
-            let err = String::from_utf8_lossy(&o.stderr);
-            assert!(o.status.success(), "generate_check.py: {err}");
-            eprintln!("generate_check.py: {}", String::from_utf8_lossy(&o.stdout));
-        }
-        Err(_) if std::env::var("ASSIST_REQUIRE_PYTHON").is_ok() => {
-            panic!(
-                "ASSIST_REQUIRE_PYTHON is set but ASSIST_PYTHON (a python with pycocotools) is not"
-            )
-        }
-        Err(_) => eprintln!(
-            "SKIPPED the pycocotools check: set ASSIST_PYTHON to a python with pycocotools, numpy and pillow"
-        ),
-    }
+    pycoco_check(&full, table);
 }
 
 /// Desk (the shared capture), trained briefly at a quarter of its size: 100 samples whose
@@ -368,27 +378,5 @@ fn generate_on_desk() {
     let t: serde_json::Value =
         serde_json::from_slice(&std::fs::read(desk.join("transforms.json")).unwrap()).unwrap();
     let table = t["table_top_z"].as_f64().expect("desk's table_top_z");
-    match std::env::var("ASSIST_PYTHON") {
-        Ok(py) => {
-            let o = Command::new(py)
-                .arg(concat!(
-                    env!("CARGO_MANIFEST_DIR"),
-                    "/tests/generate_check.py"
-                ))
-                .arg(&out)
-                .arg(table.to_string())
-                .output()
-                .unwrap();
-            let err = String::from_utf8_lossy(&o.stderr);
-            assert!(o.status.success(), "generate_check.py on desk: {err}");
-            eprintln!(
-                "generate_check.py on desk: {}",
-                String::from_utf8_lossy(&o.stdout)
-            );
-        }
-        Err(_) if std::env::var("ASSIST_REQUIRE_PYTHON").is_ok() => {
-            panic!("ASSIST_REQUIRE_PYTHON is set but ASSIST_PYTHON is not")
-        }
-        Err(_) => eprintln!("SKIPPED the pycocotools check on desk: set ASSIST_PYTHON"),
-    }
+    pycoco_check(&out, table);
 }
