@@ -230,13 +230,14 @@ impl Generator {
                     (n.field.clone(), Shape::of(nf, ax, |_| true))
                 })
                 .collect();
-            let all = surface::support_map(scene.up, &points, 0.01 / mpu, 0.005 / mpu, None)
-                .ok_or_else(|| GenError::Spec {
-                    path: b.path.clone(),
-                    field: "placement.surfaces".into(),
-                    message: "the training views show no upward-facing surface to place objects on"
-                        .into(),
-                })?;
+            let no_surface = || GenError::Spec {
+                path: b.path.clone(),
+                field: "placement.surfaces".into(),
+                message: "the training views show no upward-facing surface to place objects on"
+                    .into(),
+            };
+            let all = surface::support_map(scene.up, &points, 0.01 / mpu, 0.005 / mpu)
+                .ok_or_else(no_surface)?;
             // Each object's shape without what lies below the surface it stood on.
             let mut shapes = BTreeMap::new();
             for n in scene.nodes.iter().filter(|n| !n.is_background()) {
@@ -266,18 +267,13 @@ impl Generator {
                     Some(place::Posed::of(n).bottom(s, up.up))
                 })
                 .collect();
-            let level = match spec.placement.surfaces {
-                spec::Surfaces::Objects => Some((levels.as_slice(), spec.placement.level_m / mpu)),
-                spec::Surfaces::All => None,
-            };
-            let support = surface::support_map(scene.up, &points, 0.01 / mpu, 0.005 / mpu, level)
-                .filter(|s| !s.allowed.is_empty())
-                .ok_or_else(|| GenError::Spec {
-                    path: b.path.clone(),
-                    field: "placement.surfaces".into(),
-                    message: "the training views show no upward-facing surface to place objects on"
-                        .into(),
-                })?;
+            let mut support = all;
+            if spec.placement.surfaces == spec::Surfaces::Objects {
+                support.restrict_to_levels(&levels, spec.placement.level_m / mpu);
+            }
+            if support.allowed.is_empty() {
+                return Err(no_surface());
+            }
             let mut library = Vec::new();
             for (j, l) in spec.library.iter().enumerate() {
                 library.push(lib_node(&session, j, l)?);

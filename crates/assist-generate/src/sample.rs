@@ -8,7 +8,7 @@ use assist_core::{
     Action, ActionConfig, Camera, DAffine3, DMat3, DQuat, DVec3, Distortion, Intrinsics, Operation,
     Pose, Rng, Similarity3,
 };
-use assist_data::{DatasetWriter, Layer, ViewImages, WriterConfig};
+use assist_data::{DatasetWriter, WriterConfig};
 use assist_session::{Frame, NamedCamera, RenderRequest, Session};
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
@@ -652,28 +652,16 @@ impl Generator {
             let writer = DatasetWriter::create_in(&vdir, cfg)?;
             for (k, v) in s.views.iter().enumerate() {
                 let f = &v.frame;
-                let layers: Vec<Layer> = f
-                    .layers
-                    .iter()
-                    .map(|l| Layer {
-                        id: l.id,
-                        rgb: &l.rgb,
-                        opacity: &l.opacity,
-                    })
-                    .collect();
-                let img = ViewImages {
-                    width: f.width,
-                    height: f.height,
-                    rgb: &f.rgb,
-                    depth: &f.depth,
-                    panoptic: &f.panoptic,
-                    layers: if writer.wants(assist_data::Output::Objects) {
+                let layers = assist_session::frame_layers(f);
+                let img = assist_session::view_images(
+                    f,
+                    if writer.wants(assist_data::Output::Objects) {
                         &layers
                     } else {
                         &[]
                     },
-                    background: v.background.as_deref(),
-                };
+                    v.background.as_deref(),
+                );
                 writer.write(k, &v.camera.name, &v.camera.camera, &img)?;
                 let name = &v.camera.name;
                 let (w, h) = (f.width, f.height);

@@ -107,6 +107,19 @@ impl SupportMap {
         Some(hs[hs.len() / 2])
     }
 
+    /// Allows only cells within `tol` of one of `levels` (no change for no levels).
+    pub fn restrict_to_levels(&mut self, levels: &[f64], tol: f64) {
+        if levels.is_empty() {
+            return;
+        }
+        for (c, ok) in self.allowed_mask.iter_mut().enumerate() {
+            *ok = *ok && levels.iter().any(|l| (self.height[c] - l).abs() <= tol);
+        }
+        self.allowed = (0..self.height.len())
+            .filter(|&c| self.allowed_mask[c])
+            .collect();
+    }
+
     pub fn cell_center(&self, c: usize) -> DVec2 {
         let (i, j) = (c % self.nx, c / self.nx);
         self.origin + DVec2::new(i as f64 + 0.5, j as f64 + 0.5) * self.cell
@@ -192,15 +205,8 @@ pub fn survey(scene: &NeuralScene, views: &[Camera]) -> (Vec<SeenView>, Vec<DVec
 /// units; a cell's height is the median of its points' heights when three quarters of
 /// them lie within `tol` of it (else the cell straddles an edge or two levels and is no
 /// surface).
-/// `levels`, when given, restricts the allowed cells to those within `level_tol` of one
-/// of those heights.
-pub fn support_map(
-    up: DVec3,
-    points: &[DVec3],
-    cell: f64,
-    tol: f64,
-    levels: Option<(&[f64], f64)>,
-) -> Option<SupportMap> {
+/// Every cell with a height is allowed ([`SupportMap::restrict_to_levels`] narrows that).
+pub fn support_map(up: DVec3, points: &[DVec3], cell: f64, tol: f64) -> Option<SupportMap> {
     let frame = UpFrame::new(up);
     if points.is_empty() {
         return None;
@@ -239,14 +245,7 @@ pub fn support_map(
             f64::NAN
         })
         .collect();
-    let allowed_mask: Vec<bool> = height
-        .iter()
-        .map(|&h| {
-            h.is_finite()
-                && levels
-                    .is_none_or(|(ls, t)| ls.is_empty() || ls.iter().any(|l| (h - l).abs() <= t))
-        })
-        .collect();
+    let allowed_mask: Vec<bool> = height.iter().map(|h| h.is_finite()).collect();
     let allowed = (0..height.len()).filter(|&c| allowed_mask[c]).collect();
     Some(SupportMap {
         frame,

@@ -29,7 +29,9 @@ pub use assist_render::RenderedImage as Frame;
 pub use cameras::{
     CameraSource, NamedCamera, Orbit, SplitChoice, dataset_cameras, objects_box, orbit,
 };
-pub use render_job::{DatasetOutput, Highlight, RenderJob, RenderSummary, ViewDone};
+pub use render_job::{
+    DatasetOutput, Highlight, RenderJob, RenderSummary, ViewDone, frame_layers, view_images,
+};
 pub use train_job::{
     Appearance, LambdaOverrides, TrainConfig, TrainEvent, TrainJob, TrainOutcome, lambdas,
 };

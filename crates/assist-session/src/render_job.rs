@@ -143,28 +143,16 @@ impl Session {
             let bg = background
                 .as_ref()
                 .map(|s| render_camera(s, &c.camera, u32::MAX, &RenderOptions::default()));
-            let layers: Vec<Layer> = img
-                .layers
-                .iter()
-                .map(|l| Layer {
-                    id: l.id,
-                    rgb: &l.rgb,
-                    opacity: &l.opacity,
-                })
-                .collect();
-            let v = ViewImages {
-                width: img.width,
-                height: img.height,
-                rgb: &img.rgb,
-                depth: &img.depth,
-                panoptic: &img.panoptic,
-                layers: if writer.wants(Output::Objects) {
+            let layers = frame_layers(&img);
+            let v = view_images(
+                &img,
+                if writer.wants(Output::Objects) {
                     &layers
                 } else {
                     &[]
                 },
-                background: bg.as_ref().map(|b| b.rgb.as_slice()),
-            };
+                bg.as_ref().map(|b| b.rgb.as_slice()),
+            );
             writer
                 .write(k, &c.name, &c.camera, &v)
                 .map_err(SessionError::Data)?;
@@ -176,5 +164,36 @@ impl Session {
             });
         }
         Ok(())
+    }
+}
+
+/// A frame's per-node layers as the dataset writer takes them.
+pub fn frame_layers(frame: &Frame) -> Vec<Layer<'_>> {
+    frame
+        .layers
+        .iter()
+        .map(|l| Layer {
+            id: l.id,
+            rgb: &l.rgb,
+            opacity: &l.opacity,
+        })
+        .collect()
+}
+
+/// A frame as the dataset writer takes it, with `layers` (empty unless objects are
+/// written) and the background alone when rendered.
+pub fn view_images<'a>(
+    frame: &'a Frame,
+    layers: &'a [Layer<'a>],
+    background: Option<&'a [f32]>,
+) -> ViewImages<'a> {
+    ViewImages {
+        width: frame.width,
+        height: frame.height,
+        rgb: &frame.rgb,
+        depth: &frame.depth,
+        panoptic: &frame.panoptic,
+        layers,
+        background,
     }
 }
