@@ -33,14 +33,17 @@ pub struct OccupancyGrid {
     /// depth maps end rays: occupied whatever their estimate, since a random point in a
     /// cell rarely lands on a thin surface. Not saved: saved as never measured.
     pub kept: Vec<u64>,
-    /// One bit per block of [`BLOCK`]³ cells, set when any cell of the block is occupied
-    /// (derived from `bits` wherever they change; empty when `res` is not a multiple of
-    /// the block): marching crosses an empty block in one jump instead of cell by cell.
-    coarse: Vec<u64>,
+    /// Per cell, its Chebyshev distance in cells to the nearest occupied cell, capped at
+    /// [`REACH_CAP`] (0 = occupied): every cell within `reach − 1` cells of it on each
+    /// axis is empty, so marching leaves that whole cube in one jump instead of crossing
+    /// it cell by cell. Derived from `bits` wherever they change; empty = no skipping
+    /// beyond the cell.
+    reach: Vec<u8>,
 }
 
-/// Cells per side of a block of the coarse level.
-pub const BLOCK: u32 = 8;
+/// The largest distance [`OccupancyGrid`]'s reach records (larger empty regions take a
+/// few jumps).
+pub const REACH_CAP: u8 = 32;
 
 /// One bit per flag, 64 to a word (flag `c` is bit `c % 64` of word `c / 64`).
 fn pack_bits(flags: &[bool]) -> Vec<u64> {
@@ -75,67 +78,88 @@ impl OccupancyGrid {
             empty: Vec::new(),
             warmup: Vec::new(),
             kept: Vec::new(),
-            coarse: Vec::new(),
+            reach: Vec::new(),
         }
-        .with_coarse()
+        .with_reach()
     }
 
-    fn with_coarse(mut self) -> Self {
-        self.refresh_coarse();
+    fn with_reach(mut self) -> Self {
+        self.refresh_reach();
         self
     }
 
-    /// Recomputes the coarse level from `bits`.
-    fn refresh_coarse(&mut self) {
+    /// Recomputes [`reach`](Self::reach) from `bits`: the L∞ distance transform is
+    /// separable, so a 1-D transform along x (two linear passes) is followed by
+    /// `g(y) = min_k max(|k|, f(y + k))` along y and then z, each over `|k| ≤ REACH_CAP`
+    /// with whole rows (or planes) at a time.
+    fn refresh_reach(&mut self) {
         let r = self.res as usize;
-        let b = BLOCK as usize;
-        if !r.is_multiple_of(b) || r < b {
-            self.coarse.clear();
+        let cap = REACH_CAP.min(u8::try_from(r).unwrap_or(u8::MAX));
+        if r < 2 {
+            self.reach.clear();
             return;
         }
-        let rb = r / b;
-        let mut coarse = vec![0u64; (rb * rb * rb).div_ceil(64)];
-        for (w, &word) in self.bits.iter().enumerate() {
-            let mut word = word;
-            while word != 0 {
-                let i = word.trailing_zeros() as usize;
-                word &= word - 1;
-                let c = w * 64 + i;
-                if c >= r * r * r {
-                    break;
+        let n = r * r * r;
+        let bits = &self.bits;
+        let occupied = |c: usize| bits[c / 64] >> (c % 64) & 1 == 1;
+        // Along x.
+        let mut fx = vec![cap; n];
+        fx.par_chunks_mut(r).enumerate().for_each(|(row, out)| {
+            let base = row * r;
+            let mut last = None;
+            for x in 0..r {
+                if occupied(base + x) {
+                    last = Some(x);
                 }
-                let (x, y, z) = (c % r, c / r % r, c / (r * r));
-                let k = x / b + rb * (y / b + rb * (z / b));
-                coarse[k / 64] |= 1 << (k % 64);
+                if let Some(l) = last {
+                    out[x] = out[x].min((x - l).min(cap as usize) as u8);
+                }
             }
-        }
-        self.coarse = coarse;
+            last = None;
+            for x in (0..r).rev() {
+                if occupied(base + x) {
+                    last = Some(x);
+                }
+                if let Some(l) = last {
+                    out[x] = out[x].min((l - x).min(cap as usize) as u8);
+                }
+            }
+        });
+        // Along y, within each z slab (rows of r cells).
+        let mut fy = vec![cap; n];
+        fy.par_chunks_mut(r * r)
+            .zip(fx.par_chunks(r * r))
+            .for_each(|(out, inp)| min_max_lines(out, inp, r, r, cap));
+        // Along z (planes of r² cells).
+        let mut fz = fx;
+        min_max_lines(&mut fz, &fy, r * r, r, cap);
+        self.reach = fz;
     }
 
-    /// Whether the block holding cell `c` has any occupied cell (true without a coarse
-    /// level).
+    /// The reach of cell `c` (see [`reach`](Self::reach); 1 without a distance field).
     #[inline(always)]
-    fn block_occupied(&self, c: usize) -> bool {
-        if self.coarse.is_empty() {
-            return true;
-        }
-        let r = self.res as usize;
-        let b = BLOCK as usize;
-        let rb = r / b;
-        let (x, y, z) = (c % r, c / r % r, c / (r * r));
-        let k = x / b + rb * (y / b + rb * (z / b));
-        self.coarse[k / 64] >> (k % 64) & 1 == 1
+    fn reach_of(&self, c: usize) -> u32 {
+        self.reach.get(c).map_or(1, |&v| u32::from(v.max(1)))
     }
 
-    /// Where the ray leaves the empty region around cell `c` at point `p`: its block when
-    /// the whole block is empty, else the cell.
+    /// Where the ray at point `p` (parameter `t`, inverse direction `inv`) in empty cell
+    /// `idx` (flat index `c`) leaves the empty cube around it.
     #[inline(always)]
-    fn empty_exit(&self, c: usize, p: [f32; 3], d: [f32; 3], t: f32) -> f32 {
-        if self.block_occupied(c) {
-            self.cell_exit(p, d, t)
-        } else {
-            Self::face_exit((self.res / BLOCK) as f32, p, d, t)
+    fn empty_exit(&self, idx: [u32; 3], c: usize, p: [f32; 3], inv: [f32; 3], t: f32) -> f32 {
+        let k = self.reach_of(c) - 1;
+        let r = self.res as f32;
+        let mut t_exit = f32::INFINITY;
+        for a in 0..3 {
+            let face = if inv[a] > 0.0 {
+                (idx[a] + k + 1).min(self.res) as f32 / r
+            } else if inv[a] < 0.0 {
+                idx[a].saturating_sub(k) as f32 / r
+            } else {
+                continue;
+            };
+            t_exit = t_exit.min(t + (face - p[a]) * inv[a]);
         }
+        t_exit
     }
 
     /// Marks the cells where `kept[c]` holds as holding a surface (see
@@ -197,15 +221,25 @@ impl OccupancyGrid {
 
     #[inline]
     fn cell_of(&self, p: [f32; 3]) -> Option<usize> {
+        self.locate(p).map(|(_, c)| c)
+    }
+
+    /// The cell holding `p` (in [0, 1]³): its index per axis and its flat index.
+    #[inline(always)]
+    fn locate(&self, p: [f32; 3]) -> Option<([u32; 3], usize)> {
         let r = self.res as f32;
-        let mut idx = [0usize; 3];
+        let mut idx = [0u32; 3];
         for a in 0..3 {
             if !(0.0..=1.0).contains(&p[a]) {
                 return None;
             }
-            idx[a] = ((p[a] * r) as usize).min(self.res as usize - 1);
+            idx[a] = ((p[a] * r) as u32).min(self.res - 1);
         }
-        Some(idx[0] + self.res as usize * (idx[1] + self.res as usize * idx[2]))
+        let r = self.res as usize;
+        Some((
+            idx,
+            idx[0] as usize + r * (idx[1] as usize + r * idx[2] as usize),
+        ))
     }
 
     #[inline]
@@ -389,32 +423,7 @@ impl OccupancyGrid {
                 }
                 *w = word;
             });
-        self.refresh_coarse();
-    }
-
-    /// Where the ray `o + t·d` at parameter `t` (point `p`) leaves its current cell: the
-    /// smallest `t` at which any axis crosses a cell face.
-    #[inline(always)]
-    fn cell_exit(&self, p: [f32; 3], d: [f32; 3], t: f32) -> f32 {
-        Self::face_exit(self.res as f32, p, d, t)
-    }
-
-    /// Where the ray leaves its cell of a grid of `r` cells a side.
-    #[inline(always)]
-    fn face_exit(r: f32, p: [f32; 3], d: [f32; 3], t: f32) -> f32 {
-        let mut t_exit = f32::INFINITY;
-        for a in 0..3 {
-            if d[a] != 0.0 {
-                let cell = (p[a] * r).floor().clamp(0.0, r - 1.0);
-                let face = if d[a] > 0.0 {
-                    (cell + 1.0) / r
-                } else {
-                    cell / r
-                };
-                t_exit = t_exit.min(t + (face - p[a]) / d[a]);
-            }
-        }
-        t_exit
+        self.refresh_reach();
     }
 
     /// Marches `o + t·d` (in [0, 1]³ coordinates, `d` unit) over `[t0, t1]` with step `dt`;
@@ -435,19 +444,20 @@ impl OccupancyGrid {
         let start = out.len();
         let mut k = 0u32;
         let base = t0 + jitter * dt;
+        let inv = inverse(d);
         loop {
             let t = base + k as f32 * dt;
             if t >= t1 || out.len() - start >= max {
                 break;
             }
             let p = [o[0] + d[0] * t, o[1] + d[1] * t, o[2] + d[2] * t];
-            match self.cell_of(p) {
-                Some(c) if self.is_occupied_cell(c) => {
+            match self.locate(p) {
+                Some((_, c)) if self.is_occupied_cell(c) => {
                     out.push(Step { t, dt });
                     k += 1;
                 }
-                Some(c) => {
-                    let t_exit = self.empty_exit(c, p, d, t);
+                Some((idx, c)) => {
+                    let t_exit = self.empty_exit(idx, c, p, inv, t);
                     let steps = ((t_exit - base) / dt).ceil().max(k as f32 + 1.0);
                     k = steps as u32;
                 }
@@ -478,12 +488,13 @@ impl OccupancyGrid {
         let start = out.len();
         let step = |t: f32| (cone * t).max(min_dt);
         let mut t = t0 + jitter * step(t0);
+        let inv = inverse(d);
         while t < t1 && out.len() - start < max {
             let p = [o[0] + d[0] * t, o[1] + d[1] * t, o[2] + d[2] * t];
             let dt = step(t);
-            match self.cell_of(p) {
-                Some(c) if !self.is_occupied_cell(c) => {
-                    let t_exit = self.empty_exit(c, p, d, t);
+            match self.locate(p) {
+                Some((idx, c)) if !self.is_occupied_cell(c) => {
+                    let t_exit = self.empty_exit(idx, c, p, inv, t);
                     // Land just past the face, keeping the phase of the step lattice.
                     let n = ((t_exit - t) / dt).ceil().max(1.0);
                     t += n * dt;
@@ -528,17 +539,19 @@ impl OccupancyGrid {
         let mut t = t0 + jitter * step(t0, radius(at(t0))).min(t1 - t0);
         // Contracted-space direction inside the box (the map is u ↦ (u + 2) / 4 there).
         let dp = d.map(|v| v * 0.25);
+        let inv = inverse(dp);
         while t < t1 && out.len() - start < max {
             let u = at(t);
             let r = radius(u);
             // The last step of the shell reaches the end of the march.
             let dt = step(t, r).min(t1 - t);
             let p = contract_to_unit(u);
-            match self.cell_of(p) {
-                Some(c) if !self.is_occupied_cell(c) => {
+            match self.locate(p) {
+                Some((idx, c)) if !self.is_occupied_cell(c) => {
                     if r < 1.0 {
-                        // Leave the cell (or the box, where the map stops being linear).
-                        let t_cell = self.empty_exit(c, p, dp, t);
+                        // Leave the empty cube (or the box, where the map stops being
+                        // linear).
+                        let t_cell = self.empty_exit(idx, c, p, inv, t);
                         let t_box = box_exit(u, d, t);
                         let n = ((t_cell.min(t_box) - t) / dt).ceil().max(1.0);
                         t += n * dt;
@@ -554,6 +567,39 @@ impl OccupancyGrid {
             }
         }
     }
+}
+
+/// `out[y] = min_k max(|k|, inp[y + k])` over `|k| ≤ cap` (`y + k` inside), for `lines`
+/// lines of `stride` values each, elementwise along the line.
+fn min_max_lines(out: &mut [u8], inp: &[u8], stride: usize, lines: usize, cap: u8) {
+    out.par_chunks_mut(stride)
+        .enumerate()
+        .take(lines)
+        .for_each(|(y, o)| {
+            o.copy_from_slice(&inp[y * stride..(y + 1) * stride]);
+            for k in 1..=cap {
+                // max(k, ·) ≥ k: no line further away can lower a value ≤ k.
+                if o.iter().all(|&v| v <= k) {
+                    break;
+                }
+                let k_us = usize::from(k);
+                for yy in [y.checked_sub(k_us), Some(y + k_us).filter(|&v| v < lines)]
+                    .into_iter()
+                    .flatten()
+                {
+                    let line = &inp[yy * stride..(yy + 1) * stride];
+                    for (v, &w) in o.iter_mut().zip(line) {
+                        *v = (*v).min(w.max(k));
+                    }
+                }
+            }
+        });
+}
+
+/// The inverse of each direction component (0 where the component is 0: never crossed).
+#[inline(always)]
+fn inverse(d: [f32; 3]) -> [f32; 3] {
+    d.map(|v| if v != 0.0 { 1.0 / v } else { 0.0 })
 }
 
 /// Where the ray `u + s·d` (at parameter `t`) leaves the box [−1, 1]³.
@@ -574,7 +620,7 @@ fn box_exit(u: [f32; 3], d: [f32; 3], t: f32) -> f32 {
 mod tests {
     use super::*;
 
-    /// A 64³ grid with a few occupied clumps, and the same grid without its coarse level.
+    /// A 64³ grid with a few occupied clumps, and the same grid without its distance field.
     fn clumps() -> (OccupancyGrid, OccupancyGrid) {
         let mut g = OccupancyGrid::new(64);
         let r = 64usize;
@@ -590,15 +636,15 @@ mod tests {
             .collect();
         g.density = vec![0.0; g.cells()];
         g.update_from(&sigma);
-        assert!(g.coarse.iter().any(|&w| w != 0) && g.coarse.iter().any(|&w| w != u64::MAX));
         let mut fine = g.clone();
-        fine.coarse.clear();
+        fine.reach.clear();
         (g, fine)
     }
 
     #[test]
-    fn empty_blocks_are_crossed_in_one_jump_without_losing_samples() {
+    fn empty_regions_are_crossed_in_one_jump_without_losing_samples() {
         let (g, fine) = clumps();
+        assert!(g.reach.iter().any(|&v| v > 4));
         let mut rng = assist_core::Rng::new(5);
         for _ in 0..500 {
             let o = [0.0; 3].map(|_| rng.f32());
@@ -621,6 +667,35 @@ mod tests {
             }
             let (na, nb) = (a.len() as f32, b.len() as f32);
             assert!((na - nb).abs() <= 2.0 + 0.1 * nb, "{na} vs {nb} samples");
+        }
+    }
+
+    #[test]
+    fn reach_is_the_capped_chebyshev_distance_to_the_nearest_occupied_cell() {
+        let mut rng = assist_core::Rng::new(3);
+        for (res, fill) in [(12u32, 0.002f32), (20, 0.0005), (40, 0.00002), (9, 0.0)] {
+            let mut g = OccupancyGrid::new(res);
+            let r = res as usize;
+            let sigma: Vec<f32> = (0..g.cells())
+                .map(|_| if rng.f32() < fill { 10.0 } else { 0.0 })
+                .collect();
+            g.density = vec![0.0; g.cells()];
+            g.update_from(&sigma);
+            let occ: Vec<[i64; 3]> = (0..g.cells())
+                .filter(|&c| g.is_occupied_cell(c))
+                .map(|c| [c % r, c / r % r, c / (r * r)].map(|v| v as i64))
+                .collect();
+            let cap = REACH_CAP.min(res as u8);
+            for c in 0..g.cells() {
+                let p = [c % r, c / r % r, c / (r * r)].map(|v| v as i64);
+                let d = occ
+                    .iter()
+                    .map(|q| (0..3).map(|a| (p[a] - q[a]).abs()).max().unwrap())
+                    .min()
+                    .unwrap_or(i64::MAX)
+                    .min(cap as i64);
+                assert_eq!(g.reach[c] as i64, d, "res {res} cell {p:?}");
+            }
         }
     }
 

@@ -201,15 +201,16 @@ pub fn sample_rays_node(
         .into_par_iter()
         .map(|b| {
             // Compiled for the CPU's SIMD level: the marching's floors and ceilings become
-            // single instructions instead of library calls (the same values).
-            assist_simd::simd(|| {
-                let mut local = NodeSamples::default();
-                let mut steps = Vec::new();
-                for r in b * BLOCK..((b + 1) * BLOCK).min(rays.len()) {
-                    local.start.push(local.t.len() as u32);
-                    sample_node(scene, k, rays, r, opts, &mut steps, &mut local);
-                }
-                local
+            // single instructions instead of library calls (the same values). A
+            // `WithSimd` body with an `#[inline(always)]` `run`, not a closure: a closure
+            // this large is not inlined into the dispatched variants and would stay at
+            // the baseline instruction set.
+            assist_simd::dispatch(SampleBlock {
+                scene,
+                k,
+                rays,
+                opts,
+                range: b * BLOCK..((b + 1) * BLOCK).min(rays.len()),
             })
         })
         .collect();
@@ -217,6 +218,31 @@ pub fn sample_rays_node(
         ns.append(blk);
     }
     ns.start.push(ns.t.len() as u32);
+}
+
+/// The samples of node `k` along rays `range` (block-local starts, no trailing end).
+struct SampleBlock<'a> {
+    scene: &'a NeuralScene,
+    k: usize,
+    rays: &'a RayBatch,
+    opts: &'a SampleOptions,
+    range: std::ops::Range<usize>,
+}
+
+impl assist_simd::WithSimd for SampleBlock<'_> {
+    type Output = NodeSamples;
+    #[inline(always)]
+    fn run(self) -> NodeSamples {
+        let mut local = NodeSamples::default();
+        let mut steps = Vec::new();
+        for r in self.range {
+            local.start.push(local.t.len() as u32);
+            sample_node(
+                self.scene, self.k, self.rays, r, self.opts, &mut steps, &mut local,
+            );
+        }
+        local
+    }
 }
 
 #[inline(always)]
@@ -279,6 +305,7 @@ fn sample_node(
 }
 
 /// The first sample's offset within its step: random when training, the middle otherwise.
+#[inline(always)]
 fn ray_jitter(opts: &SampleOptions, r: usize, k: usize) -> f32 {
     if opts.jitter {
         Rng::stream(opts.seed, (r * 1024 + k) as u64).f32()
@@ -290,6 +317,7 @@ fn ray_jitter(opts: &SampleOptions, r: usize, k: usize) -> f32 {
 /// Appends the marched `steps` of one ray: positions in [0, 1]³ from `to_unit(t)`, the
 /// canonical direction, world distance `t · world_per_local` and the interval in box
 /// diagonals `dt · per_unit`.
+#[inline(always)]
 fn push_samples(
     out: &mut NodeSamples,
     steps: &[assist_field::Step],

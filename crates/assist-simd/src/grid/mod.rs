@@ -456,12 +456,36 @@ mod x86 {
                     pos[1].as_ptr().add(l),
                     pos[2].as_ptr().add(l),
                 );
-                let mut a = _mm256_mul_ps(w[0], _mm256_i32gather_ps::<8>(base, i[0]));
-                let mut b = _mm256_mul_ps(w[0], _mm256_i32gather_ps::<8>(base.add(1), i[0]));
-                for k in 1..8 {
-                    a = _mm256_fmadd_ps(w[k], _mm256_i32gather_ps::<8>(base, i[k]), a);
-                    b = _mm256_fmadd_ps(w[k], _mm256_i32gather_ps::<8>(base.add(1), i[k]), b);
+                // One 8-byte gather per corner and lane fetches both features (half the
+                // gathered elements of two 4-byte gathers); lanes 0–3 and 4–7 accumulate
+                // as interleaved pairs, split once at the end.
+                let pairs = base.cast::<f64>();
+                let dup_lo = _mm256_setr_epi32(0, 0, 1, 1, 2, 2, 3, 3);
+                let dup_hi = _mm256_setr_epi32(4, 4, 5, 5, 6, 6, 7, 7);
+                let mut lo = _mm256_setzero_ps();
+                let mut hi = _mm256_setzero_ps();
+                for k in 0..8 {
+                    let g_lo = _mm256_castpd_ps(_mm256_i32gather_pd::<8>(
+                        pairs,
+                        _mm256_castsi256_si128(i[k]),
+                    ));
+                    let g_hi = _mm256_castpd_ps(_mm256_i32gather_pd::<8>(
+                        pairs,
+                        _mm256_extracti128_si256::<1>(i[k]),
+                    ));
+                    lo = _mm256_fmadd_ps(_mm256_permutevar8x32_ps(w[k], dup_lo), g_lo, lo);
+                    hi = _mm256_fmadd_ps(_mm256_permutevar8x32_ps(w[k], dup_hi), g_hi, hi);
                 }
+                // lo = a0 b0 a1 b1 | a2 b2 a3 b3, hi = a4 b4 a5 b5 | a6 b6 a7 b7.
+                let even = _mm256_shuffle_ps::<0b10_00_10_00>(lo, hi); // a0 a1 a4 a5 | a2 a3 a6 a7
+                let odd = _mm256_shuffle_ps::<0b11_01_11_01>(lo, hi);
+                let order = _mm256_castpd_ps(_mm256_permute4x64_pd::<0b11_01_10_00>(
+                    _mm256_castps_pd(even),
+                ));
+                let a = order;
+                let b = _mm256_castpd_ps(_mm256_permute4x64_pd::<0b11_01_10_00>(_mm256_castps_pd(
+                    odd,
+                )));
                 _mm256_storeu_ps(out0.as_mut_ptr().add(l), a);
                 _mm256_storeu_ps(out1.as_mut_ptr().add(l), b);
             }
