@@ -392,13 +392,20 @@ impl Generator {
                 let fov_y = 2.0
                     * ((0.5 * c.fov_deg.to_radians()).tan() * o.height as f64 / o.width as f64)
                         .atan();
-                let r = 1.15 * half / (0.5 * fov_y.min(c.fov_deg.to_radians())).sin();
-                let az = rng.range(0.0, std::f64::consts::TAU);
-                let el = rng
-                    .range(c.elevation_deg[0], c.elevation_deg[1])
-                    .to_radians();
+                let frame_r = 1.15 * half / (0.5 * fov_y.min(c.fov_deg.to_radians())).sin();
                 let f = crate::surface::UpFrame::new(up);
-                let dir = (f.e1 * az.cos() + f.e2 * az.sin()) * el.cos() + up * el.sin();
+                let dir = orbit_direction(rng, c, &f, up, centre, &base.cameras).map_err(bad)?;
+                // Where the capture stood: no nearer or farther than its cameras.
+                let (near, far) = base
+                    .cameras
+                    .iter()
+                    .map(|n| (n.camera.pose.center() - centre).length())
+                    .fold((f64::INFINITY, 0.0f64), |(a, b), d| (a.min(d), b.max(d)));
+                let r = if near <= far {
+                    frame_r.clamp(near, far)
+                } else {
+                    frame_r
+                };
                 let pose =
                     Pose::look_at(centre + dir * r, centre, up).map_err(|e| bad(e.to_string()))?;
                 Camera {
@@ -745,6 +752,49 @@ impl Generator {
         });
         (j, mask, rgb)
     }
+}
+
+/// Draws of an orbit view's direction before a sample gives up.
+const ORBIT_TRIES: usize = 1000;
+
+/// An orbit view's direction from `centre` (unit): azimuth uniform, elevation uniform in
+/// the spec's range, redrawn until it lies within `orbit_within_deg` of the direction of
+/// some camera in `captured` (the training views) from the centre.
+fn orbit_direction(
+    rng: &mut Rng,
+    c: &crate::spec::Cameras,
+    f: &crate::surface::UpFrame,
+    up: DVec3,
+    centre: DVec3,
+    captured: &[NamedCamera],
+) -> std::result::Result<DVec3, String> {
+    let seen: Vec<DVec3> = captured
+        .iter()
+        .filter_map(|n| (n.camera.pose.center() - centre).try_normalize())
+        .collect();
+    let cos_max = c.orbit_within_deg.to_radians().cos();
+    for _ in 0..ORBIT_TRIES {
+        let az = rng.range(0.0, std::f64::consts::TAU);
+        let el = rng
+            .range(c.elevation_deg[0], c.elevation_deg[1])
+            .to_radians();
+        let dir = (f.e1 * az.cos() + f.e2 * az.sin()) * el.cos() + up * el.sin();
+        if c.orbit_within_deg >= 180.0 || seen.iter().any(|s| s.dot(dir) >= cos_max) {
+            return Ok(dir);
+        }
+    }
+    let (lo, hi) = seen
+        .iter()
+        .map(|s| s.dot(up).clamp(-1.0, 1.0).asin().to_degrees())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), e| {
+            (a.min(e), b.max(e))
+        });
+    Err(format!(
+        "no orbit view within {}° of a training camera in {ORBIT_TRIES} draws at elevations \
+         {}–{}°; the training cameras see the orbit's centre from elevations {lo:.0}–{hi:.0}° \
+         (widen cameras.elevation_deg or cameras.orbit_within_deg)",
+        c.orbit_within_deg, c.elevation_deg[0], c.elevation_deg[1]
+    ))
 }
 
 fn rows(m: &DMat3) -> Vec<[f64; 3]> {

@@ -166,6 +166,10 @@ pub struct Cameras {
     pub elevation_deg: [f64; 2],
     /// Orbit: horizontal field of view, degrees.
     pub fov_deg: f64,
+    /// Orbit: a view is kept only where the capture stood, within this angle of a
+    /// training camera's direction from the orbit's centre (180 = anywhere); its distance
+    /// is kept within the training cameras' distances from the centre.
+    pub orbit_within_deg: f64,
 }
 
 impl Default for Cameras {
@@ -178,6 +182,7 @@ impl Default for Cameras {
             look_at: None,
             elevation_deg: [20.0, 50.0],
             fov_deg: 50.0,
+            orbit_within_deg: 20.0,
         }
     }
 }
@@ -356,6 +361,15 @@ impl Spec {
         nonneg("cameras.jitter_m", c.jitter_m, 100.0)?;
         nonneg("cameras.jitter_deg", c.jitter_deg, 180.0)?;
         range("cameras.elevation_deg", c.elevation_deg, -89.0, 89.0)?;
+        if !(c.orbit_within_deg > 0.0 && c.orbit_within_deg <= 180.0) {
+            return err(
+                "cameras.orbit_within_deg",
+                format!(
+                    "expected degrees above 0 and at most 180, got {}",
+                    c.orbit_within_deg
+                ),
+            );
+        }
         if !(1.0..179.0).contains(&c.fov_deg) {
             return err(
                 "cameras.fov_deg",

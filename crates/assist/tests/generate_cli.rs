@@ -328,6 +328,89 @@ fn generate_shards_replays_and_annotations() {
         "{sj}"
     );
 
+    // Orbit views stand where the capture stood: each within 20° of a capture camera's
+    // direction from the point the views look at, no nearer or farther than the capture.
+    let orbit = root.join("orbit.toml");
+    let orbit_spec = |el: &str| {
+        format!(
+            "count = 3\n{head}[cameras]\nfrom = \"orbit\"\nviews = 4\nelevation_deg = {el}\n[output]\nwidth = 32\nheight = 24\nimages = [\"rgb\"]\n"
+        )
+    };
+    std::fs::write(&orbit, orbit_spec("[-10, 80]")).unwrap();
+    let o = root.join("orbit");
+    ok(&run(&["generate", "--spec", s(&orbit), "--out", s(&o)]));
+    let poses = |file: &Path| -> Vec<(assist_core::DVec3, assist_core::DVec3)> {
+        let t: serde_json::Value = serde_json::from_slice(&std::fs::read(file).unwrap()).unwrap();
+        t["frames"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|f| {
+                let m: Vec<Vec<f64>> =
+                    serde_json::from_value(f["transform_matrix"].clone()).unwrap();
+                let eye = assist_core::DVec3::new(m[0][3], m[1][3], m[2][3]);
+                // OpenGL convention: the camera looks down its −z axis.
+                let fwd = -assist_core::DVec3::new(m[0][2], m[1][2], m[2][2]).normalize();
+                (eye, fwd)
+            })
+            .collect()
+    };
+    let capture = poses(&cap.join("transforms.json"));
+    for i in 0..3 {
+        let views = poses(&o.join(format!("samples/{i:06}/views/transforms.json")));
+        assert_eq!(views.len(), 4);
+        // The point the views look at: closest to their four axes (least squares).
+        let (mut a, mut b) = (assist_core::DMat3::ZERO, assist_core::DVec3::ZERO);
+        for (eye, d) in &views {
+            let p = assist_core::DMat3::IDENTITY
+                - assist_core::DMat3::from_cols(*d * d.x, *d * d.y, *d * d.z);
+            a += p;
+            b += p * *eye;
+        }
+        let centre = a.inverse() * b;
+        let dist = |e: assist_core::DVec3| (e - centre).length();
+        let (near, far) = capture
+            .iter()
+            .map(|(e, _)| dist(*e))
+            .fold((f64::INFINITY, 0.0f64), |(x, y), d| (x.min(d), y.max(d)));
+        for (eye, _) in &views {
+            let dir = (*eye - centre).normalize();
+            let best = capture
+                .iter()
+                .map(|(e, _)| {
+                    (*e - centre)
+                        .normalize()
+                        .dot(dir)
+                        .clamp(-1.0, 1.0)
+                        .acos()
+                        .to_degrees()
+                })
+                .fold(f64::INFINITY, f64::min);
+            assert!(
+                best <= 20.5,
+                "sample {i}: an orbit view {best:.1}° from every capture camera"
+            );
+            let r = dist(*eye);
+            assert!(
+                r >= near * 0.99 && r <= far * 1.01,
+                "sample {i}: orbit distance {r:.3} outside the capture's {near:.3}–{far:.3}"
+            );
+        }
+    }
+    // An orbit below everything the capture saw is an error that says why.
+    std::fs::write(&orbit, orbit_spec("[-80, -70]")).unwrap();
+    refused(
+        &run(&[
+            "generate",
+            "--spec",
+            s(&orbit),
+            "--out",
+            s(&root.join("below")),
+            "--force",
+        ]),
+        &["no orbit view within 20°", "cameras.elevation_deg"],
+    );
+
     // The annotations as pycocotools reads them; placed objects on the synthetic table top
     // (its ground truth height, not our estimate).
     let table = {
