@@ -220,11 +220,59 @@ fn apply_unchecked(scene: &mut Scene, edit: &Edit) -> Result<(), ActionError> {
 }
 
 /// Undo/redo over whole-scene snapshots (node data only; a scene of a hundred nodes is a few
-/// kilobytes), so an undo restores the scene exactly, bit for bit.
+/// kilobytes), so an undo restores the scene exactly, bit for bit. Each step remembers what
+/// made it: the instruction's text (or the script's name) and the resolved actions.
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct History {
-    pub undo: Vec<Scene>,
-    pub redo: Vec<Scene>,
+    pub undo: Vec<HistoryStep>,
+    pub redo: Vec<HistoryStep>,
+}
+
+/// One undo (or redo) step: the scene to go back (or forward) to, and the edit between.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct HistoryStep {
+    /// In `undo`: the scene before the step; in `redo`: the scene after it.
+    pub scene: Scene,
+    /// The instruction in words, or where the actions came from; `None` when not known.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub text: Option<String>,
+    /// The step's actions as resolved and applied.
+    #[serde(default)]
+    pub actions: Vec<crate::Action>,
+}
+
+impl<'de> serde::Deserialize<'de> for HistoryStep {
+    /// A step, or a bare scene snapshot (how histories were saved before steps carried
+    /// their instruction).
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        #[derive(serde::Deserialize)]
+        #[serde(deny_unknown_fields)]
+        struct Step {
+            scene: Scene,
+            #[serde(default)]
+            text: Option<String>,
+            #[serde(default)]
+            actions: Vec<crate::Action>,
+        }
+        #[derive(serde::Deserialize)]
+        #[serde(untagged)]
+        enum Repr {
+            Step(Step),
+            Bare(Scene),
+        }
+        Ok(match Repr::deserialize(d)? {
+            Repr::Step(s) => HistoryStep {
+                scene: s.scene,
+                text: s.text,
+                actions: s.actions,
+            },
+            Repr::Bare(scene) => HistoryStep {
+                scene,
+                text: None,
+                actions: Vec::new(),
+            },
+        })
+    }
 }
 
 impl History {
@@ -232,31 +280,53 @@ impl History {
     pub fn apply(&mut self, scene: &mut Scene, edit: &Edit) -> Result<(), ActionError> {
         let before = scene.clone();
         apply(scene, edit)?;
-        self.undo.push(before);
-        self.redo.clear();
+        let action = edit.to_action(scene.meters_per_unit);
+        self.record(before, None, vec![action]);
         Ok(())
     }
     /// Remembers `before`, the scene an edit (or a group of edits) started from, once the
-    /// scene holds the result; clears the redo list.
-    pub fn record(&mut self, before: Scene) {
-        self.undo.push(before);
+    /// scene holds the result, with what made the step; clears the redo list.
+    pub fn record(&mut self, before: Scene, text: Option<String>, actions: Vec<crate::Action>) {
+        self.undo.push(HistoryStep {
+            scene: before,
+            text,
+            actions,
+        });
         self.redo.clear();
     }
-    /// Restores the scene before the last edit; false when there is nothing to undo.
+    /// Restores the scene before the last step; false when there is nothing to undo.
     pub fn undo(&mut self, scene: &mut Scene) -> bool {
         match self.undo.pop() {
-            Some(prev) => {
-                self.redo.push(std::mem::replace(scene, prev));
+            Some(step) => {
+                let HistoryStep {
+                    scene: prev,
+                    text,
+                    actions,
+                } = step;
+                self.redo.push(HistoryStep {
+                    scene: std::mem::replace(scene, prev),
+                    text,
+                    actions,
+                });
                 true
             }
             None => false,
         }
     }
-    /// Re-applies the last undone edit; false when there is nothing to redo.
+    /// Re-applies the last undone step; false when there is nothing to redo.
     pub fn redo(&mut self, scene: &mut Scene) -> bool {
         match self.redo.pop() {
-            Some(next) => {
-                self.undo.push(std::mem::replace(scene, next));
+            Some(step) => {
+                let HistoryStep {
+                    scene: next,
+                    text,
+                    actions,
+                } = step;
+                self.undo.push(HistoryStep {
+                    scene: std::mem::replace(scene, next),
+                    text,
+                    actions,
+                });
                 true
             }
             None => false,
@@ -267,7 +337,7 @@ impl History {
         self.undo
             .iter()
             .chain(&self.redo)
-            .flat_map(|s| s.nodes.iter().map(|n| n.field.clone()))
+            .flat_map(|s| s.scene.nodes.iter().map(|n| n.field.clone()))
             .collect()
     }
     pub fn is_empty(&self) -> bool {

@@ -26,7 +26,7 @@ pub use action::{
 };
 pub use camera::{Camera, Intrinsics, Pose};
 pub use distortion::Distortion;
-pub use edit::History;
+pub use edit::{History, HistoryStep};
 pub use error::CoreError;
 pub use geometry::{Aabb, BoxHit, Obb, Ray};
 pub use glam;

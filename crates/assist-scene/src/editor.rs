@@ -104,7 +104,10 @@ impl Editor {
 
     /// [`plan`](Self::plan), with the scene after each edit: every action is validated
     /// and applied once, here; applying the plan only installs its results.
-    fn plan_scenes(&mut self, actions: &[Action]) -> Result<(Vec<Edit>, Vec<Scene>), EditError> {
+    pub fn plan_scenes(
+        &mut self,
+        actions: &[Action],
+    ) -> Result<(Vec<Edit>, Vec<Scene>), EditError> {
         let mut scene = self.scene.scene.clone();
         let mut taken = self.taken();
         let mut edits = Vec::with_capacity(actions.len());
@@ -178,35 +181,41 @@ impl Editor {
     /// (on error the scene and history are as before).
     pub fn apply_all(&mut self, actions: &[Action]) -> Result<Vec<Edit>, EditError> {
         let (edits, after) = self.plan_scenes(actions)?;
-        self.install(edits, after, false)
+        self.install(edits, after, false, None)
     }
 
     /// Like [`apply_all`](Self::apply_all), as one undo step (one instruction).
     pub fn apply_as_one(&mut self, actions: &[Action]) -> Result<Vec<Edit>, EditError> {
         let (edits, after) = self.plan_scenes(actions)?;
-        self.install(edits, after, true)
+        self.install(edits, after, true, None)
     }
 
     /// Installs edits validated against the current scene (by [`plan`](Self::plan) or
     /// the language resolver), given with the scene after each: imports the fields of
-    /// added nodes, then records one undo step per edit or, with `one_step`, one in all.
+    /// added nodes, then records one undo step per edit or, with `one_step`, one in all;
+    /// each step keeps `text` (the instruction, or where the actions came from) and its
+    /// resolved actions.
     pub fn install(
         &mut self,
         edits: Vec<Edit>,
         after: Vec<Scene>,
         one_step: bool,
+        text: Option<String>,
     ) -> Result<Vec<Edit>, EditError> {
         assert_eq!(edits.len(), after.len(), "one scene after each edit");
         self.import_fields(&edits)?;
+        let mpu = self.scene.scene.meters_per_unit;
         if one_step {
             if let Some(next) = after.into_iter().last() {
                 let before = std::mem::replace(&mut self.scene.scene, next);
-                self.history.record(before);
+                let actions = edits.iter().map(|e| e.to_action(mpu)).collect();
+                self.history.record(before, text, actions);
             }
         } else {
-            for next in after {
+            for (next, e) in after.into_iter().zip(&edits) {
                 let before = std::mem::replace(&mut self.scene.scene, next);
-                self.history.record(before);
+                self.history
+                    .record(before, text.clone(), vec![e.to_action(mpu)]);
             }
         }
         Ok(edits)

@@ -226,7 +226,7 @@ pub fn load_with_history(
                     .undo
                     .iter()
                     .chain(&history.redo)
-                    .flat_map(|s| &s.nodes),
+                    .flat_map(|s| &s.scene.nodes),
             )
             .find(|n| n.field == key)
             .map(|n| (n.half_size, n.space))
@@ -401,10 +401,10 @@ fn check_scenes(
         check(String::new(), s)?;
     }
     for (k, s) in history.undo.iter().enumerate() {
-        check(format!("undo[{k}]."), s)?;
+        check(format!("undo[{k}].scene."), &s.scene)?;
     }
     for (k, s) in history.redo.iter().enumerate() {
-        check(format!("redo[{k}]."), s)?;
+        check(format!("redo[{k}].scene."), &s.scene)?;
     }
     Ok(())
 }

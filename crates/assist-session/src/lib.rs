@@ -141,10 +141,21 @@ impl Session {
 
     /// [`apply`](Self::apply) with a choice of undo steps.
     pub fn apply_with(&mut self, actions: &[Action], steps: Steps) -> Result<Vec<Edit>> {
-        Ok(match steps {
-            Steps::One => self.editor.apply_as_one(actions)?,
-            Steps::PerAction => self.editor.apply_all(actions)?,
-        })
+        self.apply_noted(actions, steps, None)
+    }
+
+    /// [`apply_with`](Self::apply_with), the history step(s) noting `text` (where the
+    /// actions came from, e.g. an edit script's name).
+    pub fn apply_noted(
+        &mut self,
+        actions: &[Action],
+        steps: Steps,
+        text: Option<String>,
+    ) -> Result<Vec<Edit>> {
+        let (edits, after) = self.editor.plan_scenes(actions)?;
+        Ok(self
+            .editor
+            .install(edits, after, steps == Steps::One, text)?)
     }
 
     /// What an instruction in words resolves to — actions, each validated once against
@@ -168,17 +179,29 @@ impl Session {
     }
 
     /// Installs what [`resolve`](Self::resolve) returned (the scene must not have changed
-    /// since) without validating it again.
-    pub fn install(&mut self, resolved: Resolved, steps: Steps) -> Result<Vec<Edit>> {
+    /// since) without validating it again; the history step(s) note `text`, the
+    /// instruction it came from.
+    pub fn install(
+        &mut self,
+        resolved: Resolved,
+        steps: Steps,
+        text: Option<String>,
+    ) -> Result<Vec<Edit>> {
         Ok(self
             .editor
-            .install(resolved.edits, resolved.scenes, steps == Steps::One)?)
+            .install(resolved.edits, resolved.scenes, steps == Steps::One, text)?)
     }
 
     /// Applies an instruction in words as one undo step.
     pub fn apply_text(&mut self, text: &str, view: Option<&Camera>) -> Result<Vec<Edit>> {
         let r = self.resolve(text, view)?;
-        self.install(r, Steps::One)
+        self.install(r, Steps::One, Some(text.to_string()))
+    }
+
+    /// The edit history: steps that can be undone (oldest first) and redone (the next
+    /// redo last).
+    pub fn history(&self) -> &assist_core::History {
+        &self.editor.history
     }
 
     /// Asks an LLM provider for the actions of an instruction (validated against the

@@ -461,7 +461,7 @@ impl Worker {
             .collect();
         if !dry_run {
             self.session
-                .install(resolved, Steps::One)
+                .install(resolved, Steps::One, Some(text.to_string()))
                 .map_err(|e| e.to_string())?;
             self.log.push(text.to_string());
         }

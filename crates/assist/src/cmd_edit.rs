@@ -1,12 +1,13 @@
 //! `assist edit SCENE (--do TEXT | --actions FILE.jsonl | --undo N | --redo N) --out NEW`:
-//! applies actions (from plain language, an edit script, or an LLM), or steps through the
-//! scene's edit history, and saves the result atomically. `--dry-run --json` prints the
-//! resolved actions and touches nothing.
+//! applies actions (from plain language, an edit script, or an LLM) as one undo step, or
+//! steps through the scene's edit history, and saves the result atomically. `--dry-run
+//! --json` prints the resolved actions (or the steps an undo would take back and what they
+//! change) and touches nothing; `--history` lists the steps.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use assist_core::Action;
+use assist_core::{Action, HistoryStep, Scene};
 use assist_session::{Resolved, Session, Steps};
 use clap::Args;
 
@@ -26,12 +27,18 @@ pub struct EditArgs {
     /// Redo this many undone edits.
     #[arg(long, value_name = "N")]
     pub redo: Option<usize>,
+    /// List the scene's edit history (each step's instruction and resolved actions) and
+    /// exit.
+    #[arg(long)]
+    pub history: bool,
     /// Where to save the edited scene.
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Print the resolved actions; write nothing.
+    /// Print the resolved actions (with --undo/--redo: the steps and what they would
+    /// change); write nothing.
     #[arg(long)]
     pub dry_run: bool,
+    /// Machine-readable output on stdout (progress and messages stay on stderr).
     #[arg(long)]
     pub json: bool,
     /// Replace --out if it exists (only a scene assist wrote; give the scene itself to
@@ -120,14 +127,148 @@ fn camera(a: &EditArgs) -> anyhow::Result<Option<assist_core::Camera>> {
     Ok(Some(f.camera))
 }
 
+/// A history step as JSON: its instruction and actions.
+fn step_json(s: &HistoryStep) -> serde_json::Value {
+    serde_json::json!({"text": s.text, "actions": s.actions})
+}
+
+/// A history step in one line: the instruction and a short form of each action.
+fn step_line(s: &HistoryStep) -> String {
+    let text = s.text.as_deref().unwrap_or("(not recorded)");
+    let acts: Vec<String> = s
+        .actions
+        .iter()
+        .map(|a| format!("{:?} {}", a.operation, a.instance_id).to_lowercase())
+        .collect();
+    format!("{text:?} → {}", acts.join(", "))
+}
+
+/// What changes between two states of a scene, node by node: added, deleted, moved,
+/// turned, resized or relabelled (lengths in metres).
+fn scene_changes(from: &Scene, to: &Scene) -> Vec<serde_json::Value> {
+    let mpu = to.meters_per_unit;
+    let mut out = Vec::new();
+    for b in &to.nodes {
+        match from.nodes.iter().find(|a| a.id == b.id) {
+            None => out.push(serde_json::json!({"id": b.id, "label": b.label, "change": "added"})),
+            Some(a) => {
+                let (pa, pb) = (&a.world_from_local, &b.world_from_local);
+                let moved = (pb.translation - pa.translation).length() * mpu;
+                let turned = pa.rotation.angle_between(pb.rotation).to_degrees();
+                let scaled = pb.scale.x / pa.scale.x.max(1e-12);
+                let mut what = Vec::new();
+                if moved > 1e-6 {
+                    what.push(format!("moved {:.3} m", moved));
+                }
+                if turned > 1e-4 {
+                    what.push(format!("turned {turned:.1}°"));
+                }
+                if (scaled - 1.0).abs() > 1e-6 || a.half_size != b.half_size {
+                    what.push(format!("scaled ×{scaled:.3}"));
+                }
+                if a.label != b.label {
+                    what.push(format!("relabelled {:?} → {:?}", a.label, b.label));
+                }
+                if !what.is_empty() {
+                    out.push(serde_json::json!({"id": b.id, "label": b.label, "change": what.join(", ")}));
+                }
+            }
+        }
+    }
+    for a in &from.nodes {
+        if !to.nodes.iter().any(|b| b.id == a.id) {
+            out.push(serde_json::json!({"id": a.id, "label": a.label, "change": "deleted"}));
+        }
+    }
+    out
+}
+
+/// `--history`: the steps to undo (oldest first) and to redo (the next redo first).
+fn print_history(session: &Session, json: bool) -> anyhow::Result<()> {
+    let h = session.history();
+    if json {
+        let undo: Vec<_> = h.undo.iter().map(step_json).collect();
+        let redo: Vec<_> = h.redo.iter().rev().map(step_json).collect();
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&serde_json::json!({"undo": undo, "redo": redo}))?
+        );
+        return Ok(());
+    }
+    if h.undo.is_empty() && h.redo.is_empty() {
+        println!("no edits in the history");
+        return Ok(());
+    }
+    let n = h.undo.len();
+    for (i, s) in h.undo.iter().enumerate() {
+        println!("undo {:>3}  {}", n - i, step_line(s));
+    }
+    for (i, s) in h.redo.iter().rev().enumerate() {
+        println!("redo {:>3}  {}", i + 1, step_line(s));
+    }
+    println!("(`--undo N` goes back N steps; `--redo N` forward N)");
+    Ok(())
+}
+
+/// `--undo N` / `--redo N` with `--dry-run`: the steps and what they would change.
+fn preview_steps(session: &Session, undo: bool, n: usize, json: bool) -> anyhow::Result<()> {
+    let h = session.history();
+    let list = if undo { &h.undo } else { &h.redo };
+    let what = if undo { "undo" } else { "redo" };
+    if n > list.len() {
+        bail!(
+            "--{what} {n}: the scene has only {} step(s) to {what}",
+            list.len()
+        );
+    }
+    let steps: Vec<&HistoryStep> = list.iter().rev().take(n).collect();
+    let now = &session.description();
+    let target = match steps.last() {
+        Some(s) => &s.scene,
+        None => now,
+    };
+    let changes = scene_changes(now, target);
+    if json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&serde_json::json!({
+                what: steps.iter().map(|s| step_json(s)).collect::<Vec<_>>(),
+                "changes": changes,
+            }))?
+        );
+    } else {
+        for s in &steps {
+            println!("would {what} {}", step_line(s));
+        }
+        for c in &changes {
+            println!(
+                "  node {} {:?}: {}",
+                c["id"],
+                c["label"].as_str().unwrap_or(""),
+                c["change"].as_str().unwrap_or("")
+            );
+        }
+        if changes.is_empty() {
+            println!("  (no node would change)");
+        }
+    }
+    Ok(())
+}
+
 pub fn run(a: EditArgs) -> anyhow::Result<()> {
     let sources = [
         a.text.is_some(),
         a.actions.is_some(),
         a.undo.is_some() || a.redo.is_some(),
+        a.history,
     ];
-    if sources.iter().filter(|s| **s).count() != 1 {
-        bail!("give exactly one of --do TEXT, --actions FILE, or --undo/--redo N");
+    if sources.iter().filter(|s| **s).count() != 1 || (a.undo.is_some() && a.redo.is_some()) {
+        bail!("give exactly one of --do TEXT, --actions FILE, --undo N, --redo N or --history");
+    }
+    if a.history {
+        let session = Session::open(&a.scene)
+            .with_context(|| format!("loading scene {}", a.scene.display()))?;
+        return print_history(&session, a.json);
     }
     // A read-modify-write: the scene (and --out) are claimed from loading to saving, so a
     // second process editing either gets an error instead of silently losing an edit.
@@ -146,17 +287,29 @@ pub fn run(a: EditArgs) -> anyhow::Result<()> {
     // it), or actions (from a script or an LLM) that the editor validates.
     let mut resolved: Option<Resolved> = None;
     let mut actions: Vec<Action> = Vec::new();
+    // What the history step will say made it.
+    let mut note = None;
     if let Some(text) = &a.text {
         if a.llm {
             let p = assist_lang::LlmProvider::from_env()
                 .context("--llm: set ASSIST_LLM_URL (and ASSIST_LLM_MODEL, ASSIST_LLM_API_KEY) to an OpenAI-compatible endpoint")?;
             actions = session.ask_llm(&p, text)?;
+            note = Some(format!("{text} (LLM)"));
         } else {
             let view = camera(&a)?;
             resolved = Some(session.resolve(text, view.as_ref())?);
+            note = Some(text.clone());
         }
     } else if let Some(f) = &a.actions {
         actions = read_actions(f)?;
+        note = Some(format!("actions from {}", f.display()));
+    }
+    if a.dry_run && (a.undo.is_some() || a.redo.is_some()) {
+        let (undo, n) = match (a.undo, a.redo) {
+            (Some(n), _) => (true, n),
+            (_, n) => (false, n.unwrap_or(0)),
+        };
+        return preview_steps(&session, undo, n, a.json);
     }
     if a.dry_run {
         let edits = match resolved {
@@ -191,10 +344,10 @@ pub fn run(a: EditArgs) -> anyhow::Result<()> {
             }
         }
     } else {
-        // One undo step per action, as an edit script is undone.
+        // One instruction (or one edit script) is one undo step.
         let edits = match resolved {
-            Some(r) => session.install(r, Steps::PerAction)?,
-            None => session.apply_with(&actions, Steps::PerAction)?,
+            Some(r) => session.install(r, Steps::One, note)?,
+            None => session.apply_noted(&actions, Steps::One, note)?,
         };
         applied = edits.iter().map(|e| e.to_action(mpu)).collect();
     }

@@ -216,7 +216,8 @@ fn a_history_snapshot_that_cannot_load_is_an_error_naming_it() {
     assert!(ok, "{err}");
     let hist = scene.join("history.json");
     let mut h: serde_json::Value = serde_json::from_slice(&std::fs::read(&hist).unwrap()).unwrap();
-    h["undo"][0]["nodes"][1]["world_from_local"]["scale"] = serde_json::json!([1e300, 1.0, 1.0]);
+    h["undo"][0]["scene"]["nodes"][1]["world_from_local"]["scale"] =
+        serde_json::json!([1e300, 1.0, 1.0]);
     std::fs::write(&hist, serde_json::to_vec(&h).unwrap()).unwrap();
     let before = snapshot(&scene);
     let c = tmp.path().join("c.assist");
@@ -224,8 +225,104 @@ fn a_history_snapshot_that_cannot_load_is_an_error_naming_it() {
     assert!(!ok, "undo of a corrupted history succeeded");
     assert!(!c.exists());
     assert!(
-        err.contains("history.json") && err.contains("undo[0].nodes[1].world_from_local.scale"),
+        err.contains("history.json")
+            && err.contains("undo[0].scene.nodes[1].world_from_local.scale"),
         "{err}"
     );
     assert_eq!(snapshot(&scene), before);
+}
+
+/// One instruction is one undo step, recorded with its words and resolved actions:
+/// "duplicate … and move the copy …" then `--undo 1` leaves no copy behind; `--history`
+/// lists the steps; `--undo N --dry-run` says what would change and writes nothing; a
+/// history saved before steps carried their instruction still loads and undoes.
+#[test]
+fn one_instruction_is_one_undo_step_with_its_words() {
+    let tmp = assist_testkit::TempDir::new("cli-history");
+    let a = tmp.path().join("a.assist");
+    write_scene(&a);
+    let nodes = |p: &Path| -> Vec<u64> {
+        let v: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(p.join("scene.json")).unwrap()).unwrap();
+        v["nodes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|n| n["id"].as_u64().unwrap())
+            .collect()
+    };
+    let (b, c, d) = (
+        tmp.path().join("b.assist"),
+        tmp.path().join("c.assist"),
+        tmp.path().join("d.assist"),
+    );
+    let text = "duplicate the duck and move the copy 20 cm left";
+    let (ok, _, err) = assist(&["edit", s(&a), "--do", text, "--out", s(&b)]);
+    assert!(ok, "{err}");
+    assert_eq!(nodes(&b).len(), nodes(&a).len() + 1);
+    let (ok, _, err) = assist(&["edit", s(&b), "--do", "delete the mug", "--out", s(&c)]);
+    assert!(ok, "{err}");
+
+    // The history: two steps, each with its instruction and actions.
+    let (ok, out, err) = assist(&["edit", s(&c), "--history", "--json"]);
+    assert!(ok, "{err}");
+    let h: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let undo = h["undo"].as_array().unwrap();
+    assert_eq!(undo.len(), 2, "{h}");
+    assert_eq!(undo[0]["text"], text);
+    let ops: Vec<&str> = undo[0]["actions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a["operation"].as_str().unwrap())
+        .collect();
+    assert_eq!(ops, ["replicate", "translate"]);
+    assert_eq!(undo[1]["text"], "delete the mug");
+    let (ok, out, _) = assist(&["edit", s(&c), "--history"]);
+    assert!(
+        ok && out.contains(text) && out.contains("delete the mug"),
+        "{out}"
+    );
+
+    // A dry run of two undos names both steps and what they change, and writes nothing.
+    let before = snapshot(tmp.path());
+    let (ok, out, err) = assist(&["edit", s(&c), "--undo", "2", "--dry-run", "--json"]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["undo"].as_array().unwrap().len(), 2, "{v}");
+    let changes = v["changes"].to_string();
+    assert!(
+        changes.contains("\"added\"") && changes.contains("\"deleted\""),
+        "the mug comes back, the copy goes: {v}"
+    );
+    let (ok, out, _) = assist(&["edit", s(&c), "--undo", "1", "--dry-run"]);
+    assert!(
+        ok && out.contains("delete the mug") && out.contains("added"),
+        "{out}"
+    );
+    assert!(snapshot(tmp.path()) == before, "a dry run must not write");
+
+    // `--undo 2` is back to the original: the copy is gone with its move.
+    let (ok, _, err) = assist(&["edit", s(&c), "--undo", "2", "--out", s(&d)]);
+    assert!(ok, "{err}");
+    assert_eq!(nodes(&d), nodes(&a));
+    let (ok, out, _) = assist(&["edit", s(&d), "--history", "--json"]);
+    assert!(ok);
+    let h: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(h["undo"].as_array().unwrap().len(), 0);
+    assert_eq!(h["redo"][0]["text"], text, "the next redo first: {h}");
+
+    // A history of bare snapshots (older scenes) loads, lists and undoes.
+    let hist = c.join("history.json");
+    let mut h: serde_json::Value = serde_json::from_slice(&std::fs::read(&hist).unwrap()).unwrap();
+    for step in h["undo"].as_array_mut().unwrap() {
+        *step = step["scene"].clone();
+    }
+    std::fs::write(&hist, serde_json::to_vec(&h).unwrap()).unwrap();
+    let (ok, out, err) = assist(&["edit", s(&c), "--history"]);
+    assert!(ok && out.contains("not recorded"), "{out}{err}");
+    let e = tmp.path().join("e.assist");
+    let (ok, _, err) = assist(&["edit", s(&c), "--undo", "2", "--out", s(&e)]);
+    assert!(ok, "{err}");
+    assert_eq!(nodes(&e), nodes(&a));
 }
