@@ -18,6 +18,7 @@ mod cmd_edit;
 mod cmd_eval;
 mod cmd_generate;
 mod cmd_render;
+mod cmd_scene;
 mod cmd_synth;
 mod cmd_train;
 mod cmd_view;
@@ -45,6 +46,11 @@ pub enum Command {
     Synth(cmd_synth::SynthArgs),
     /// Run the main job on the built-in default scene (no downloads).
     Demo(cmd_demo::DemoArgs),
+    /// Inspect a trained scene: nodes, boxes, poses, field files, history, provenance.
+    Scene {
+        #[command(subcommand)]
+        command: cmd_scene::SceneCommand,
+    },
     /// Train a compositional scene (background + one node per object) from a dataset.
     Train(cmd_train::TrainArgs),
     /// Measure a trained scene against a dataset split (PSNR, SSIM, panoptic mIoU, background).
@@ -69,6 +75,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Dataset { command } => cmd_dataset::run(command),
         Command::Synth(a) => cmd_synth::run(a),
         Command::Demo(a) => cmd_demo::run(a),
+        Command::Scene { command } => cmd_scene::run(command),
         Command::Train(a) => cmd_train::run(a),
         Command::Eval(a) => cmd_eval::run(a),
         Command::Edit(a) => cmd_edit::run(a),

@@ -1,0 +1,174 @@
+//! `assist scene info SCENE [--json]`: what a trained scene holds — its nodes (id, label,
+//! box, pose, field file and size), its edit history and how it was trained — read from
+//! `scene.json` and `history.json` without loading any weights.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use assist_core::{History, Scene, SceneNode};
+use assist_scene::scene_file;
+use clap::{Args, Subcommand};
+use serde_json::{Value, json};
+
+#[derive(Subcommand, Debug)]
+pub enum SceneCommand {
+    /// List a scene's nodes (id, label, box, pose, field file, size), its edit history and
+    /// its training provenance.
+    Info(InfoArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct InfoArgs {
+    /// Scene directory (or its scene.json).
+    pub scene: PathBuf,
+    /// Machine-readable output on stdout: an object with `nodes`, `history` and `training`.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(c: SceneCommand) -> anyhow::Result<()> {
+    match c {
+        SceneCommand::Info(a) => info(a),
+    }
+}
+
+/// A node as `scene info` reports it (lengths in metres).
+fn node_json(dir: &Path, n: &SceneNode, mpu: f64, up: assist_core::DVec3) -> Value {
+    let p = &n.world_from_local;
+    let file = scene_file::field_path(dir, &n.field);
+    let bytes = std::fs::metadata(&file).map(|m| m.len()).ok();
+    // Yaw: the turn about the scene's up of the node's first local axis.
+    let (e1, e2) = up.normalize().any_orthonormal_pair();
+    let x = p.rotation * assist_core::DVec3::X;
+    let yaw = e2.dot(x).atan2(e1.dot(x)).to_degrees();
+    json!({
+        "id": n.id,
+        "label": n.label,
+        "kind": if n.is_background() { "background" } else { "object" },
+        "space": n.space,
+        "size_m": (n.half_size * p.scale * 2.0 * mpu).to_array(),
+        "position_m": (p.translation * mpu).to_array(),
+        "rotation_xyzw": p.rotation.to_array(),
+        "yaw_deg": yaw,
+        "scale": p.scale.to_array(),
+        "field": n.field,
+        "field_file": file.strip_prefix(dir).unwrap_or(&file),
+        "field_bytes": bytes,
+        "embedding": n.embedding.is_some(),
+    })
+}
+
+fn history_json(h: &History) -> Value {
+    let step = |s: &assist_core::HistoryStep| json!({"text": s.text, "actions": s.actions.len()});
+    json!({
+        "undo": h.undo.iter().map(step).collect::<Vec<_>>(),
+        "redo": h.redo.iter().rev().map(step).collect::<Vec<_>>(),
+    })
+}
+
+fn info(a: InfoArgs) -> anyhow::Result<()> {
+    let (scene, meta): (Scene, Value) = scene_file::load_scene_json(&a.scene)
+        .with_context(|| format!("reading scene {}", a.scene.display()))?;
+    let dir = if a.scene.is_dir() {
+        a.scene.clone()
+    } else {
+        a.scene
+            .parent()
+            .map(Path::to_path_buf)
+            .unwrap_or_else(|| PathBuf::from("."))
+    };
+    let hist_path = dir.join("history.json");
+    let history = if hist_path.exists() {
+        scene_file::parse_history(&hist_path, &assist_fs::read_text(&hist_path)?)?
+    } else {
+        History::default()
+    };
+    let mpu = scene.meters_per_unit;
+    let nodes: Vec<Value> = scene
+        .nodes
+        .iter()
+        .map(|n| node_json(&dir, n, mpu, scene.up))
+        .collect();
+    let training = json!({
+        "dataset": meta.get("dataset"),
+        "iterations": meta.get("iteration"),
+        "seconds": meta.get("elapsed_seconds"),
+        "options": meta.get("options"),
+    });
+    if a.json {
+        let v = json!({
+            "scene": dir,
+            "meters_per_unit": mpu,
+            "up": scene.up.to_array(),
+            "selected": scene.selected,
+            "nodes": nodes,
+            "history": history_json(&history),
+            "training": training,
+        });
+        println!("{}", serde_json::to_string_pretty(&v)?);
+        return Ok(());
+    }
+    println!(
+        "{}: {} node(s), {} m per unit, up {:?}",
+        dir.display(),
+        nodes.len(),
+        mpu,
+        scene.up.to_array()
+    );
+    println!(
+        "{:>4}  {:<32} {:<10} {:>22}  {:>24}  {:>7}  field",
+        "id", "label", "kind", "size (m)", "position (m)", "yaw °"
+    );
+    let f3 = |v: &Value| {
+        let a: Vec<f64> = serde_json::from_value(v.clone()).unwrap_or_default();
+        a.iter()
+            .map(|x| format!("{x:.3}"))
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
+    for n in &nodes {
+        let bytes = n["field_bytes"]
+            .as_u64()
+            .map(|b| format!("{:.1} MB", b as f64 / 1e6))
+            .unwrap_or_else(|| "missing".into());
+        let label = n["label"].as_str().unwrap_or("");
+        let selected = if scene.selected.map(u64::from) == n["id"].as_u64() {
+            " (selected)"
+        } else {
+            ""
+        };
+        println!(
+            "{:>4}  {:<32} {:<10} {:>22}  {:>24}  {:>7.1}  {} ({bytes}){selected}",
+            n["id"].as_u64().unwrap_or(0),
+            label.chars().take(32).collect::<String>(),
+            n["kind"].as_str().unwrap_or(""),
+            f3(&n["size_m"]),
+            f3(&n["position_m"]),
+            n["yaw_deg"].as_f64().unwrap_or(0.0),
+            n["field_file"].as_str().unwrap_or(""),
+        );
+    }
+    let n_undo = history.undo.len();
+    println!(
+        "history: {n_undo} step(s) to undo, {} to redo",
+        history.redo.len()
+    );
+    for (i, s) in history.undo.iter().enumerate() {
+        println!(
+            "  undo {:>3}  {}",
+            n_undo - i,
+            s.text.as_deref().unwrap_or("(not recorded)")
+        );
+    }
+    match meta.get("dataset").and_then(Value::as_str) {
+        Some(d) => println!(
+            "trained on {d}: {} iterations in {:.0} s",
+            meta.get("iteration").and_then(Value::as_u64).unwrap_or(0),
+            meta.get("elapsed_seconds")
+                .and_then(Value::as_f64)
+                .unwrap_or(0.0)
+        ),
+        None => println!("training: not recorded"),
+    }
+    Ok(())
+}
