@@ -33,7 +33,8 @@ pub use render_job::{
     DatasetOutput, Highlight, RenderJob, RenderSummary, ViewDone, frame_layers, view_images,
 };
 pub use train_job::{
-    Appearance, LambdaOverrides, TrainConfig, TrainEvent, TrainJob, TrainOutcome, lambdas,
+    Appearance, DEFAULT_EVAL_VIEWS, HeldOut, LambdaOverrides, TrainConfig, TrainEvent, TrainJob,
+    TrainOutcome, lambdas, preview_path,
 };
 
 #[derive(Debug, thiserror::Error)]

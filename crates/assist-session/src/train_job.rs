@@ -93,9 +93,130 @@ pub struct TrainConfig {
     pub resume: bool,
     /// Replace `out` if it exists.
     pub force: bool,
+    /// Measure held-out views (the test split, else val) every this many iterations,
+    /// writing a preview image beside `out` (see [`preview_path`]).
+    pub eval_every: Option<usize>,
+    /// Held-out views measured, evenly spread over the split (0 = none, not even at the
+    /// end of the run).
+    pub eval_views: usize,
     /// Testing aid: poison a parameter with NaN at this iteration.
     #[serde(skip)]
     pub poison_at: Option<usize>,
+}
+
+/// Held-out views measured during and after training.
+pub const DEFAULT_EVAL_VIEWS: usize = 4;
+
+/// Where periodic held-out evaluations leave their preview: beside the scene,
+/// `NAME.preview.png` for `NAME.assist`.
+pub fn preview_path(out: &std::path::Path) -> PathBuf {
+    out.with_extension("preview.png")
+}
+
+/// How the scene does on views it did not train on.
+#[derive(Debug, Clone, Serialize)]
+pub struct HeldOut {
+    pub iteration: usize,
+    /// Training seconds when measured.
+    pub elapsed: f64,
+    /// The split the views come from (test, else val).
+    pub split: String,
+    pub views: usize,
+    /// Mean of per-view PSNR (dB) and SSIM.
+    pub psnr: f64,
+    pub ssim: f64,
+    /// Seconds the measurement took (counted in the run's time).
+    pub seconds: f64,
+    /// The first view, ground truth left and render right (periodic evaluations).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub preview: Option<PathBuf>,
+}
+
+/// The held-out views of a run, loaded once.
+struct HeldOutSet {
+    split: Split,
+    views: Vec<(assist_core::Camera, assist_train::View)>,
+}
+
+impl HeldOutSet {
+    /// Up to `n` views of the test split (else val), evenly spread; `None` without one.
+    fn load(ds: &Dataset, n: usize) -> Result<Option<HeldOutSet>> {
+        if n == 0 {
+            return Ok(None);
+        }
+        let bg = background_color(ds);
+        for split in [Split::Test, Split::Val] {
+            let frames: Vec<_> = ds.frames_in(split).collect();
+            if frames.is_empty() {
+                continue;
+            }
+            let k = n.min(frames.len());
+            let mut views = Vec::with_capacity(k);
+            for i in 0..k {
+                let f = frames[i * frames.len() / k];
+                let v = assist_train::load_view(f, u32::MAX, bg)?;
+                views.push((f.camera, v));
+            }
+            return Ok(Some(HeldOutSet { split, views }));
+        }
+        Ok(None)
+    }
+
+    /// Renders the views with `scene` (the average appearance) and scores them; with
+    /// `preview`, writes the first view beside its render there.
+    fn measure(
+        &self,
+        scene: &NeuralScene,
+        iteration: usize,
+        elapsed: f64,
+        preview: Option<&std::path::Path>,
+    ) -> Result<HeldOut> {
+        use assist_train::metrics::{psnr, ssim};
+        let t0 = std::time::Instant::now();
+        let opts = assist_render::RenderOptions::default();
+        let (mut p, mut q) = (0.0, 0.0);
+        let mut first = None;
+        for (cam, v) in &self.views {
+            let img = assist_render::render_camera(scene, cam, u32::MAX, &opts);
+            let rgb: Vec<f32> = img.rgb.iter().map(|x| x.clamp(0.0, 1.0)).collect();
+            p += psnr(&rgb, &v.rgb, 3, None)
+                .unwrap_or(f64::INFINITY)
+                .min(100.0);
+            q += ssim(&rgb, &v.rgb, v.width, v.height, 3);
+            if first.is_none() {
+                first = Some(rgb);
+            }
+        }
+        let n = self.views.len().max(1) as f64;
+        let mut written = None;
+        if let (Some(path), Some(rgb), Some((_, v))) = (preview, &first, self.views.first()) {
+            let (w, h) = (v.width, v.height);
+            let mut side = vec![0u8; 2 * w * h * 3];
+            let to8 = |x: f32| (x.clamp(0.0, 1.0) * 255.0 + 0.5) as u8;
+            for y in 0..h {
+                for x in 0..w {
+                    for c in 0..3 {
+                        let i = 3 * (y * w + x) + c;
+                        side[3 * (y * 2 * w + x) + c] = to8(v.rgb[i]);
+                        side[3 * (y * 2 * w + w + x) + c] = to8(rgb[i]);
+                    }
+                }
+            }
+            assist_data::image_io::write_rgb8_png(path, 2 * w as u32, h as u32, &side)
+                .map_err(SessionError::Data)?;
+            written = Some(path.to_path_buf());
+        }
+        Ok(HeldOut {
+            iteration,
+            elapsed,
+            split: self.split.name().to_string(),
+            views: self.views.len(),
+            psnr: p / n,
+            ssim: q / n,
+            seconds: t0.elapsed().as_secs_f64(),
+            preview: written,
+        })
+    }
 }
 
 impl Default for TrainConfig {
@@ -119,6 +240,8 @@ impl Default for TrainConfig {
             checkpoint_every: 120.0,
             resume: false,
             force: false,
+            eval_every: None,
+            eval_views: DEFAULT_EVAL_VIEWS,
             poison_at: None,
         }
     }
@@ -149,6 +272,8 @@ pub enum TrainEvent {
         /// Share of each node's occupancy grid that is occupied (sent every few seconds).
         occupancy: Option<Vec<(String, f64)>>,
     },
+    /// Held-out views measured (every `eval_every` iterations).
+    HeldOut(HeldOut),
     /// The scene is saved.
     Saved { path: PathBuf },
 }
@@ -158,6 +283,9 @@ pub enum TrainEvent {
 pub struct TrainOutcome {
     pub report: TrainReport,
     pub out: PathBuf,
+    /// The held-out views measured at the end (none without a test or val split, with
+    /// `eval_views` 0, or when the run was interrupted).
+    pub held_out: Option<HeldOut>,
 }
 
 /// A training run to do.
@@ -213,6 +341,18 @@ impl TrainJob {
             return Err(request(
                 "max_time",
                 format!("expected a positive number of seconds, got {t}"),
+            ));
+        }
+        if c.eval_every == Some(0) {
+            return Err(request(
+                "eval_every",
+                "expected at least 1 iteration between evaluations".into(),
+            ));
+        }
+        if c.eval_every.is_some() && c.eval_views == 0 {
+            return Err(request(
+                "eval_views",
+                "expected at least 1 view to evaluate every eval_every iterations".into(),
             ));
         }
         if !(0.0..=1.0).contains(&c.object_rays) {
@@ -368,12 +508,33 @@ impl TrainJob {
             ]),
             ..Default::default()
         };
+        let held = HeldOutSet::load(&ds, c.eval_views)?;
+        if c.eval_every.is_some() && held.is_none() {
+            return Err(request(
+                "eval_every",
+                format!(
+                    "{} has no held-out views (no test or val split) to evaluate",
+                    c.data.display()
+                ),
+            ));
+        }
+        let preview = preview_path(&c.out);
+        let mut eval_error = None;
         let mut trainer = Trainer::new(scene, views, opts)?;
         if let Some(r) = &resume {
             trainer.resume_from(r);
         }
         let mut last_occupancy = std::time::Instant::now();
         let report = trainer.run(|s, t| {
+            if let (Some(every), Some(h)) = (c.eval_every, &held)
+                && s.iteration % every == 0
+                && eval_error.is_none()
+            {
+                match h.measure(&t.scene, s.iteration, s.elapsed, Some(&preview)) {
+                    Ok(m) => on_event(&TrainEvent::HeldOut(m)),
+                    Err(e) => eval_error = Some(e),
+                }
+            }
             let occupancy = (last_occupancy.elapsed().as_secs_f64() > 10.0).then(|| {
                 last_occupancy = std::time::Instant::now();
                 t.occupancy()
@@ -390,9 +551,19 @@ impl TrainJob {
         on_event(&TrainEvent::Saved {
             path: c.out.clone(),
         });
+        if let Some(e) = eval_error {
+            return Err(e);
+        }
+        let held_out = match &held {
+            Some(h) if !report.cancelled => {
+                Some(h.measure(&trainer.scene, report.iterations, report.seconds, None)?)
+            }
+            _ => None,
+        };
         Ok(TrainOutcome {
             report,
             out: c.out.clone(),
+            held_out,
         })
     }
 

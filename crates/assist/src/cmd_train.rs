@@ -47,23 +47,31 @@ pub struct TrainArgs {
     /// replace the built-in fill; images without one keep it.
     #[arg(long)]
     pub prior_dir: Option<PathBuf>,
-    #[arg(long)]
+    /// λ1 of the paper: weight of the background's colour against its prior under the
+    /// objects (0 with --prior none) [default: 0.5].
+    #[arg(long, value_name = "W")]
     pub lambda_bg_rgb: Option<f32>,
-    /// Weight of an opaque background where its prior speaks (ours; default 0: it lets a
-    /// prior reach the background behind objects, but can cover objects with background).
-    #[arg(long)]
+    /// Weight of an opaque background where its prior speaks (ours; it lets a prior reach
+    /// the background behind objects, but can cover objects with background) [default: 0].
+    #[arg(long, value_name = "W")]
     pub lambda_bg_opacity: Option<f32>,
-    #[arg(long)]
+    /// λ2 of the paper: weight of the background's depth against the prior's depth (0
+    /// with --prior none) [default: 0.1].
+    #[arg(long, value_name = "W")]
     pub lambda_bg_depth: Option<f32>,
-    #[arg(long)]
+    /// λ3 of the paper: weight of each object's opacity against its instance mask
+    /// [default: 0.1].
+    #[arg(long, value_name = "W")]
     pub lambda_obj_acc: Option<f32>,
-    #[arg(long)]
+    /// λ4 of the paper: weight of each object's own colour inside its mask [default: 0.5].
+    #[arg(long, value_name = "W")]
     pub lambda_obj_rgb: Option<f32>,
-    /// Weight of the object-share term (ours, not the paper's; 0 gives the paper's loss).
-    #[arg(long)]
+    /// Weight of the object-share term (ours, not the paper's; 0 gives the paper's loss)
+    /// [default: 0.1].
+    #[arg(long, value_name = "W")]
     pub lambda_obj_share: Option<f32>,
-    /// Weight of the distortion loss (Nerfacto's; 0 turns it off).
-    #[arg(long)]
+    /// Weight of the distortion loss (Nerfacto's; 0 turns it off) [default: 0].
+    #[arg(long, value_name = "W")]
     pub lambda_distortion: Option<f32>,
     /// Object boxes overriding the dataset's and the carved ones, used as given (a JSON file
     /// as `assist dataset boxes DATA --json` writes: {"instances": [{"id" or "label", "bbox":
@@ -78,6 +86,8 @@ pub struct TrainArgs {
     /// unless the training views have depth maps, which bound the scene).
     #[arg(long, default_value = "auto")]
     pub background: String,
+    /// Seed of every random draw (ray batches, initial weights): the same seed, data and
+    /// flags give the same scene.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Seconds between checkpoints (written atomically to --out).
@@ -91,7 +101,25 @@ pub struct TrainArgs {
     /// with --resume, continue on a different dataset.
     #[arg(long)]
     pub force: bool,
-    /// Print one JSON object (the report) instead of text.
+    /// Measure held-out views (the dataset's test split, else val) every N iterations:
+    /// their PSNR and SSIM go to the log, and the first view beside its render to
+    /// NAME.preview.png beside --out. The time counts in the run's.
+    #[arg(long, value_name = "N")]
+    pub eval_every: Option<usize>,
+    /// Held-out views measured, evenly spread over the split, during the run and at its
+    /// end (0 = none).
+    #[arg(long, value_name = "N", default_value_t = assist_session::DEFAULT_EVAL_VIEWS)]
+    pub eval_views: usize,
+    /// Write the training log to FILE as JSON Lines (one object per line: "kind" is
+    /// "step" every --log-every iterations, "held_out" per evaluation, "end" once), to
+    /// plot with pandas.read_json(FILE, lines=True). Refused if it exists, unless --force
+    /// (or --resume, which appends).
+    #[arg(long, value_name = "FILE")]
+    pub log: Option<PathBuf>,
+    /// Iterations between the log's "step" lines.
+    #[arg(long, value_name = "N", default_value_t = 50, value_parser = clap::value_parser!(u64).range(1..))]
+    pub log_every: u64,
+    /// Print one JSON object (the report) on stdout instead of text on stderr.
     #[arg(long)]
     pub json: bool,
     /// Testing aid: poison a parameter with NaN at this iteration.
@@ -147,6 +175,8 @@ impl TrainArgs {
             checkpoint_every: self.checkpoint_every,
             resume: self.resume,
             force: self.force,
+            eval_every: self.eval_every,
+            eval_views: self.eval_views,
             poison_at: self.poison_at,
         })
     }
@@ -172,9 +202,104 @@ pub(crate) fn flag_error(e: assist_session::SessionError) -> anyhow::Error {
     }
 }
 
+/// The training log (`--log`): JSON Lines, flushed per line so a crashed run keeps what
+/// it logged. The file is created at the first line, so a run refused before it starts
+/// leaves none.
+struct Log {
+    file: Option<std::io::BufWriter<std::fs::File>>,
+    path: PathBuf,
+    append: bool,
+    error: Option<std::io::Error>,
+}
+
+impl Log {
+    fn new(path: &std::path::Path, append: bool, force: bool) -> anyhow::Result<Log> {
+        if path.exists() && !append && !force {
+            anyhow::bail!(
+                "--log: {} already exists (pass --force to replace it; --resume appends to it)",
+                path.display()
+            );
+        }
+        Ok(Log {
+            file: None,
+            path: path.to_path_buf(),
+            append,
+            error: None,
+        })
+    }
+
+    /// Appends one line (the first write error is kept and reported at the end).
+    fn line(&mut self, v: serde_json::Value) {
+        use std::io::Write;
+        if self.error.is_some() {
+            return;
+        }
+        if self.file.is_none() {
+            match std::fs::OpenOptions::new()
+                .create(true)
+                .write(true)
+                .append(self.append)
+                .truncate(!self.append)
+                .open(&self.path)
+            {
+                Ok(f) => self.file = Some(std::io::BufWriter::new(f)),
+                Err(e) => {
+                    self.error = Some(e);
+                    return;
+                }
+            }
+        }
+        let Some(f) = self.file.as_mut() else { return };
+        if let Err(e) = writeln!(f, "{v}").and_then(|_| f.flush()) {
+            self.error = Some(e);
+        }
+    }
+}
+
+/// A step as a log line: losses, PSNR, speed, learning rate and phase times.
+fn step_line(s: &assist_train::StepStats) -> serde_json::Value {
+    let step_s = s.phase.total();
+    let phases: serde_json::Map<String, serde_json::Value> = s.phase.named()[..6]
+        .iter()
+        .map(|(n, t)| (format!("{n}_ms"), (t * 1e3).into()))
+        .collect();
+    serde_json::json!({
+        "kind": "step",
+        "iteration": s.iteration,
+        "elapsed": s.elapsed,
+        "loss": s.loss,
+        "psnr": s.psnr,
+        "lr": s.lr,
+        "rays": s.rays,
+        "samples": s.samples,
+        "rays_per_sec": if step_s > 0.0 { s.rays as f64 / step_s } else { 0.0 },
+        "comp_rgb": s.comp_rgb,
+        "bg_rgb": s.bg_rgb,
+        "bg_opacity": s.bg_opacity,
+        "bg_depth": s.bg_depth,
+        "obj_acc": s.obj_acc,
+        "obj_rgb": s.obj_rgb,
+        "obj_share": s.obj_share,
+        "distortion": s.distortion,
+        "phases": phases,
+    })
+}
+
+/// A held-out measurement in words.
+fn held_out_text(h: &assist_session::HeldOut) -> String {
+    format!(
+        "held-out PSNR {:.2} dB, SSIM {:.3} ({} {} view(s), {:.1} s)",
+        h.psnr, h.ssim, h.views, h.split, h.seconds
+    )
+}
+
 pub fn run(a: TrainArgs) -> anyhow::Result<()> {
     let job = TrainJob::new(a.config()?);
     job.validate().map_err(flag_error)?;
+    let mut log = match &a.log {
+        Some(p) => Some(Log::new(p, a.resume, a.force)?),
+        None => None,
+    };
     // Ctrl+C or SIGTERM: stop after the current step and save; a second one quits at once.
     let cancel = job.cancel_handle();
     let _ = ctrlc::set_handler(move || {
@@ -248,11 +373,39 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
             let n: Vec<String> = nodes.iter().map(|(id, l)| format!("{id} {l:?}")).collect();
             eprintln!("nodes: {}", n.join(", "));
         }
+        TrainEvent::HeldOut(h) => {
+            if let Some(l) = log.as_mut() {
+                let mut v = serde_json::to_value(h).unwrap_or_default();
+                v["kind"] = "held_out".into();
+                l.line(v);
+            }
+            if text {
+                let msg = format!(
+                    "it {:>6}  {}{}",
+                    h.iteration,
+                    held_out_text(h),
+                    h.preview
+                        .as_ref()
+                        .map(|p| format!("; preview {}", p.display()))
+                        .unwrap_or_default()
+                );
+                if show {
+                    bar.println(msg);
+                } else {
+                    eprintln!("{msg}");
+                }
+            }
+        }
         TrainEvent::Step {
             stats: s,
             occupancy,
             ..
         } => {
+            if let Some(l) = log.as_mut()
+                && (s.iteration as u64).is_multiple_of(a.log_every)
+            {
+                l.line(step_line(s));
+            }
             bar.set_position((s.progress * 1000.0) as u64);
             bar.set_message(format!(
                 "it {} loss {:.5} psnr {:.2} rays {}",
@@ -300,8 +453,24 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
     bar.finish_and_clear();
     let outcome = outcome.map_err(flag_error)?;
     let report = &outcome.report;
+    if let Some(mut l) = log.take() {
+        l.line(serde_json::json!({
+            "kind": "end",
+            "iteration": report.iterations,
+            "elapsed": report.seconds,
+            "stopped_by": report.stopped_by,
+            "psnr": report.final_stats.psnr,
+            "held_out_psnr": outcome.held_out.as_ref().map(|h| h.psnr),
+            "held_out_ssim": outcome.held_out.as_ref().map(|h| h.ssim),
+        }));
+        if let Some(e) = l.error {
+            anyhow::bail!("--log: writing {} failed: {e}", l.path.display());
+        }
+    }
     if a.json {
-        println!("{}", serde_json::to_string_pretty(report)?);
+        let mut v = serde_json::to_value(report)?;
+        v["held_out"] = serde_json::to_value(&outcome.held_out)?;
+        println!("{}", serde_json::to_string_pretty(&v)?);
     } else if report.cancelled {
         eprintln!(
             "interrupted at iteration {} ({:.1} s): saved {}\ncontinue with: assist train {} --out {} --resume",
@@ -322,12 +491,17 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
             StopReason::Cancelled => "interrupted".to_string(),
         };
         eprintln!(
-            "trained {} iterations in {:.1} s ({why}; {:.0} rays/s, {:.2} M samples/s); last batch PSNR {:.2} dB\nsaved {}",
+            "trained {} iterations in {:.1} s ({why}; {:.0} rays/s, {:.2} M samples/s)\nlast training batch PSNR {:.2} dB; {}\nsaved {}",
             report.iterations,
             report.seconds,
             report.rays_per_sec,
             report.samples_per_sec / 1e6,
             report.final_stats.psnr,
+            match &outcome.held_out {
+                Some(h) => held_out_text(h),
+                None if a.eval_views == 0 => "held-out views not measured (--eval-views 0)".into(),
+                None => "no held-out views (the dataset has no test or val split)".into(),
+            },
             outcome.out.display()
         );
         let per_step = 1e3 / report.iterations.max(1) as f64;
