@@ -21,6 +21,22 @@ pub struct ParseOptions<'a> {
     /// What "it" means before any object is named (e.g. the selected node).
     pub last: Option<InstanceId>,
     pub embedder: Option<&'a dyn TextEmbedder>,
+    /// Scale about the box centre; by default an object is scaled about its resting point
+    /// (the middle of its box's lowest face along the scene's up), so that "make the cone
+    /// twice as big" keeps its base on the table.
+    pub scale_about_center: bool,
+}
+
+/// Where a node rests: the point of its box lowest along `up`, moved under the box centre.
+fn resting_point(node: &assist_core::SceneNode, up: DVec3) -> DVec3 {
+    let up = up.normalize();
+    let c = node.world_from_local.translation;
+    let low = node
+        .world_corners()
+        .iter()
+        .map(|p| p.dot(up))
+        .fold(f64::INFINITY, f64::min);
+    c - up * (c.dot(up) - low)
 }
 
 struct State {
@@ -446,10 +462,17 @@ pub fn resolve(
                             actions.push(Action::new(id, op, c));
                         }
                         Operation::Scale => {
+                            let center = match st.scene.node(id) {
+                                Some(n) if !opts.scale_about_center && !n.is_background() => {
+                                    Some(resting_point(n, st.scene.up).to_array())
+                                }
+                                _ => None,
+                            };
                             let c = ActionConfig {
                                 factor: Some(factor(cmd)?),
                                 axis: p.axis.clone().map(assist_core::AxisSpec::Name),
                                 frame: p.frame_object.then(|| "object".into()),
+                                center,
                                 ..Default::default()
                             };
                             actions.push(Action::new(id, op, c));

@@ -320,9 +320,14 @@ fn instruction_table() {
     );
     let s = scene();
     let mut failures = Vec::new();
+    // The table is about words; where a scale keeps the object is tested below.
+    let opts = ParseOptions {
+        scale_about_center: true,
+        ..Default::default()
+    };
     for (text, spec) in TABLE {
         let want = expected(spec);
-        match parse(text, &s, &ParseOptions::default(), &mut Other) {
+        match parse(text, &s, &opts, &mut Other) {
             Ok(actions) => {
                 let got: Vec<Value> = actions
                     .iter()
@@ -490,4 +495,28 @@ fn embeddings_resolve_what_labels_do_not() {
         ),
         Err(LangError::UnknownObject { .. })
     ));
+}
+
+/// By default a scale keeps the object's resting point (the middle of its box's lowest
+/// face), after the instruction's earlier moves.
+#[test]
+fn a_scale_in_words_is_about_the_resting_point() {
+    let s = scene();
+    let a = parse(
+        "move the mug up 3 cm and make it twice as big",
+        &s,
+        &ParseOptions::default(),
+        &mut Other,
+    )
+    .unwrap();
+    let mug = s.node(3).unwrap();
+    let low = mug
+        .world_corners()
+        .iter()
+        .map(|c| c.dot(s.up.normalize()))
+        .fold(f64::INFINITY, f64::min);
+    let c = a[1].config.center.expect("a pivot");
+    let t = mug.world_from_local.translation;
+    assert!((c[0] - t.x).abs() < 1e-9 && (c[1] - t.y).abs() < 1e-9, "{c:?}");
+    assert!((c[2] - (low + 0.03)).abs() < 1e-9, "{c:?} vs lowest {low}");
 }

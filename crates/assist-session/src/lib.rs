@@ -93,6 +93,17 @@ pub struct Session {
     editor: Editor,
 }
 
+/// What an instruction's scale keeps in place.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Pivot {
+    /// The object's resting point: the middle of its box's lowest face (it stays on its
+    /// support).
+    #[default]
+    Base,
+    /// The box centre.
+    Center,
+}
+
 impl Session {
     /// Opens a `NAME.assist` scene with its history.
     pub fn open(path: &Path) -> Result<Self> {
@@ -164,10 +175,21 @@ impl Session {
     /// `view` makes left/right/forward relative to that camera; "it" before any object is
     /// named means the selected node.
     pub fn resolve(&mut self, text: &str, view: Option<&Camera>) -> Result<Resolved> {
+        self.resolve_with(text, view, Pivot::Base)
+    }
+
+    /// [`resolve`](Self::resolve), choosing what a scale in words keeps in place.
+    pub fn resolve_with(
+        &mut self,
+        text: &str,
+        view: Option<&Camera>,
+        pivot: Pivot,
+    ) -> Result<Resolved> {
         let opts = assist_lang::ParseOptions {
             camera: view.map(|c| c.pose.rotation()),
             last: self.editor.scene.scene.selected,
             embedder: None,
+            scale_about_center: pivot == Pivot::Center,
         };
         let taken = self.editor.taken();
         Ok(assist_lang::resolve_text(

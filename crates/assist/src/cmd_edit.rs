@@ -51,6 +51,10 @@ pub struct EditArgs {
     /// The camera's frame name in --camera.
     #[arg(long, value_name = "NAME")]
     pub frame: Option<String>,
+    /// What a scale in words keeps in place: base (the object's resting point, so it
+    /// stays on its support) or center (its box centre).
+    #[arg(long, default_value = "base", value_parser = ["base", "center"])]
+    pub pivot: String,
     /// Ask the LLM provider set by ASSIST_LLM_URL / ASSIST_LLM_MODEL / ASSIST_LLM_API_KEY
     /// instead of the built-in parser (its answer is validated the same way).
     #[arg(long)]
@@ -297,7 +301,12 @@ pub fn run(a: EditArgs) -> anyhow::Result<()> {
             note = Some(format!("{text} (LLM)"));
         } else {
             let view = camera(&a)?;
-            resolved = Some(session.resolve(text, view.as_ref())?);
+            let pivot = if a.pivot == "center" {
+                assist_session::Pivot::Center
+            } else {
+                assist_session::Pivot::Base
+            };
+            resolved = Some(session.resolve_with(text, view.as_ref(), pivot)?);
             note = Some(text.clone());
         }
     } else if let Some(f) = &a.actions {

@@ -326,3 +326,69 @@ fn one_instruction_is_one_undo_step_with_its_words() {
     assert!(ok, "{err}");
     assert_eq!(nodes(&e), nodes(&a));
 }
+
+/// "make the duck twice as big" keeps its resting point: the box's lowest point along up
+/// stays where it was (it does not sink into the table); `--pivot center` keeps the box
+/// centre instead.
+#[test]
+fn scaling_in_words_keeps_the_object_on_its_support() {
+    let tmp = assist_testkit::TempDir::new("cli-scale-base");
+    let a = tmp.path().join("a.assist");
+    write_scene(&a);
+    let node = |p: &Path, id: u64| -> assist_core::SceneNode {
+        let v: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(p.join("scene.json")).unwrap()).unwrap();
+        let n = v["nodes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|n| n["id"] == id)
+            .unwrap()
+            .clone();
+        serde_json::from_value(n).unwrap()
+    };
+    let up = {
+        let v: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(a.join("scene.json")).unwrap()).unwrap();
+        let u: [f64; 3] = serde_json::from_value(v["up"].clone()).unwrap();
+        assist_core::DVec3::from(u).normalize()
+    };
+    let low = |n: &assist_core::SceneNode| {
+        n.world_corners()
+            .iter()
+            .map(|c| c.dot(up))
+            .fold(f64::INFINITY, f64::min)
+    };
+    let duck = node(&a, 1);
+    let (b, c) = (tmp.path().join("b.assist"), tmp.path().join("c.assist"));
+    let text = "make the duck twice as big";
+    let (ok, _, err) = assist(&["edit", s(&a), "--do", text, "--out", s(&b)]);
+    assert!(ok, "{err}");
+    let big = node(&b, 1);
+    assert!((big.world_from_local.scale.x - 2.0).abs() < 1e-9);
+    assert!(
+        (low(&big) - low(&duck)).abs() < 1e-9,
+        "the base moved from {} to {}",
+        low(&duck),
+        low(&big)
+    );
+    let (ok, _, err) = assist(&[
+        "edit",
+        s(&a),
+        "--do",
+        text,
+        "--pivot",
+        "center",
+        "--out",
+        s(&c),
+    ]);
+    assert!(ok, "{err}");
+    let centred = node(&c, 1);
+    assert!(
+        (centred.world_from_local.translation - duck.world_from_local.translation).length() < 1e-9
+    );
+    assert!(
+        low(&centred) < low(&duck) - 1e-3,
+        "about the centre the base sinks"
+    );
+}
