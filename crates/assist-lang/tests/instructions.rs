@@ -517,6 +517,9 @@ fn a_scale_in_words_is_about_the_resting_point() {
         .fold(f64::INFINITY, f64::min);
     let c = a[1].config.center.expect("a pivot");
     let t = mug.world_from_local.translation;
-    assert!((c[0] - t.x).abs() < 1e-9 && (c[1] - t.y).abs() < 1e-9, "{c:?}");
+    assert!(
+        (c[0] - t.x).abs() < 1e-9 && (c[1] - t.y).abs() < 1e-9,
+        "{c:?}"
+    );
     assert!((c[2] - (low + 0.03)).abs() < 1e-9, "{c:?} vs lowest {low}");
 }

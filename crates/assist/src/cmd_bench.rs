@@ -28,6 +28,7 @@ pub struct PriorBenchArgs {
     /// Views to fill: train, val, test or all (those with a background/ view count).
     #[arg(long, default_value = "test")]
     pub split: String,
+    /// Print the figures as JSON on stdout.
     #[arg(long)]
     pub json: bool,
 }
@@ -37,6 +38,7 @@ pub struct FieldBenchArgs {
     /// Rays per batch (samples = rays × samples-per-ray).
     #[arg(long, default_value_t = 4096)]
     pub rays: usize,
+    /// Samples along each ray.
     #[arg(long, default_value_t = 64)]
     pub samples_per_ray: usize,
     /// Timed steps (after 2 warm-up steps); the median is reported.
@@ -45,6 +47,7 @@ pub struct FieldBenchArgs {
     /// Only the Nerfacto-size field.
     #[arg(long)]
     pub nerfacto_only: bool,
+    /// Print the figures as JSON on stdout.
     #[arg(long)]
     pub json: bool,
 }

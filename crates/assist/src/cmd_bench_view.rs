@@ -19,9 +19,10 @@ pub struct ViewBenchArgs {
     /// Dataset whose first training camera is the view (default: an orbit camera).
     #[arg(long)]
     pub data: Option<PathBuf>,
-    /// Full frame size, as the viewer renders it.
+    /// Full frame width, pixels, as the viewer renders it.
     #[arg(long, default_value_t = 480)]
     pub width: u32,
+    /// Full frame height, pixels.
     #[arg(long, default_value_t = 360)]
     pub height: u32,
     /// Frames timed per measure (the median is reported).

@@ -27,10 +27,11 @@ pub struct DemoArgs {
     /// Output folder.
     #[arg(long, default_value = "assist-demo")]
     pub out: PathBuf,
+    /// Seed of the built-in scene and of training.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Training time of the main scene, seconds.
-    #[arg(long, default_value_t = 110.0)]
+    #[arg(long, visible_alias = "max-time", default_value_t = 110.0)]
     pub train_seconds: f64,
     /// Training time of the second scene (the source of the inserted object), seconds.
     #[arg(long, default_value_t = 30.0)]

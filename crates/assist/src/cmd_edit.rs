@@ -31,7 +31,8 @@ pub struct EditArgs {
     /// exit.
     #[arg(long)]
     pub history: bool,
-    /// Where to save the edited scene.
+    /// Where to save the edited scene (the scene itself, with --force, edits in place).
+    /// Refused if it exists, unless --force.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Print the resolved actions (with --undo/--redo: the steps and what they would
@@ -45,8 +46,9 @@ pub struct EditArgs {
     /// edit in place).
     #[arg(long)]
     pub force: bool,
-    /// Interpret left/right/forward/back relative to this dataset's camera (with --frame).
-    #[arg(long, value_name = "DATA")]
+    /// Interpret left/right/forward/back relative to a camera of this dataset (with
+    /// --frame; also given as --data).
+    #[arg(long, visible_alias = "data", value_name = "DATA")]
     pub camera: Option<PathBuf>,
     /// The camera's frame name in --camera.
     #[arg(long, value_name = "NAME")]

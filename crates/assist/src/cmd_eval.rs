@@ -14,6 +14,7 @@ pub struct EvalArgs {
     /// Dataset with the cameras and ground truth.
     #[arg(long)]
     pub data: PathBuf,
+    /// The split to measure: test, val, train or all.
     #[arg(long, default_value = "test")]
     pub split: String,
     /// Evaluate every N-th frame of the split.
@@ -22,6 +23,8 @@ pub struct EvalArgs {
     /// Evaluate with the images N times smaller (default: as the scene was trained).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downscale: Option<u32>,
+    /// Print the report as JSON on stdout (with per-image and per-instance figures);
+    /// without it the report goes to stderr as text.
     #[arg(long)]
     pub json: bool,
 }
@@ -62,11 +65,11 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);
     } else {
-        println!(
+        eprintln!(
             "{} images of split {} in {:.1} s",
             r.images, r.split, r.seconds
         );
-        println!("PSNR {:.2} dB  SSIM {:.4}", r.psnr, r.ssim);
+        eprintln!("PSNR {:.2} dB  SSIM {:.4}", r.psnr, r.ssim);
         if let Some(m) = r.panoptic_miou {
             let per: Vec<String> = r
                 .panoptic_iou
@@ -74,16 +77,16 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
                 .flatten()
                 .map(|(id, v)| format!("{id}: {v:.3}"))
                 .collect();
-            println!("panoptic mIoU {m:.4} (per instance {})", per.join(", "));
+            eprintln!("panoptic mIoU {m:.4} (per instance {})", per.join(", "));
         }
         if let Some(b) = r.background_psnr {
-            println!("background PSNR {b:.2} dB (all pixels)");
+            eprintln!("background PSNR {b:.2} dB (all pixels)");
         }
         if let Some(b) = r.background_occluded_psnr {
-            println!("background PSNR {b:.2} dB (pixels covered by objects)");
+            eprintln!("background PSNR {b:.2} dB (pixels covered by objects)");
         }
         if let Some(e) = r.background_depth_error {
-            println!(
+            eprintln!(
                 "background depth error {:.1}% (median |rendered - true| / true)",
                 100.0 * e
             );

@@ -56,6 +56,7 @@ pub enum GenerateCommand {
         /// Merge the samples present even if some are missing.
         #[arg(long)]
         partial: bool,
+        /// Print a JSON summary of the merged files on stdout.
         #[arg(long)]
         json: bool,
     },

@@ -19,10 +19,13 @@ use clap::Args;
 pub struct RenderArgs {
     /// Trained scene directory.
     pub scene: PathBuf,
+    /// The new dataset's folder (RGB, depth, labels, transforms.json). Refused if it
+    /// exists, unless --force.
     #[arg(long)]
     pub out: PathBuf,
-    /// Cameras: a dataset (directory), a transforms.json, or `orbit`.
-    #[arg(long, default_value = "orbit")]
+    /// Cameras: a dataset (directory; also given as --data), a transforms.json, or
+    /// `orbit` (a ring of views around the objects, see --frames and --size).
+    #[arg(long, visible_alias = "data", default_value = "orbit")]
     pub cameras: String,
     /// Dataset split to render (train, val, test, all, or auto: the test split when the
     /// dataset declares its split — split.json, *_filenames, Blender's files — else every
@@ -43,7 +46,7 @@ pub struct RenderArgs {
     #[arg(long)]
     pub no_highlight: bool,
     /// Orbit: number of views.
-    #[arg(long, default_value_t = 24)]
+    #[arg(long, visible_alias = "views", default_value_t = 24)]
     pub frames: usize,
     /// Orbit: image size WxH.
     #[arg(long, default_value = "480x360")]
@@ -57,11 +60,16 @@ pub struct RenderArgs {
     /// Orbit: distance from the centre in world units (default: frames the objects).
     #[arg(long)]
     pub radius: Option<f64>,
+    /// Replace --out if assist wrote it (a folder assist did not write is never
+    /// replaced).
     #[arg(long)]
     pub force: bool,
+    /// Print a JSON summary (views, folder, outputs) on stdout.
+    #[arg(long)]
+    pub json: bool,
 }
 
-fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
+pub(crate) fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
     let (w, h) = s
         .split_once(['x', 'X'])
         .with_context(|| format!("--size: expected WxH such as 480x360, got {s:?}"))?;
@@ -155,6 +163,18 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
             other => other.into(),
         })?;
     bar.finish_and_clear();
-    eprintln!("rendered {} views into {}", done.views, done.out.display());
+    if a.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&serde_json::json!({
+                "views": done.views,
+                "out": done.out,
+                "outputs": a.outputs.split(',').map(str::trim).collect::<Vec<_>>(),
+                "highlight": select,
+            }))?
+        );
+    } else {
+        eprintln!("rendered {} views into {}", done.views, done.out.display());
+    }
     Ok(())
 }

@@ -11,15 +11,21 @@ pub struct SynthArgs {
     /// Output folder (desk format). Refused if it exists and is not empty, unless --force.
     #[arg(long)]
     pub out: PathBuf,
+    /// Seed of the scene's layout, textures and cameras.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Number of camera views (one in six is a test view).
-    #[arg(long, default_value_t = 60)]
+    #[arg(long, visible_alias = "frames", default_value_t = 60)]
     pub views: usize,
+    /// Image width, pixels.
     #[arg(long, default_value_t = 128)]
     pub width: u32,
+    /// Image height, pixels.
     #[arg(long, default_value_t = 96)]
     pub height: u32,
+    /// Image size WxH in pixels (instead of --width and --height).
+    #[arg(long, value_name = "WxH", conflicts_with_all = ["width", "height"])]
+    pub size: Option<String>,
     /// Number of objects on the table (3 to 6).
     #[arg(long, default_value_t = 5)]
     pub objects: usize,
@@ -38,21 +44,25 @@ pub struct SynthArgs {
 }
 
 impl SynthArgs {
-    pub fn config(&self) -> SynthConfig {
-        SynthConfig {
+    pub fn config(&self) -> anyhow::Result<SynthConfig> {
+        let (width, height) = match &self.size {
+            Some(s) => crate::cmd_render::parse_size(s)?,
+            None => (self.width, self.height),
+        };
+        Ok(SynthConfig {
             seed: self.seed,
             views: self.views,
-            width: self.width,
-            height: self.height,
+            width,
+            height,
             objects: self.objects,
             spp: self.spp,
             shadow_samples: self.shadow_samples,
-        }
+        })
     }
 }
 
 pub fn run(a: SynthArgs) -> anyhow::Result<()> {
-    let summary = synth(&a.config(), &a.out, a.force, !a.json)?;
+    let summary = synth(&a.config()?, &a.out, a.force, !a.json)?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     }

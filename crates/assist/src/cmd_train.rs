@@ -13,12 +13,23 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 #[derive(Args, Debug)]
 pub struct TrainArgs {
-    /// Dataset (any supported format).
-    pub data: PathBuf,
+    /// Dataset (any supported format: desk, nerfstudio, Blender, COLMAP, LLFF); also
+    /// given as --data.
+    #[arg(required_unless_present = "data_flag")]
+    pub data: Option<PathBuf>,
+    /// The dataset, as every other command takes it.
+    #[arg(
+        long = "data",
+        id = "data_flag",
+        value_name = "DATA",
+        conflicts_with = "data"
+    )]
+    pub data_flag: Option<PathBuf>,
     /// Output scene directory (NAME.assist). Refused if it exists, unless --force.
     #[arg(long)]
     pub out: PathBuf,
-    /// Iterations to train in all (a resumed run continues up to this count).
+    /// Iterations to train in all (a resumed run continues up to this count); --max-time
+    /// may end the run first.
     #[arg(long, default_value_t = TrainConfig::default().iters)]
     pub iters: usize,
     /// Stop after this many seconds (the learning-rate schedule then runs on time). With
@@ -128,6 +139,14 @@ pub struct TrainArgs {
 }
 
 impl TrainArgs {
+    /// The dataset, positional or --data.
+    pub fn dataset(&self) -> &std::path::Path {
+        self.data
+            .as_deref()
+            .or(self.data_flag.as_deref())
+            .unwrap_or(std::path::Path::new(""))
+    }
+
     /// The command line as a job configuration.
     pub fn config(&self) -> anyhow::Result<TrainConfig> {
         let background = BackgroundSpace::parse(&self.background).with_context(|| {
@@ -150,7 +169,7 @@ impl TrainArgs {
             )
         })?;
         Ok(TrainConfig {
-            data: self.data.clone(),
+            data: self.dataset().to_path_buf(),
             out: self.out.clone(),
             iters: self.iters,
             max_time: self.max_time,
@@ -325,7 +344,7 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
     );
     let verbose = !a.json && !show;
     let text = !a.json;
-    let data = a.data.display().to_string();
+    let data = a.dataset().display().to_string();
     let outcome = job.run(|ev| match ev {
         TrainEvent::Loading { images, data } if text => {
             eprintln!("loading {images} training images from {} …", data.display());
@@ -477,7 +496,7 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
             report.iterations,
             report.seconds,
             outcome.out.display(),
-            a.data.display(),
+            a.dataset().display(),
             outcome.out.display()
         );
     } else {

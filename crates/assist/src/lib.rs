@@ -42,7 +42,8 @@ pub enum Command {
         #[command(subcommand)]
         command: cmd_dataset::DatasetCommand,
     },
-    /// Generate a built-in multi-object tabletop scene (desk format, perfect ground truth).
+    /// Generate a built-in multi-object tabletop scene in desk format (nerfstudio
+    /// transforms.json with depth, instance masks and object boxes; docs/formats.md).
     Synth(cmd_synth::SynthArgs),
     /// Run the main job on the built-in default scene (no downloads).
     Demo(cmd_demo::DemoArgs),
@@ -57,7 +58,8 @@ pub enum Command {
     Eval(cmd_eval::EvalArgs),
     /// Edit a trained scene: plain-language instructions, action scripts, undo/redo.
     Edit(cmd_edit::EditArgs),
-    /// Render a trained scene from a dataset's cameras into a new labelled dataset.
+    /// Render a trained scene into a new labelled dataset, from a dataset's cameras, a
+    /// transforms.json or an orbit.
     Render(cmd_render::RenderArgs),
     /// Make many randomized, plausible, labelled variations of trained scenes (shardable).
     Generate(cmd_generate::GenerateArgs),
@@ -97,5 +99,37 @@ pub fn run_from_env() -> ExitCode {
             }
             ExitCode::FAILURE
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::CommandFactory;
+
+    /// Every flag and argument of every command says what it is (issue 19).
+    #[test]
+    fn every_argument_has_a_help_line() {
+        fn walk(cmd: &clap::Command, path: &str, missing: &mut Vec<String>) {
+            for a in cmd.get_arguments() {
+                if a.is_hide_set() || matches!(a.get_id().as_str(), "help" | "version") {
+                    continue;
+                }
+                if a.get_help().is_none() && a.get_long_help().is_none() {
+                    missing.push(format!("{path} {}", a.get_id()));
+                }
+            }
+            for sub in cmd.get_subcommands() {
+                if sub.get_name() == "help" {
+                    continue;
+                }
+                if sub.get_about().is_none() {
+                    missing.push(format!("{path} {} (no description)", sub.get_name()));
+                }
+                walk(sub, &format!("{path} {}", sub.get_name()), missing);
+            }
+        }
+        let mut missing = Vec::new();
+        walk(&super::Cli::command(), "assist", &mut missing);
+        assert!(missing.is_empty(), "no help line: {missing:#?}");
     }
 }

@@ -1,0 +1,128 @@
+//! One command-line grammar (issue 19): the dataset is `--data` wherever one is taken,
+//! sizes are `--size WxH`, objects are taken by id or name, every command has `--json`
+//! with machine output on stdout while human reports go to stderr.
+
+mod common;
+
+use common::{ok, run, s, tiny_scene};
+
+#[test]
+fn the_dataset_is_data_the_report_goes_to_stderr_and_json_to_stdout() {
+    let tmp = assist_testkit::TempDir::new("cli-grammar");
+    let (data, scene) = tiny_scene(tmp.path());
+
+    // eval: text on stderr, nothing on stdout; --json on stdout.
+    let out = run(&["eval", s(&scene), "--data", s(&data)]);
+    let err = ok(&out);
+    assert!(
+        out.stdout.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    assert!(err.contains("PSNR"), "{err}");
+    let out = run(&["eval", s(&scene), "--data", s(&data), "--json"]);
+    ok(&out);
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(v["psnr"].is_number(), "{v}");
+
+    // render: --data names the dataset, --select takes a name, --json on stdout.
+    let r = tmp.path().join("r");
+    let out = run(&[
+        "render",
+        s(&scene),
+        "--data",
+        s(&data),
+        "--split",
+        "test",
+        "--select",
+        "ball",
+        "--out",
+        s(&r),
+        "--json",
+    ]);
+    ok(&out);
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(v["views"].as_u64().unwrap() >= 1, "{v}");
+    assert_eq!(v["highlight"], 2, "the ball is node 2: {v}");
+    assert!(r.join("transforms.json").is_file());
+
+    // train: the dataset as --data too, but not twice.
+    let t = tmp.path().join("t.assist");
+    ok(&run(&[
+        "train",
+        "--data",
+        s(&data),
+        "--out",
+        s(&t),
+        "--iters",
+        "1",
+        "--batch-samples",
+        "4096",
+        "--eval-views",
+        "0",
+    ]));
+    let o = run(&[
+        "train",
+        s(&data),
+        "--data",
+        s(&data),
+        "--out",
+        s(&tmp.path().join("t2.assist")),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("--data"), "{err}");
+
+    // edit: directions relative to a camera of --data.
+    let frame = {
+        let t: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(data.join("transforms.json")).unwrap()).unwrap();
+        let p = t["frames"][0]["file_path"].as_str().unwrap().to_string();
+        std::path::Path::new(&p)
+            .file_stem()
+            .unwrap()
+            .to_string_lossy()
+            .to_string()
+    };
+    let out = run(&[
+        "edit",
+        s(&scene),
+        "--data",
+        s(&data),
+        "--frame",
+        &frame,
+        "--do",
+        "move the ball 1 cm left",
+        "--dry-run",
+        "--json",
+    ]);
+    ok(&out);
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v[0]["operation"], "translate", "{v}");
+
+    // synth: --size WxH.
+    let sz = tmp.path().join("sz");
+    let out = run(&[
+        "synth",
+        "--out",
+        s(&sz),
+        "--size",
+        "40x30",
+        "--views",
+        "6",
+        "--objects",
+        "3",
+        "--json",
+    ]);
+    ok(&out);
+    let img = image::open(
+        sz.join("images")
+            .read_dir()
+            .unwrap()
+            .next()
+            .unwrap()
+            .unwrap()
+            .path(),
+    )
+    .unwrap();
+    assert_eq!((img.width(), img.height()), (40, 30));
+}
