@@ -53,6 +53,10 @@ pub struct EditArgs {
     /// The camera's frame name in --camera.
     #[arg(long, value_name = "NAME")]
     pub frame: Option<String>,
+    /// Refuse an edit that takes an object out of the captured region (the background's
+    /// box) instead of warning about it.
+    #[arg(long)]
+    pub strict: bool,
     /// What a scale in words keeps in place: base (the object's resting point, so it
     /// stays on its support) or center (its box centre).
     #[arg(long, default_value = "base", value_parser = ["base", "center"])]
@@ -189,6 +193,103 @@ fn scene_changes(from: &Scene, to: &Scene) -> Vec<serde_json::Value> {
     out
 }
 
+/// Objects an edit takes out of the captured region: their box centre seen by none of
+/// the training cameras (in front of it, inside its image), or a box corner more than
+/// 1 cm outside the background node's box — where it was inside before (or is new).
+/// Without the training cameras (the dataset moved) only the background's box counts.
+fn leaving_capture(before: &Scene, after: &Scene, cams: &[assist_core::Camera]) -> Vec<String> {
+    let tol = 0.01 / after.meters_per_unit.max(1e-12);
+    let bg = after.nodes.iter().find(|n| n.is_background());
+    // How far outside the background's box (world units), and whether any view sees it.
+    let state = |n: &assist_core::SceneNode| -> (f64, bool) {
+        let out = bg.map_or(0.0, |bg| {
+            let inv = &bg.world_from_local;
+            n.world_corners()
+                .iter()
+                .map(|c| {
+                    let l = inv.local_from_world_point(*c);
+                    let d = (l.abs() - bg.half_size).max(assist_core::DVec3::ZERO);
+                    d.length() * inv.scale.x
+                })
+                .fold(0.0, f64::max)
+        });
+        let c = n.world_from_local.translation;
+        let seen = cams.is_empty()
+            || cams.iter().any(|cam| {
+                cam.project(c).is_some_and(|(p, _)| {
+                    (0.0..cam.width() as f64).contains(&p.x)
+                        && (0.0..cam.height() as f64).contains(&p.y)
+                })
+            });
+        (out, seen)
+    };
+    let mut warnings = Vec::new();
+    for n in after.nodes.iter().filter(|n| !n.is_background()) {
+        let was = before.nodes.iter().find(|b| b.id == n.id).map(state);
+        let (out, seen) = state(n);
+        let (was_out, was_seen) = was.unwrap_or((0.0, true));
+        if out > tol && was_out <= tol {
+            warnings.push(format!(
+                "node {} {:?} would stand {:.2} m outside the captured region (the background's box): what it shows there was never seen",
+                n.id,
+                n.label,
+                out * after.meters_per_unit
+            ));
+        } else if !seen && was_seen {
+            warnings.push(format!(
+                "node {} {:?} would stand where no training camera looked (its centre is in none of the {} training views): the background around it was never seen",
+                n.id,
+                n.label,
+                cams.len()
+            ));
+        }
+    }
+    warnings
+}
+
+/// Objects leaving the captured region: a warning on stderr, or under `--strict` a
+/// refusal before anything changes.
+fn check_region(
+    a: &EditArgs,
+    session: &mut Session,
+    resolved: Option<&Resolved>,
+    actions: &[Action],
+) -> anyhow::Result<()> {
+    let before = session.description().clone();
+    let after = match resolved {
+        Some(r) => r.scenes.last().cloned(),
+        None => {
+            let mut sc = before.clone();
+            for e in &session.plan(actions)? {
+                assist_core::edit::apply(&mut sc, e)?;
+            }
+            Some(sc)
+        }
+    };
+    // The training cameras, when the scene names a dataset that is still there.
+    let cams: Vec<assist_core::Camera> = session
+        .info()
+        .get("dataset")
+        .and_then(|d| d.as_str())
+        .map(std::path::PathBuf::from)
+        .filter(|d| d.exists())
+        .and_then(|d| {
+            assist_session::dataset_cameras(&d, assist_session::SplitChoice::Train, 1).ok()
+        })
+        .map(|v| v.into_iter().map(|n| n.camera).collect())
+        .unwrap_or_default();
+    let warnings = after
+        .map(|after| leaving_capture(&before, &after, &cams))
+        .unwrap_or_default();
+    if a.strict && !warnings.is_empty() {
+        bail!("--strict: {}", warnings.join("; "));
+    }
+    for w in &warnings {
+        eprintln!("warning: {w}");
+    }
+    Ok(())
+}
+
 /// `--history`: the steps to undo (oldest first) and to redo (the next redo first).
 fn print_history(session: &Session, json: bool) -> anyhow::Result<()> {
     let h = session.history();
@@ -323,6 +424,7 @@ pub fn run(a: EditArgs) -> anyhow::Result<()> {
         return preview_steps(&session, undo, n, a.json);
     }
     if a.dry_run {
+        check_region(&a, &mut session, resolved.as_ref(), &actions)?;
         let edits = match resolved {
             Some(r) => r.edits,
             None => session.plan(&actions)?,
@@ -355,6 +457,7 @@ pub fn run(a: EditArgs) -> anyhow::Result<()> {
             }
         }
     } else {
+        check_region(&a, &mut session, resolved.as_ref(), &actions)?;
         // One instruction (or one edit script) is one undo step.
         let edits = match resolved {
             Some(r) => session.install(r, Steps::One, note)?,

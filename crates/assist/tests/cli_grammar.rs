@@ -99,6 +99,30 @@ fn the_dataset_is_data_the_report_goes_to_stderr_and_json_to_stdout() {
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v[0]["operation"], "translate", "{v}");
 
+    // An object moved where the capture never looked: a warning, or under --strict a
+    // refusal that writes nothing.
+    let far = "move the ball 1 m up";
+    let out = run(&["edit", s(&scene), "--do", far, "--dry-run"]);
+    let err = ok(&out);
+    assert!(
+        err.contains("warning") && err.contains("captured region"),
+        "{err}"
+    );
+    let e = tmp.path().join("e.assist");
+    let out = run(&["edit", s(&scene), "--do", far, "--strict", "--out", s(&e)]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--strict"), "{err}");
+    assert!(!e.exists());
+    let out = run(&[
+        "edit",
+        s(&scene),
+        "--do",
+        "move the ball 1 cm left",
+        "--dry-run",
+    ]);
+    let err = ok(&out);
+    assert!(!err.contains("warning"), "{err}");
+
     // synth: --size WxH.
     let sz = tmp.path().join("sz");
     let out = run(&[
