@@ -30,6 +30,10 @@ pub struct NodeField {
     /// Contracted nodes: the step beyond the box, in contracted units (half an occupancy
     /// cell).
     pub contracted_step: f32,
+    /// The file these weights were read from, if any: a scene saved with the same bytes
+    /// links that file instead of writing them again (checked byte for byte, so weights
+    /// changed since are written).
+    pub origin: Option<std::path::PathBuf>,
 }
 
 impl NodeField {
@@ -70,6 +74,7 @@ impl NodeField {
             cone: DEFAULT_CONE,
             space,
             contracted_step,
+            origin: None,
         }
     }
 }

@@ -121,7 +121,7 @@ pub fn save_with_history(
                 format!("no weights loaded for field key {key:?}"),
             )
         })?;
-        assist_field::io::save(&field_path(&tmp, key), &nf.field, Some(&nf.occupancy))?;
+        write_field(&field_path(&tmp, key), nf)?;
     }
     if !history.is_empty() {
         let text = serde_json::to_string(history)
@@ -141,6 +141,25 @@ pub fn save_with_history(
     std::fs::write(&p, text).map_err(io(&p))?;
     staging.commit()?;
     Ok(())
+}
+
+/// Writes a node's weights to `dest`, or hard-links the file they were read from when it
+/// holds exactly these bytes: an edit that moves nodes writes kilobytes, not the weights
+/// again. A link is a second name for the same file, so deleting either scene leaves the
+/// other whole.
+fn write_field(dest: &Path, nf: &NodeField) -> Result<(), SceneFileError> {
+    let bytes = assist_field::io::to_bytes(&nf.field, Some(&nf.occupancy))?;
+    if let Some(origin) = &nf.origin
+        && std::fs::metadata(origin).is_ok_and(|m| m.len() == bytes.len() as u64)
+        && std::fs::read(origin).is_ok_and(|b| b == bytes)
+        && std::fs::hard_link(origin, dest).is_ok()
+    {
+        return Ok(());
+    }
+    std::fs::write(dest, &bytes).map_err(|e| SceneFileError::Io {
+        path: dest.to_path_buf(),
+        source: e,
+    })
 }
 
 /// Parses and validates a `history.json` (every snapshot as a scene file must hold it);
@@ -258,7 +277,9 @@ pub fn load_field(
     }
     let (field, occ) = assist_field::io::load(&fp)?;
     let occ = occ.unwrap_or_else(|| assist_field::OccupancyGrid::new(64));
-    Ok(NodeField::with_space(field, occ, half, space))
+    let mut nf = NodeField::with_space(field, occ, half, space);
+    nf.origin = Some(fp);
+    Ok(nf)
 }
 
 fn read_scene_json(file: &Path) -> Result<(Scene, serde_json::Value), SceneFileError> {

@@ -392,3 +392,42 @@ fn scaling_in_words_keeps_the_object_on_its_support() {
         "about the centre the base sinks"
     );
 }
+
+/// An edit of poses shares the weights on disk: each field file of the edited scene is the
+/// original's file under a second name (a hard link), and deleting the original leaves
+/// the edited scene whole.
+#[cfg(unix)]
+#[test]
+fn edits_share_weights_on_disk_and_survive_the_original() {
+    use std::os::unix::fs::MetadataExt;
+    let tmp = assist_testkit::TempDir::new("cli-shared-fields");
+    let (a, b) = (tmp.path().join("a.assist"), tmp.path().join("b.assist"));
+    write_scene(&a);
+    let (ok, _, err) = assist(&[
+        "edit",
+        s(&a),
+        "--do",
+        "move the mug 5 cm left",
+        "--out",
+        s(&b),
+    ]);
+    assert!(ok, "{err}");
+    let fields: Vec<PathBuf> = std::fs::read_dir(a.join("fields"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert!(!fields.is_empty());
+    for f in &fields {
+        let g = b.join("fields").join(f.file_name().unwrap());
+        let (mf, mg) = (
+            std::fs::metadata(f).unwrap(),
+            std::fs::metadata(&g).unwrap(),
+        );
+        assert_eq!(mf.ino(), mg.ino(), "{} was written again", g.display());
+    }
+    let before = snapshot(&b);
+    std::fs::remove_dir_all(&a).unwrap();
+    assert_eq!(snapshot(&b), before);
+    let (ok, _, err) = assist(&["edit", s(&b), "--do", "delete the mug", "--dry-run"]);
+    assert!(ok, "the edited scene no longer loads: {err}");
+}
