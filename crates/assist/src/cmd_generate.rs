@@ -41,6 +41,10 @@ pub struct GenerateArgs {
     /// Replace an --out that assist generated from another spec.
     #[arg(long)]
     pub force: bool,
+    /// Read flags from a TOML file (keys are the long flag names; flags on the command
+    /// line win).
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
     /// Print a JSON summary on stdout (progress stays on stderr).
     #[arg(long)]
     pub json: bool,

@@ -64,6 +64,10 @@ pub struct RenderArgs {
     /// replaced).
     #[arg(long)]
     pub force: bool,
+    /// Read flags from a TOML file (keys are the long flag names; flags on the command
+    /// line win).
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
     /// Print a JSON summary (views, folder, outputs) on stdout.
     #[arg(long)]
     pub json: bool,

@@ -130,6 +130,14 @@ pub struct TrainArgs {
     /// Iterations between the log's "step" lines.
     #[arg(long, value_name = "N", default_value_t = 50, value_parser = clap::value_parser!(u64).range(1..))]
     pub log_every: u64,
+    /// Read flags from a TOML file (keys are the long flag names; flags on the command
+    /// line win).
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Print the whole configuration (every flag, defaults included) as TOML for
+    /// --config, and exit.
+    #[arg(long)]
+    pub print_config: bool,
     /// Print one JSON object (the report) on stdout instead of text on stderr.
     #[arg(long)]
     pub json: bool,

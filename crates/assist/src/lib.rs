@@ -22,6 +22,7 @@ mod cmd_scene;
 mod cmd_synth;
 mod cmd_train;
 mod cmd_view;
+mod config;
 mod progress;
 
 #[derive(Parser, Debug)]
@@ -89,7 +90,23 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 }
 
 pub fn run_from_env() -> ExitCode {
-    let cli = Cli::parse();
+    use clap::{CommandFactory, FromArgMatches};
+    let argv = match config::expand(std::env::args_os().collect()) {
+        Ok(v) => v,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let m = Cli::command().get_matches_from(argv);
+    let cli = Cli::from_arg_matches(&m).unwrap_or_else(|e| e.exit());
+    if let Command::Train(a) = &cli.command
+        && a.print_config
+        && let Some(tm) = m.subcommand_matches("train")
+    {
+        print!("{}", config::print("train", tm));
+        return ExitCode::SUCCESS;
+    }
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -150,3 +150,84 @@ fn the_dataset_is_data_the_report_goes_to_stderr_and_json_to_stdout() {
     .unwrap();
     assert_eq!((img.width(), img.height()), (40, 30));
 }
+
+/// `--config FILE` (TOML) gives flags to train and render, the command line wins, an
+/// unknown key is an error naming it; `train --print-config` writes a file `--config`
+/// reads back.
+#[test]
+fn config_files_give_flags_and_print_config_round_trips() {
+    let tmp = assist_testkit::TempDir::new("cli-config");
+    let (data, scene) = tiny_scene(tmp.path());
+    let out = run(&[
+        "train",
+        s(&data),
+        "--out",
+        s(&tmp.path().join("unused.assist")),
+        "--iters",
+        "2",
+        "--batch-samples",
+        "4096",
+        "--eval-views",
+        "0",
+        "--print-config",
+    ]);
+    ok(&out);
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(
+        text.contains("iters = 2") && text.contains("batch_samples = 4096"),
+        "{text}"
+    );
+    assert!(
+        !tmp.path().join("unused.assist").exists(),
+        "--print-config trains nothing"
+    );
+    let cfg = tmp.path().join("train.toml");
+    std::fs::write(&cfg, &text).unwrap();
+    // The file's dataset, iterations and batch; the command line's --out and --iters.
+    let t = tmp.path().join("t.assist");
+    let out = run(&[
+        "train",
+        "--config",
+        s(&cfg),
+        "--out",
+        s(&t),
+        "--iters",
+        "3",
+        "--json",
+    ]);
+    ok(&out);
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["iterations"], 3, "{v}");
+    let info = common::scene_info(&t);
+    assert_eq!(info["options"]["batch_samples"], 4096, "{info}");
+
+    let bad = tmp.path().join("bad.toml");
+    std::fs::write(&bad, "colour = 3\n").unwrap();
+    let o = run(&["train", s(&data), "--out", s(&t), "--config", s(&bad)]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("colour") && err.contains("bad.toml"),
+        "{err}"
+    );
+
+    let rc = tmp.path().join("render.toml");
+    std::fs::write(
+        &rc,
+        "outputs = [\"rgb\", \"depth\"]\nsize = \"40x30\"\nframes = 2\n",
+    )
+    .unwrap();
+    let r = tmp.path().join("r");
+    let out = run(&[
+        "render",
+        s(&scene),
+        "--out",
+        s(&r),
+        "--config",
+        s(&rc),
+        "--json",
+    ]);
+    ok(&out);
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["views"], 2, "{v}");
+    assert!(r.join("depth").is_dir() && !r.join("panoptic").exists());
+}
