@@ -197,120 +197,124 @@ impl Field {
             tape.scratch_sizes = sizes;
         }
         let scratch = &tape.scratch;
+        // The chunks are split into one contiguous run per scratch set, each run summed in
+        // chunk order into its own set, and the sets summed in order below: the gradient is
+        // the same bits on every run with the same thread count (a set per whichever thread
+        // took a chunk made training differ from run to run). Chunks cost the same, so the
+        // static split balances.
+        let per = nc.div_ceil(scratch.len()).max(1);
         tape.d_enc[..nc * block]
-            .par_chunks_mut(block)
+            .par_chunks_mut(per * block)
             .enumerate()
-            .for_each(|(c, d_enc)| {
-                let slot = rayon::current_thread_index().unwrap_or(0) % scratch.len();
+            .for_each(|(slot, d_run)| {
                 let mut guard = scratch[slot].lock().unwrap_or_else(|p| p.into_inner());
                 let Scratch {
                     g,
-                    da,
-                    db,
+                    da: da_buf,
+                    db: db_buf,
                     xt,
                     code_sums,
                 } = &mut *guard;
-                let (g, mut da, mut db, xt) = (
-                    g.as_mut_slice(),
-                    da.as_mut_slice(),
-                    db.as_mut_slice(),
-                    xt.as_mut_slice(),
-                );
+                let (g, xt) = (g.as_mut_slice(), xt.as_mut_slice());
                 assist_simd::simd(|| {
-                    let act = &act[c * rows.total * CHUNK..(c + 1) * rows.total * CHUNK];
-                    let row = |r: usize, k: usize| &act[r * CHUNK..(r + k) * CHUNK];
-                    let c0 = c * CHUNK;
-                    let lanes = CHUNK.min(n - c0);
-                    // dL/d(rgb pre-activation) into `da` (3 rows).
-                    da[..3 * CHUNK].fill(0.0);
-                    for l in 0..lanes {
-                        for k in 0..3 {
-                            let y = act[(rows.rgb + k) * CHUNK + l];
-                            da[k * CHUNK + l] = d_rgb[3 * (c0 + l) + k] * y * (1.0 - y);
+                    for (k, d_enc) in d_run.chunks_mut(block).enumerate() {
+                        let c = slot * per + k;
+                        let (mut da, mut db) = (da_buf.as_mut_slice(), db_buf.as_mut_slice());
+                        let act = &act[c * rows.total * CHUNK..(c + 1) * rows.total * CHUNK];
+                        let row = |r: usize, k: usize| &act[r * CHUNK..(r + k) * CHUNK];
+                        let c0 = c * CHUNK;
+                        let lanes = CHUNK.min(n - c0);
+                        // dL/d(rgb pre-activation) into `da` (3 rows).
+                        da[..3 * CHUNK].fill(0.0);
+                        for l in 0..lanes {
+                            for k in 0..3 {
+                                let y = act[(rows.rgb + k) * CHUNK + l];
+                                da[k * CHUNK + l] = d_rgb[3 * (c0 + l) + k] * y * (1.0 - y);
+                            }
                         }
-                    }
-                    // Colour layers, last to first; `da` holds dL/d(pre-activation).
-                    let nl = lay.color.len();
-                    for li in (1..nl).rev() {
-                        let l = &lay.color[li];
-                        let x = row(rows.color[li - 1], l.inp_pad);
-                        l.backward(
-                            &wts[2 + li],
-                            x,
-                            &da[..l.out * CHUNK],
+                        // Colour layers, last to first; `da` holds dL/d(pre-activation).
+                        let nl = lay.color.len();
+                        for li in (1..nl).rev() {
+                            let l = &lay.color[li];
+                            let x = row(rows.color[li - 1], l.inp_pad);
+                            l.backward(
+                                &wts[2 + li],
+                                x,
+                                &da[..l.out * CHUNK],
+                                g,
+                                mlp0,
+                                Some(&mut db[..l.inp_pad * CHUNK]),
+                                xt,
+                                l.inp_pad,
+                            );
+                            relu_mask(&mut db[..l.inp_pad * CHUNK], x);
+                            std::mem::swap(&mut da, &mut db);
+                        }
+                        // First colour layer: the product's columns (geometry + SH), dx for the
+                        // geometry rows only (SH has no parameters), and the appearance part
+                        // summed per code: Σ dy over a code's lanes gives both its weight
+                        // gradient and its code gradient (after the loop over chunks).
+                        let l0 = &lay.color[0];
+                        l0.backward(
+                            &wts[2],
+                            row(rows.cin, l0.inp_pad),
+                            &da[..l0.out * CHUNK],
                             g,
                             mlp0,
-                            Some(&mut db[..l.inp_pad * CHUNK]),
+                            // (16 rows rather than the 15 geometry ones: the fast kernel.)
+                            Some(&mut db[..crate::mlp::pad16(geo).min(l0.inp_pad) * CHUNK]),
                             xt,
-                            l.inp_pad,
+                            k0,
                         );
-                        relu_mask(&mut db[..l.inp_pad * CHUNK], x);
-                        std::mem::swap(&mut da, &mut db);
-                    }
-                    // First colour layer: the product's columns (geometry + SH), dx for the
-                    // geometry rows only (SH has no parameters), and the appearance part
-                    // summed per code: Σ dy over a code's lanes gives both its weight
-                    // gradient and its code gradient (after the loop over chunks).
-                    let l0 = &lay.color[0];
-                    l0.backward(
-                        &wts[2],
-                        row(rows.cin, l0.inp_pad),
-                        &da[..l0.out * CHUNK],
-                        g,
-                        mlp0,
-                        // (16 rows rather than the 15 geometry ones: the fast kernel.)
-                        Some(&mut db[..crate::mlp::pad16(geo).min(l0.inp_pad) * CHUNK]),
-                        xt,
-                        k0,
-                    );
-                    if a > 0 {
-                        let mut slots = [0u32; CHUNK];
-                        let dy = &da[..l0.out * CHUNK];
-                        if self.chunk_slots(s, c0, &mut slots) {
-                            let sum = &mut code_sums[slots[0] as usize * l0.out..][..l0.out];
-                            for (o, r) in dy.chunks_exact(CHUNK).enumerate() {
-                                sum[o] += r[..lanes].iter().sum::<f32>();
-                            }
-                        } else {
-                            for (o, r) in dy.chunks_exact(CHUNK).enumerate() {
-                                for (&v, &sl) in r[..lanes].iter().zip(&slots) {
-                                    code_sums[sl as usize * l0.out + o] += v;
+                        if a > 0 {
+                            let mut slots = [0u32; CHUNK];
+                            let dy = &da[..l0.out * CHUNK];
+                            if self.chunk_slots(s, c0, &mut slots) {
+                                let sum = &mut code_sums[slots[0] as usize * l0.out..][..l0.out];
+                                for (o, r) in dy.chunks_exact(CHUNK).enumerate() {
+                                    sum[o] += r[..lanes].iter().sum::<f32>();
+                                }
+                            } else {
+                                for (o, r) in dy.chunks_exact(CHUNK).enumerate() {
+                                    for (&v, &sl) in r[..lanes].iter().zip(&slots) {
+                                        code_sums[sl as usize * l0.out + o] += v;
+                                    }
                                 }
                             }
                         }
+                        std::mem::swap(&mut da, &mut db);
+                        // dL/d(density net output) into `db`: row 0 from σ, rows 1.. from geo.
+                        let d2 = &lay.density[1];
+                        db[..d2.out * CHUNK].fill(0.0);
+                        for l in 0..lanes {
+                            let sig = act[rows.sigma * CHUNK + l];
+                            db[l] = d_sigma[c0 + l] * sig;
+                        }
+                        db[CHUNK..(1 + geo) * CHUNK].copy_from_slice(&da[..geo * CHUNK]);
+                        let hid = row(rows.hidden, d2.inp_pad);
+                        d2.backward(
+                            &wts[1],
+                            hid,
+                            &db[..d2.out * CHUNK],
+                            g,
+                            mlp0,
+                            Some(&mut da[..d2.inp_pad * CHUNK]),
+                            xt,
+                            d2.inp_pad,
+                        );
+                        relu_mask(&mut da[..d2.inp_pad * CHUNK], hid);
+                        let d1 = &lay.density[0];
+                        d1.backward(
+                            &wts[0],
+                            &enc[c * block..(c + 1) * block],
+                            &da[..d1.out * CHUNK],
+                            g,
+                            mlp0,
+                            Some(d_enc),
+                            xt,
+                            d1.inp_pad,
+                        );
                     }
-                    std::mem::swap(&mut da, &mut db);
-                    // dL/d(density net output) into `db`: row 0 from σ, rows 1.. from geo.
-                    let d2 = &lay.density[1];
-                    db[..d2.out * CHUNK].fill(0.0);
-                    for l in 0..lanes {
-                        let sig = act[rows.sigma * CHUNK + l];
-                        db[l] = d_sigma[c0 + l] * sig;
-                    }
-                    db[CHUNK..(1 + geo) * CHUNK].copy_from_slice(&da[..geo * CHUNK]);
-                    let hid = row(rows.hidden, d2.inp_pad);
-                    d2.backward(
-                        &wts[1],
-                        hid,
-                        &db[..d2.out * CHUNK],
-                        g,
-                        mlp0,
-                        Some(&mut da[..d2.inp_pad * CHUNK]),
-                        xt,
-                        d2.inp_pad,
-                    );
-                    relu_mask(&mut da[..d2.inp_pad * CHUNK], hid);
-                    let d1 = &lay.density[0];
-                    d1.backward(
-                        &wts[0],
-                        &enc[c * block..(c + 1) * block],
-                        &da[..d1.out * CHUNK],
-                        g,
-                        mlp0,
-                        Some(d_enc),
-                        xt,
-                        d1.inp_pad,
-                    );
                 });
             });
         let mut sums = vec![0.0f32; sizes.3];
