@@ -376,6 +376,106 @@ fn backward_level<const F: usize>(
     }
 }
 
+/// The gradient of the loss with respect to each sample's position, given `d_out` =
+/// dL/d(encoding) (chunk-blocked like `encode`'s output, `width` rows per chunk; what the
+/// backward pass leaves in a tape): the derivative of every level's trilinear weights,
+/// `res · Σ_corners ∂w/∂frac · ⟨d, entry⟩`. Written into `out` (one slice per axis, `n`
+/// each); zero along an axis where the position is outside [0, 1] (the encoding clamps
+/// it there). Level-major like `encode`; used by camera-pose refinement.
+pub fn position_grad(
+    grid: &GridLayout,
+    params: &[f32],
+    pos: [&[f32]; 3],
+    width: usize,
+    d_out: &[f32],
+    out: [&mut [f32]; 3],
+) {
+    let n = pos[0].len();
+    let fc = grid.features;
+    assert!(width >= grid.levels.len() * fc);
+    assert!(d_out.len() >= Layout { width }.len(n));
+    let [ox, oy, oz] = out;
+    assert!(ox.len() >= n && oy.len() >= n && oz.len() >= n);
+    for o in [&mut *ox, &mut *oy, &mut *oz] {
+        o[..n].fill(0.0);
+    }
+    let simd = assist_simd::level();
+    let block = width * CHUNK;
+    let chunks_per_task = 16;
+    // Level-major, as `encode`: one level's table is in cache at a time.
+    for (li, lv) in grid.levels.iter().enumerate() {
+        let table = &params[lv.offset * fc..(lv.offset + lv.size as usize) * fc];
+        let last = lv.size as usize - 1;
+        let glv = lv.grid();
+        let res = lv.res as f32;
+        ox[..n]
+            .par_chunks_mut(CHUNK * chunks_per_task)
+            .zip(oy[..n].par_chunks_mut(CHUNK * chunks_per_task))
+            .zip(oz[..n].par_chunks_mut(CHUNK * chunks_per_task))
+            .enumerate()
+            .for_each(|(t, ((tx, ty), tz))| {
+                let mut idx = [0u32; 8 * CHUNK];
+                let mut w = [0f32; 8 * CHUNK];
+                for (ci, ((gx, gy), gz)) in tx
+                    .chunks_mut(CHUNK)
+                    .zip(ty.chunks_mut(CHUNK))
+                    .zip(tz.chunks_mut(CHUNK))
+                    .enumerate()
+                {
+                    let c = t * chunks_per_task + ci;
+                    let s0 = c * CHUNK;
+                    let lanes = gx.len();
+                    let rows =
+                        &d_out[c * block + li * fc * CHUNK..c * block + (li + 1) * fc * CHUNK];
+                    let p = [
+                        &pos[0][s0..s0 + lanes],
+                        &pos[1][s0..s0 + lanes],
+                        &pos[2][s0..s0 + lanes],
+                    ];
+                    grid::corners(simd, &glv, p, &mut idx, &mut w, CHUNK);
+                    for l in 0..lanes {
+                        if (0..fc).all(|f| rows[f * CHUNK + l] == 0.0) {
+                            continue;
+                        }
+                        // The trilinear fractions, as `locate` computes them.
+                        let mut fr = [0f32; 3];
+                        for a in 0..3 {
+                            let x = p[a][l].clamp(0.0, 1.0) * res;
+                            let cell = (x.floor() as u32).min(lv.res - 1);
+                            fr[a] = x - cell as f32;
+                        }
+                        let mut gl = [0f32; 3];
+                        for k in 0..8 {
+                            let e = (idx[k * CHUNK + l] as usize).min(last) * fc;
+                            let mut v = 0.0;
+                            for f in 0..fc {
+                                v += rows[f * CHUNK + l] * table[e + f];
+                            }
+                            let bit = [k & 1, (k >> 1) & 1, (k >> 2) & 1];
+                            let fac =
+                                [0, 1, 2].map(|a| if bit[a] == 1 { fr[a] } else { 1.0 - fr[a] });
+                            let sign = bit.map(|b| if b == 1 { v } else { -v });
+                            gl[0] += sign[0] * fac[1] * fac[2];
+                            gl[1] += fac[0] * sign[1] * fac[2];
+                            gl[2] += fac[0] * fac[1] * sign[2];
+                        }
+                        gx[l] += gl[0] * res;
+                        gy[l] += gl[1] * res;
+                        gz[l] += gl[2] * res;
+                    }
+                }
+            });
+    }
+    // The encoding clamps positions into the box: no gradient along an axis outside it.
+    for (a, o) in [ox, oy, oz].into_iter().enumerate() {
+        for (g, &x) in o[..n].iter_mut().zip(pos[a]) {
+            if !(0.0..=1.0).contains(&x) {
+                *g = 0.0;
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -433,5 +533,96 @@ mod tests {
         let lv = &g.levels[0];
         let (_, w) = corners(lv, [2.0 / lv.res as f32, 0.0, 1.0]);
         assert!(w.iter().any(|&x| (x - 1.0).abs() < 1e-5));
+    }
+
+    #[test]
+    fn position_gradient_matches_central_differences() {
+        // φ(p) = Σ d · encode(p): its gradient against central differences, at points whose
+        // trilinear fractions are away from cell faces at every level (the encoding is only
+        // piecewise smooth).
+        let cfg = FieldConfig {
+            levels: 4,
+            log2_table_size: 8,
+            base_resolution: 3,
+            max_resolution: 40,
+            ..FieldConfig::object(1)
+        };
+        for features in [2usize, 4] {
+            let cfg = FieldConfig {
+                features_per_level: features,
+                ..cfg.clone()
+            };
+            let g = GridLayout::new(&cfg);
+            let width = cfg.encoding_rows();
+            let mut rng = assist_core::Rng::new(21);
+            let params: Vec<f32> = (0..g.param_count())
+                .map(|_| rng.f32() * 2.0 - 1.0)
+                .collect();
+            let n = 200;
+            let pos: Vec<Vec<f32>> = (0..3)
+                .map(|_| (0..n).map(|_| 0.05 + 0.9 * rng.f32()).collect())
+                .collect();
+            let lay = Layout { width };
+            let mut d = vec![0f32; lay.len(n)];
+            for s in 0..n {
+                for f in 0..g.levels.len() * features {
+                    d[lay.at(s, f)] = rng.f32() * 2.0 - 1.0;
+                }
+            }
+            let phi = |s: usize, p: [f32; 3]| -> f64 {
+                let mut v = 0.0f64;
+                for (li, lv) in g.levels.iter().enumerate() {
+                    let (idx, w) = corners(lv, p);
+                    for k in 0..8 {
+                        for f in 0..features {
+                            v += (d[lay.at(s, li * features + f)]
+                                * w[k]
+                                * params[idx[k] * features + f])
+                                as f64;
+                        }
+                    }
+                }
+                v
+            };
+            let mut out = vec![vec![0f32; n]; 3];
+            {
+                let [a, b, c] = &mut out[..] else {
+                    unreachable!()
+                };
+                position_grad(
+                    &g,
+                    &params,
+                    [&pos[0], &pos[1], &pos[2]],
+                    width,
+                    &d,
+                    [a, b, c],
+                );
+            }
+            let h = 1e-4f32;
+            let mut checked = 0;
+            for s in 0..n {
+                let p = [pos[0][s], pos[1][s], pos[2][s]];
+                let smooth = g
+                    .levels
+                    .iter()
+                    .all(|lv| locate(lv, p).1.iter().all(|&f| f > 0.01 && f < 0.99));
+                if !smooth {
+                    continue;
+                }
+                checked += 1;
+                for a in 0..3 {
+                    let (mut lo, mut hi) = (p, p);
+                    lo[a] -= h;
+                    hi[a] += h;
+                    let num = (phi(s, hi) - phi(s, lo)) / (2.0 * h as f64);
+                    let ana = out[a][s] as f64;
+                    assert!(
+                        (num - ana).abs() <= 2e-2 * (1.0 + num.abs()),
+                        "F={features} sample {s} axis {a}: analytic {ana}, numeric {num}"
+                    );
+                }
+            }
+            assert!(checked > 20, "only {checked} smooth points");
+        }
     }
 }

@@ -217,3 +217,72 @@ fn density_path_matches_full_forward() {
     field.density([&batch.pos[0], &batch.pos[1], &batch.pos[2]], &mut sig2);
     assert_eq!(sig, sig2);
 }
+
+#[test]
+fn the_position_gradient_matches_central_differences() {
+    // dL/dpos through the whole field (encoding, density net, colour net), for the
+    // camera-pose refinement: each sample moved alone along each axis.
+    let mut rng = Rng::new(5);
+    let mut field = Field::new(small_config(), 3).unwrap();
+    let grid_len = field.layout.grid.param_count();
+    for p in &mut field.params[..grid_len] {
+        *p = rng.f32() - 0.5;
+    }
+    let mut batch = Batch::new(130, &mut rng, false);
+    // Away from the faces, so a step of ε stays inside the box.
+    for a in 0..3 {
+        for v in &mut batch.pos[a] {
+            *v = 0.05 + 0.9 * *v;
+        }
+    }
+    let n = batch.pos[0].len();
+    let mut tape = Tape::default();
+    let (mut sig, mut rgb) = (vec![0.0; n], vec![0.0; 3 * n]);
+    field.forward_train(&batch.samples(), &mut tape, &mut sig, &mut rgb);
+    let mut grad = vec![0.0f32; field.param_count()];
+    field.backward(&batch.samples(), &mut tape, &batch.a, &batch.b, &mut grad);
+    let mut g = [vec![0.0f32; n], vec![0.0f32; n], vec![0.0f32; n]];
+    {
+        let [gx, gy, gz] = &mut g;
+        field.position_grad(&batch.samples(), &tape, [gx, gy, gz]);
+    }
+    let eps = 2e-4f32;
+    let (mut checked, mut kinks, mut nonzero) = (0, 0, 0);
+    let mut failures = Vec::new();
+    for s in (0..n).step_by(3) {
+        for a in 0..3 {
+            let orig = batch.pos[a][s];
+            batch.pos[a][s] = orig + eps;
+            let lp = batch.loss(&field);
+            batch.pos[a][s] = orig - eps;
+            let lm = batch.loss(&field);
+            batch.pos[a][s] = orig;
+            let l0 = batch.loss(&field);
+            let num = (lp - lm) / (2.0 * eps as f64);
+            let ana = g[a][s] as f64;
+            checked += 1;
+            if ana.abs() > 1e-4 {
+                nonzero += 1;
+            }
+            let close = |x: f64| (x - ana).abs() <= 3e-2 * x.abs().max(ana.abs()) + 5e-3;
+            if !close(num) {
+                // A cell face or ReLU kink within ±ε: the analytic value must be one of
+                // the one-sided slopes.
+                let (right, left) = ((lp - l0) / eps as f64, (l0 - lm) / eps as f64);
+                if close(right) || close(left) {
+                    kinks += 1;
+                } else {
+                    failures.push(format!(
+                        "sample {s} axis {a}: analytic {ana:.5} central {num:.5} (right {right:.5}, left {left:.5})"
+                    ));
+                }
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+    assert!(kinks * 5 < checked, "{kinks} of {checked} at kinks");
+    assert!(
+        nonzero * 2 > checked,
+        "only {nonzero} of {checked} non-zero"
+    );
+}

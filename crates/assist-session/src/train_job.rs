@@ -86,6 +86,9 @@ pub struct TrainConfig {
     pub boxes: Option<PathBuf>,
     pub appearance: Appearance,
     pub background: BackgroundSpace,
+    /// Learn a pose correction for every training view with the scene (see
+    /// [`assist_train::PoseRefiner`]).
+    pub refine_poses: bool,
     pub seed: u64,
     /// Seconds between checkpoints written to `out`.
     pub checkpoint_every: f64,
@@ -236,6 +239,7 @@ impl Default for TrainConfig {
             boxes: None,
             appearance: Appearance::Auto,
             background: BackgroundSpace::Auto,
+            refine_poses: false,
             seed: 0,
             checkpoint_every: 120.0,
             resume: false,
@@ -412,7 +416,7 @@ impl TrainJob {
         if c.resume {
             let (_, info) = assist_scene::scene_file::load_scene_json(&c.out)?;
             let state = resume_state(&c.out, &info)?;
-            resume = Some(state);
+            resume = Some(state.clone());
             let before = info.get("dataset_fingerprint").and_then(|v| v.as_str());
             if let Some(before) = before.filter(|b| *b != fingerprint)
                 && !c.force
@@ -496,6 +500,7 @@ impl TrainJob {
             object_ray_fraction: c.object_rays,
             downscale: c.downscale,
             depth_affine,
+            refine_poses: c.refine_poses,
             lambdas,
             seed: c.seed,
             checkpoint: Some(c.out.clone()),

@@ -31,7 +31,7 @@ pub use setup::{
     is_object_capture, near_plane, node_boxes, scene_region,
 };
 pub use trainer::{
-    Lambdas, PhaseTimes, ResumeState, StepStats, StopReason, TrainOptions, TrainReport, Trainer,
-    update_depth_affine,
+    Lambdas, POSE_LR, PhaseTimes, PoseRefiner, ResumeState, StepStats, StopReason, TrainOptions,
+    TrainReport, Trainer, update_depth_affine,
 };
 pub use views::{PriorKind, View, fill_prior, fill_priors, load_view, load_views};

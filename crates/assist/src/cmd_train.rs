@@ -97,6 +97,10 @@ pub struct TrainArgs {
     /// unless the training views have depth maps, which bound the scene).
     #[arg(long, default_value = "auto")]
     pub background: String,
+    /// Refine the training views' camera poses with the scene: each view learns a small
+    /// translation and rotation (held-out views keep their poses) [default: off]
+    #[arg(long)]
+    pub refine_poses: bool,
     /// Seed of every random draw (ray batches, initial weights): the same seed, data and
     /// flags give the same scene.
     #[arg(long, default_value_t = 0)]
@@ -198,6 +202,7 @@ impl TrainArgs {
             boxes: self.boxes.clone(),
             appearance,
             background,
+            refine_poses: self.refine_poses,
             seed: self.seed,
             checkpoint_every: self.checkpoint_every,
             resume: self.resume,

@@ -5,7 +5,7 @@
 use rayon::prelude::*;
 
 use super::{Field, PhaseTimes, Samples};
-use crate::hashgrid::{CHUNK, Layout, encode, encode_backward};
+use crate::hashgrid::{CHUNK, Layout, encode, encode_backward, position_grad};
 
 /// `d ← d · [x > 0]` (ReLU backward), branch-free so that it vectorises.
 #[inline(always)]
@@ -41,6 +41,27 @@ pub(super) struct Scratch {
 }
 
 impl Field {
+    /// After [`backward`](Self::backward) on `tape`: the gradient of the same loss with
+    /// respect to each sample's position (in the [0, 1]³ box, one slice per axis), through
+    /// the hash-grid encoding (the view direction's part, through the spherical harmonics,
+    /// is not included). For refining camera poses.
+    pub fn position_grad(&self, s: &Samples, tape: &Tape, out: [&mut [f32]; 3]) {
+        assert_eq!(
+            s.len(),
+            tape.n,
+            "position_grad: samples differ from the tape"
+        );
+        let grid = &self.layout.grid;
+        position_grad(
+            grid,
+            &self.params[..grid.param_count()],
+            s.pos,
+            self.config.encoding_rows(),
+            &tape.d_enc,
+            out,
+        );
+    }
+
     /// Training forward: like `forward`, recording activations in `tape`.
     pub fn forward_train(&self, s: &Samples, tape: &mut Tape, sigma: &mut [f32], rgb: &mut [f32]) {
         let n = s.len();

@@ -36,12 +36,14 @@ use crate::views::View;
 
 mod objective;
 mod options;
+mod poses;
 mod rays;
 
 use objective::Objective;
 pub use options::{
     Lambdas, PhaseTimes, ResumeState, StepStats, StopReason, TrainOptions, TrainReport,
 };
+pub use poses::{POSE_EVERY, POSE_LR, PoseRefiner};
 use rays::Target;
 
 /// Smallest scale the depth prior's affine map may take.
@@ -83,6 +85,10 @@ pub struct Trainer {
     /// `object_ray_fraction` so that small objects get enough rays.
     object_pixels: Vec<(u32, u32)>,
     elapsed_before: f64,
+    /// The training views' pose corrections (with `refine_poses`).
+    pub poses: Option<PoseRefiner>,
+    /// The view each ray of the batch came from.
+    ray_views: Vec<u32>,
 }
 
 impl Trainer {
@@ -161,6 +167,14 @@ impl Trainer {
             pixel_count,
             object_pixels,
             elapsed_before: 0.0,
+            poses: None,
+            ray_views: Vec::new(),
+        })
+        .map(|mut t| {
+            if t.opts.refine_poses {
+                t.poses = Some(PoseRefiner::new(t.views.len(), t.extent));
+            }
+            t
         })
     }
 
@@ -170,6 +184,9 @@ impl Trainer {
         self.iteration = state.iteration;
         self.elapsed_before = state.elapsed_seconds;
         self.depth_wq = state.depth_scale_shift;
+        if let (Some(p), Some(saved)) = (&mut self.poses, &state.pose_corrections) {
+            p.restore(saved);
+        }
     }
 
     /// Where the run stands after `elapsed` seconds in all.
@@ -178,6 +195,7 @@ impl Trainer {
             iteration: self.iteration,
             elapsed_seconds: elapsed,
             depth_scale_shift: self.depth_wq,
+            pose_corrections: self.poses.as_ref().map(|p| p.params.clone()),
         }
     }
 
@@ -323,7 +341,20 @@ impl Trainer {
                     &ns.d_rgb,
                 );
         }
+        let pose_step = self.iteration.is_multiple_of(POSE_EVERY);
+        if let Some(p) = self.poses.as_mut().filter(|_| pose_step) {
+            p.accumulate(
+                &self.scene,
+                &self.traced,
+                &self.tapes,
+                &self.rays,
+                &self.ray_views,
+            );
+        }
         phase[3] = tp.elapsed().as_secs_f64();
+        if let Some(p) = self.poses.as_mut().filter(|_| pose_step) {
+            p.step(POSE_LR * lr / self.opts.lr_start);
+        }
         for (key, nf) in self.scene.fields.iter_mut() {
             self.optimizers
                 .get_mut(key)
@@ -396,6 +427,25 @@ impl Trainer {
         v["options"] = serde_json::to_value(&self.opts).expect("plain values");
         for (k, x) in &self.opts.provenance {
             v[k] = x.clone();
+        }
+        if let Some(p) = &self.poses {
+            // What the refinement did to each training view, for the user: the world
+            // translation of its centre and the rotation vector (radians) of its rays.
+            let list: Vec<serde_json::Value> = self
+                .views
+                .iter()
+                .enumerate()
+                .map(|(k, view)| {
+                    let (t, _) = p.correction(k);
+                    let w = &p.params[6 * k + 3..6 * k + 6];
+                    serde_json::json!({
+                        "view": view.name,
+                        "translation": t.to_array(),
+                        "rotation": w,
+                    })
+                })
+                .collect();
+            v["camera_corrections"] = list.into();
         }
         v
     }

@@ -99,6 +99,9 @@ pub struct TrainOptions {
     /// from the dataset's own depth is metric, and a free scale only lets the rendered
     /// depth drift from it (the demo's wall rendered at half its distance, scale 0.42).
     pub depth_affine: bool,
+    /// Learn a correction of every training view's pose with the scene (see
+    /// [`super::PoseRefiner`]); held-out views keep their given poses.
+    pub refine_poses: bool,
     /// Testing aid: poison one parameter with NaN at this iteration (exercises divergence
     /// detection).
     #[serde(skip)]
@@ -129,6 +132,7 @@ impl Default for TrainOptions {
             object_ray_fraction: 0.25,
             downscale: 1,
             depth_affine: false,
+            refine_poses: false,
             prune_eps: 0.0,
             poison_at: None,
             cancel: None,
@@ -270,13 +274,18 @@ impl PhaseTimes {
 
 /// Where a saved run stands, written into the scene file's `info` and read back to
 /// resume it.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ResumeState {
     pub iteration: usize,
     pub elapsed_seconds: f64,
     /// Learnt scale and shift of the background depth prior.
     #[serde(default = "identity_affine")]
     pub depth_scale_shift: [f32; 2],
+    /// The training views' pose corrections when poses are refined: per view (in the
+    /// dataset's training order) a translation in scene extents and a rotation vector in
+    /// radians, both in world axes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pose_corrections: Option<Vec<f32>>,
 }
 
 fn identity_affine() -> [f32; 2] {

@@ -48,7 +48,8 @@ impl Trainer {
         let extent = self.extent;
         let objects = &self.object_pixels;
         let object_fraction = self.opts.object_ray_fraction;
-        let drawn: Vec<Option<(assist_core::Ray, u32, Target)>> = (0..n)
+        let poses = self.poses.as_ref();
+        let drawn: Vec<Option<(assist_core::Ray, u32, u32, Target)>> = (0..n)
             .into_par_iter()
             .map(|r| {
                 let mut rng = Rng::stream(seed, r as u64);
@@ -60,7 +61,10 @@ impl Trainer {
                 };
                 let v = &views[vi];
                 let (i, j) = ((p % v.width) as u32, (p / v.width) as u32);
-                let ray = v.camera.pixel_ray(i, j)?;
+                let mut ray = v.camera.pixel_ray(i, j)?;
+                if let Some(p) = poses {
+                    p.apply(vi, &mut ray);
+                }
                 let rgb = [v.rgb[3 * p], v.rgb[3 * p + 1], v.rgb[3 * p + 2]];
                 let (masked, mask_node) = match &v.ids {
                     Some(ids) => (true, node_of_id.get(&ids[p]).copied().unwrap_or(u32::MAX)),
@@ -81,6 +85,7 @@ impl Trainer {
                 Some((
                     ray,
                     v.image_index,
+                    vi as u32,
                     Target {
                         rgb,
                         mask_node,
@@ -95,9 +100,11 @@ impl Trainer {
         self.rays.clear();
         self.rays.near = self.scene.scene.near as f32;
         self.targets.clear();
-        for (ray, img, t) in drawn.into_iter().flatten() {
+        self.ray_views.clear();
+        for (ray, img, vi, t) in drawn.into_iter().flatten() {
             self.rays.push(&ray, img);
             self.targets.push(t);
+            self.ray_views.push(vi);
         }
     }
 }
