@@ -102,7 +102,7 @@ pub struct TrainArgs {
     #[arg(long)]
     pub refine_poses: bool,
     /// Seed of every random draw (ray batches, initial weights): the same seed, data and
-    /// flags give the same scene.
+    /// flags give the same scene, bit for bit, on a machine with as many cores.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Seconds between checkpoints (written atomically to --out).
