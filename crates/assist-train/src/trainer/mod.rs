@@ -146,6 +146,9 @@ impl Trainer {
                     .map(move |(p, _)| (vi as u32, p as u32))
             })
             .collect();
+        let poses = opts
+            .refine_poses
+            .then(|| PoseRefiner::new(views.len(), extent));
         Ok(Trainer {
             scene,
             views,
@@ -167,14 +170,8 @@ impl Trainer {
             pixel_count,
             object_pixels,
             elapsed_before: 0.0,
-            poses: None,
+            poses,
             ray_views: Vec::new(),
-        })
-        .map(|mut t| {
-            if t.opts.refine_poses {
-                t.poses = Some(PoseRefiner::new(t.views.len(), t.extent));
-            }
-            t
         })
     }
 
