@@ -94,7 +94,10 @@ fn missing(op: Operation, id: InstanceId, scene: &Scene) -> ActionError {
 /// Applies one validated edit.
 pub fn apply(scene: &mut Scene, edit: &Edit) -> Result<(), ActionError> {
     let before = scene.clone();
+    // Class ids stay what they were before the edit (a deleted node's class keeps its id).
+    scene.register_classes();
     apply_unchecked(scene, edit)?;
+    scene.register_classes();
     // An edit may not leave a node the scene file cannot hold (a 1e308 m move twice is
     // infinite): the scene is restored and the edit refused.
     let bad = scene
@@ -181,6 +184,10 @@ fn apply_unchecked(scene: &mut Scene, edit: &Edit) -> Result<(), ActionError> {
             let mut copy = scene.nodes[i].clone();
             copy.id = *new_id;
             copy.world_from_local.translation += *offset;
+            // "mug 2", of class "mug": nameable on its own, the same kind of thing.
+            let class = copy.class_name().to_string();
+            copy.label = scene.replica_label(&class);
+            copy.class = Some(class);
             scene.nodes.push(copy);
         }
         Edit::Delete { id } => {
@@ -198,7 +205,9 @@ fn apply_unchecked(scene: &mut Scene, edit: &Edit) -> Result<(), ActionError> {
                     message: "the id is already used".into(),
                 });
             }
-            scene.nodes.push(imported.node.clone());
+            let mut node = imported.node.clone();
+            number_if_taken(scene, &mut node);
+            scene.nodes.push(node);
         }
         Edit::Swap { a, b } => {
             let ia = get(scene, Operation::Swap, *a)?;
@@ -210,13 +219,26 @@ fn apply_unchecked(scene: &mut Scene, edit: &Edit) -> Result<(), ActionError> {
         }
         Edit::SwapIn { id, imported } => {
             let i = get(scene, Operation::Swap, *id)?;
-            scene.nodes[i] = imported.node.clone();
+            let mut node = imported.node.clone();
+            scene.nodes[i].label.clear();
+            number_if_taken(scene, &mut node);
+            scene.nodes[i] = node;
             if scene.selected == Some(*id) {
                 scene.selected = None;
             }
         }
     }
     Ok(())
+}
+
+/// A node brought in from elsewhere whose label another node already has is numbered as a
+/// copy is ("mug 2", of class "mug"), so every object keeps a name of its own.
+fn number_if_taken(scene: &Scene, node: &mut SceneNode) {
+    if scene.nodes.iter().any(|n| n.label == node.label) {
+        let class = node.class_name().to_string();
+        node.label = scene.replica_label(&class);
+        node.class = Some(class);
+    }
 }
 
 /// Undo/redo over whole-scene snapshots (node data only; a scene of a hundred nodes is a few

@@ -19,6 +19,10 @@ pub struct SceneNode {
     /// Instance id, 0 = background; stable across edits.
     pub id: InstanceId,
     pub label: String,
+    /// Semantic class (what kind of thing it is), when it differs from the label: a
+    /// replica "mug 2" is of class "mug". See [`Scene::classes`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub class: Option<String>,
     /// Vision-language feature for language queries, when computed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub embedding: Option<Vec<f32>>,
@@ -56,6 +60,10 @@ impl SceneNode {
     pub fn is_background(&self) -> bool {
         self.id == 0
     }
+    /// The node's semantic class: its `class`, else its label.
+    pub fn class_name(&self) -> &str {
+        self.class.as_deref().unwrap_or(&self.label)
+    }
     /// The canonical box as an axis-aligned box in local space.
     pub fn local_aabb(&self) -> Aabb {
         Aabb::from_half_size(self.half_size)
@@ -66,6 +74,7 @@ impl SceneNode {
             id,
             label: label.to_string(),
             embedding: None,
+            class: None,
             field: field.to_string(),
             half_size: obb.half_size,
             world_from_local: obb.world_from_box(),
@@ -180,6 +189,11 @@ pub struct Scene {
     /// Near plane: what lies closer to a camera than this (world units) is not rendered.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub near: f64,
+    /// Semantic classes in the order they were first seen: class id `k + 1` is
+    /// `classes[k]` (0 = background). A class stays when its last node is deleted, so ids
+    /// are stable across edits and renders; see [`Scene::register_classes`].
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub classes: Vec<String>,
 }
 
 fn is_zero(v: &f64) -> bool {
@@ -187,6 +201,41 @@ fn is_zero(v: &f64) -> bool {
 }
 
 impl Scene {
+    /// The classes of objects not yet in `classes`, in id order of first appearance.
+    fn unlisted_classes(&self) -> Vec<String> {
+        let mut objects: Vec<&SceneNode> =
+            self.nodes.iter().filter(|n| !n.is_background()).collect();
+        objects.sort_by_key(|n| n.id);
+        let mut out: Vec<String> = Vec::new();
+        for n in objects {
+            let c = n.class_name();
+            if !self.classes.iter().any(|k| k == c) && !out.iter().any(|k| k == c) {
+                out.push(c.to_string());
+            }
+        }
+        out
+    }
+    /// Appends the classes of the objects not yet listed (in id order).
+    pub fn register_classes(&mut self) {
+        let new = self.unlisted_classes();
+        self.classes.extend(new);
+    }
+    /// Every class name with the background first: index = class id (the listed classes,
+    /// then any not yet registered).
+    pub fn class_names(&self) -> Vec<String> {
+        let mut names = vec!["background".to_string()];
+        names.extend(self.classes.iter().cloned());
+        names.extend(self.unlisted_classes());
+        names
+    }
+    /// A label for a new copy of a node of class `class`: "mug 2", "mug 3", … (the first
+    /// number no node's label uses).
+    pub fn replica_label(&self, class: &str) -> String {
+        (2..)
+            .map(|k| format!("{class} {k}"))
+            .find(|l| !self.nodes.iter().any(|n| n.label == *l))
+            .expect("a free number")
+    }
     pub fn node(&self, id: InstanceId) -> Option<&SceneNode> {
         self.nodes.iter().find(|n| n.id == id)
     }
@@ -235,6 +284,7 @@ mod tests {
             backdrop: Backdrop::Color,
             selected: None,
             near: 0.0,
+            classes: Vec::new(),
         };
         assert_eq!(s.fresh_id(), 1);
     }

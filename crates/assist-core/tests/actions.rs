@@ -32,6 +32,7 @@ fn scene() -> Scene {
         backdrop: Default::default(),
         selected: None,
         near: 0.0,
+        classes: Vec::new(),
     }
 }
 
@@ -320,4 +321,68 @@ fn history_undoes_and_redoes_exactly() {
     let e = validate(&s, r#"{"instance_id":1,"operation":"delete","config":{}}"#).unwrap();
     h.apply(&mut s, &e).unwrap();
     assert!(!h.redo(&mut s));
+}
+
+/// A copy is named "mug 2", "mug 3" and keeps the class "mug"; class ids stay what they were
+/// when a class's last node is deleted, and after undo.
+#[test]
+fn replicas_are_numbered_and_class_ids_are_stable() {
+    let mut s = scene();
+    s.nodes[1].label = "mug".into();
+    s.nodes[2].label = "book".into();
+    let mut h = History::default();
+    let before = s.class_names();
+    assert_eq!(before, ["background", "mug", "book"]);
+    for _ in 0..2 {
+        let e = validate(
+            &s,
+            r#"{"instance_id":1,"operation":"replicate","config":{}}"#,
+        )
+        .unwrap();
+        h.apply(&mut s, &e).unwrap();
+    }
+    let copies: Vec<(&str, &str)> = s.nodes[3..]
+        .iter()
+        .map(|n| (n.label.as_str(), n.class_name()))
+        .collect();
+    assert_eq!(copies, [("mug 2", "mug"), ("mug 3", "mug")]);
+    // A copy of a copy is a "mug" too, with the next free number.
+    let e = validate(
+        &s,
+        r#"{"instance_id":4,"operation":"replicate","config":{}}"#,
+    )
+    .unwrap();
+    h.apply(&mut s, &e).unwrap();
+    assert_eq!(
+        (s.nodes[5].label.as_str(), s.nodes[5].class_name()),
+        ("mug 4", "mug")
+    );
+    assert_eq!(s.class_names(), before, "copies add no class");
+    // Deleting every mug keeps "book" at class 2.
+    for id in [1, 3, 4, 5] {
+        let e = validate(
+            &s,
+            &format!(r#"{{"instance_id":{id},"operation":"delete"}}"#),
+        )
+        .unwrap();
+        h.apply(&mut s, &e).unwrap();
+    }
+    assert_eq!(s.class_names(), before);
+    // A "book" brought in from another scene is "book 2", of class "book".
+    let mut node = s.node(2).unwrap().clone();
+    node.id = 9;
+    let add = Edit::Add {
+        imported: assist_core::action::Imported {
+            node,
+            source: "other.assist".into(),
+            source_field: "f2".into(),
+            source_id: 2,
+        },
+    };
+    h.apply(&mut s, &add).unwrap();
+    let n = s.node(9).unwrap();
+    assert_eq!((n.label.as_str(), n.class_name()), ("book 2", "book"));
+    // The scene file keeps the list.
+    let back: Scene = serde_json::from_str(&serde_json::to_string(&s).unwrap()).unwrap();
+    assert_eq!(back.class_names(), before);
 }

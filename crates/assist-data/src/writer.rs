@@ -108,8 +108,17 @@ impl Output {
 pub struct Instance {
     pub id: u16,
     pub label: String,
+    /// Its semantic class when it differs from the label (a replica "mug 2" is a "mug").
+    pub class: Option<String>,
     /// Its box in world units, written into `instances` when known.
     pub bbox: Option<Obb>,
+}
+
+impl Instance {
+    /// Its semantic class: `class`, else the label.
+    pub fn class_name(&self) -> &str {
+        self.class.as_deref().unwrap_or(&self.label)
+    }
 }
 
 /// How instance-id images are written.
@@ -209,10 +218,10 @@ pub fn semantic_classes(instances: &[Instance]) -> (BTreeMap<u16, u16>, Vec<Stri
     let mut sorted: Vec<&Instance> = instances.iter().collect();
     sorted.sort_by_key(|i| i.id);
     for i in sorted {
-        let k = match names.iter().position(|l| *l == i.label) {
+        let k = match names.iter().position(|l| l == i.class_name()) {
             Some(k) => k,
             None => {
-                names.push(i.label.clone());
+                names.push(i.class_name().to_string());
                 names.len() - 1
             }
         };
@@ -315,13 +324,15 @@ impl DatasetWriter {
         } else {
             let mut of_id = BTreeMap::new();
             for i in &cfg.instances {
-                let Some(k) = cfg.classes.iter().position(|c| *c == i.label) else {
+                let Some(k) = cfg.classes.iter().position(|c| c == i.class_name()) else {
                     return Err(DataError::field(
                         dir,
                         "classes",
                         format!(
-                            "instance {} is labelled {:?}, which is not one of the classes {:?}",
-                            i.id, i.label, cfg.classes
+                            "instance {} is of class {:?}, which is not one of the classes {:?}",
+                            i.id,
+                            i.class_name(),
+                            cfg.classes
                         ),
                     ));
                 };
@@ -578,16 +589,19 @@ mod tests {
                 Instance {
                     id: 3,
                     label: "mug".into(),
+                    class: None,
                     bbox: None,
                 },
                 Instance {
                     id: 7,
                     label: "mug".into(),
+                    class: None,
                     bbox: None,
                 },
                 Instance {
                     id: 9,
                     label: "book".into(),
+                    class: None,
                     bbox: None,
                 },
             ],

@@ -310,25 +310,20 @@ impl Generator {
                 library,
             });
         }
+        // Each base scene's own class list (its stable ids), then the library's classes.
         let mut classes = vec!["background".to_string()];
         for b in &bases {
-            let mut nodes: Vec<_> = b
-                .session
-                .nodes()
-                .iter()
-                .filter(|n| !n.is_background())
-                .collect();
-            nodes.sort_by_key(|n| n.id);
-            for n in nodes {
-                if !classes.contains(&n.label) {
-                    classes.push(n.label.clone());
+            for c in b.session.description().class_names().into_iter().skip(1) {
+                if !classes.contains(&c) {
+                    classes.push(c);
                 }
             }
         }
         if let Some(b) = bases.first() {
             for l in &b.library {
-                if !classes.contains(&l.label) {
-                    classes.push(l.label.clone());
+                let c = l.node.class_name().to_string();
+                if !classes.contains(&c) {
+                    classes.push(c);
                 }
             }
         }

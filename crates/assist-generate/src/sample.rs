@@ -483,7 +483,7 @@ impl Generator {
             let mut o = json!({
                 "id": n.id,
                 "label": n.label,
-                "class": class_of(&n.label),
+                "class": class_of(n.class_name()),
                 "status": status,
                 "pose": pose_json(&n.world_from_local),
                 "half_size": n.half_size.to_array(),
@@ -536,7 +536,7 @@ impl Generator {
                     let r = r_w2c * DMat3::from_quat(n.world_from_local.rotation);
                     let t = r_w2c * n.world_from_local.translation + t_w2c;
                     json!({
-                        "obj_id": class_of(&n.label),
+                        "obj_id": class_of(n.class_name()),
                         "inst_id": n.id,
                         "cam_R_m2c": flat(&r),
                         "cam_t_m2c": (t * mm).to_array(),
@@ -580,7 +580,7 @@ impl Generator {
                         session
                             .node(id)
                             .filter(|n| !n.is_background())
-                            .map(|n| class_of(&n.label))
+                            .map(|n| class_of(n.class_name()))
                             .unwrap_or(0)
                     })
                     .collect();
@@ -716,7 +716,7 @@ impl Generator {
             let amodal = (0..w * h).filter(|&q| amo(q)).count() as u64;
             objs.push(ViewObject {
                 id: layer.id,
-                class: class_of(&n.label),
+                class: class_of(n.class_name()),
                 visible_pixels: visible,
                 amodal_pixels: amodal,
                 visibility: if amodal > 0 {

@@ -284,6 +284,11 @@ impl<'a> Clause<'a> {
         if matches!(w, "copies" | "copy" | "duplicates" | "clones" | "replicas")
             && self.op == Some(Scale)
             && self.verb_is_make()
+            // "make the copy twice as big" names an object; "make a copy", "make two copies" do not
+            && !matches!(
+                i.checked_sub(1).and_then(|j| self.toks.get(j)),
+                Some(Tok::Word(p)) if matches!(p.as_str(), "the" | "that" | "this")
+            )
         {
             self.op = Some(Replicate);
             return Ok(Some(1));

@@ -60,9 +60,95 @@ pub fn parse(
     opts: &ParseOptions,
     sources: &mut dyn SceneSource,
 ) -> Result<Vec<Action>, LangError> {
-    let toks = tokens::tokenize(text);
+    let text = numbered_names(text, scene);
+    let toks = tokens::tokenize(&text);
     let raw = grammar::parse_raw(&toks)?;
     Ok(resolve::resolve(&raw, scene, opts, sources, &Default::default())?.actions)
+}
+
+/// Words after which a number is a quantity, not part of a name ("the ball 2 cm left").
+const UNIT_WORDS: &[&str] = &[
+    "m",
+    "cm",
+    "mm",
+    "meter",
+    "meters",
+    "metre",
+    "metres",
+    "centimeter",
+    "centimeters",
+    "centimetre",
+    "centimetres",
+    "millimeter",
+    "millimeters",
+    "deg",
+    "degree",
+    "degrees",
+    "rad",
+    "radians",
+    "times",
+    "x",
+    "%",
+    "percent",
+    "units",
+    "unit",
+    "inch",
+    "inches",
+];
+
+/// Replicas are named "mug 2", "mug 3": a mention of such a name (its last words with the
+/// number, "mug 2" or "the red mug 2") becomes "object N" before parsing, so the number is
+/// not read as a quantity — unless a unit follows it ("the mug 2 cm left").
+fn numbered_names(text: &str, scene: &Scene) -> String {
+    let mut out = text.to_string();
+    let mut replicas: Vec<(&assist_core::SceneNode, Vec<String>)> = scene
+        .nodes
+        .iter()
+        .filter_map(|n| {
+            let words: Vec<String> = n.label.split_whitespace().map(str::to_lowercase).collect();
+            let last = words.last()?;
+            (words.len() >= 2 && last.chars().all(|c| c.is_ascii_digit())).then_some((n, words))
+        })
+        .collect();
+    // Longer names first, so "red mug 2" is not half-replaced by "mug 2".
+    replicas.sort_by_key(|(_, w)| std::cmp::Reverse(w.len()));
+    for (n, words) in replicas {
+        for start in 0..words.len() - 1 {
+            let phrase = words[start..].join(" ");
+            if let Some(new) = replace_name(&out, &phrase, n.id) {
+                out = new;
+                break;
+            }
+        }
+    }
+    out
+}
+
+/// `text` with the first whole-word mention of `phrase` (and a "the" before it) replaced
+/// by "object ID", unless a unit word follows it.
+fn replace_name(text: &str, phrase: &str, id: assist_core::InstanceId) -> Option<String> {
+    let lower = text.to_lowercase();
+    let boundary = |c: Option<char>| c.is_none_or(|c| !c.is_alphanumeric());
+    let mut from = 0;
+    while let Some(k) = lower[from..].find(phrase) {
+        let (a, b) = (from + k, from + k + phrase.len());
+        from = b;
+        if !boundary(lower[..a].chars().last()) || !boundary(lower[b..].chars().next()) {
+            continue;
+        }
+        let next = lower[b..].split_whitespace().next().unwrap_or("");
+        let next = next.trim_matches(|c: char| !c.is_alphanumeric() && c != '%');
+        if UNIT_WORDS.contains(&next) {
+            continue;
+        }
+        let a = if lower[..a].ends_with("the ") {
+            a - 4
+        } else {
+            a
+        };
+        return Some(format!("{}object {id}{}", &text[..a], &text[b..]));
+    }
+    None
 }
 
 /// Like [`parse`], keeping what validation made of each action (see [`Resolved`]); field
@@ -74,7 +160,8 @@ pub fn resolve_text(
     sources: &mut dyn SceneSource,
     taken_fields: &std::collections::BTreeSet<String>,
 ) -> Result<Resolved, LangError> {
-    let toks = tokens::tokenize(text);
+    let text = numbered_names(text, scene);
+    let toks = tokens::tokenize(&text);
     let raw = grammar::parse_raw(&toks)?;
     resolve::resolve(&raw, scene, opts, sources, taken_fields)
 }

@@ -123,7 +123,17 @@ impl State {
                 }
             }
             ObjectRef::Created => {
+                // The copy this instruction made, else the newest copy in the scene (a
+                // replica: its label is not its class).
                 self.created
+                    .or_else(|| {
+                        self.scene
+                            .nodes
+                            .iter()
+                            .filter(|n| n.class.as_deref().is_some_and(|c| c != n.label))
+                            .map(|n| n.id)
+                            .max()
+                    })
                     .map(|c| vec![c])
                     .ok_or_else(|| LangError::NoAntecedent {
                         clause: cmd.text.clone(),

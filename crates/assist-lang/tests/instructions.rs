@@ -41,6 +41,7 @@ fn scene() -> Scene {
         backdrop: Default::default(),
         selected: None,
         near: 0.0,
+        classes: Vec::new(),
     }
 }
 
@@ -522,4 +523,47 @@ fn a_scale_in_words_is_about_the_resting_point() {
         "{c:?}"
     );
     assert!((c[2] - (low + 0.03)).abs() < 1e-9, "{c:?} vs lowest {low}");
+}
+
+/// The scene after "duplicate the red ceramic mug": node 11 is "red ceramic mug 2", of
+/// class "red ceramic mug".
+fn with_replica() -> Scene {
+    let mut s = scene();
+    let mut copy = node(11, "red ceramic mug 2", [-0.1, 0.2, 0.8]);
+    copy.class = Some("red ceramic mug".into());
+    s.nodes.push(copy);
+    s
+}
+
+#[test]
+fn replicas_are_named_by_their_number() {
+    let s = with_replica();
+    let o = ParseOptions::default();
+    for (text, id) in [
+        ("delete mug 2", 11),
+        ("delete the mug 2", 11),
+        ("delete the red ceramic mug 2", 11),
+        ("remove the copy", 11),
+        // the number is a quantity when a unit follows it
+        ("move object 3 2 cm left", 3),
+    ] {
+        let a = parse(text, &s, &o, &mut Other).unwrap_or_else(|e| panic!("{text}: {e}"));
+        assert_eq!(a[0].instance_id, id, "{text}");
+    }
+    // "make the copy twice as big" in a later instruction scales the copy.
+    let a = parse("make the copy twice as big", &s, &o, &mut Other).unwrap();
+    assert_eq!(
+        (a[0].instance_id, a[0].operation),
+        (11, assist_core::Operation::Scale)
+    );
+    // "mug 2 cm": a unit follows, so "the mug" is the original or the copy: ambiguous.
+    assert!(matches!(
+        parse("move the mug 2 cm left", &s, &o, &mut Other),
+        Err(LangError::Ambiguous { .. })
+    ));
+    // Without a replica, "the copy" refers to nothing.
+    assert!(matches!(
+        parse("remove the copy", &scene(), &o, &mut Other),
+        Err(LangError::NoAntecedent { .. })
+    ));
 }

@@ -35,6 +35,7 @@ fn scene() -> Scene {
         backdrop: Default::default(),
         selected: None,
         near: 0.0,
+        classes: Vec::new(),
     }
 }
 

@@ -412,6 +412,7 @@ impl Session {
             .map(|n| assist_data::Instance {
                 id: n.id,
                 label: n.label.clone(),
+                class: n.class.clone(),
                 bbox: None,
             })
             .collect()

@@ -83,6 +83,8 @@ impl Session {
             meters_per_unit: scene.scene.meters_per_unit,
             world_up: scene.scene.up.to_array(),
             instances: self.instances(),
+            // The scene's own class list: the same ids in every render of it.
+            classes: scene.scene.class_names(),
             ..WriterConfig::default()
         };
         let writer = DatasetWriter::create(&job.out, cfg, job.force).map_err(SessionError::Data)?;

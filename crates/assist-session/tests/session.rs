@@ -15,6 +15,7 @@ fn node(id: u16, label: &str, half: f64, at: DVec3) -> SceneNode {
         id,
         label: label.into(),
         embedding: None,
+        class: None,
         field: format!("f{id}"),
         half_size: DVec3::splat(half),
         world_from_local: Similarity3::from_translation(at),
@@ -48,6 +49,7 @@ fn table_scene() -> NeuralScene {
             backdrop: Default::default(),
             selected: None,
             near: 0.0,
+            classes: Vec::new(),
         },
         fields: map,
     }

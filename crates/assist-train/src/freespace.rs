@@ -259,6 +259,7 @@ mod tests {
             id: 0,
             label: "background".into(),
             embedding: None,
+            class: None,
             field: "background".into(),
             half_size: DVec3::new(0.5, 0.5, 0.5),
             world_from_local: Similarity3::from_translation(DVec3::new(0.0, 0.0, 0.3)),

@@ -127,6 +127,7 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
             id: 0,
             label: "background".into(),
             embedding: None,
+            class: None,
             field: "background".into(),
             half_size: half,
             world_from_local: Similarity3::from_translation(c),
@@ -171,7 +172,10 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
         },
         selected: None,
         near,
+        classes: Vec::new(),
     };
+    let mut scene = scene;
+    scene.register_classes();
     Ok(NeuralScene { scene, fields })
 }
 

@@ -552,6 +552,7 @@ impl Worker {
             meters_per_unit: d.meters_per_unit,
             world_up: d.up.to_array(),
             instances: self.session.instances(),
+            classes: d.class_names(),
             ..WriterConfig::default()
         };
         let w = DatasetWriter::create(&dir, cfg, false).map_err(|e| e.to_string())?;

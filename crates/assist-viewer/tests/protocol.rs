@@ -21,6 +21,7 @@ fn node(id: u16, label: &str, half: f64, at: DVec3) -> SceneNode {
         id,
         label: label.into(),
         embedding: None,
+        class: None,
         field: format!("f{id}"),
         half_size: DVec3::splat(half),
         world_from_local: Similarity3::from_translation(at),
@@ -58,6 +59,7 @@ fn scene_at(path: &std::path::Path) -> std::path::PathBuf {
             backdrop: Default::default(),
             selected: None,
             near: 0.0,
+            classes: Vec::new(),
         },
         fields: map,
     };

@@ -54,7 +54,8 @@ fn render_orbit_writes_every_output_as_a_readable_dataset() {
     }
     let legend: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("panoptic_legend.json")).unwrap()).unwrap();
-    assert_eq!(legend["4"], "yellow rubber duck");
+    // The copy is named "yellow rubber duck 2" and is of the duck's class.
+    assert_eq!(legend["4"], "yellow rubber duck 2");
     let sem: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("semantic_legend.json")).unwrap()).unwrap();
     assert_eq!(
@@ -62,6 +63,36 @@ fn render_orbit_writes_every_output_as_a_readable_dataset() {
         3,
         "background, duck, mug: {sem}"
     );
+    assert_eq!(sem["1"], "yellow rubber duck", "{sem}");
+    assert_eq!(sem["2"], "red ceramic mug", "{sem}");
+    // Deleting the duck and its copy leaves the mug at class 2 in every later render.
+    let gone = tmp.path().join("c.assist");
+    let (ok, _, err) = assist(&[
+        "edit",
+        s(&edited),
+        "--do",
+        "delete object 1 and object 4",
+        "--out",
+        s(&gone),
+    ]);
+    assert!(ok, "{err}");
+    let out2 = tmp.path().join("out2");
+    let (ok, _, err) = assist(&[
+        "render",
+        s(&gone),
+        "--out",
+        s(&out2),
+        "--frames",
+        "1",
+        "--size",
+        "40x30",
+        "--outputs",
+        "rgb,semantic",
+    ]);
+    assert!(ok, "{err}");
+    let sem2: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out2.join("semantic_legend.json")).unwrap()).unwrap();
+    assert_eq!(sem2["2"], "red ceramic mug", "{sem2}");
     // The output reads back as a dataset with the rendered cameras.
     let ds = assist_data::load(&out, &assist_data::LoadOptions::default()).unwrap();
     assert_eq!(ds.frames.len(), 3);

@@ -117,6 +117,7 @@ fn writer(dir: &Path, cfg: &SynthConfig, objects: Option<&[Object]>) -> Result<D
         .map(|o| Instance {
             id: o.id,
             label: o.label.clone(),
+            class: None,
             bbox: Some(o.obb()),
         })
         .collect();

@@ -18,6 +18,7 @@ pub fn node(id: u16, key: &str, half: f64, pose: Similarity3) -> SceneNode {
         id,
         label: format!("n{id}"),
         embedding: None,
+        class: None,
         field: key.into(),
         half_size: DVec3::splat(half),
         world_from_local: pose,
@@ -42,6 +43,7 @@ pub fn scene(nodes: Vec<SceneNode>, fields: Vec<(&str, Field)>, cone: f32) -> Ne
             backdrop: Default::default(),
             selected: None,
             near: 0.0,
+            classes: Vec::new(),
         },
         fields: map,
     }

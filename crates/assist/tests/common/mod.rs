@@ -54,6 +54,7 @@ pub fn write_scene(dir: &Path) {
             backdrop: Default::default(),
             selected: None,
             near: 0.0,
+            classes: Vec::new(),
         },
         fields,
     };
