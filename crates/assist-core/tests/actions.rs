@@ -386,3 +386,48 @@ fn replicas_are_numbered_and_class_ids_are_stable() {
     let back: Scene = serde_json::from_str(&serde_json::to_string(&s).unwrap()).unwrap();
     assert_eq!(back.class_names(), before);
 }
+
+/// An object moved down into a table (a thin opaque shell at z = 0.75, its resting
+/// height, with a hole where the object hid it) sinks by what it moved; resting on it, or
+/// moved off its edge, it does not.
+#[test]
+fn sinking_depth_measures_how_far_a_base_is_below_the_support() {
+    use assist_core::edit::sinking_depth;
+    let s = scene(); // 0.5 m per unit; node 1 rests at z = 0.75, 0.1 units wide
+    let table = |pts: &[DVec3]| {
+        pts.iter()
+            .map(|p| {
+                let shell = (0.74..0.75).contains(&p.z) && p.x < 1.0;
+                let hole = p.x.abs() < 0.06 && p.y.abs() < 0.06;
+                if shell && !hole { 3000.0f32 } else { 0.0 }
+            })
+            .collect::<Vec<_>>()
+    };
+    let n = s.node(1).unwrap().clone();
+    let depth = |n: &SceneNode| sinking_depth(n, s.up, s.meters_per_unit, &mut |p| table(p));
+    let rest = depth(&n).expect("the table is found");
+    assert!(rest <= 0.0026, "resting on the table: {rest} m");
+    for (down_units, metres) in [(0.04, 0.02), (0.1, 0.05)] {
+        let mut m = n.clone();
+        m.world_from_local.translation.z -= down_units;
+        let d = depth(&m).unwrap();
+        assert!(
+            (d - metres).abs() <= 0.0026,
+            "{down_units} units down: {d} m"
+        );
+    }
+    // Far below the table it is out of reach: nothing is found.
+    let mut m = n.clone();
+    m.world_from_local.translation.z -= 1.0;
+    assert_eq!(depth(&m), None);
+    // Moved down past the table's edge (x = 1): nothing under it.
+    let mut m = n.clone();
+    m.world_from_local.translation += DVec3::new(1.5, 0.0, -0.1);
+    assert_eq!(depth(&m), None);
+    // Lying on its side (turned 90° about x), then moved down 2 cm.
+    let mut m = n.clone();
+    m.world_from_local.rotation = DQuat::from_rotation_x(std::f64::consts::FRAC_PI_2);
+    m.world_from_local.translation.z -= 0.04;
+    let d = depth(&m).unwrap();
+    assert!((d - 0.02).abs() <= 0.0026, "{d}");
+}

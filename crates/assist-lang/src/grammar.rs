@@ -39,6 +39,8 @@ pub struct RawParams {
     /// `x`, `-y`, `up`.
     pub axis: Option<String>,
     pub direction: Option<Direction>,
+    /// Directions after the first ("10 cm left and 3 cm down"), in order.
+    pub more_directions: Vec<Direction>,
     /// Axes named in the object's own frame ("its own x axis", "local y").
     pub frame_object: bool,
     pub clockwise: Option<bool>,
@@ -448,7 +450,11 @@ impl<'a> Clause<'a> {
             _ => {
                 let d = direction_word(w).filter(|_| self.op != Some(Select))?;
                 refs.close();
-                p.direction = Some(d);
+                if p.direction.is_some() {
+                    p.more_directions.push(d);
+                } else {
+                    p.direction = Some(d);
+                }
                 return Some(1);
             }
         }

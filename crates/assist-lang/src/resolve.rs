@@ -208,6 +208,35 @@ fn offset(
             ..Default::default()
         }));
     }
+    // "10 cm left and 3 cm down": one distance per direction, the offsets summed.
+    if let Some(first) = p.direction
+        && !p.more_directions.is_empty()
+    {
+        let dirs: Vec<_> = std::iter::once(first)
+            .chain(p.more_directions.iter().copied())
+            .collect();
+        if lengths.len() != dirs.len() || p.quantities.len() != dirs.len() || p.axis.is_some() {
+            return Err(clause_err(
+                cmd,
+                "direction",
+                format!(
+                    "{} directions need {} distances, one each (e.g. \"10 cm left and 3 cm down\")",
+                    dirs.len(),
+                    dirs.len()
+                ),
+            ));
+        }
+        let v = dirs
+            .iter()
+            .zip(&lengths)
+            .map(|(&dir, &d)| direction_vector(dir, st.scene.up, opts.camera) * d)
+            .fold(DVec3::ZERO, |a, b| a + b);
+        return Ok(Some(ActionConfig {
+            vector: Some(v.to_array()),
+            unit: Some("m".into()),
+            ..Default::default()
+        }));
+    }
     let d = distance(cmd)?;
     match (d, p.direction, &p.axis) {
         (None, None, None) => Ok(None),

@@ -116,6 +116,14 @@ const TABLE: &[(&str, &str)] = &[
     ("select the red box", "7 select"),
     // Moving.
     (
+        "move the mug 10 cm left and 3 cm down",
+        r#"3 translate {"vector":[-0.1,0,-0.03],"unit":"m"}"#,
+    ),
+    (
+        "move the mug left 10 cm and up 2 cm",
+        r#"3 translate {"vector":[-0.1,0,0.02],"unit":"m"}"#,
+    ),
+    (
         "Move the duck 5cm to the right.",
         r#"1 translate {"vector":[0.05,0,0],"unit":"m"}"#,
     ),
@@ -355,6 +363,7 @@ fn instruction_table() {
 }
 
 const ERRORS: &[(&str, &str)] = &[
+    ("move the mug 10 cm left and down", "one each"),
     ("move the sofa 10 cm left", "no object called \"sofa\""),
     (
         "rotate the box 90 degrees",

@@ -92,3 +92,57 @@ impl NeuralScene {
         &self.fields[&self.scene.nodes[index].field]
     }
 }
+
+impl NeuralScene {
+    /// Density of node `index`'s field at world points, per world unit of length (so the
+    /// opacity of a short world segment `l` at `p` is `1 − exp(−σ·l)`); 0 outside the
+    /// node's box (or, for a contracted node, beyond its far shell).
+    pub fn density_at_world(&self, index: usize, points: &[DVec3]) -> Vec<f32> {
+        let node = &self.scene.nodes[index];
+        let nf = self.field_of(index);
+        let w = &node.world_from_local;
+        let half = node.half_size;
+        let far = assist_field::contraction::FAR_RADIUS as f64;
+        let mut inside = Vec::with_capacity(points.len());
+        let mut pos: [Vec<f32>; 3] = Default::default();
+        for p in points {
+            let l = w.local_from_world_point(*p);
+            let u = match nf.space {
+                NodeSpace::Box => {
+                    let ok = (l.abs() - half).max_element() <= 0.0;
+                    ok.then(|| (l / (half * 2.0) + 0.5).as_vec3().to_array())
+                }
+                NodeSpace::Contracted => {
+                    let c = l / half;
+                    (c.abs().max_element() < far).then(|| {
+                        assist_field::contraction::contract_to_unit(c.as_vec3().to_array())
+                    })
+                }
+            };
+            inside.push(u.is_some());
+            if let Some(u) = u {
+                for a in 0..3 {
+                    pos[a].push(u[a]);
+                }
+            }
+        }
+        let mut sigma = vec![0.0f32; pos[0].len()];
+        if !sigma.is_empty() {
+            nf.field.density([&pos[0], &pos[1], &pos[2]], &mut sigma);
+        }
+        // σ is per box diagonal of local length: per world unit it is σ · local_per_world / unit
+        // (the mean scale for a node scaled unevenly).
+        let per_world = (3.0 / w.scale.element_sum()) as f32 / nf.unit;
+        let mut it = sigma.into_iter();
+        inside
+            .into_iter()
+            .map(|ok| {
+                if ok {
+                    it.next().unwrap_or(0.0) * per_world
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    }
+}

@@ -54,7 +54,7 @@ pub struct EditArgs {
     #[arg(long, value_name = "NAME")]
     pub frame: Option<String>,
     /// Refuse an edit that takes an object out of the captured region (the background's
-    /// box) instead of warning about it.
+    /// box) or sinks it 3 cm or more into the surface under it, instead of warning.
     #[arg(long)]
     pub strict: bool,
     /// What a scale in words keeps in place: base (the object's resting point, so it
@@ -247,6 +247,40 @@ fn leaving_capture(before: &Scene, after: &Scene, cams: &[assist_core::Camera]) 
     warnings
 }
 
+/// Objects an edit pushes into the surface under them: moved, resized or new nodes whose
+/// base lies at least 3 cm below the support level the background shows around them
+/// ([`assist_core::edit::sinking_depth`]), 2 cm deeper than before the edit (a trained
+/// surface is only good to a centimetre or so).
+fn sinking(weights: &assist_scene::NeuralScene, before: &Scene, after: &Scene) -> Vec<String> {
+    let Some(bg) = weights.scene.nodes.iter().position(|n| n.is_background()) else {
+        return Vec::new();
+    };
+    let mut density = |pts: &[assist_core::DVec3]| weights.density_at_world(bg, pts);
+    let mut depth = |n: &assist_core::SceneNode| {
+        assist_core::edit::sinking_depth(n, after.up, after.meters_per_unit, &mut density)
+    };
+    let mut warnings = Vec::new();
+    for n in after.nodes.iter().filter(|n| !n.is_background()) {
+        let was = before.nodes.iter().find(|b| b.id == n.id);
+        if was
+            .is_some_and(|b| b.world_from_local == n.world_from_local && b.half_size == n.half_size)
+        {
+            continue;
+        }
+        let Some(d) = depth(n) else { continue };
+        let d0 = was.and_then(&mut depth).unwrap_or(0.0);
+        if d >= 0.03 && d > d0 + 0.02 {
+            warnings.push(format!(
+                "node {} {:?} would sink about {:.0} cm into the surface under it (its base would be that far below the level the background shows around it)",
+                n.id,
+                n.label,
+                d * 100.0
+            ));
+        }
+    }
+    warnings
+}
+
 /// Objects leaving the captured region: a warning on stderr, or under `--strict` a
 /// refusal before anything changes.
 fn check_region(
@@ -279,7 +313,11 @@ fn check_region(
         .map(|v| v.into_iter().map(|n| n.camera).collect())
         .unwrap_or_default();
     let warnings = after
-        .map(|after| leaving_capture(&before, &after, &cams))
+        .map(|after| {
+            let mut w = leaving_capture(&before, &after, &cams);
+            w.extend(sinking(session.scene(), &before, &after));
+            w
+        })
         .unwrap_or_default();
     if a.strict && !warnings.is_empty() {
         bail!("--strict: {}", warnings.join("; "));

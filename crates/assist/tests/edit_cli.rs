@@ -431,3 +431,94 @@ fn edits_share_weights_on_disk_and_survive_the_original() {
     let (ok, _, err) = assist(&["edit", s(&b), "--do", "delete the mug", "--dry-run"]);
     assert!(ok, "the edited scene no longer loads: {err}");
 }
+
+/// A mug resting on a table (the background: a dense slab whose top is at z = 0.75) moved
+/// 5 cm down sinks into it: a warning, or under `--strict` a refusal that writes nothing;
+/// moved up or sideways, nothing is said.
+#[test]
+fn an_object_pushed_into_its_support_is_warned_about() {
+    use std::sync::Arc;
+
+    use assist_core::{DMat3, DVec3, Obb, Scene, SceneNode};
+    use assist_field::{Field, OccupancyGrid};
+    use assist_scene::{NeuralScene, NodeField};
+    let tmp = assist_testkit::TempDir::new("cli-sink");
+    let scene = tmp.path().join("a.assist");
+    let table = SceneNode::from_obb(
+        0,
+        "background",
+        "background",
+        &Obb::new(
+            DVec3::new(0.0, 0.0, 0.625),
+            DVec3::new(2.0, 2.0, 0.25),
+            DMat3::IDENTITY,
+        ),
+    );
+    let mug = SceneNode::from_obb(
+        1,
+        "mug",
+        "mug",
+        &Obb::new(
+            DVec3::new(0.0, 0.0, 0.8),
+            DVec3::splat(0.1),
+            DMat3::IDENTITY,
+        ),
+    );
+    let mut fields = BTreeMap::new();
+    for n in [&table, &mug] {
+        let f = Field::constant(1000.0, [0.5; 3], false, 1).unwrap();
+        fields.insert(
+            n.field.clone(),
+            Arc::new(NodeField::new(f, OccupancyGrid::new(8), n.half_size)),
+        );
+    }
+    let ns = NeuralScene {
+        scene: Scene {
+            nodes: vec![table, mug],
+            up: DVec3::Z,
+            meters_per_unit: 1.0,
+            background_color: [0.0; 3],
+            backdrop: Default::default(),
+            selected: None,
+            near: 0.0,
+            classes: Vec::new(),
+        },
+        fields,
+    };
+    assist_scene::scene_file::save(&scene, &ns, serde_json::Value::Null, false).unwrap();
+    let (ok, _, err) = assist(&[
+        "edit",
+        s(&scene),
+        "--do",
+        "move the mug 5 cm down",
+        "--dry-run",
+    ]);
+    assert!(ok, "{err}");
+    assert!(
+        err.contains("warning") && err.contains("sink about 5 cm"),
+        "{err}"
+    );
+    for fine in [
+        "move the mug 5 cm up",
+        "move the mug 20 cm left",
+        "move the mug 1 cm down",
+    ] {
+        let (ok, _, err) = assist(&["edit", s(&scene), "--do", fine, "--dry-run"]);
+        assert!(ok && !err.contains("sink"), "{fine}: {err}");
+    }
+    let e = tmp.path().join("e.assist");
+    let (ok, _, err) = assist(&[
+        "edit",
+        s(&scene),
+        "--do",
+        "move the mug 5 cm down",
+        "--strict",
+        "--out",
+        s(&e),
+    ]);
+    assert!(
+        !ok && err.contains("--strict") && err.contains("sink"),
+        "{err}"
+    );
+    assert!(!e.exists());
+}
