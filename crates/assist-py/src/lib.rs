@@ -218,7 +218,8 @@ impl Scene {
         Ok(Scene { session })
     }
 
-    /// The nodes: dicts with `id`, `label`, `half_size` (3,), `pose` (4×4 world-from-box,
+    /// The nodes: dicts with `id`, `label`, `class` (its semantic class: the label, or for
+    /// a copy "mug 2" the original's "mug"), `half_size` (3,), `pose` (4×4 world-from-box,
     /// scale included) and `background` (bool).
     #[getter]
     fn nodes<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
@@ -227,6 +228,7 @@ impl Scene {
             let d = PyDict::new(py);
             d.set_item("id", n.id)?;
             d.set_item("label", &n.label)?;
+            d.set_item("class", n.class_name())?;
             d.set_item("background", n.is_background())?;
             d.set_item(
                 "half_size",

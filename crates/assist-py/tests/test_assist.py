@@ -202,7 +202,9 @@ def test_add_from_another_scene(trained):
     new = {n["id"] for n in scene.nodes} - before
     assert len(new) == 1
     node = next(n for n in scene.nodes if n["id"] in new)
-    assert node["label"] == src["label"]
+    # its label is taken in this scene: it is numbered as a copy is
+    assert node["label"] == f'{src["label"]} 2'
+    assert node["class"] == src["class"] == src["label"]
     assert np.allclose(node["pose"][:3, 3], [0.0, 0.0, 0.8])
     with pytest.raises(assist.AssistError, match="giraffe"):
         scene.add_from(scene_path, "giraffe")
