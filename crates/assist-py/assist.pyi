@@ -58,7 +58,8 @@ class Scene:
         """Opens a NAME.assist scene with its history."""
     @property
     def nodes(self) -> list[dict[str, Any]]:
-        """Dicts with id, label, background (bool), half_size (3,) and pose (4×4
+        """Dicts with id, label, class (semantic class: the label, or for a copy
+        "mug 2" the original's "mug"), background (bool), half_size (3,) and pose (4×4
         world-from-box, scale included)."""
     @property
     def meters_per_unit(self) -> float: ...
