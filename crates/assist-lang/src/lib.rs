@@ -107,7 +107,13 @@ fn numbered_names(text: &str, scene: &Scene) -> String {
         .filter_map(|n| {
             let words: Vec<String> = n.label.split_whitespace().map(str::to_lowercase).collect();
             let last = words.last()?;
-            (words.len() >= 2 && last.chars().all(|c| c.is_ascii_digit())).then_some((n, words))
+            // "object 6" is already how an id is named: not a name to rewrite.
+            let id_word = matches!(
+                words.first().map(String::as_str),
+                Some("object" | "node" | "instance" | "id" | "number" | "no")
+            );
+            (words.len() >= 2 && !id_word && last.chars().all(|c| c.is_ascii_digit()))
+                .then_some((n, words))
         })
         .collect();
     // Longer names first, so "red mug 2" is not half-replaced by "mug 2".

@@ -570,6 +570,11 @@ fn replicas_are_named_by_their_number() {
         parse("move the mug 2 cm left", &s, &o, &mut Other),
         Err(LangError::Ambiguous { .. })
     ));
+    // A node labelled like an id ("object 3" on node 12) does not take over "object 3".
+    let mut odd = with_replica();
+    odd.nodes.push(node(12, "object 3", [0.7, 0.4, 0.8]));
+    let a = parse("delete object 3", &odd, &o, &mut Other).unwrap();
+    assert_eq!(a[0].instance_id, 3);
     // Without a replica, "the copy" refers to nothing.
     assert!(matches!(
         parse("remove the copy", &scene(), &o, &mut Other),
