@@ -11,6 +11,7 @@
 #![forbid(unsafe_code)]
 
 mod cameras;
+mod export;
 mod render_job;
 mod train_job;
 
@@ -24,10 +25,18 @@ use assist_scene::{EditError, Editor, NeuralScene, SceneFileError};
 
 pub use assist_data::Output;
 pub use assist_lang::Resolved;
+pub use assist_mesh::write::Format as MeshFormat;
+pub use assist_mesh::{
+    DEFAULT_DENSITY, DEFAULT_MIN_PART, DEFAULT_RESOLUTION, DEFAULT_SMOOTH, ExtractOptions,
+    MeshFrame,
+};
 pub use assist_render::DragCache;
 pub use assist_render::RenderedImage as Frame;
 pub use cameras::{
     CameraSource, NamedCamera, Orbit, SplitChoice, dataset_cameras, objects_box, orbit,
+};
+pub use export::{
+    DEFAULT_MATERIAL_DENSITY, DEFAULT_POINTS, ExportJob, ExportSummary, ExportedNode, SimModel,
 };
 pub use render_job::{
     DatasetOutput, Highlight, RenderJob, RenderSummary, ViewDone, frame_layers, view_images,

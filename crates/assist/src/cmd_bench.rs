@@ -19,6 +19,9 @@ pub enum BenchCommand {
     /// The viewer's latency on a trained scene: preview frame, full frame, drag update
     /// (with the drag cache), and preview frames/s with 1, 2 and 4 clients.
     View(crate::cmd_bench_view::ViewBenchArgs),
+    /// Exported meshes against a dataset's ground truth (instance masks with depth,
+    /// back-projected): Chamfer distance both ways and extraction time per node.
+    Mesh(crate::cmd_bench_mesh::MeshBenchArgs),
 }
 
 #[derive(Args, Debug)]
@@ -57,6 +60,7 @@ pub fn run(c: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Field(a) => field(a),
         BenchCommand::Prior(a) => prior(a),
         BenchCommand::View(a) => crate::cmd_bench_view::run(a),
+        BenchCommand::Mesh(a) => crate::cmd_bench_mesh::run(a),
     }
 }
 

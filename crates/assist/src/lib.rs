@@ -11,11 +11,13 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod cmd_bench;
+mod cmd_bench_mesh;
 mod cmd_bench_view;
 mod cmd_dataset;
 mod cmd_demo;
 mod cmd_edit;
 mod cmd_eval;
+mod cmd_export;
 mod cmd_generate;
 mod cmd_render;
 mod cmd_scene;
@@ -62,6 +64,9 @@ pub enum Command {
     /// Render a trained scene into a new labelled dataset, from a dataset's cameras, a
     /// transforms.json or an orbit.
     Render(cmd_render::RenderArgs),
+    /// Export nodes as meshes or point clouds (PLY, OBJ, GLB), with an optional MuJoCo or
+    /// URDF model placing them at their poses.
+    Export(cmd_export::ExportArgs),
     /// Make many randomized, plausible, labelled variations of trained scenes (shardable).
     Generate(cmd_generate::GenerateArgs),
     /// Open a trained scene in the interactive viewer (a page in your browser).
@@ -83,6 +88,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Eval(a) => cmd_eval::run(a),
         Command::Edit(a) => cmd_edit::run(a),
         Command::Render(a) => cmd_render::run(a),
+        Command::Export(a) => cmd_export::run(a),
         Command::Generate(a) => cmd_generate::run(a),
         Command::View(a) => cmd_view::run(a),
         Command::Bench { command } => cmd_bench::run(command),

@@ -1,0 +1,350 @@
+//! `ExportJob`: nodes as meshes or point clouds for simulators and 3D tools, with an
+//! optional MuJoCo or URDF model that places them at the nodes' poses (assist-mesh does
+//! the geometry; this is where a scene, a node selection and an output folder meet).
+//!
+//! The output folder is staged and swapped in whole (`--force` only over assist's own
+//! folders). It holds one file per node (`node_ID_LABEL.EXT`), `export.json` (per node:
+//! id, label, file, frame, pose in metres, counts, closed or not, volume and mass
+//! properties; the scene's up and metres per unit), and `scene.xml` (MJCF) or
+//! `scene.urdf` with one `node_ID_LABEL.urdf` per object.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use assist_core::{DVec3, InstanceId};
+use assist_mesh::sim::{self, Body};
+use assist_mesh::write::{self, Format, obj_name};
+use assist_mesh::{ExtractOptions, MeshFrame, NodeMesh, extract_node, node_pose};
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+
+use crate::{Result, Session, SessionError, request};
+
+/// A simulator model to write beside the meshes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SimModel {
+    Mjcf,
+    Urdf,
+}
+
+/// Default number of points of a point cloud per node.
+pub const DEFAULT_POINTS: usize = 100_000;
+/// Default material density for masses in simulator models (kg/m³, water).
+pub const DEFAULT_MATERIAL_DENSITY: f64 = 1000.0;
+
+/// What to export and where.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ExportJob {
+    /// Nodes by id or label; `all` = every object node; `background` (or 0) = the
+    /// background's inner box.
+    pub nodes: Vec<String>,
+    pub format: Format,
+    /// Coordinates of the files; `None` = the world, or the nodes' frames with `sim`.
+    pub frame: Option<MeshFrame>,
+    pub sim: Option<SimModel>,
+    #[serde(flatten)]
+    pub extract: ExtractOptions,
+    /// Points per node for `Format::Points`.
+    pub points: usize,
+    /// kg/m³ for the simulator models' masses.
+    pub material_density: f64,
+    pub out: PathBuf,
+    pub force: bool,
+}
+
+impl Default for ExportJob {
+    fn default() -> Self {
+        ExportJob {
+            nodes: vec!["all".into()],
+            format: Format::Obj,
+            frame: None,
+            sim: None,
+            extract: ExtractOptions::default(),
+            points: DEFAULT_POINTS,
+            material_density: DEFAULT_MATERIAL_DENSITY,
+            out: PathBuf::from("export"),
+            force: false,
+        }
+    }
+}
+
+/// One node as exported.
+#[derive(Debug, Clone, Serialize)]
+pub struct ExportedNode {
+    pub id: InstanceId,
+    pub label: String,
+    pub file: String,
+    pub vertices: usize,
+    pub triangles: usize,
+    /// Every edge in exactly two triangles, consistently oriented.
+    pub closed: bool,
+    /// Enclosed volume in m³ (closed meshes only).
+    pub volume_m3: Option<f64>,
+    pub seconds: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct ExportSummary {
+    pub out: PathBuf,
+    pub nodes: Vec<ExportedNode>,
+    /// The simulator model file, when one was written.
+    pub model: Option<String>,
+}
+
+impl Session {
+    /// The node named `name`: an id, `background`, or a label or description found as an
+    /// instruction finds objects (candidates listed when it is unclear).
+    pub fn node_named(&mut self, name: &str) -> Result<InstanceId> {
+        let t = name.trim();
+        if let Ok(id) = t.parse::<InstanceId>() {
+            return self.node(id).map(|n| n.id).ok_or_else(|| {
+                request(
+                    "node",
+                    format!("no node with id {id} (the scene has {})", self.ids()),
+                )
+            });
+        }
+        if t.eq_ignore_ascii_case("background") {
+            return self
+                .nodes()
+                .iter()
+                .find(|n| n.is_background())
+                .map(|n| n.id)
+                .ok_or_else(|| request("node", "the scene has no background node".into()));
+        }
+        let mpu = self.description().meters_per_unit;
+        let r = self
+            .resolve(&format!("select the {t}"), None)
+            .map_err(|e| request("node", format!("{t:?}: {e}")))?;
+        r.edits
+            .first()
+            .map(|e| e.to_action(mpu).instance_id)
+            .ok_or_else(|| request("node", format!("{t:?} names no node")))
+    }
+
+    /// The ids `names` select (in scene order, each once).
+    fn export_ids(&mut self, names: &[String]) -> Result<Vec<InstanceId>> {
+        let mut ids = Vec::new();
+        for n in names {
+            if n.trim().eq_ignore_ascii_case("all") {
+                ids.extend(
+                    self.nodes()
+                        .iter()
+                        .filter(|n| !n.is_background())
+                        .map(|n| n.id),
+                );
+            } else {
+                ids.push(self.node_named(n)?);
+            }
+        }
+        let order: Vec<InstanceId> = self.nodes().iter().map(|n| n.id).collect();
+        ids.sort_by_key(|id| order.iter().position(|o| o == id));
+        ids.dedup();
+        if ids.is_empty() {
+            return Err(request("node", "no object nodes to export".into()));
+        }
+        Ok(ids)
+    }
+
+    /// Writes the job's nodes (see the module docs); `on_node` is told of each node once
+    /// its file is written.
+    pub fn export(
+        &mut self,
+        job: &ExportJob,
+        mut on_node: impl FnMut(usize, usize, &ExportedNode),
+    ) -> Result<ExportSummary> {
+        job.extract
+            .validate()
+            .map_err(|e| request("export", e.to_string()))?;
+        if job.sim.is_some() && job.format != Format::Obj {
+            return Err(request(
+                "format",
+                "a simulator model references OBJ meshes (MuJoCo and URDF loaders read them): use the obj format".into(),
+            ));
+        }
+        if !(job.material_density.is_finite() && job.material_density > 0.0) {
+            return Err(request(
+                "material density",
+                format!(
+                    "{} is not a positive density in kg/m³",
+                    job.material_density
+                ),
+            ));
+        }
+        if job.format == Format::Points && !(1..=100_000_000).contains(&job.points) {
+            return Err(request(
+                "points",
+                format!("{} is outside 1..=100000000", job.points),
+            ));
+        }
+        let ids = self.export_ids(&job.nodes)?;
+        assist_fs::check_replaceable(&job.out, job.force).map_err(SessionError::Output)?;
+        let staging = assist_fs::Staging::begin(&job.out, "exporting meshes")
+            .map_err(SessionError::Output)?;
+        let frame = job.frame.unwrap_or(if job.sim.is_some() {
+            MeshFrame::Node
+        } else {
+            MeshFrame::World
+        });
+        let scene = self.scene();
+        let mpu = scene.scene.meters_per_unit;
+        let mut nodes = Vec::new();
+        let mut bodies = Vec::new();
+        let mut records = Vec::new();
+        for (k, &id) in ids.iter().enumerate() {
+            let t0 = Instant::now();
+            let index = scene
+                .scene
+                .nodes
+                .iter()
+                .position(|n| n.id == id)
+                .unwrap_or(0);
+            let node = &scene.scene.nodes[index];
+            let mesh = extract_node(scene, index, &job.extract)
+                .map_err(|e| request("export", e.to_string()))?;
+            let pose = node_pose(scene, id).unwrap_or_default();
+            let mesh = match frame {
+                MeshFrame::World => mesh.to_world(&pose),
+                MeshFrame::Node => mesh,
+            };
+            let name = obj_name(&node.label, id);
+            let file = format!("{name}.{}", job.format.extension());
+            let bytes = match job.format {
+                Format::Ply => write::mesh_ply(&mesh),
+                Format::Obj => write::mesh_obj(&mesh),
+                Format::Glb => write::mesh_glb(&mesh),
+                Format::Points => write::points_ply(
+                    &mesh.sample_points(job.points, u64::from(id)),
+                    &format!("assist node {id} {} (points)", node.label),
+                ),
+            };
+            write::write_file(&staging.dir().join(&file), &bytes)
+                .map_err(|e| request("export", e.to_string()))?;
+            let closed = mesh.is_closed() && !mesh.triangles.is_empty();
+            // Mass properties in the node frame, in metres.
+            let mass = closed.then(|| {
+                let in_node = match frame {
+                    MeshFrame::Node => mesh.positions.clone(),
+                    MeshFrame::World => {
+                        let inv = pose.inverse().unwrap_or_default();
+                        mesh.positions
+                            .iter()
+                            .map(|p| inv.transform_point(DVec3::from_array(*p)).to_array())
+                            .collect()
+                    }
+                };
+                let metres: Vec<[f64; 3]> = in_node.iter().map(|p| p.map(|v| v * mpu)).collect();
+                assist_mesh::mass_properties(&metres, &mesh.triangles, job.material_density)
+            });
+            let done = ExportedNode {
+                id,
+                label: node.label.clone(),
+                file: file.clone(),
+                vertices: mesh.positions.len(),
+                triangles: mesh.triangles.len(),
+                closed,
+                volume_m3: mass.map(|m| m.volume),
+                seconds: t0.elapsed().as_secs_f64(),
+            };
+            records.push(json!({
+                "id": id,
+                "label": node.label,
+                "class": node.class_name(),
+                "file": file,
+                "frame": frame,
+                "position_m": (pose.translation * mpu).to_array(),
+                "rotation_xyzw": pose.rotation.to_array(),
+                "vertices": done.vertices,
+                "triangles": done.triangles,
+                "closed": closed,
+                "mass_properties": mass,
+                "bounds": mesh.bounds(),
+            }));
+            bodies.push(Body {
+                name,
+                mesh_file: file,
+                translation: if frame == MeshFrame::Node {
+                    pose.translation
+                } else {
+                    DVec3::ZERO
+                },
+                rotation: if frame == MeshFrame::Node {
+                    pose.rotation
+                } else {
+                    Default::default()
+                },
+                mass,
+                rgb: mean_color(&mesh),
+                fixed: node.is_background(),
+            });
+            on_node(k, ids.len(), &done);
+            nodes.push(done);
+        }
+        let model_name = job
+            .out
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "scene".into());
+        let up = scene.scene.up;
+        let model = match job.sim {
+            None => None,
+            Some(SimModel::Mjcf) => {
+                let text = sim::mjcf(&model_name, &bodies, mpu, up);
+                write_text(&staging, "scene.xml", &text)?;
+                Some("scene.xml".to_string())
+            }
+            Some(SimModel::Urdf) => {
+                write_text(
+                    &staging,
+                    "scene.urdf",
+                    &sim::urdf_scene(&model_name, &bodies, mpu),
+                )?;
+                for b in bodies.iter().filter(|b| !b.fixed) {
+                    write_text(
+                        &staging,
+                        &format!("{}.urdf", b.name),
+                        &sim::urdf_object(b, mpu),
+                    )?;
+                }
+                Some("scene.urdf".to_string())
+            }
+        };
+        let index = json!({
+            "format": job.format,
+            "frame": frame,
+            "up": up.to_array(),
+            "meters_per_unit": mpu,
+            "units": "mesh files in world units (× meters_per_unit = metres); poses and masses in metres and kilograms",
+            "resolution": job.extract.resolution,
+            "density_level": job.extract.density,
+            "material_density_kg_m3": job.material_density,
+            "model": model,
+            "nodes": records,
+        });
+        write_text(
+            &staging,
+            "export.json",
+            &serde_json::to_string_pretty(&index).unwrap_or_default(),
+        )?;
+        staging.commit().map_err(SessionError::Output)?;
+        Ok(ExportSummary {
+            out: job.out.clone(),
+            nodes,
+            model,
+        })
+    }
+}
+
+fn write_text(staging: &assist_fs::Staging, name: &str, text: &str) -> Result<()> {
+    write::write_file(&staging.dir().join(name), text.as_bytes())
+        .map_err(|e| request("export", e.to_string()))
+}
+
+fn mean_color(m: &NodeMesh) -> [f32; 3] {
+    if m.colors.is_empty() {
+        return [0.7; 3];
+    }
+    let n = m.colors.len() as f32;
+    [0, 1, 2].map(|c| m.colors.iter().map(|v| v[c]).sum::<f32>() / n)
+}

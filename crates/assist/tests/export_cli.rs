@@ -1,0 +1,165 @@
+//! `assist export` as a user meets it: a built-in capture trained briefly, its objects
+//! exported in every format and with both simulator models, then read back by trimesh,
+//! MuJoCo and an XML parser (`export_check.py`, in the venv named by `ASSIST_PYTHON`);
+//! bad requests refused by name, and nothing a user had overwritten.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use common::{ok, refused, run, s};
+
+fn export(scene: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
+    let mut args = vec!["export", s(scene), "--out", s(out), "--json"];
+    args.extend_from_slice(extra);
+    let o = run(&args);
+    ok(&o);
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
+#[test]
+fn export_meshes_points_and_models_read_back() {
+    let tmp = assist_testkit::TempDir::new("export-cli");
+    let root = tmp.path().to_path_buf();
+    let cap = root.join("cap");
+    ok(&run(&[
+        "synth",
+        "--out",
+        s(&cap),
+        "--views",
+        "24",
+        "--size",
+        "96x72",
+        "--objects",
+        "3",
+    ]));
+    let scene = root.join("s.assist");
+    ok(&run(&[
+        "train",
+        s(&cap),
+        "--out",
+        s(&scene),
+        "--iters",
+        "300",
+    ]));
+
+    let obj = root.join("obj");
+    let summary = export(&scene, &obj, &["--resolution", "64"]);
+    let nodes = summary["nodes"].as_array().unwrap();
+    assert_eq!(nodes.len(), 3, "{summary}");
+    for n in nodes {
+        assert_eq!(n["closed"], true, "{n}");
+        assert!(n["volume_m3"].as_f64().unwrap() > 0.0, "{n}");
+        assert!(obj.join(n["file"].as_str().unwrap()).is_file());
+    }
+    let index: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(obj.join("export.json")).unwrap()).unwrap();
+    assert_eq!(index["frame"], "world");
+    // One node by name and one by id.
+    let label = nodes[0]["label"].as_str().unwrap().to_string();
+    let one = export(
+        &scene,
+        &root.join("one"),
+        &["--node", &label, "--format", "ply"],
+    );
+    assert_eq!(one["nodes"].as_array().unwrap().len(), 1);
+    assert_eq!(one["nodes"][0]["id"], nodes[0]["id"]);
+
+    let (ply, glb, pts, mjcf, urdf) = (
+        root.join("ply"),
+        root.join("glb"),
+        root.join("pts"),
+        root.join("mjcf"),
+        root.join("urdf"),
+    );
+    let res = ["--resolution", "64"];
+    export(&scene, &ply, &[&res[..], &["--format", "ply"]].concat());
+    export(&scene, &glb, &[&res[..], &["--format", "glb"]].concat());
+    export(
+        &scene,
+        &pts,
+        &[&res[..], &["--format", "points", "--points", "5000"]].concat(),
+    );
+    let m = export(&scene, &mjcf, &[&res[..], &["--sim", "mjcf"]].concat());
+    assert_eq!(m["model"], "scene.xml");
+    let mi: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(mjcf.join("export.json")).unwrap()).unwrap();
+    assert_eq!(mi["frame"], "node", "--sim exports in the nodes' frames");
+    export(&scene, &urdf, &[&res[..], &["--sim", "urdf"]].concat());
+
+    // Refusals: named, exit 1, nothing written.
+    let bad = root.join("bad");
+    refused(
+        &run(&[
+            "export",
+            s(&scene),
+            "--out",
+            s(&bad),
+            "--node",
+            "purple giraffe",
+        ]),
+        &["purple giraffe"],
+    );
+    refused(
+        &run(&["export", s(&scene), "--out", s(&bad), "--node", "77"]),
+        &["77"],
+    );
+    refused(
+        &run(&[
+            "export",
+            s(&scene),
+            "--out",
+            s(&bad),
+            "--format",
+            "ply",
+            "--sim",
+            "urdf",
+        ]),
+        &["obj"],
+    );
+    refused(
+        &run(&["export", s(&scene), "--out", s(&bad), "--resolution", "1"]),
+        &["resolution"],
+    );
+    assert!(!bad.exists());
+    // An existing folder is kept without --force; a user's own folder even with it.
+    let before = std::fs::read(obj.join("export.json")).unwrap();
+    refused(&run(&["export", s(&scene), "--out", s(&obj)]), &["--force"]);
+    assert_eq!(std::fs::read(obj.join("export.json")).unwrap(), before);
+    let mine = root.join("mine");
+    std::fs::create_dir_all(&mine).unwrap();
+    std::fs::write(mine.join("notes.txt"), "mine").unwrap();
+    refused(
+        &run(&["export", s(&scene), "--out", s(&mine), "--force"]),
+        &["mine"],
+    );
+    assert_eq!(std::fs::read(mine.join("notes.txt")).unwrap(), b"mine");
+    export(&scene, &obj, &["--resolution", "64", "--force"]);
+
+    match std::env::var("ASSIST_PYTHON") {
+        Ok(py) => {
+            let o = Command::new(py)
+                .arg(concat!(
+                    env!("CARGO_MANIFEST_DIR"),
+                    "/tests/export_check.py"
+                ))
+                .args([&cap, &obj, &ply, &glb, &pts, &mjcf, &urdf])
+                .output()
+                .unwrap();
+            assert!(
+                o.status.success(),
+                "export_check.py: {}{}",
+                String::from_utf8_lossy(&o.stdout),
+                String::from_utf8_lossy(&o.stderr)
+            );
+            eprintln!("export_check.py: {}", String::from_utf8_lossy(&o.stdout));
+        }
+        Err(_) if std::env::var("ASSIST_REQUIRE_PYTHON").is_ok() => {
+            panic!("ASSIST_REQUIRE_PYTHON is set but ASSIST_PYTHON (trimesh, mujoco) is not")
+        }
+        Err(_) => eprintln!(
+            "SKIPPED the trimesh/MuJoCo check of exports: set ASSIST_PYTHON to a python with trimesh and mujoco"
+        ),
+    }
+}
