@@ -29,6 +29,9 @@ pub const MAX_RESOLUTION: u32 = 1024;
 /// (levels 5–69.3; BENCHMARKS.md): 69.3 (half opacity over 1% of the diagonal) left the
 /// seen surface 2–6 mm inside the mesh, 10–20 within about 1 mm.
 pub const DEFAULT_DENSITY: f32 = 20.0;
+/// Default triangle budget per node (a collision body for a simulator, detailed enough
+/// for a render).
+pub const DEFAULT_MAX_TRIANGLES: usize = 50_000;
 /// Default smoothing of the density grid, in cells.
 pub const DEFAULT_SMOOTH: f32 = 1.0;
 /// Default share of the largest part's volume below which a part is dropped.
@@ -61,6 +64,14 @@ pub struct ExtractOptions {
     /// scale of a few cells that no training view resolves); 0 = none.
     #[serde(default = "default_smooth")]
     pub smooth: f32,
+    /// Largest number of triangles per node: more are reduced by quadric-error edge
+    /// collapse (shape and closedness kept); 0 = no limit.
+    #[serde(default = "default_max_triangles")]
+    pub max_triangles: usize,
+}
+
+fn default_max_triangles() -> usize {
+    DEFAULT_MAX_TRIANGLES
 }
 
 fn default_smooth() -> f32 {
@@ -78,6 +89,7 @@ impl Default for ExtractOptions {
             density: DEFAULT_DENSITY,
             min_part: DEFAULT_MIN_PART,
             smooth: DEFAULT_SMOOTH,
+            max_triangles: DEFAULT_MAX_TRIANGLES,
         }
     }
 }
@@ -241,6 +253,9 @@ pub fn extract_node(
     };
     if opts.min_part > 0.0 {
         mesh.keep_main_parts(opts.min_part);
+    }
+    if opts.max_triangles > 0 {
+        mesh.decimate(opts.max_triangles);
     }
     Ok(mesh)
 }
@@ -413,6 +428,7 @@ mod tests {
             density: 69.3,
             min_part: 0.05,
             smooth: 0.0,
+            max_triangles: 0,
         };
         let m = extract_node(&s, 0, &opts).unwrap();
         assert!(m.is_closed());
@@ -462,6 +478,7 @@ mod tests {
                 density: 69.3,
                 min_part: 0.05,
                 smooth: 0.0,
+                max_triangles: 0,
             },
         )
         .unwrap();
@@ -482,6 +499,7 @@ mod tests {
                 density: 1.0,
                 min_part: 0.0,
                 smooth: 0.0,
+                max_triangles: 0,
             },
         )
         .unwrap_err();

@@ -10,6 +10,7 @@
 #![forbid(unsafe_code)]
 
 pub mod chamfer;
+mod decimate;
 mod extract;
 mod mass;
 mod parts;
@@ -21,8 +22,8 @@ use assist_core::{DVec3, InstanceId, Rng, Similarity3};
 use assist_scene::NeuralScene;
 
 pub use extract::{
-    DEFAULT_DENSITY, DEFAULT_MIN_PART, DEFAULT_RESOLUTION, DEFAULT_SMOOTH, ExtractOptions,
-    MAX_RESOLUTION, MeshFrame, extract_node,
+    DEFAULT_DENSITY, DEFAULT_MAX_TRIANGLES, DEFAULT_MIN_PART, DEFAULT_RESOLUTION, DEFAULT_SMOOTH,
+    ExtractOptions, MAX_RESOLUTION, MeshFrame, extract_node,
 };
 pub use mass::{MassProperties, mass_properties};
 

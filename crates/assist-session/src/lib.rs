@@ -27,8 +27,8 @@ pub use assist_data::Output;
 pub use assist_lang::Resolved;
 pub use assist_mesh::write::Format as MeshFormat;
 pub use assist_mesh::{
-    DEFAULT_DENSITY, DEFAULT_MIN_PART, DEFAULT_RESOLUTION, DEFAULT_SMOOTH, ExtractOptions,
-    MeshFrame,
+    DEFAULT_DENSITY, DEFAULT_MAX_TRIANGLES, DEFAULT_MIN_PART, DEFAULT_RESOLUTION, DEFAULT_SMOOTH,
+    ExtractOptions, MeshFrame,
 };
 pub use assist_render::DragCache;
 pub use assist_render::RenderedImage as Frame;

@@ -35,6 +35,9 @@ pub struct MeshBenchArgs {
     /// Density smoothing in grid cells (comma-separated).
     #[arg(long, value_delimiter = ',', default_values_t = [assist_mesh::DEFAULT_SMOOTH])]
     pub smooth: Vec<f32>,
+    /// Triangle budgets per node (comma-separated; 0 = no limit).
+    #[arg(long, value_delimiter = ',', default_values_t = [assist_mesh::DEFAULT_MAX_TRIANGLES])]
+    pub triangles: Vec<usize>,
     /// Points sampled per set (ground truth and mesh) for the distances.
     #[arg(long, default_value_t = 100_000)]
     pub points: usize,
@@ -109,16 +112,19 @@ pub fn run(a: MeshBenchArgs) -> anyhow::Result<()> {
         for &d in &a.density {
             for &m in &a.min_part {
                 for &s in &a.smooth {
-                    grid.push((d, m, s));
+                    for &t in &a.triangles {
+                        grid.push((d, m, s, t));
+                    }
                 }
             }
         }
-        for (density, min_part, smooth) in grid {
+        for (density, min_part, smooth, max_triangles) in grid {
             let opts = ExtractOptions {
                 resolution,
                 density,
                 min_part,
                 smooth,
+                max_triangles,
             };
             let mut nodes = Vec::new();
             for (index, id, label, gt) in &truth {
@@ -154,7 +160,7 @@ pub fn run(a: MeshBenchArgs) -> anyhow::Result<()> {
                 v.iter().sum::<f64>() / v.len().max(1) as f64
             };
             let row = json!({
-                "resolution": resolution, "density": density, "min_part": min_part, "smooth": smooth,
+                "resolution": resolution, "density": density, "min_part": min_part, "smooth": smooth, "max_triangles": max_triangles,
                 "truth_to_mesh_mean_mm": mean("truth_to_mesh", "mean") * 1e3,
                 "mesh_to_truth_mean_mm": mean("mesh_to_truth", "mean") * 1e3,
                 "chamfer_mm": (mean("truth_to_mesh", "mean") + mean("mesh_to_truth", "mean")) * 1e3 / 2.0,
@@ -163,7 +169,7 @@ pub fn run(a: MeshBenchArgs) -> anyhow::Result<()> {
             });
             if !a.json {
                 eprintln!(
-                    "resolution {resolution:>4}  density {density:>7.1}  min part {min_part:.2}  smooth {smooth:.1}  truth→mesh {:.2} mm  mesh→truth {:.2} mm  Chamfer {:.2} mm  {:.2} s/node",
+                    "resolution {resolution:>4}  density {density:>7.1}  min part {min_part:.2}  smooth {smooth:.1}  budget {max_triangles}  truth→mesh {:.2} mm  mesh→truth {:.2} mm  Chamfer {:.2} mm  {:.2} s/node",
                     row["truth_to_mesh_mean_mm"].as_f64().unwrap_or(f64::NAN),
                     row["mesh_to_truth_mean_mm"].as_f64().unwrap_or(f64::NAN),
                     row["chamfer_mm"].as_f64().unwrap_or(f64::NAN),

@@ -8,9 +8,9 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use assist_session::{
-    DEFAULT_DENSITY, DEFAULT_MATERIAL_DENSITY, DEFAULT_MIN_PART, DEFAULT_POINTS,
-    DEFAULT_RESOLUTION, DEFAULT_SMOOTH, ExportJob, ExtractOptions, MeshFormat, MeshFrame, Session,
-    SimModel,
+    DEFAULT_DENSITY, DEFAULT_MATERIAL_DENSITY, DEFAULT_MAX_TRIANGLES, DEFAULT_MIN_PART,
+    DEFAULT_POINTS, DEFAULT_RESOLUTION, DEFAULT_SMOOTH, ExportJob, ExtractOptions, MeshFormat,
+    MeshFrame, Session, SimModel,
 };
 use clap::{Args, ValueEnum};
 
@@ -74,6 +74,10 @@ pub struct ExportArgs {
     /// surface (removes noise finer than the views resolve); 0 = none.
     #[arg(long, default_value_t = DEFAULT_SMOOTH)]
     pub smooth: f32,
+    /// Largest number of triangles per node: more are reduced by quadric-error edge
+    /// collapse, keeping the shape and the mesh closed; 0 = no limit.
+    #[arg(long, default_value_t = DEFAULT_MAX_TRIANGLES)]
+    pub triangles: usize,
     /// Points per node with --format points.
     #[arg(long, default_value_t = DEFAULT_POINTS)]
     pub points: usize,
@@ -114,6 +118,7 @@ pub fn job(a: &ExportArgs) -> ExportJob {
             density: a.density,
             min_part: a.min_part,
             smooth: a.smooth,
+            max_triangles: a.triangles,
         },
         points: a.points,
         material_density: a.material_density,

@@ -56,6 +56,16 @@ fn export_meshes_points_and_models_read_back() {
     let index: serde_json::Value =
         serde_json::from_slice(&std::fs::read(obj.join("export.json")).unwrap()).unwrap();
     assert_eq!(index["frame"], "world");
+    // A small triangle budget: reduced by edge collapse, still closed.
+    let small = export(
+        &scene,
+        &root.join("small"),
+        &["--resolution", "64", "--triangles", "2000"],
+    );
+    for n in small["nodes"].as_array().unwrap() {
+        assert!(n["triangles"].as_u64().unwrap() <= 2000, "{n}");
+        assert_eq!(n["closed"], true, "{n}");
+    }
     // One node by name and one by id.
     let label = nodes[0]["label"].as_str().unwrap().to_string();
     let one = export(
