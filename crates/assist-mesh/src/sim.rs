@@ -31,7 +31,12 @@ pub struct Body {
     pub fixed: bool,
 }
 
+/// A number for a model file: six decimals, trailing zeros cut; below 0.001 in scientific
+/// notation with seven significant digits (a small object's inertia is ~1e-5 kg·m²).
 fn f(v: f64) -> String {
+    if v != 0.0 && v.abs() < 1e-3 {
+        return format!("{v:.6e}");
+    }
     let s = format!("{v:.6}");
     let s = s.trim_end_matches('0').trim_end_matches('.');
     if s == "-0" { "0".into() } else { s.into() }
@@ -233,7 +238,10 @@ mod tests {
         assert!(s.contains("pos=\"0.5 1 0.25\""), "{s}");
         assert!(s.contains("scale=\"0.5 0.5 0.5\""));
         assert!(s.contains("<freejoint/>"));
-        assert!(s.contains("fullinertia=\"0.0001 0.0002 0.0003 0 0 0\""));
+        assert!(
+            s.contains("fullinertia=\"1.000000e-4 2.000000e-4 3.000000e-4 0 0 0\""),
+            "{s}"
+        );
         assert!(s.contains("gravity=\"0 0 -9.81\""));
         let u = urdf_scene("desk", &[body(false)], 0.5);
         assert!(u.contains("<mass value=\"0.1\"/>"));
