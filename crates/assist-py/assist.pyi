@@ -80,6 +80,26 @@ class Scene:
         position: Optional[Sequence[float]] = None,
     ) -> list[Action]: ...
     def save(self, path: _Path, force: bool = False) -> None: ...
+    def export(
+        self,
+        out: _Path,
+        nodes: Sequence[str] = ("all",),
+        format: str = "obj",
+        frame: Optional[str] = None,
+        resolution: int = 128,
+        density: float = 20.0,
+        smooth: float = 1.0,
+        triangles: int = 50000,
+        min_part: float = 0.05,
+        points: int = 100000,
+        sim: Optional[str] = None,
+        material_density: float = 1000.0,
+        force: bool = False,
+    ) -> dict[str, Any]:
+        """Meshes (obj, ply, glb) or point clouds (points) of the nodes into the folder
+        `out`, as `assist export`; `sim` "mjcf" or "urdf" adds a model. Returns the
+        summary: out, model, nodes (id, label, file, vertices, triangles, closed,
+        volume_m3, seconds)."""
     def render(
         self,
         camera: Camera,

@@ -338,6 +338,55 @@ impl Scene {
         py.detach(|| s.save(&path, force)).map_err(err)
     }
 
+    /// Exports nodes as meshes or point clouds into the folder `out`, as `assist export`
+    /// does (same defaults): `nodes` ids or names, `"all"` (every object) or
+    /// `"background"`; `format` obj, ply, glb or points; `frame` world or node (default:
+    /// world, node with `sim`); `sim` "mjcf" or "urdf" for a simulator model. Returns the
+    /// summary: `out`, `model` and per node `id`, `label`, `file`, `vertices`,
+    /// `triangles`, `closed`, `volume_m3`, `seconds`.
+    #[pyo3(signature = (out, nodes=vec!["all".to_string()], format="obj", frame=None, resolution=assist_session::DEFAULT_RESOLUTION, density=assist_session::DEFAULT_DENSITY, smooth=assist_session::DEFAULT_SMOOTH, triangles=assist_session::DEFAULT_MAX_TRIANGLES, min_part=assist_session::DEFAULT_MIN_PART, points=assist_session::DEFAULT_POINTS, sim=None, material_density=assist_session::DEFAULT_MATERIAL_DENSITY, force=false))]
+    fn export<'py>(
+        &mut self,
+        py: Python<'py>,
+        out: PathBuf,
+        nodes: Vec<String>,
+        format: &str,
+        frame: Option<&str>,
+        resolution: u32,
+        density: f32,
+        smooth: f32,
+        triangles: usize,
+        min_part: f64,
+        points: usize,
+        sim: Option<&str>,
+        material_density: f64,
+        force: bool,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let pick = |what: &str, v: &str| serde_json::from_value(serde_json::Value::String(v.to_ascii_lowercase()))
+            .map_err(|_| err(format!("{what}: unknown value {v:?}")));
+        let job = assist_session::ExportJob {
+            nodes,
+            format: assist_session::MeshFormat::parse(format)
+                .ok_or_else(|| err(format!("format: expected obj, ply, glb or points, got {format:?}")))?,
+            frame: frame.map(|f| pick("frame (world or node)", f)).transpose()?,
+            sim: sim.map(|m| pick("sim (mjcf or urdf)", m)).transpose()?,
+            extract: assist_session::ExtractOptions {
+                resolution,
+                density,
+                min_part,
+                smooth,
+                max_triangles: triangles,
+            },
+            points,
+            material_density,
+            out,
+            force,
+        };
+        let s = &mut self.session;
+        let done = py.detach(|| s.export(&job, |_, _, _| {})).map_err(err)?;
+        to_py(py, &done)
+    }
+
     /// Renders `camera`: a dict with any of `rgb` (H×W×3 float32 in [0, 1]), `depth`
     /// (H×W float32 z-depth in metres, 0 where nothing is hit), `instance` (H×W uint16,
     /// 0 = background) and `opacity` (H×W float32). `width`/`height` rescale the camera.
