@@ -362,13 +362,20 @@ impl Scene {
         material_density: f64,
         force: bool,
     ) -> PyResult<Bound<'py, PyAny>> {
-        let pick = |what: &str, v: &str| serde_json::from_value(serde_json::Value::String(v.to_ascii_lowercase()))
-            .map_err(|_| err(format!("{what}: unknown value {v:?}")));
+        fn pick<T: serde::de::DeserializeOwned>(what: &str, v: &str) -> PyResult<T> {
+            serde_json::from_value(serde_json::Value::String(v.to_ascii_lowercase()))
+                .map_err(|_| err(format!("{what}: unknown value {v:?}")))
+        }
         let job = assist_session::ExportJob {
             nodes,
-            format: assist_session::MeshFormat::parse(format)
-                .ok_or_else(|| err(format!("format: expected obj, ply, glb or points, got {format:?}")))?,
-            frame: frame.map(|f| pick("frame (world or node)", f)).transpose()?,
+            format: assist_session::MeshFormat::parse(format).ok_or_else(|| {
+                err(format!(
+                    "format: expected obj, ply, glb or points, got {format:?}"
+                ))
+            })?,
+            frame: frame
+                .map(|f| pick("frame (world or node)", f))
+                .transpose()?,
             sim: sim.map(|m| pick("sim (mjcf or urdf)", m)).transpose()?,
             extract: assist_session::ExtractOptions {
                 resolution,

@@ -23,7 +23,13 @@ pub enum EditError {
     },
     #[error(transparent)]
     File(#[from] SceneFileError),
+    /// A new label that cannot be given to node `id`.
+    #[error("label of node {id}: {message}")]
+    Label { id: u16, message: String },
 }
+
+/// Longest label a node may have, in characters.
+pub const MAX_LABEL_CHARS: usize = 200;
 
 /// Other scenes read from disk (`scene.json` only; weights are loaded when a node is added),
 /// each read once, and the fields imported from them, each loaded once (clones share both,
@@ -236,6 +242,55 @@ impl Editor {
         self.history.undo(&mut self.scene.scene)
     }
 
+    /// Gives node `id` a new label, as one undo step ("rename …", no actions). Its
+    /// semantic class stays what it was (renders keep their class ids). Refused: an
+    /// unknown node, an empty or overlong label, or one another node has (names must
+    /// resolve to one node).
+    pub fn rename(&mut self, id: u16, label: &str) -> Result<(), EditError> {
+        let bad = |message: String| EditError::Label { id, message };
+        let label = label.trim();
+        let Some(node) = self.scene.scene.node(id) else {
+            return Err(bad("no such node".into()));
+        };
+        if label.is_empty() || label.chars().count() > MAX_LABEL_CHARS {
+            return Err(bad(format!(
+                "expected 1 to {MAX_LABEL_CHARS} characters, got {}",
+                label.chars().count()
+            )));
+        }
+        if label.chars().any(char::is_control) {
+            return Err(bad("control characters are not allowed".into()));
+        }
+        if let Some(other) = self
+            .scene
+            .scene
+            .nodes
+            .iter()
+            .find(|n| n.id != id && n.label.eq_ignore_ascii_case(label))
+        {
+            return Err(bad(format!(
+                "node {} is already called {:?}",
+                other.id, other.label
+            )));
+        }
+        let old = node.label.clone();
+        if old == label {
+            return Ok(());
+        }
+        let mut next = self.scene.scene.clone();
+        if let Some(n) = next.node_mut(id) {
+            n.class = Some(n.class_name().to_string());
+            n.label = label.to_string();
+        }
+        let before = std::mem::replace(&mut self.scene.scene, next);
+        self.history.record(
+            before,
+            Some(format!("rename node {id} {old:?} to {label:?}")),
+            Vec::new(),
+        );
+        Ok(())
+    }
+
     pub fn redo(&mut self) -> bool {
         self.history.redo(&mut self.scene.scene)
     }
@@ -250,5 +305,78 @@ fn imported(e: &Edit) -> Option<&assist_core::action::Imported> {
     match e {
         Edit::Add { imported } | Edit::SwapIn { imported, .. } => Some(imported),
         _ => None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+    use std::sync::Arc;
+
+    use assist_core::{DMat3, DVec3, Obb, Scene, SceneNode};
+    use assist_field::{Field, OccupancyGrid};
+
+    use super::*;
+
+    fn two_nodes() -> NeuralScene {
+        let node = |id: u16, label: &str, x: f64| {
+            SceneNode::from_obb(
+                id,
+                label,
+                "f",
+                &Obb::new(DVec3::new(x, 0.0, 0.0), DVec3::splat(0.1), DMat3::IDENTITY),
+            )
+        };
+        let mut fields = BTreeMap::new();
+        fields.insert(
+            "f".to_string(),
+            Arc::new(NodeField::new(
+                Field::constant(1.0, [0.5; 3], false, 1).unwrap(),
+                OccupancyGrid::new(4),
+                DVec3::splat(0.05),
+            )),
+        );
+        NeuralScene {
+            scene: Scene {
+                nodes: vec![node(1, "mug", 0.0), node(2, "duck", 0.5)],
+                up: DVec3::Z,
+                meters_per_unit: 1.0,
+                background_color: [0.0; 3],
+                backdrop: Default::default(),
+                selected: None,
+                near: 0.0,
+                classes: Vec::new(),
+            },
+            fields,
+        }
+    }
+
+    #[test]
+    fn rename_is_one_undo_step_keeps_the_class_and_refuses_taken_names() {
+        let mut ed = Editor::new(two_nodes());
+        ed.rename(1, "  coffee mug ").unwrap();
+        let n = ed.scene.scene.node(1).unwrap();
+        assert_eq!(n.label, "coffee mug");
+        assert_eq!(n.class_name(), "mug");
+        assert_eq!(ed.history.undo.len(), 1);
+        assert!(
+            ed.history.undo[0]
+                .text
+                .as_deref()
+                .unwrap()
+                .contains("coffee mug")
+        );
+        let e = ed.rename(2, "Coffee Mug").unwrap_err().to_string();
+        assert!(e.contains("node 1 is already called"), "{e}");
+        assert!(ed.rename(2, "").is_err());
+        assert!(ed.rename(2, "a\nb").is_err());
+        assert!(
+            ed.rename(9, "x")
+                .unwrap_err()
+                .to_string()
+                .contains("no such node")
+        );
+        assert!(ed.undo());
+        assert_eq!(ed.scene.scene.node(1).unwrap().label, "mug");
     }
 }

@@ -284,6 +284,32 @@ impl Session {
         Ok(())
     }
 
+    /// Gives node `id` a new label as one undo step; its semantic class stays (see
+    /// `Editor::rename` for what is refused).
+    pub fn rename(&mut self, id: InstanceId, label: &str) -> Result<()> {
+        Ok(self.editor.rename(id, label)?)
+    }
+
+    /// A fork of this session without the nodes `hidden` (for views that hide some:
+    /// renders and picks see the rest; weights are shared, nothing is copied).
+    pub fn without(&self, hidden: &[InstanceId]) -> Session {
+        let mut s = self.fork();
+        s.editor
+            .scene
+            .scene
+            .nodes
+            .retain(|n| !hidden.contains(&n.id));
+        if s.editor
+            .scene
+            .scene
+            .selected
+            .is_some_and(|id| hidden.contains(&id))
+        {
+            s.editor.scene.scene.selected = None;
+        }
+        s
+    }
+
     pub(crate) fn ids(&self) -> String {
         let ids: Vec<String> = self
             .nodes()

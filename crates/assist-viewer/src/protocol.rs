@@ -123,6 +123,17 @@ pub enum ClientMsg {
         scene: String,
         node: InstanceId,
     },
+    /// Give node `id` a new label (one undo step; its class stays).
+    Rename {
+        id: InstanceId,
+        label: String,
+    },
+    /// Hide node `id` from this client's frames and clicks (or show it again); the scene
+    /// is not changed.
+    Hide {
+        id: InstanceId,
+        hidden: bool,
+    },
     Undo,
     Redo,
     Output {
@@ -174,6 +185,8 @@ pub enum ServerMsg {
     State {
         nodes: Vec<NodeState>,
         selected: Option<InstanceId>,
+        /// Nodes this client hides.
+        hidden: Vec<InstanceId>,
         undo: usize,
         redo: usize,
         log: Vec<String>,

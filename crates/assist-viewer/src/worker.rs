@@ -97,6 +97,8 @@ pub struct Worker {
     /// What a drag's frames keep between updates (the camera and the other nodes stay).
     cache: DragCache,
     log: Vec<String>,
+    /// Nodes this client hides (frames and clicks do not see them).
+    hidden: std::collections::BTreeSet<InstanceId>,
     /// The opened scene's `scene.json` as this worker last read or wrote it: a save over
     /// the scene is refused when another process changed it since.
     disk: Option<u64>,
@@ -123,6 +125,7 @@ impl Worker {
             drag: None,
             cache: DragCache::default(),
             log: Vec::new(),
+            hidden: Default::default(),
             disk: None,
         }
     }
@@ -232,6 +235,27 @@ impl Worker {
             ClientMsg::Open { scene } => self.open(&scene, send),
             ClientMsg::AddFrom { scene, node, x, y } => self.add_from(&scene, node, x, y),
             ClientMsg::SwapWith { scene, node } => self.swap_with(&scene, node),
+            ClientMsg::Rename { id, label } => self
+                .session
+                .rename(id, &label)
+                .map(|_| {
+                    self.log.push(format!("node {id} renamed {label:?}"));
+                    (false, true)
+                })
+                .map_err(|e| e.to_string()),
+            ClientMsg::Hide { id, hidden } => {
+                if self.session.node(id).is_none() {
+                    Err(format!("hide: no node with id {id}"))
+                } else {
+                    if hidden {
+                        self.hidden.insert(id);
+                    } else {
+                        self.hidden.remove(&id);
+                    }
+                    self.cache = DragCache::default();
+                    Ok((true, true))
+                }
+            }
             ClientMsg::Undo => Ok(if self.session.undo() {
                 self.log.push("undo".into());
                 (true, true)
@@ -330,7 +354,13 @@ impl Worker {
 
     fn click(&mut self, x: f64, y: f64) -> Result<(bool, bool), String> {
         let cam = self.camera()?;
-        let id = self.session.pick(&cam, x, y).map_err(|e| e.to_string())?;
+        let hidden: Vec<InstanceId> = self.hidden.iter().copied().collect();
+        let id = if hidden.is_empty() {
+            self.session.pick(&cam, x, y)
+        } else {
+            self.session.without(&hidden).pick(&cam, x, y)
+        }
+        .map_err(|e| e.to_string())?;
         self.session.select(id).map_err(|e| e.to_string())?;
         Ok((true, true))
     }
@@ -578,6 +608,7 @@ impl Worker {
         ServerMsg::State {
             nodes: d.nodes.iter().map(node_state).collect(),
             selected: d.selected,
+            hidden: self.hidden.iter().copied().collect(),
             undo: self.session.undo_steps(),
             redo: self.session.redo_steps(),
             log: self.log.iter().rev().take(50).rev().cloned().collect(),
@@ -621,12 +652,15 @@ impl Worker {
             layers: alone.is_some(),
             ..RenderRequest::default()
         };
-        let selected = self.session.description().selected;
+        let hidden: Vec<InstanceId> = self.hidden.iter().copied().collect();
+        let visible = (!hidden.is_empty()).then(|| self.session.without(&hidden));
+        let session = visible.as_ref().unwrap_or(&self.session);
+        let selected = session.description().selected;
         let rendered = match (&self.drag, selected) {
             (Some(_), Some(id)) if !preview => {
-                self.session.render_moving(&cam, &req, id, &mut self.cache)
+                session.render_moving(&cam, &req, id, &mut self.cache)
             }
-            _ => self.session.render(&cam, &req),
+            _ => session.render(&cam, &req),
         };
         let frame = match rendered {
             Ok(f) => f,

@@ -209,6 +209,60 @@ async fn a_client_renders_selects_edits_undoes_and_saves() {
     send(&mut ws, json!({"type": "undo"})).await;
     let s = until(&mut ws, "state").await;
     assert!(s["nodes"].as_array().unwrap().iter().any(|n| n["id"] == 1));
+    // Hidden from this view: a click where it stands no longer selects it; shown again.
+    send(&mut ws, json!({"type": "select", "id": null})).await;
+    until(&mut ws, "state").await;
+    send(&mut ws, json!({"type": "hide", "id": 1, "hidden": true})).await;
+    let s = until(&mut ws, "state").await;
+    assert_eq!(s["hidden"], json!([1]), "{s}");
+    assert!(
+        s["nodes"].as_array().unwrap().iter().any(|n| n["id"] == 1),
+        "hiding keeps the node"
+    );
+    send(&mut ws, json!({"type": "click", "x": 20.0, "y": 22.0})).await;
+    let s = until(&mut ws, "state").await;
+    assert_ne!(s["selected"], 1, "{s}");
+    send(&mut ws, json!({"type": "hide", "id": 1, "hidden": false})).await;
+    let s = until(&mut ws, "state").await;
+    assert_eq!(s["hidden"], json!([]), "{s}");
+    send(&mut ws, json!({"type": "hide", "id": 99, "hidden": true})).await;
+    let e = until(&mut ws, "error").await;
+    assert!(e["message"].as_str().unwrap().contains("99"), "{e}");
+    // Rename: a taken name is refused, a new one is one undo step.
+    send(
+        &mut ws,
+        json!({"type": "rename", "id": 2, "label": "Red Box"}),
+    )
+    .await;
+    let e = until(&mut ws, "error").await;
+    assert!(
+        e["message"].as_str().unwrap().contains("already called"),
+        "{e}"
+    );
+    send(
+        &mut ws,
+        json!({"type": "rename", "id": 2, "label": "lime box"}),
+    )
+    .await;
+    let s = until(&mut ws, "state").await;
+    let two = s["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["id"] == 2)
+        .unwrap()
+        .clone();
+    assert_eq!(two["label"], "lime box", "{s}");
+    send(&mut ws, json!({"type": "undo"})).await;
+    let s = until(&mut ws, "state").await;
+    let two = s["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["id"] == 2)
+        .unwrap()
+        .clone();
+    assert_eq!(two["label"], "green box", "{s}");
     // A drag previews, then commits as one undo step.
     send(&mut ws, json!({"type": "select", "id": 2})).await;
     until(&mut ws, "state").await;

@@ -2,7 +2,8 @@
 // a click selects an object (its row is highlighted, its pixels change); `-` deletes it
 // (its colour leaves the panoptic frame); Ctrl+Z brings it back; `t` + drag moves it (its
 // mask's centroid moves the way the pointer did); a typed instruction applies; save-as
-// writes a scene. Prints one JSON object of measurements; exits 1 on the first failure.
+// writes a scene; hiding an object takes it out of the view and showing brings it back; a
+// row's rename changes its label. Prints one JSON object of measurements; exits 1 on the first failure.
 // Usage: node drive.mjs URL SHOTS_DIR CHROMIUM
 import puppeteer from "puppeteer-core";
 import { mkdirSync } from "node:fs";
@@ -23,7 +24,7 @@ function fail(msg) {
 }
 try {
   const page = await browser.newPage();
-  page.on("dialog", (d) => d.accept("browser-saved.assist"));
+  page.on("dialog", (d) => d.accept(d.message().startsWith("Rename") ? "renamed object" : "browser-saved.assist"));
   await page.setViewport({ width: 960, height: 480 });
   await page.goto(url);
   const shot = async (name) => {
@@ -124,6 +125,24 @@ try {
   if (back.count < 0.8 * best.a.count) fail(`after undo only ${back.count} of ${best.a.count} pixels are back`);
   await shot("undone");
 
+  // 4b. "hide" in its row: its colour leaves this view's panoptic frame (the scene keeps
+  // it); "show" brings it back.
+  n = await frames();
+  await page.click(`.node[data-id="${target.id}"] .eye`);
+  await page.waitForFunction((id) => (window.__assist.state.hidden || []).includes(id), { timeout: 60000 }, target.id);
+  await fullFrame(n);
+  const hiddenPx = await analyse(target.color);
+  out.pixels_when_hidden = hiddenPx.count;
+  if (hiddenPx.count > 0.05 * best.a.count) fail(`hidden, ${hiddenPx.count} pixels still have its colour`);
+  if (!(await page.$eval(`.node[data-id="${target.id}"]`, (e) => e.classList.contains("hidden")))) fail("the hidden row is not marked");
+  await shot("hidden");
+  n = await frames();
+  await page.click(`.node[data-id="${target.id}"] .eye`);
+  await page.waitForFunction((id) => !(window.__assist.state.hidden || []).includes(id), { timeout: 60000 }, target.id);
+  await fullFrame(n);
+  const shown = await analyse(target.color);
+  if (shown.count < 0.8 * best.a.count) fail(`shown again, only ${shown.count} pixels are back`);
+
   // 5. Select it again, `t` + drag right: its mask's centroid moves right.
   n = await frames();
   await page.mouse.click(back.centroid[0], back.centroid[1]);
@@ -153,6 +172,13 @@ try {
   await page.waitForFunction(() => window.__assist.resolved && window.__assist.resolved.applied, { timeout: 60000 });
   out.resolved = await page.evaluate(() => window.__assist.resolved.actions);
   await shot("instruction");
+
+  // 6b. "rename" in its row (the prompt answers "renamed object"): the label changes.
+  await page.click(`.node[data-id="${target.id}"] .ren`);
+  await page.waitForFunction((id) => window.__assist.state.nodes.some((x) => x.id === id && x.label === "renamed object"), { timeout: 60000 }, target.id);
+  const rowText = await page.$eval(`.node[data-id="${target.id}"] .label`, (e) => e.textContent);
+  if (rowText !== "renamed object") fail(`the row says ${rowText}`);
+  await shot("renamed");
 
   // 7. Save as (the prompt answers browser-saved.assist).
   await page.click("#saveas");
