@@ -11,6 +11,7 @@
 #![forbid(unsafe_code)]
 
 pub mod protocol;
+mod thumbnails;
 mod worker;
 
 use std::net::{IpAddr, SocketAddr};
@@ -148,6 +149,13 @@ pub async fn start(opts: ViewerOptions) -> Result<Running, ViewerError> {
         named: opts.others.clone(),
         folder: opts.scenes.clone(),
     };
+    let thumbs = match &opts.data {
+        Some(d) => {
+            let names: Vec<String> = cameras.iter().map(|c| c.name.clone()).collect();
+            thumbnails::thumbnails(d, &names)
+        }
+        None => vec![None; cameras.len()],
+    };
     let hello = ServerMsg::Hello {
         version: PROTOCOL_VERSION,
         scene: scene_name(&opts.scene),
@@ -155,9 +163,11 @@ pub async fn start(opts: ViewerOptions) -> Result<Running, ViewerError> {
         up: description.up.to_array(),
         cameras: cameras
             .iter()
-            .map(|c| CameraState {
+            .zip(thumbs)
+            .map(|(c, thumbnail)| CameraState {
                 name: c.name.clone(),
                 view: View::of_camera(&c.camera),
+                thumbnail,
             })
             .collect(),
         max_message_bytes: MAX_MESSAGE_BYTES,

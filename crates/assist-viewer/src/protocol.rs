@@ -168,6 +168,9 @@ pub struct NodeState {
 pub struct CameraState {
     pub name: String,
     pub view: View,
+    /// The camera's photograph, small (a JPEG data URL), when the dataset has one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub thumbnail: Option<String>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize)]

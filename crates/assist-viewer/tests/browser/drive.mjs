@@ -3,7 +3,7 @@
 // (its colour leaves the panoptic frame); Ctrl+Z brings it back; `t` + drag moves it (its
 // mask's centroid moves the way the pointer did); a typed instruction applies; save-as
 // writes a scene; hiding an object takes it out of the view and showing brings it back; a
-// row's rename changes its label. Prints one JSON object of measurements; exits 1 on the first failure.
+// row's rename changes its label; the camera list shows the views' photographs and jumps. Prints one JSON object of measurements; exits 1 on the first failure.
 // Usage: node drive.mjs URL SHOTS_DIR CHROMIUM
 import puppeteer from "puppeteer-core";
 import { mkdirSync } from "node:fs";
@@ -72,6 +72,23 @@ try {
   const first = await analyse(null);
   if (!(first.width > 0 && first.mean > 5)) fail(`no visible frame: ${JSON.stringify({ w: first.width, mean: first.mean })}`);
   await shot("loaded");
+  // 1b. The camera list shows each view's photograph; clicking one jumps there (and back).
+  await page.waitForFunction(() => Array.from(document.querySelectorAll("#cameras .cam img")).every((i) => i.complete), { timeout: 60000 });
+  const thumbs = await page.$$eval("#cameras .cam img", (ims) => ims.map((i) => i.naturalWidth));
+  out.thumbnails = thumbs.length;
+  if (thumbs.length < 2 || thumbs.some((w) => w !== 96)) fail(`camera thumbnails: ${JSON.stringify(thumbs)}`);
+  let n0 = await frames();
+  await page.click('#cameras .cam[data-index="1"]');
+  await fullFrame(n0);
+  const elsewhere = await analyse(null);
+  let jumped = 0;
+  for (let k = 0; k < elsewhere.data.length; k += 4) jumped += Math.abs(elsewhere.data[k] - first.data[k]);
+  out.camera_jump_mean_change = jumped / (elsewhere.data.length / 4);
+  if (out.camera_jump_mean_change < 2) fail("jumping to another camera did not change the view");
+  await shot("camera");
+  n0 = await frames();
+  await page.click('#cameras .cam[data-index="0"]');
+  await fullFrame(n0);
   const state0 = await page.evaluate(() => window.__assist.state);
   const objects = state0.nodes.filter((n) => !n.background);
   // The object to work on: the one covering most panoptic pixels.
