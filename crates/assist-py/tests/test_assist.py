@@ -258,17 +258,19 @@ def test_select_highlights_and_checks_the_id(trained):
 def test_export_equals_assist_export(trained_more, tmp_path):
     _, scene_path, _ = trained_more[:3]
     scene = assist.Scene.load(scene_path)
-    done = scene.export(tmp_path / "py", resolution=48, sim="mjcf")
-    run("export", scene_path, "--out", tmp_path / "cli", "--resolution", "48", "--sim", "mjcf")
+    # The same folder name (the MJCF model is named after it), in two places.
+    py, cli = tmp_path / "py" / "meshes", tmp_path / "cli" / "meshes"
+    done = scene.export(py, resolution=48, sim="mjcf")
+    run("export", scene_path, "--out", cli, "--resolution", "48", "--sim", "mjcf")
     assert done["model"] == "scene.xml"
     assert len(done["nodes"]) == sum(1 for n in scene.nodes if not n["background"])
     for n in done["nodes"]:
         assert n["closed"] and n["triangles"] > 0, n
-        assert (tmp_path / "py" / n["file"]).read_bytes() == (tmp_path / "cli" / n["file"]).read_bytes()
-    assert (tmp_path / "py" / "scene.xml").read_bytes() == (tmp_path / "cli" / "scene.xml").read_bytes()
+        assert (py / n["file"]).read_bytes() == (cli / n["file"]).read_bytes()
+    assert (py / "scene.xml").read_bytes() == (cli / "scene.xml").read_bytes()
     with pytest.raises(assist.AssistError, match="giraffe"):
         scene.export(tmp_path / "bad", nodes=["giraffe"])
     with pytest.raises(assist.AssistError, match="format"):
         scene.export(tmp_path / "bad", format="stl")
     with pytest.raises(assist.AssistError, match="force"):
-        scene.export(tmp_path / "py")
+        scene.export(py)
