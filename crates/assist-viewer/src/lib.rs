@@ -161,6 +161,7 @@ pub async fn start(opts: ViewerOptions) -> Result<Running, ViewerError> {
         scene: scene_name(&opts.scene),
         others: others.names(),
         up: description.up.to_array(),
+        meters_per_unit: description.meters_per_unit,
         cameras: cameras
             .iter()
             .zip(thumbs)

@@ -182,6 +182,8 @@ pub enum ServerMsg {
         /// Other scenes a client may open by name (`--scenes` allows more).
         others: Vec<String>,
         up: [f64; 3],
+        /// Metres per world unit (drags of the axis handles send metres).
+        meters_per_unit: f64,
         cameras: Vec<CameraState>,
         max_message_bytes: usize,
     },
