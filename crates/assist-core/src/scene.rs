@@ -201,6 +201,20 @@ fn is_zero(v: &f64) -> bool {
 }
 
 impl Scene {
+    /// A scene of `nodes` with `up` as its up, one metre per unit and everything else at
+    /// its default (black background colour, no selection, no near plane, no classes).
+    pub fn with_nodes(nodes: Vec<SceneNode>, up: DVec3) -> Scene {
+        Scene {
+            nodes,
+            up,
+            meters_per_unit: 1.0,
+            background_color: [0.0; 3],
+            backdrop: Backdrop::default(),
+            selected: None,
+            near: 0.0,
+            classes: Vec::new(),
+        }
+    }
     /// The classes of objects not yet in `classes`, in id order of first appearance.
     fn unlisted_classes(&self) -> Vec<String> {
         let mut objects: Vec<&SceneNode> =

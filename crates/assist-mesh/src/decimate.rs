@@ -271,17 +271,7 @@ mod tests {
 
     fn ball(n: usize, r: f32) -> NodeMesh {
         let c = (n - 1) as f32 / 2.0;
-        let mut v = Vec::new();
-        for k in 0..n {
-            for j in 0..n {
-                for i in 0..n {
-                    let d =
-                        ((i as f32 - c).powi(2) + (j as f32 - c).powi(2) + (k as f32 - c).powi(2))
-                            .sqrt();
-                    v.push(r - d);
-                }
-            }
-        }
+        let (v, _) = crate::tetra::tests::sphere(n, r);
         let s = extract(
             &Grid {
                 dims: [n; 3],

@@ -395,16 +395,7 @@ mod tests {
             Arc::new(NodeField::new(field, occ, half)),
         );
         NeuralScene {
-            scene: Scene {
-                nodes: vec![node],
-                up: DVec3::Z,
-                meters_per_unit: 1.0,
-                background_color: [0.0; 3],
-                backdrop: Default::default(),
-                selected: None,
-                near: 0.0,
-                classes: Vec::new(),
-            },
+            scene: Scene::with_nodes(vec![node], DVec3::Z),
             fields,
         }
     }

@@ -170,11 +170,12 @@ fn tet(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use std::collections::HashMap;
 
-    fn sphere(n: usize, r: f32) -> (Vec<f32>, [usize; 3]) {
+    /// `r − distance` from the grid's centre, on an n³ grid (a ball of radius `r` cells).
+    pub(crate) fn sphere(n: usize, r: f32) -> (Vec<f32>, [usize; 3]) {
         let c = (n - 1) as f32 / 2.0;
         let mut v = Vec::with_capacity(n * n * n);
         for k in 0..n {

@@ -337,16 +337,7 @@ mod tests {
             )),
         );
         NeuralScene {
-            scene: Scene {
-                nodes: vec![node(1, "mug", 0.0), node(2, "duck", 0.5)],
-                up: DVec3::Z,
-                meters_per_unit: 1.0,
-                background_color: [0.0; 3],
-                backdrop: Default::default(),
-                selected: None,
-                near: 0.0,
-                classes: Vec::new(),
-            },
+            scene: Scene::with_nodes(vec![node(1, "mug", 0.0), node(2, "duck", 0.5)], DVec3::Z),
             fields,
         }
     }
