@@ -281,6 +281,12 @@ impl Scene {
         to_py(py, &self.actions_of(&edits))
     }
 
+    /// Gives node `id` a new label as one undo step (its semantic class stays); a taken,
+    /// empty or overlong label raises `AssistError`.
+    fn rename(&mut self, id: u16, label: &str) -> PyResult<()> {
+        self.session.rename(id, label).map_err(err)
+    }
+
     /// Undoes the last `apply`; False when there is nothing to undo.
     fn undo(&mut self) -> bool {
         self.session.undo()

@@ -274,3 +274,17 @@ def test_export_equals_assist_export(trained_more, tmp_path):
         scene.export(tmp_path / "bad", format="stl")
     with pytest.raises(assist.AssistError, match="force"):
         scene.export(py)
+
+
+def test_rename_is_one_undo_step_and_keeps_the_class(trained):
+    _, scene_path, _ = trained
+    scene = assist.Scene.load(scene_path)
+    a, b = [n for n in scene.nodes if not n["background"]][:2]
+    scene.rename(a["id"], "my favourite thing")
+    renamed = next(n for n in scene.nodes if n["id"] == a["id"])
+    assert renamed["label"] == "my favourite thing"
+    assert renamed["class"] == a["class"]
+    with pytest.raises(assist.AssistError, match="already called"):
+        scene.rename(b["id"], "My Favourite Thing")
+    assert scene.undo()
+    assert next(n for n in scene.nodes if n["id"] == a["id"])["label"] == a["label"]
