@@ -218,8 +218,12 @@ def test_ctrl_c_saves_the_scene_and_raises_keyboard_interrupt(trained):
 
     cap, _, root = trained
     out = root / "interrupted.assist"
+    # Python installs its Ctrl+C handler only when SIGINT is not ignored at start, and a
+    # test run launched in the background (`cmd &` in a script) inherits it ignored: set
+    # the handler an interactive user has.
     code = (
-        "import assist, sys\n"
+        "import assist, signal, sys\n"
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
         "def cb(e):\n"
         "    if e['event'] == 'step' and e['stats']['iteration'] == 1:\n"
         "        print('training', flush=True)\n"
