@@ -230,10 +230,16 @@ def test_ctrl_c_saves_the_scene_and_raises_keyboard_interrupt(trained):
         f"assist.train({str(cap)!r}, {str(out)!r}, iters=100000, callback=cb, checkpoint_every=1e9)\n"
     )
     p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    assert p.stdout.readline().strip() == "training"
-    time.sleep(1.0)
-    p.send_signal(signal.SIGINT)
-    _, err = p.communicate(timeout=120)
+    try:
+        assert p.stdout.readline().strip() == "training"
+        time.sleep(1.0)
+        p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=120)
+    finally:
+        # Never leave a training run behind (it would slow every test after it).
+        if p.poll() is None:
+            p.kill()
+            p.wait()
     assert p.returncode != 0
     assert "KeyboardInterrupt" in err, err
     assert (out / "scene.json").is_file(), "the interrupted run saved the scene"
