@@ -122,7 +122,6 @@ impl NodeMesh {
                 quad[v as usize] = quad[v as usize].add(&q);
             }
         }
-        let mut removed_vertex = vec![false; nv];
         let neighbours = |faces: &[Vec<u32>], tris: &[[u32; 3]], alive: &[bool], v: u32| {
             let mut n: Vec<u32> = faces[v as usize]
                 .iter()
@@ -228,7 +227,6 @@ impl NodeMesh {
                     faces[u as usize].push(f);
                 }
                 faces[u as usize].retain(|&f| alive[f as usize]);
-                removed_vertex[v as usize] = true;
                 pos[u as usize] = at;
                 quad[u as usize] = quad[u as usize].add(&quad[v as usize]);
                 let (cu, cv) = (self.colors[u as usize], self.colors[v as usize]);
