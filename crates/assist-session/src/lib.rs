@@ -23,6 +23,7 @@ use assist_render::{
 };
 use assist_scene::{EditError, Editor, NeuralScene, SceneFileError};
 
+pub use assist_clip as clip;
 pub use assist_data::Output;
 pub use assist_lang::Resolved;
 pub use assist_mesh::write::Format as MeshFormat;
