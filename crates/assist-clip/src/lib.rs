@@ -18,6 +18,7 @@
 mod config;
 mod model;
 mod preprocess;
+pub mod random;
 mod tokenizer;
 mod weights;
 

@@ -27,7 +27,7 @@ pub struct Tokenizer {
 
 /// GPT-2's reversible map from bytes to printable characters, in the reference's order
 /// (printable bytes first, then the others): the first 256 entries of the vocabulary.
-fn byte_chars() -> Vec<(u8, char)> {
+pub(crate) fn byte_chars() -> Vec<(u8, char)> {
     let mut printable: Vec<u32> = (u32::from('!')..=u32::from('~'))
         .chain(0xA1..=0xAC)
         .chain(0xAE..=0xFF)
