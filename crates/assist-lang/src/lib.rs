@@ -24,7 +24,7 @@ mod words;
 use assist_core::{Action, ActionError, Scene, SceneSource};
 
 pub use llm::{LlmProvider, actions_from_answer};
-pub use names::TextEmbedder;
+pub use names::{MEANING_MARGIN, NoMeaning, TextEmbedder};
 pub use resolve::{ParseOptions, Resolved, direction_vector};
 
 #[derive(Debug, thiserror::Error)]
@@ -33,8 +33,17 @@ pub enum LangError {
         "no operation understood in {text:?}: expected move/translate, rotate/turn, scale/make bigger/shrink, duplicate/copy, delete/remove, swap, add … from SCENE, or select/highlight"
     )]
     NoAction { text: String },
-    #[error("no object called {phrase:?} (the scene has {candidates})")]
-    UnknownObject { phrase: String, candidates: String },
+    #[error("no object called {phrase:?} (the scene has {candidates}){hint}")]
+    UnknownObject {
+        phrase: String,
+        candidates: String,
+        /// What would let the phrase be found by meaning ("" when nothing would).
+        hint: String,
+    },
+    #[error(
+        "{phrase:?} is too close to call by meaning: {scores}; say which (by its label or 'object N')"
+    )]
+    TooClose { phrase: String, scores: String },
     #[error(
         "{phrase:?} could mean several objects: {candidates}; say which (by a colour, another word of its label, or 'object N')"
     )]

@@ -9,6 +9,11 @@ pub trait TextEmbedder {
     fn embed(&self, text: &str) -> Option<Vec<f32>>;
 }
 
+/// By meaning, the best node must be at least this much more similar (cosine) to the
+/// phrase than the runner-up. At CLIP's temperature (logit scale 100) that is a
+/// zero-shot probability e² ≈ 7.4 times the runner-up's.
+pub const MEANING_MARGIN: f32 = 0.02;
+
 /// Groups of interchangeable nouns; the first word is the canonical one.
 const SYNONYMS: &[&[&str]] = &[
     &["mug", "cup", "tumbler"],
@@ -89,8 +94,41 @@ pub enum Found {
 
 /// Why a phrase names no single node.
 pub enum NotFound {
-    Unknown,
+    /// No label matches, and meaning did not help (why).
+    Unknown(NoMeaning),
     Ambiguous(Vec<InstanceId>),
+    /// By meaning, the best nodes are too close to call: each with its similarity, best
+    /// first.
+    TooClose(Vec<(InstanceId, f32)>),
+}
+
+/// Why a phrase could not be matched by meaning.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NoMeaning {
+    /// Nothing could: e.g. an empty phrase.
+    Nothing,
+    /// No text encoder is configured.
+    NoEncoder,
+    /// The scene's nodes have no embeddings.
+    NoEmbeddings,
+    /// The encoder gave nothing for the phrase.
+    NotEncoded,
+}
+
+impl NoMeaning {
+    /// What to provide, for messages.
+    pub fn hint(self) -> &'static str {
+        match self {
+            NoMeaning::Nothing => "",
+            NoMeaning::NoEncoder => {
+                "; to find objects by what they are, give CLIP weights (ASSIST_CLIP=DIR or --clip DIR) to a scene embedded with `assist embed`"
+            }
+            NoMeaning::NoEmbeddings => {
+                "; to find objects by what they are, embed the scene first: `assist embed SCENE --data CAPTURE` with CLIP weights"
+            }
+            NoMeaning::NotEncoded => "; the text encoder could not embed the phrase",
+        }
+    }
 }
 
 /// Finds the node(s) `words` name in `scene`.
@@ -111,7 +149,7 @@ pub fn find(
     };
     let known = |w: &str| labels.iter().any(|(_, lw)| syn(w, lw));
     let Some(head) = words.last() else {
-        return Err(NotFound::Unknown);
+        return Err(NotFound::Unknown(NoMeaning::Nothing));
     };
     let plural = singular(head) != *head;
     // Words no label knows are dropped (sizes, materials), except colours and the head noun:
@@ -126,11 +164,19 @@ pub fn find(
         .map(|(id, lw)| (*id, kept.iter().filter(|w| exact(w, lw)).count()))
         .collect();
     if cands.is_empty() {
-        return by_embedding(words, scene, embedder).ok_or(NotFound::Unknown);
+        return by_meaning(words, scene, embedder, None);
     }
     if cands.len() > 1 && !plural {
         let best = cands.iter().map(|c| c.1).max().unwrap_or(0);
         cands.retain(|c| c.1 == best);
+        // Several nodes fit the words: meaning may still tell them apart ("the mug you
+        // drink tea from"); if it cannot, they stay ambiguous.
+        if cands.len() > 1 {
+            let ids: Vec<InstanceId> = cands.iter().map(|c| c.0).collect();
+            if let Ok(found) = by_meaning(words, scene, embedder, Some(&ids)) {
+                return Ok(found);
+            }
+        }
     }
     match cands.as_slice() {
         [(id, _)] => Ok(Found::One(*id)),
@@ -149,23 +195,37 @@ fn cosine(a: &[f32], b: &[f32]) -> f32 {
     dot / (na * nb).max(1e-12)
 }
 
-/// The node whose embedding is most similar to the phrase's, when it is clearly the best
-/// (similarity ≥ 0.25 and 0.05 above the runner-up).
-fn by_embedding(
+/// The node whose embedding is most similar to the phrase's (among `among`, else all
+/// nodes with one), when it beats the runner-up by [`MEANING_MARGIN`]; a node alone
+/// must reach the margin itself.
+fn by_meaning(
     words: &[String],
     scene: &Scene,
     embedder: Option<&dyn TextEmbedder>,
-) -> Option<Found> {
-    let q = embedder?.embed(&words.join(" "))?;
-    let mut sims: Vec<(f32, InstanceId)> = scene
+    among: Option<&[InstanceId]>,
+) -> Result<Found, NotFound> {
+    let embedder = embedder.ok_or(NotFound::Unknown(NoMeaning::NoEncoder))?;
+    let nodes: Vec<&assist_core::SceneNode> = scene
         .nodes
         .iter()
-        .filter_map(|n| n.embedding.as_ref().map(|e| (cosine(&q, e), n.id)))
+        .filter(|n| n.embedding.is_some() && among.is_none_or(|a| a.contains(&n.id)))
         .collect();
-    sims.sort_by(|a, b| b.0.total_cmp(&a.0));
-    match sims.as_slice() {
-        [(s, id)] if *s >= 0.25 => Some(Found::One(*id)),
-        [(s, id), (s2, _), ..] if *s >= 0.25 && s - s2 >= 0.05 => Some(Found::One(*id)),
-        _ => None,
+    if nodes.is_empty() {
+        return Err(NotFound::Unknown(NoMeaning::NoEmbeddings));
     }
+    let q = embedder
+        .embed(&words.join(" "))
+        .ok_or(NotFound::Unknown(NoMeaning::NotEncoded))?;
+    let mut sims: Vec<(InstanceId, f32)> = nodes
+        .iter()
+        .filter_map(|n| n.embedding.as_ref().map(|e| (n.id, cosine(&q, e))))
+        .collect();
+    sims.sort_by(|a, b| b.1.total_cmp(&a.1));
+    let best = sims[0];
+    let second = sims.get(1).map_or(0.0, |s| s.1);
+    if best.1 - second >= MEANING_MARGIN {
+        return Ok(Found::One(best.0));
+    }
+    sims.retain(|s| best.1 - s.1 < MEANING_MARGIN);
+    Err(NotFound::TooClose(sims))
 }

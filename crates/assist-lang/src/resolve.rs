@@ -109,6 +109,7 @@ impl State {
                     return Err(LangError::UnknownObject {
                         phrase: format!("object {id}"),
                         candidates: describe_nodes(&self.scene),
+                        hint: String::new(),
                     });
                 }
                 Ok(vec![*id])
@@ -152,9 +153,21 @@ fn phrase_in(
     match find(words, scene, embedder) {
         Ok(Found::One(id)) => Ok(vec![id]),
         Ok(Found::Many(ids)) => Ok(ids),
-        Err(NotFound::Unknown) => Err(LangError::UnknownObject {
+        Err(NotFound::Unknown(why)) => Err(LangError::UnknownObject {
             phrase: words.join(" "),
             candidates: describe_nodes(scene),
+            hint: why.hint().to_string(),
+        }),
+        Err(NotFound::TooClose(scores)) => Err(LangError::TooClose {
+            phrase: words.join(" "),
+            scores: scores
+                .iter()
+                .map(|(id, s)| {
+                    let label = scene.node(*id).map(|n| n.label.as_str()).unwrap_or("?");
+                    format!("{id} {label:?} {s:.3}")
+                })
+                .collect::<Vec<_>>()
+                .join(", "),
         }),
         Err(NotFound::Ambiguous(ids)) => Err(LangError::Ambiguous {
             phrase: words.join(" "),

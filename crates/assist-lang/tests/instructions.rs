@@ -507,6 +507,108 @@ fn embeddings_resolve_what_labels_do_not() {
     ));
 }
 
+/// An embedder with fixed vectors for the phrases a test uses (as a CLIP text encoder
+/// would give), unit length.
+struct Table(Vec<(&'static str, [f32; 3])>);
+impl TextEmbedder for Table {
+    fn embed(&self, text: &str) -> Option<Vec<f32>> {
+        self.0.iter().find(|(t, _)| *t == text).map(|(_, v)| {
+            let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+            v.iter().map(|x| x / n).collect()
+        })
+    }
+}
+
+fn embedded() -> Scene {
+    let mut s = scene();
+    s.nodes.truncate(5);
+    s.nodes[1].embedding = Some(vec![1.0, 0.0, 0.0]); // duck
+    s.nodes[2].embedding = Some(vec![0.0, 1.0, 0.0]); // cow
+    s.nodes[3].embedding = Some(vec![0.0, 0.0, 1.0]); // mug
+    s.nodes[4].embedding = Some(vec![0.0, 0.6, 0.8]); // teapot: mug-like and cow-like
+    s
+}
+
+#[test]
+fn meaning_finds_a_clear_winner() {
+    let s = embedded();
+    // (The phrase the parser hands over: articles and verbs gone.)
+    let t = Table(vec![
+        ("drinking vessel", [0.1, 0.0, 1.0]),
+        ("toy", [1.0, 0.3, 0.0]),
+    ]);
+    let opts = ParseOptions {
+        embedder: Some(&t),
+        ..Default::default()
+    };
+    let a = parse("delete the drinking vessel", &s, &opts, &mut Other).unwrap();
+    assert_eq!(a[0].instance_id, 3);
+    // "toy" is a synonym group of "figurine" (the cow's label): labels decide first.
+    let a = parse("delete the toy", &s, &opts, &mut Other).unwrap();
+    assert_eq!(a[0].instance_id, 2);
+}
+
+#[test]
+fn meaning_too_close_to_call_is_an_error_with_scores() {
+    let s = embedded();
+    // Equally close to the mug (0,0,1) and the teapot (0,.6,.8)? cos to mug = b,
+    // to teapot = .6a' + .8b: pick a vector on the bisector.
+    let t = Table(vec![("hot drink vessel", [0.0, 0.333, 1.0])]);
+    let opts = ParseOptions {
+        embedder: Some(&t),
+        ..Default::default()
+    };
+    let e = parse("move the hot drink vessel left", &s, &opts, &mut Other).unwrap_err();
+    let msg = e.to_string();
+    assert!(matches!(e, LangError::TooClose { .. }), "{msg}");
+    assert!(
+        msg.contains("3 \"red ceramic mug\" 0.9") && msg.contains("4 \"blue Utah teapot\" 0.9"),
+        "{msg}"
+    );
+    assert!(!msg.contains("duck"), "{msg}");
+}
+
+#[test]
+fn meaning_without_embeddings_or_encoder_says_what_to_provide() {
+    let t = Table(vec![("drinking vessel", [0.0, 0.0, 1.0])]);
+    let opts = ParseOptions {
+        embedder: Some(&t),
+        ..Default::default()
+    };
+    let e = parse("delete the drinking vessel", &scene(), &opts, &mut Other)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("assist embed"), "{e}");
+    let e = parse(
+        "delete the drinking vessel",
+        &embedded(),
+        &ParseOptions::default(),
+        &mut Other,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("ASSIST_CLIP"), "{e}");
+}
+
+/// Words that fit several labels, told apart by meaning; replicas (one embedding) stay
+/// ambiguous.
+#[test]
+fn meaning_separates_what_labels_cannot() {
+    let mut s = embedded();
+    s.nodes[1].label = "glass mug".into();
+    // "porcelain" is no label's word: the words leave both mugs.
+    let t = Table(vec![("porcelain mug", [0.0, 0.1, 1.0])]);
+    let opts = ParseOptions {
+        embedder: Some(&t),
+        ..Default::default()
+    };
+    let a = parse("delete the porcelain mug", &s, &opts, &mut Other);
+    assert_eq!(a.unwrap()[0].instance_id, 3);
+    s.nodes[1].embedding = s.nodes[3].embedding.clone();
+    let e = parse("delete the porcelain mug", &s, &opts, &mut Other).unwrap_err();
+    assert!(matches!(e, LangError::Ambiguous { .. }), "{e}");
+}
+
 /// By default a scale keeps the object's resting point (the middle of its box's lowest
 /// face), after the instruction's earlier moves.
 #[test]

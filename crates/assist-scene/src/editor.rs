@@ -242,6 +242,29 @@ impl Editor {
         self.history.undo(&mut self.scene.scene)
     }
 
+    /// Sets the embedding of every node drawn by one of `by_field`'s fields — in the
+    /// scene and in every undo/redo snapshot, so that undoing an earlier edit does not
+    /// bring back a node without it. An embedding describes the object (its field), like
+    /// its weights: not an edit, not an undo step; replicas share it.
+    pub fn set_embeddings(&mut self, by_field: &std::collections::BTreeMap<String, Vec<f32>>) {
+        let set = |scene: &mut assist_core::Scene| {
+            for n in &mut scene.nodes {
+                if let Some(e) = by_field.get(&n.field) {
+                    n.embedding = Some(e.clone());
+                }
+            }
+        };
+        set(&mut self.scene.scene);
+        for step in self
+            .history
+            .undo
+            .iter_mut()
+            .chain(self.history.redo.iter_mut())
+        {
+            set(&mut step.scene);
+        }
+    }
+
     /// Gives node `id` a new label, as one undo step ("rename …", no actions). Its
     /// semantic class stays what it was (renders keep their class ids). Refused: an
     /// unknown node, an empty or overlong label, or one another node has (names must

@@ -11,11 +11,13 @@
 #![forbid(unsafe_code)]
 
 mod cameras;
+mod embed;
 mod export;
 mod render_job;
 mod train_job;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, OnceLock};
 
 use assist_core::{Action, Camera, DVec3, Edit, InstanceId, Scene, SceneNode};
 use assist_render::{
@@ -35,6 +37,9 @@ pub use assist_render::DragCache;
 pub use assist_render::RenderedImage as Frame;
 pub use cameras::{
     CameraSource, NamedCamera, Orbit, SplitChoice, dataset_cameras, objects_box, orbit,
+};
+pub use embed::{
+    CONTEXT as EMBED_CONTEXT, DEFAULT_EMBED_VIEWS, EmbedEvent, EmbedJob, EmbedSummary, EmbeddedNode,
 };
 pub use export::{
     DEFAULT_MATERIAL_DENSITY, DEFAULT_POINTS, ExportJob, ExportSummary, ExportedNode, SimModel,
@@ -101,6 +106,63 @@ pub enum Steps {
 /// A scene being viewed and edited.
 pub struct Session {
     editor: Editor,
+    clip: ClipSlot,
+}
+
+/// The session's CLIP model: where it comes from (`ASSIST_CLIP` by default), loaded on
+/// first use — when a phrase's words match no label and the scene has embeddings — and
+/// shared by forks.
+#[derive(Clone, Default)]
+struct ClipSlot {
+    path: Option<PathBuf>,
+    loaded: Arc<OnceLock<std::result::Result<Arc<clip::Clip>, String>>>,
+}
+
+impl ClipSlot {
+    fn from_env() -> Self {
+        ClipSlot {
+            path: std::env::var_os(clip::ENV)
+                .filter(|v| !v.is_empty())
+                .map(PathBuf::from),
+            loaded: Arc::default(),
+        }
+    }
+
+    fn configured(&self) -> bool {
+        self.path.is_some() || self.loaded.get().is_some()
+    }
+
+    fn get(&self) -> std::result::Result<Arc<clip::Clip>, String> {
+        self.loaded
+            .get_or_init(|| match &self.path {
+                Some(p) => clip::Clip::load(p).map(Arc::new).map_err(|e| e.to_string()),
+                None => Err("no CLIP weights configured".into()),
+            })
+            .clone()
+    }
+}
+
+/// A session's CLIP text encoder as the parser's embedder (normalised text features);
+/// remembers why it could not embed.
+struct ClipText<'a> {
+    slot: &'a ClipSlot,
+    error: std::cell::RefCell<Option<String>>,
+}
+
+impl assist_lang::TextEmbedder for ClipText<'_> {
+    fn embed(&self, text: &str) -> Option<Vec<f32>> {
+        let r = self
+            .slot
+            .get()
+            .and_then(|c| c.text_features(&[text]).map_err(|e| e.to_string()));
+        match r {
+            Ok(mut v) => Some(clip::normalize(&v.swap_remove(0))),
+            Err(e) => {
+                *self.error.borrow_mut() = Some(e);
+                None
+            }
+        }
+    }
 }
 
 /// What an instruction's scale keeps in place.
@@ -119,6 +181,7 @@ impl Session {
     pub fn open(path: &Path) -> Result<Self> {
         Ok(Session {
             editor: Editor::open(path)?,
+            clip: ClipSlot::from_env(),
         })
     }
 
@@ -126,6 +189,7 @@ impl Session {
     pub fn new(scene: NeuralScene) -> Self {
         Session {
             editor: Editor::new(scene),
+            clip: ClipSlot::from_env(),
         }
     }
 
@@ -135,7 +199,35 @@ impl Session {
     pub fn fork(&self) -> Session {
         Session {
             editor: self.editor.fork(),
+            clip: self.clip.clone(),
         }
+    }
+
+    /// Where this session's CLIP weights are (`None`: none, not even `ASSIST_CLIP`);
+    /// loaded when first needed.
+    pub fn set_clip_path(&mut self, path: Option<PathBuf>) {
+        self.clip = ClipSlot {
+            path,
+            loaded: Arc::default(),
+        };
+    }
+
+    /// Uses an already loaded CLIP model.
+    pub fn set_clip(&mut self, model: Arc<clip::Clip>) {
+        let loaded = OnceLock::new();
+        let _ = loaded.set(Ok(model));
+        self.clip = ClipSlot {
+            path: None,
+            loaded: Arc::new(loaded),
+        };
+    }
+
+    /// The session's CLIP model, loading it now if needed; `None` when none is configured.
+    pub fn clip(&self) -> Result<Option<Arc<clip::Clip>>> {
+        if !self.clip.configured() {
+            return Ok(None);
+        }
+        self.clip.get().map(Some).map_err(|e| request("clip", e))
     }
 
     /// The scene's `info` (training provenance: dataset, iterations, options).
@@ -195,20 +287,41 @@ impl Session {
         view: Option<&Camera>,
         pivot: Pivot,
     ) -> Result<Resolved> {
+        let encoder = ClipText {
+            slot: &self.clip,
+            error: Default::default(),
+        };
         let opts = assist_lang::ParseOptions {
             camera: view.map(|c| c.pose.rotation()),
             last: self.editor.scene.scene.selected,
-            embedder: None,
+            embedder: self
+                .clip
+                .configured()
+                .then_some(&encoder as &dyn assist_lang::TextEmbedder),
             scale_about_center: pivot == Pivot::Center,
         };
         let taken = self.editor.taken();
-        Ok(assist_lang::resolve_text(
+        let r = assist_lang::resolve_text(
             text,
             &self.editor.scene.scene,
             &opts,
             &mut self.editor.sources,
             &taken,
-        )?)
+        );
+        match (r, encoder.error.into_inner()) {
+            (
+                Err(assist_lang::LangError::UnknownObject {
+                    phrase, candidates, ..
+                }),
+                Some(e),
+            ) => Err(assist_lang::LangError::UnknownObject {
+                phrase,
+                candidates,
+                hint: format!("; CLIP could not embed the phrase: {e}"),
+            }
+            .into()),
+            (r, _) => Ok(r?),
+        }
     }
 
     /// Installs what [`resolve`](Self::resolve) returned (the scene must not have changed
