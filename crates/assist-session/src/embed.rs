@@ -26,7 +26,7 @@ use serde::Serialize;
 use crate::{Result, Session, SessionError, request};
 
 /// A view counts for an object when its mask has at least this many pixels.
-pub const MIN_PIXELS: usize = 64;
+pub const MIN_PIXELS: usize = 16;
 /// The crop's side over the mask box's longer side.
 pub const CONTEXT: f64 = 1.25;
 /// Default number of views per node.
@@ -203,39 +203,51 @@ impl Session {
             views: frames.len(),
         });
         let bg = assist_train::background_color(&ds);
-        let views: Vec<assist_train::View> = {
+        // Per view: colour as bytes, ids, and per object id its pixel count and box.
+        type Boxes = BTreeMap<u16, (usize, (usize, usize, usize, usize))>;
+        struct Seen {
+            name: String,
+            width: usize,
+            height: usize,
+            rgb: Vec<u8>,
+            ids: Option<Vec<u16>>,
+            boxes: Boxes,
+        }
+        let views: Vec<Seen> = {
             use rayon::prelude::*;
             frames
                 .par_iter()
                 .enumerate()
-                .map(|(i, f)| assist_train::load_view(f, i as u32, bg))
-                .collect::<std::result::Result<_, _>>()
+                .map(|(i, f)| {
+                    let v = assist_train::load_view(f, i as u32, bg)?;
+                    let mut boxes: Boxes = BTreeMap::new();
+                    if let Some(ids) = &v.ids {
+                        for (k, &id) in ids.iter().enumerate() {
+                            if id == 0 {
+                                continue;
+                            }
+                            let (x, y) = (k % v.width, k / v.width);
+                            let e = boxes.entry(id).or_insert((0, (x, y, x, y)));
+                            e.0 += 1;
+                            let b = &mut e.1;
+                            *b = (b.0.min(x), b.1.min(y), b.2.max(x), b.3.max(y));
+                        }
+                    }
+                    Ok(Seen {
+                        name: v.name,
+                        width: v.width,
+                        height: v.height,
+                        rgb: to_u8(&v.rgb),
+                        ids: v.ids,
+                        boxes,
+                    })
+                })
+                .collect::<std::result::Result<_, assist_train::TrainError>>()
                 .map_err(SessionError::Train)?
         };
         let c = clip.config();
         let size = c.vision.image_size as u32;
         let fill = [0, 1, 2].map(|k| (c.mean[k] * 255.0).round() as u8);
-        // Per view: colour as bytes, and per object id its pixel count and box.
-        type Boxes = BTreeMap<u16, (usize, (usize, usize, usize, usize))>;
-        let per_view: Vec<(Vec<u8>, Boxes)> = views
-            .iter()
-            .map(|v| {
-                let mut boxes: Boxes = BTreeMap::new();
-                if let Some(ids) = &v.ids {
-                    for (k, &id) in ids.iter().enumerate() {
-                        if id == 0 {
-                            continue;
-                        }
-                        let (x, y) = (k % v.width, k / v.width);
-                        let e = boxes.entry(id).or_insert((0, (x, y, x, y)));
-                        e.0 += 1;
-                        let b = &mut e.1;
-                        *b = (b.0.min(x), b.1.min(y), b.2.max(x), b.3.max(y));
-                    }
-                }
-                (to_u8(&v.rgb), boxes)
-            })
-            .collect();
         let nodes: Vec<(InstanceId, String, String, bool)> = self
             .nodes()
             .iter()
@@ -265,23 +277,14 @@ impl Session {
                     } else {
                         whole
                     };
-                    crops.push(crop(
-                        &per_view[vi].0,
-                        v.width,
-                        v.height,
-                        b,
-                        1.0,
-                        &paint,
-                        fill,
-                        size,
-                    ));
+                    crops.push(crop(&v.rgb, v.width, v.height, b, 1.0, &paint, fill, size));
                     names.push(v.name.clone());
                 }
             } else {
-                let counts: Vec<(usize, usize)> = per_view
+                let counts: Vec<(usize, usize)> = views
                     .iter()
                     .enumerate()
-                    .filter_map(|(vi, (_, boxes))| boxes.get(id).map(|e| (vi, e.0)))
+                    .filter_map(|(vi, v)| v.boxes.get(id).map(|e| (vi, e.0)))
                     .collect();
                 let most = counts.iter().map(|c| c.1).max().unwrap_or(0);
                 let good: Vec<usize> = counts
@@ -293,16 +296,9 @@ impl Session {
                     let v = &views[vi];
                     let ids = v.ids.as_deref().unwrap_or(&[]);
                     let paint = |p: usize| ids[p] != 0 && ids[p] != *id;
-                    let b = per_view[vi].1[id].1;
+                    let b = v.boxes[id].1;
                     crops.push(crop(
-                        &per_view[vi].0,
-                        v.width,
-                        v.height,
-                        b,
-                        CONTEXT,
-                        &paint,
-                        fill,
-                        size,
+                        &v.rgb, v.width, v.height, b, CONTEXT, &paint, fill, size,
                     ));
                     names.push(v.name.clone());
                 }

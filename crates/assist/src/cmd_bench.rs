@@ -22,6 +22,8 @@ pub enum BenchCommand {
     /// Exported meshes against a dataset's ground truth (instance masks with depth,
     /// back-projected): Chamfer distance both ways and extraction time per node.
     Mesh(crate::cmd_bench_mesh::MeshBenchArgs),
+    /// Embedding a scene's nodes with CLIP, and resolving object phrases by meaning.
+    Embed(crate::cmd_bench_embed::EmbedBenchArgs),
 }
 
 #[derive(Args, Debug)]
@@ -61,6 +63,7 @@ pub fn run(c: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Prior(a) => prior(a),
         BenchCommand::View(a) => crate::cmd_bench_view::run(a),
         BenchCommand::Mesh(a) => crate::cmd_bench_mesh::run(a),
+        BenchCommand::Embed(a) => crate::cmd_bench_embed::run(a),
     }
 }
 

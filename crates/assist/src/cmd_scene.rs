@@ -55,6 +55,7 @@ fn node_json(dir: &Path, n: &SceneNode, mpu: f64, up: assist_core::DVec3) -> Val
         "field_file": file.strip_prefix(dir).unwrap_or(&file),
         "field_bytes": bytes,
         "embedding": n.embedding.is_some(),
+        "embedding_dim": n.embedding.as_ref().map(Vec::len),
     })
 }
 
@@ -147,6 +148,26 @@ fn info(a: InfoArgs) -> anyhow::Result<()> {
             n["yaw_deg"].as_f64().unwrap_or(0.0),
             n["field_file"].as_str().unwrap_or(""),
         );
+    }
+    let embedded: Vec<String> = nodes
+        .iter()
+        .filter(|n| n["embedding"].as_bool() == Some(true))
+        .map(|n| n["id"].to_string())
+        .collect();
+    match embedded.len() {
+        0 => println!("embeddings: none (assist embed gives each node a CLIP embedding)"),
+        k if k == nodes.len() => println!(
+            "embeddings: every node ({}-d CLIP)",
+            nodes[0]["embedding_dim"]
+        ),
+        _ => println!(
+            "embeddings: nodes {} ({}-d CLIP); the others have none",
+            embedded.join(", "),
+            nodes
+                .iter()
+                .find_map(|n| n["embedding_dim"].as_u64())
+                .unwrap_or(0)
+        ),
     }
     let n_undo = history.undo.len();
     println!(

@@ -58,6 +58,10 @@ pub struct TrainArgs {
     /// replace the built-in fill; images without one keep it.
     #[arg(long)]
     pub prior_dir: Option<PathBuf>,
+    /// CLIP weights: after training, give each node a CLIP embedding (as `assist embed`)
+    /// [default: $ASSIST_CLIP when set; without either, no embeddings].
+    #[arg(long)]
+    pub clip: Option<PathBuf>,
     /// λ1 of the paper: weight of the background's colour against its prior under the
     /// objects (0 with --prior none) [default: 0.5].
     #[arg(long, value_name = "W")]
@@ -548,6 +552,29 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
     if report.cancelled {
         // Saved, but not finished: scripts must not mistake it for a complete run.
         std::process::exit(130);
+    }
+    if a.clip.is_some()
+        || std::env::var_os(assist_session::clip::ENV).is_some_and(|v| !v.is_empty())
+    {
+        let clip = crate::cmd_embed::load_clip(a.clip.as_deref())?;
+        let mut session = assist_session::Session::open(&outcome.out)
+            .with_context(|| format!("loading the trained scene {}", outcome.out.display()))?;
+        let mut job = assist_session::EmbedJob::new(a.dataset().to_path_buf());
+        job.replace = true;
+        job.load.downscale = a.downscale;
+        let s = crate::cmd_embed::embed_session(&mut session, &clip, &job, a.json)?;
+        session
+            .save(&outcome.out, true)
+            .with_context(|| format!("saving {}", outcome.out.display()))?;
+        if !a.json {
+            eprintln!(
+                "embedded {} node(s) from {} crops in {:.1} s (CLIP {})",
+                s.nodes.iter().filter(|n| n.crops > 0).count(),
+                s.crops,
+                s.seconds,
+                s.model
+            );
+        }
     }
     Ok(())
 }

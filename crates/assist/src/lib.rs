@@ -11,11 +11,13 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod cmd_bench;
+mod cmd_bench_embed;
 mod cmd_bench_mesh;
 mod cmd_bench_view;
 mod cmd_dataset;
 mod cmd_demo;
 mod cmd_edit;
+mod cmd_embed;
 mod cmd_eval;
 mod cmd_export;
 mod cmd_generate;
@@ -67,6 +69,9 @@ pub enum Command {
     /// Export nodes as meshes or point clouds (PLY, OBJ, GLB), with an optional MuJoCo or
     /// URDF model placing them at their poses.
     Export(cmd_export::ExportArgs),
+    /// Give each node a CLIP embedding from the training views (needs CLIP weights), so
+    /// instructions can name objects by what they are.
+    Embed(cmd_embed::EmbedArgs),
     /// Make many randomized, plausible, labelled variations of trained scenes (shardable).
     Generate(cmd_generate::GenerateArgs),
     /// Open a trained scene in the interactive viewer (a page in your browser).
@@ -89,6 +94,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Edit(a) => cmd_edit::run(a),
         Command::Render(a) => cmd_render::run(a),
         Command::Export(a) => cmd_export::run(a),
+        Command::Embed(a) => cmd_embed::run(a),
         Command::Generate(a) => cmd_generate::run(a),
         Command::View(a) => cmd_view::run(a),
         Command::Bench { command } => cmd_bench::run(command),
