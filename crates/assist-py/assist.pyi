@@ -50,6 +50,26 @@ class Dataset:
     def load(path: _Path) -> "Dataset": ...
     def __len__(self) -> int: ...
 
+class Clip:
+    """A CLIP model from weights on disk: a folder with the model as safetensors
+    (open_clip/OpenAI or Hugging Face naming), its BPE vocabulary
+    (bpe_simple_vocab_16e6.txt.gz or merges.txt) and open_clip_config.json or
+    config.json. `Clip()` reads the folder from ASSIST_CLIP. Features match open_clip's
+    `encode_image`/`encode_text` (and transformers' `get_*_features`)."""
+
+    def __init__(self, path: Optional[_Path] = None) -> None: ...
+    @property
+    def config(self) -> dict[str, Any]:
+        """Sizes, heads, activation (quick_gelu), mean/std, logit_scale, files, layout."""
+    def tokenize(self, text: str) -> "np.ndarray":
+        """Token ids (int64, the context length): start, BPE tokens, end, zeros."""
+    def encode_text(self, texts: Sequence[str], normalize: bool = False) -> "np.ndarray":
+        """len(texts) × embed_dim float32."""
+    def encode_image(self, images: "np.ndarray", normalize: bool = False) -> "np.ndarray":
+        """uint8 RGB H×W×3 or n×H×W×3 (resized bicubic, centre-cropped, normalised as
+        open_clip's evaluation transform), or float32 n×3×S×S already preprocessed;
+        n × embed_dim float32."""
+
 class Scene:
     """A trained scene in memory: nodes, edits with undo and redo, rendering."""
 
@@ -60,7 +80,9 @@ class Scene:
     def nodes(self) -> list[dict[str, Any]]:
         """Dicts with id, label, class (semantic class: the label, or for a copy
         "mug 2" the original's "mug"), background (bool), half_size (3,) and pose (4×4
-        world-from-box, scale included)."""
+        world-from-box, scale included) and embedding (the node's CLIP embedding, float32,
+        or None: see `assist embed`). Instructions resolve object phrases by meaning when
+        the scene has embeddings and ASSIST_CLIP names the CLIP weights."""
     @property
     def meters_per_unit(self) -> float: ...
     def apply(self, what: Union[str, Action, Sequence[Action]]) -> list[Action]:

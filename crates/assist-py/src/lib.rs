@@ -220,7 +220,8 @@ impl Scene {
 
     /// The nodes: dicts with `id`, `label`, `class` (its semantic class: the label, or for
     /// a copy "mug 2" the original's "mug"), `half_size` (3,), `pose` (4×4 world-from-box,
-    /// scale included) and `background` (bool).
+    /// scale included), `background` (bool) and `embedding` (the node's CLIP embedding,
+    /// float32, or None; `assist embed` makes them).
     #[getter]
     fn nodes<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
         let out = PyList::empty(py);
@@ -230,6 +231,10 @@ impl Scene {
             d.set_item("label", &n.label)?;
             d.set_item("class", n.class_name())?;
             d.set_item("background", n.is_background())?;
+            match &n.embedding {
+                Some(e) => d.set_item("embedding", PyArray1::from_vec(py, e.clone()))?,
+                None => d.set_item("embedding", py.None())?,
+            }
             d.set_item(
                 "half_size",
                 PyArray1::from_vec(py, n.half_size.to_array().to_vec()),

@@ -187,3 +187,27 @@ def test_bad_files_are_named(tmp_path):
 
     with pytest.raises(assist.AssistError, match="does not exist"):
         assist.Clip(tmp_path / "nowhere")
+
+
+def test_scene_phrases_resolve_by_meaning(trained, tmp_path, monkeypatch):
+    """A scene embedded with an open_clip model: a phrase no label matches is resolved by
+    meaning through the session (ASSIST_CLIP), or refused with the candidates' scores."""
+    from conftest import run
+
+    _, scene, _ = trained
+    copy = tmp_path / "s.assist"
+    shutil.copytree(scene, copy)
+    _, clip_dir, _, _ = open_clip_model(tmp_path, True, seed=9)
+    run("embed", copy, "--clip", clip_dir)
+    monkeypatch.setenv("ASSIST_CLIP", str(clip_dir))
+    s = assist.Scene.load(copy)
+    assert all(len(n["embedding"]) == 48 for n in s.nodes)
+    try:
+        actions = s.apply("move the drinking vessel left 5 cm")
+        assert actions and actions[0]["instance_id"] in [n["id"] for n in s.nodes]
+    except assist.AssistError as e:
+        assert "too close to call by meaning" in str(e), e
+    monkeypatch.delenv("ASSIST_CLIP")
+    s = assist.Scene.load(copy)
+    with pytest.raises(assist.AssistError, match="ASSIST_CLIP"):
+        s.apply("move the drinking vessel left 5 cm")
