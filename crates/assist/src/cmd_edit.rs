@@ -42,6 +42,10 @@ pub struct EditArgs {
     /// Machine-readable output on stdout (progress and messages stay on stderr).
     #[arg(long)]
     pub json: bool,
+    /// CLIP weights for phrases no label matches, resolved by meaning against the nodes'
+    /// embeddings (`assist embed`) [default: $ASSIST_CLIP].
+    #[arg(long)]
+    pub clip: Option<PathBuf>,
     /// Replace --out if it exists (only a scene assist wrote; give the scene itself to
     /// edit in place).
     #[arg(long)]
@@ -427,6 +431,9 @@ pub fn run(a: EditArgs) -> anyhow::Result<()> {
     }
     let mut session =
         Session::open(&a.scene).with_context(|| format!("loading scene {}", a.scene.display()))?;
+    if let Some(c) = &a.clip {
+        session.set_clip_path(Some(c.clone()));
+    }
     let mpu = session.description().meters_per_unit;
     // What to apply: an instruction resolved by the built-in parser (validated once, by
     // it), or actions (from a script or an LLM) that the editor validates.

@@ -178,6 +178,14 @@ fn train_embed_edit_and_resolve_by_meaning() {
             "{err}"
         );
     }
+    // --clip does what ASSIST_CLIP does.
+    let o2 = bin()
+        .args(["edit", s(&a), "--do", "move the drinking vessel left 5 cm", "--dry-run"])
+        .args(["--clip", s(&clip)])
+        .env_remove("ASSIST_CLIP")
+        .output()
+        .unwrap();
+    assert_eq!(o2.status.success(), o.status.success());
     // Without weights the error says what to provide; without embeddings too.
     refused(
         &edit(&a, "move the drinking vessel left 5 cm", &d, None),
