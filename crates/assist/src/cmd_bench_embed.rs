@@ -38,8 +38,8 @@ pub struct EmbedBenchArgs {
 /// Phrases no label word matches, so each is resolved by meaning.
 const PHRASES: &[&str] = &[
     "move the drinking vessel left 5 cm",
-    "delete the bath toy",
-    "rotate the thing for brewing tea 90 degrees",
+    "delete the bathtub floater",
+    "rotate the brewing vessel 90 degrees",
     "move the porcelain vessel up 2 cm",
     "scale the squeaky companion by 2",
 ];
