@@ -180,7 +180,13 @@ fn train_embed_edit_and_resolve_by_meaning() {
     }
     // --clip does what ASSIST_CLIP does.
     let o2 = bin()
-        .args(["edit", s(&a), "--do", "move the drinking vessel left 5 cm", "--dry-run"])
+        .args([
+            "edit",
+            s(&a),
+            "--do",
+            "move the drinking vessel left 5 cm",
+            "--dry-run",
+        ])
         .args(["--clip", s(&clip)])
         .env_remove("ASSIST_CLIP")
         .output()
