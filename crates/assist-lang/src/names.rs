@@ -131,9 +131,11 @@ impl NoMeaning {
     }
 }
 
-/// Finds the node(s) `words` name in `scene`.
+/// Finds the node(s) `words` name in `scene`; `said` is the object as described, for
+/// comparing meanings when the words do not decide.
 pub fn find(
     words: &[String],
+    said: &str,
     scene: &Scene,
     embedder: Option<&dyn TextEmbedder>,
 ) -> Result<Found, NotFound> {
@@ -164,7 +166,7 @@ pub fn find(
         .map(|(id, lw)| (*id, kept.iter().filter(|w| exact(w, lw)).count()))
         .collect();
     if cands.is_empty() {
-        return by_meaning(words, scene, embedder, None);
+        return by_meaning(said, scene, embedder, None);
     }
     if cands.len() > 1 && !plural {
         let best = cands.iter().map(|c| c.1).max().unwrap_or(0);
@@ -173,7 +175,7 @@ pub fn find(
         // drink tea from"); if it cannot, they stay ambiguous.
         if cands.len() > 1 {
             let ids: Vec<InstanceId> = cands.iter().map(|c| c.0).collect();
-            if let Ok(found) = by_meaning(words, scene, embedder, Some(&ids)) {
+            if let Ok(found) = by_meaning(said, scene, embedder, Some(&ids)) {
                 return Ok(found);
             }
         }
@@ -199,7 +201,7 @@ fn cosine(a: &[f32], b: &[f32]) -> f32 {
 /// nodes with one), when it beats the runner-up by [`MEANING_MARGIN`]; a node alone
 /// must reach the margin itself.
 fn by_meaning(
-    words: &[String],
+    said: &str,
     scene: &Scene,
     embedder: Option<&dyn TextEmbedder>,
     among: Option<&[InstanceId]>,
@@ -214,7 +216,7 @@ fn by_meaning(
         return Err(NotFound::Unknown(NoMeaning::NoEmbeddings));
     }
     let q = embedder
-        .embed(&words.join(" "))
+        .embed(said)
         .ok_or(NotFound::Unknown(NoMeaning::NotEncoded))?;
     let mut sims: Vec<(InstanceId, f32)> = nodes
         .iter()

@@ -140,9 +140,63 @@ impl State {
                         clause: cmd.text.clone(),
                     })
             }
-            ObjectRef::Phrase(words) => phrase_in(words, &self.scene, embedder),
+            ObjectRef::Phrase(words) => {
+                let said = described(cmd, words);
+                phrase_said(words, &said, &self.scene, embedder)
+            }
         }
     }
+}
+
+/// How the user described the one object a clause names, for comparing meanings: the
+/// clause without its verb, numbers, units, directions, axes and articles ("move
+/// the thing you drink from 5 cm left" → "thing you drink from"). The parser's phrase
+/// keeps only content words ("drink"); meaning needs the whole description. A clause
+/// naming several objects gives the phrase's words.
+fn described(cmd: &RawCommand, words: &[String]) -> String {
+    use crate::tokens::{Tok, tokenize};
+    use crate::words::{axis_word, direction_word, unit_word, verb_at};
+    let plain = words.join(" ");
+    if cmd.targets.len() + cmd.partners.len() != 1 {
+        return plain;
+    }
+    let toks = tokenize(&cmd.text);
+    let mut out: Vec<&str> = Vec::new();
+    let mut i = 0;
+    while i < toks.len() {
+        if let Some((_, n)) = verb_at(&toks, i) {
+            i += n;
+            continue;
+        }
+        if let Tok::Word(w) = &toks[i] {
+            let w = w.as_str();
+            let skip = unit_word(w).is_some()
+                || direction_word(w).is_some()
+                || axis_word(w).is_some()
+                || matches!(
+                    w,
+                    "by" | "to"
+                        | "degrees"
+                        | "degree"
+                        | "times"
+                        | "percent"
+                        | "please"
+                        | "and"
+                        | "the"
+                        | "a"
+                        | "an"
+                );
+            if !skip {
+                out.push(w);
+            }
+        }
+        i += 1;
+    }
+    // Only a description that still holds every word of the phrase.
+    if out.is_empty() || !words.iter().all(|w| out.contains(&w.as_str())) {
+        return plain;
+    }
+    out.join(" ")
 }
 
 fn phrase_in(
@@ -150,7 +204,17 @@ fn phrase_in(
     scene: &Scene,
     embedder: Option<&dyn TextEmbedder>,
 ) -> Result<Vec<InstanceId>, LangError> {
-    match find(words, scene, embedder) {
+    phrase_said(words, &words.join(" "), scene, embedder)
+}
+
+/// [`phrase_in`], comparing meanings with `said` (the object as described).
+fn phrase_said(
+    words: &[String],
+    said: &str,
+    scene: &Scene,
+    embedder: Option<&dyn TextEmbedder>,
+) -> Result<Vec<InstanceId>, LangError> {
+    match find(words, said, scene, embedder) {
         Ok(Found::One(id)) => Ok(vec![id]),
         Ok(Found::Many(ids)) => Ok(ids),
         Err(NotFound::Unknown(why)) => Err(LangError::UnknownObject {
@@ -159,7 +223,7 @@ fn phrase_in(
             hint: why.hint().to_string(),
         }),
         Err(NotFound::TooClose(scores)) => Err(LangError::TooClose {
-            phrase: words.join(" "),
+            phrase: said.to_string(),
             scores: scores
                 .iter()
                 .map(|(id, s)| {

@@ -543,6 +543,21 @@ fn meaning_finds_a_clear_winner() {
     };
     let a = parse("delete the drinking vessel", &s, &opts, &mut Other).unwrap();
     assert_eq!(a[0].instance_id, 3);
+    // The paper's example: the whole description is compared, not only the words the
+    // parser keeps ("drink").
+    let t = Table(vec![("thing you drink from", [0.1, 0.0, 1.0])]);
+    let opts = ParseOptions {
+        embedder: Some(&t),
+        ..Default::default()
+    };
+    for text in [
+        "delete the thing you drink from",
+        "move the thing you drink from 5 cm to the left",
+        "please rotate the thing you drink from by 90 degrees",
+    ] {
+        let a = parse(text, &s, &opts, &mut Other).unwrap_or_else(|e| panic!("{text}: {e}"));
+        assert_eq!(a[0].instance_id, 3, "{text}");
+    }
     // "toy" is a synonym group of "figurine" (the cow's label): labels decide first.
     let a = parse("delete the toy", &s, &opts, &mut Other).unwrap();
     assert_eq!(a[0].instance_id, 2);

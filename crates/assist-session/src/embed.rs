@@ -395,7 +395,8 @@ mod tests {
     #[test]
     fn spread_picks_evenly() {
         let v: Vec<usize> = (0..10).collect();
-        assert_eq!(spread(&v, 3), vec![1, 4, 7]);
+        // The middle of each of three equal parts.
+        assert_eq!(spread(&v, 3), vec![1, 5, 8]);
         assert_eq!(spread(&v, 20).len(), 10);
     }
 }

@@ -35,11 +35,11 @@ pub struct EmbedBenchArgs {
     pub json: bool,
 }
 
-/// Phrases no label word matches, so each is resolved by meaning.
+/// Instructions whose object no label word matches, so each is resolved by meaning.
 const PHRASES: &[&str] = &[
     "move the drinking vessel left 5 cm",
     "delete the bathtub floater",
-    "rotate the brewing vessel 90 degrees",
+    "rotate the thing you brew tea in by 90 degrees",
     "move the porcelain vessel up 2 cm",
     "scale the squeaky companion by 2",
 ];
