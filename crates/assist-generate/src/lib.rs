@@ -178,6 +178,8 @@ impl Generator {
             message: m,
         })?;
         let mut bases = Vec::new();
+        // Library scenes surveyed so far (by canonical path).
+        let mut surveyed: BTreeMap<String, Option<Survey>> = BTreeMap::new();
         for (k, b) in spec.scenes.iter().enumerate() {
             progress.preparing(&format!("loading {}", b.path.display()));
             let session = Session::open(&b.path)?;
@@ -246,15 +248,7 @@ impl Generator {
                 }
                 let nf = &session.scene().fields[&n.field];
                 let ax = place::up_axis(&n.world_from_local, scene.up);
-                let posed = place::Posed::of(n);
-                let centre = up.plane(n.world_from_local.translation);
-                let reach =
-                    (n.half_size * n.world_from_local.scale).max_element() * 1.5 + 0.03 / mpu;
-                let level = all.level_near(centre, reach);
-                let keep = |u: [f64; 3]| {
-                    let p = posed.world(u);
-                    level.is_none_or(|h| up.height(p) >= h - 0.002 / mpu)
-                };
+                let keep = above_support(n, &all, up, mpu);
                 let s = Shape::of(nf, ax, keep).or_else(|| raw[&n.field].clone());
                 shapes.insert(n.field.clone(), s);
             }
@@ -278,8 +272,9 @@ impl Generator {
             for (j, l) in spec.library.iter().enumerate() {
                 library.push(lib_node(&session, j, l)?);
             }
-            // A library node from this same scene keeps its cut shape; from elsewhere, its
-            // whole occupancy (that scene's surfaces are not surveyed).
+            // A library node from this same scene keeps its cut shape; from another scene,
+            // it is cut at the surface it stood on there (that scene surveyed once), or
+            // keeps its whole occupancy when that scene's capture is not at hand.
             let this = std::fs::canonicalize(&b.path).ok();
             let library = library
                 .into_iter()
@@ -294,7 +289,20 @@ impl Generator {
                         }
                         _ => {
                             let ax = place::up_axis(&ln.node.world_from_local, scene.up);
-                            Shape::of(&nf, ax, |_| true)
+                            let survey = surveyed.entry(ln.scene.clone()).or_insert_with(|| {
+                                progress.preparing(&format!(
+                                    "surveying {} for the surfaces its objects stood on",
+                                    ln.scene
+                                ));
+                                Survey::of(Path::new(&ln.scene))
+                            });
+                            survey
+                                .as_ref()
+                                .and_then(|sv| {
+                                    let n = sv.session.node(ln.id)?;
+                                    Shape::of(&nf, ax, above_support(n, &sv.support, sv.up, sv.mpu))
+                                })
+                                .or_else(|| Shape::of(&nf, ax, |_| true))
                         }
                     };
                     ln
@@ -355,6 +363,54 @@ impl Generator {
 
 /// Adds library entry `j` to a fork of `session` where the node stands in its own scene,
 /// to learn how it stands in this one (units, orientation) and load its field.
+/// Keeps what of node `n`'s unit cube lies above the support surface near it (down to
+/// 2 mm below), so that a table slab inside an object's box is not taken for its bottom.
+fn above_support(
+    n: &assist_core::SceneNode,
+    all: &surface::SupportMap,
+    up: surface::UpFrame,
+    mpu: f64,
+) -> impl Fn([f64; 3]) -> bool {
+    let posed = place::Posed::of(n);
+    let centre = up.plane(n.world_from_local.translation);
+    let reach = (n.half_size * n.world_from_local.scale).max_element() * 1.5 + 0.03 / mpu;
+    let level = all.level_near(centre, reach);
+    move |u: [f64; 3]| {
+        let p = posed.world(u);
+        level.is_none_or(|h| up.height(p) >= h - 0.002 / mpu)
+    }
+}
+
+/// Another scene's support surfaces, for cutting its objects used as library objects.
+struct Survey {
+    session: Session,
+    support: surface::SupportMap,
+    up: surface::UpFrame,
+    mpu: f64,
+}
+
+impl Survey {
+    /// `None` when the scene, its recorded capture or a surface in it is missing (its
+    /// objects then keep their whole occupancy).
+    fn of(path: &Path) -> Option<Survey> {
+        let session = Session::open(path).ok()?;
+        let data = PathBuf::from(session.info().get("dataset")?.as_str()?);
+        let train = assist_session::dataset_cameras(&data, SplitChoice::Train, 1).ok()?;
+        let views = surface::small_views(&train, 96, 48);
+        let (_, points) = surface::survey(session.scene(), &views);
+        let scene = session.description();
+        let mpu = scene.meters_per_unit;
+        let support = surface::support_map(scene.up, &points, 0.01 / mpu, 0.005 / mpu)?;
+        let up = surface::UpFrame::new(scene.up);
+        Some(Survey {
+            session,
+            support,
+            up,
+            mpu,
+        })
+    }
+}
+
 fn lib_node(
     session: &Session,
     j: usize,

@@ -262,6 +262,57 @@ fn generate_shards_replays_and_annotations() {
         "a dry run plans what the run makes"
     );
 
+    // A library object from another scene is cut at the surface it stood on there, as
+    // one from the base scene is: with the library taken from a copy of the scene, every
+    // plan is the same (before, the copy's object kept its whole occupancy, table slab
+    // included, and stood on it).
+    let copy = root.join("copy.assist");
+    assert!(
+        Command::new("cp")
+            .arg("-r")
+            .arg(&scene)
+            .arg(&copy)
+            .status()
+            .unwrap()
+            .success()
+    );
+    let canon = |p: &Path| std::fs::canonicalize(p).unwrap().display().to_string();
+    let text = std::fs::read_to_string(&sp).unwrap();
+    let lib = format!("[[library]]\nscene = \"{}\"", scene.display());
+    assert!(text.contains(&lib), "{text}");
+    let sp2 = root.join("spec-copy.toml");
+    std::fs::write(
+        &sp2,
+        text.replace(
+            &lib,
+            &format!("[[library]]\nscene = \"{}\"", copy.display()),
+        ),
+    )
+    .unwrap();
+    let dry2 = root.join("dry-copy");
+    let dry1 = root.join("dry-same");
+    for (spec_file, out) in [(&sp, &dry1), (&sp2, &dry2)] {
+        ok(&run(&[
+            "generate",
+            "--spec",
+            s(spec_file),
+            "--out",
+            s(out),
+            "--count",
+            "30",
+            "--dry-run",
+        ]));
+    }
+    let mut added = 0;
+    for i in 0..30 {
+        let f = format!("plans/{i:06}/actions.jsonl");
+        let a = std::fs::read_to_string(dry1.join(&f)).unwrap();
+        let b = std::fs::read_to_string(dry2.join(&f)).unwrap();
+        added += b.matches(&canon(&copy)).count();
+        assert_eq!(a, b.replace(&canon(&copy), &canon(&scene)), "plan {i}");
+    }
+    assert!(added > 0, "no library object was added in 30 plans");
+
     // Another spec into the same folder is refused, naming what differs.
     let other = spec(&root, &scene, "images = [\"rgb\"]");
     refused(
