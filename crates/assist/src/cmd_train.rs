@@ -329,6 +329,29 @@ fn held_out_text(h: &assist_session::HeldOut) -> String {
     )
 }
 
+/// With CLIP weights (`--clip` or `ASSIST_CLIP`), each node's embedding, saved into the
+/// trained scene; `None` without weights.
+fn embed_after_training(
+    a: &TrainArgs,
+    out: &std::path::Path,
+) -> anyhow::Result<Option<assist_session::EmbedSummary>> {
+    let configured = std::env::var_os(assist_session::clip::ENV).is_some_and(|v| !v.is_empty());
+    if a.clip.is_none() && !configured {
+        return Ok(None);
+    }
+    let clip = crate::cmd_embed::load_clip(a.clip.as_deref())?;
+    let mut session = assist_session::Session::open(out)
+        .with_context(|| format!("loading the trained scene {}", out.display()))?;
+    let mut job = assist_session::EmbedJob::new(a.dataset().to_path_buf());
+    job.replace = true;
+    job.load.downscale = a.downscale;
+    let s = crate::cmd_embed::embed_session(&mut session, &clip, &job, a.json)?;
+    session
+        .save(out, true)
+        .with_context(|| format!("saving {}", out.display()))?;
+    Ok(Some(s))
+}
+
 pub fn run(a: TrainArgs) -> anyhow::Result<()> {
     let job = TrainJob::new(a.config()?);
     job.validate().map_err(flag_error)?;
@@ -506,6 +529,9 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
     if a.json {
         let mut v = serde_json::to_value(report)?;
         v["held_out"] = serde_json::to_value(&outcome.held_out)?;
+        if !report.cancelled {
+            v["embedding"] = serde_json::to_value(embed_after_training(&a, &outcome.out)?)?;
+        }
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else if report.cancelled {
         eprintln!(
@@ -553,28 +579,16 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
         // Saved, but not finished: scripts must not mistake it for a complete run.
         std::process::exit(130);
     }
-    if a.clip.is_some()
-        || std::env::var_os(assist_session::clip::ENV).is_some_and(|v| !v.is_empty())
+    if !a.json
+        && let Some(s) = embed_after_training(&a, &outcome.out)?
     {
-        let clip = crate::cmd_embed::load_clip(a.clip.as_deref())?;
-        let mut session = assist_session::Session::open(&outcome.out)
-            .with_context(|| format!("loading the trained scene {}", outcome.out.display()))?;
-        let mut job = assist_session::EmbedJob::new(a.dataset().to_path_buf());
-        job.replace = true;
-        job.load.downscale = a.downscale;
-        let s = crate::cmd_embed::embed_session(&mut session, &clip, &job, a.json)?;
-        session
-            .save(&outcome.out, true)
-            .with_context(|| format!("saving {}", outcome.out.display()))?;
-        if !a.json {
-            eprintln!(
-                "embedded {} node(s) from {} crops in {:.1} s (CLIP {})",
-                s.nodes.iter().filter(|n| n.crops > 0).count(),
-                s.crops,
-                s.seconds,
-                s.model
-            );
-        }
+        eprintln!(
+            "embedded {} node(s) from {} crops in {:.1} s (CLIP {})",
+            s.nodes.iter().filter(|n| n.crops > 0).count(),
+            s.crops,
+            s.seconds,
+            s.model
+        );
     }
     Ok(())
 }

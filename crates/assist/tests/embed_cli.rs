@@ -92,6 +92,31 @@ fn train_embed_edit_and_resolve_by_meaning() {
             assert_ne!(e[i].1, e[j].1, "nodes {} and {}", e[i].0, e[j].0);
         }
     }
+    // --json reports the embedding with the training.
+    let a2 = root.join("a2.assist");
+    let o = bin()
+        .args([
+            "train",
+            s(&cap),
+            "--out",
+            s(&a2),
+            "--iters",
+            "3",
+            "--clip",
+            s(&clip),
+            "--json",
+        ])
+        .env_remove("ASSIST_CLIP")
+        .output()
+        .unwrap();
+    ok(&o);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(
+        v["embedding"]["nodes"].as_array().map(Vec::len),
+        Some(4),
+        "{v}"
+    );
+    assert_eq!(v["embedding"]["dim"], 32);
     let o = run(&["scene", "info", s(&a)]);
     let info = String::from_utf8_lossy(&o.stdout).into_owned();
     assert!(
