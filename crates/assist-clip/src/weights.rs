@@ -327,31 +327,81 @@ fn logit_scale(r: &Reader) -> Result<f32, ClipError> {
     Ok(100.0)
 }
 
-fn open_clip(r: &Reader, d: &Declared) -> Result<Weights, ClipError> {
-    let conv = r.shape("visual.conv1.weight", "[width, 3, patch, patch]")?;
-    let [vw, 3, p, p2] = conv[..] else {
-        return Err(ClipError::Shape {
+/// `[width, 3, patch, patch]` of the patch embedding `name`: (width, patch).
+fn patch_shape(r: &Reader, name: &str) -> Result<(usize, usize), ClipError> {
+    let conv = r.shape(name, "[width, 3, patch, patch]")?;
+    match conv[..] {
+        [w, 3, p, p2] if p == p2 => Ok((w, p)),
+        _ => Err(ClipError::Shape {
             file: r.file.clone(),
-            tensor: "visual.conv1.weight".into(),
-            expected: "[width, 3, patch, patch]".into(),
+            tensor: name.into(),
+            expected: "[width, 3, patch, patch] (square patches)".into(),
             found: shape_str(&conv),
-        });
-    };
-    if p != p2 {
-        return Err(ClipError::Shape {
-            file: r.file.clone(),
-            tensor: "visual.conv1.weight".into(),
-            expected: "square patches".into(),
-            found: shape_str(&conv),
-        });
+        }),
     }
-    let vpos = r.shape("visual.positional_embedding", "[1 + grid², width]")?;
-    let grid = sqrt_exact(vpos[0].saturating_sub(1)).ok_or_else(|| ClipError::Shape {
+}
+
+/// The side of the patch grid of the positional embedding `name` (`[1 + grid², width]`).
+fn grid_of(r: &Reader, name: &str) -> Result<usize, ClipError> {
+    let pos = r.shape(name, "[1 + grid², width]")?;
+    sqrt_exact(pos[0].saturating_sub(1)).ok_or_else(|| ClipError::Shape {
         file: r.file.clone(),
-        tensor: "visual.positional_embedding".into(),
+        tensor: name.into(),
         expected: "[1 + grid², width] (a square grid of patches)".into(),
-        found: shape_str(&vpos),
-    })?;
+        found: shape_str(&pos),
+    })
+}
+
+/// Sizes read off a checkpoint's tensors.
+struct Sizes {
+    embed: usize,
+    grid: usize,
+    patch: usize,
+    vision: (usize, usize, usize),
+    text: (usize, usize, usize),
+    vocab: usize,
+    context: usize,
+}
+
+/// The architecture from the tensors' sizes (`vision`/`text`: width, layers, MLP width)
+/// and what the config file declares.
+fn config(
+    r: &Reader,
+    d: &Declared,
+    layout: Layout,
+    s: &Sizes,
+    vision_heads: usize,
+) -> Result<ClipConfig, ClipError> {
+    let (vw, vlayers, vmlp) = s.vision;
+    let (tw, tlayers, tmlp) = s.text;
+    let text_heads = d.text_heads.unwrap_or(default_heads(tw));
+    Ok(ClipConfig {
+        embed_dim: s.embed,
+        vision: VisionConfig {
+            image_size: s.grid * s.patch,
+            patch_size: s.patch,
+            width: vw,
+            layers: vlayers,
+            heads: heads_check(&r.file, "vision heads", vw, vision_heads)?,
+            mlp: vmlp,
+        },
+        text: TextConfig {
+            context_length: s.context,
+            vocab_size: s.vocab,
+            width: tw,
+            layers: tlayers,
+            heads: heads_check(&r.file, "text heads", tw, text_heads)?,
+            mlp: tmlp,
+        },
+        activation: activation(r, d, layout)?,
+        mean: d.mean.unwrap_or(OPENAI_MEAN),
+        std: d.std.unwrap_or(OPENAI_STD),
+    })
+}
+
+fn open_clip(r: &Reader, d: &Declared) -> Result<Weights, ClipError> {
+    let (vw, p) = patch_shape(r, "visual.conv1.weight")?;
+    let grid = grid_of(r, "visual.positional_embedding")?;
     let vproj = r.shape("visual.proj", "[width, embed]")?;
     let embed = *vproj.get(1).unwrap_or(&0);
     let vlayers = r.count("visual.transformer.resblocks.", ".ln_1.weight");
@@ -368,33 +418,16 @@ fn open_clip(r: &Reader, d: &Declared) -> Result<Weights, ClipError> {
         Some(hw) => vw / hw.max(1),
         None => default_heads(vw),
     };
-    let config = ClipConfig {
-        embed_dim: embed,
-        vision: VisionConfig {
-            image_size: grid * p,
-            patch_size: p,
-            width: vw,
-            layers: vlayers,
-            heads: heads_check(&r.file, "vision heads", vw, vheads)?,
-            mlp: vmlp,
-        },
-        text: TextConfig {
-            context_length: ctx,
-            vocab_size: vocab,
-            width: tw,
-            layers: tlayers,
-            heads: heads_check(
-                &r.file,
-                "text heads",
-                tw,
-                d.text_heads.unwrap_or(default_heads(tw)),
-            )?,
-            mlp: tmlp,
-        },
-        activation: activation(r, d, Layout::OpenClip)?,
-        mean: d.mean.unwrap_or(OPENAI_MEAN),
-        std: d.std.unwrap_or(OPENAI_STD),
+    let sizes = Sizes {
+        embed,
+        grid,
+        patch: p,
+        vision: (vw, vlayers, vmlp),
+        text: (tw, tlayers, tmlp),
+        vocab,
+        context: ctx,
     };
+    let config = config(r, d, Layout::OpenClip, &sizes, vheads)?;
     let names = |prefix: &'static str| Names {
         blocks: format!("{prefix}transformer.resblocks."),
         ln1: "ln_1",
@@ -434,31 +467,9 @@ fn open_clip(r: &Reader, d: &Declared) -> Result<Weights, ClipError> {
 
 fn hugging_face(r: &Reader, d: &Declared) -> Result<Weights, ClipError> {
     let pe = "vision_model.embeddings.patch_embedding.weight";
-    let conv = r.shape(pe, "[width, 3, patch, patch]")?;
-    let [vw, 3, p, p2] = conv[..] else {
-        return Err(ClipError::Shape {
-            file: r.file.clone(),
-            tensor: pe.into(),
-            expected: "[width, 3, patch, patch]".into(),
-            found: shape_str(&conv),
-        });
-    };
-    if p != p2 {
-        return Err(ClipError::Shape {
-            file: r.file.clone(),
-            tensor: pe.into(),
-            expected: "square patches".into(),
-            found: shape_str(&conv),
-        });
-    }
+    let (vw, p) = patch_shape(r, pe)?;
     let vp = "vision_model.embeddings.position_embedding.weight";
-    let vpos = r.shape(vp, "[1 + grid², width]")?;
-    let grid = sqrt_exact(vpos[0].saturating_sub(1)).ok_or_else(|| ClipError::Shape {
-        file: r.file.clone(),
-        tensor: vp.into(),
-        expected: "[1 + grid², width] (a square grid of patches)".into(),
-        found: shape_str(&vpos),
-    })?;
+    let grid = grid_of(r, vp)?;
     let embed = r.shape("visual_projection.weight", "[embed, width]")?[0];
     let vlayers = r.count("vision_model.encoder.layers.", ".layer_norm1.weight");
     let vmlp = r.shape(
@@ -476,38 +487,17 @@ fn hugging_face(r: &Reader, d: &Declared) -> Result<Weights, ClipError> {
     )?[0];
     let tlayers = r.count("text_model.encoder.layers.", ".layer_norm1.weight");
     let tmlp = r.shape("text_model.encoder.layers.0.mlp.fc1.weight", "[mlp, width]")?[0];
-    let config = ClipConfig {
-        embed_dim: embed,
-        vision: VisionConfig {
-            image_size: grid * p,
-            patch_size: p,
-            width: vw,
-            layers: vlayers,
-            heads: heads_check(
-                &r.file,
-                "vision heads",
-                vw,
-                d.vision_heads.unwrap_or(default_heads(vw)),
-            )?,
-            mlp: vmlp,
-        },
-        text: TextConfig {
-            context_length: ctx,
-            vocab_size: vocab,
-            width: tw,
-            layers: tlayers,
-            heads: heads_check(
-                &r.file,
-                "text heads",
-                tw,
-                d.text_heads.unwrap_or(default_heads(tw)),
-            )?,
-            mlp: tmlp,
-        },
-        activation: activation(r, d, Layout::HuggingFace)?,
-        mean: d.mean.unwrap_or(OPENAI_MEAN),
-        std: d.std.unwrap_or(OPENAI_STD),
+    let sizes = Sizes {
+        embed,
+        grid,
+        patch: p,
+        vision: (vw, vlayers, vmlp),
+        text: (tw, tlayers, tmlp),
+        vocab,
+        context: ctx,
     };
+    let vheads = d.vision_heads.unwrap_or(default_heads(vw));
+    let config = config(r, d, Layout::HuggingFace, &sizes, vheads)?;
     let names = |prefix: &'static str| Names {
         blocks: format!("{prefix}.encoder.layers."),
         ln1: "layer_norm1",
