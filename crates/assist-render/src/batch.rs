@@ -72,6 +72,8 @@ pub struct CompositeGrad {
     pub share: f32,
     /// For the ray: dL/d(its distortion, [`BatchOutput::distortion`]). Unused for a node.
     pub distortion: f32,
+    /// For a node: dL/d([`Composite::beyond`]). Unused in the ray-level gradient.
+    pub beyond: f32,
 }
 
 /// What the gradient callback sees of one ray.
@@ -116,6 +118,7 @@ pub fn composite_batch(
 ) {
     let n = traced.rays;
     let nn = traced.nodes.len();
+    let beyond = &traced.beyond;
     out.n_nodes = nn;
     out.rays.clear();
     out.rays.resize(n, Composite::default());
@@ -187,6 +190,7 @@ pub fn composite_batch(
                     composite_ray(
                         r,
                         i,
+                        beyond.get(r).copied().unwrap_or(f32::INFINITY),
                         &mut views,
                         background,
                         RayOut {
@@ -220,9 +224,11 @@ struct RayScratch {
 }
 
 /// One ray: merge, composite, and optionally backward.
+#[allow(clippy::too_many_arguments)]
 fn composite_ray(
     r: usize,
     i: usize,
+    beyond: f32,
     views: &mut [NodeView],
     behind: Behind,
     o: RayOut,
@@ -311,6 +317,9 @@ fn composite_ray(
             a.depth += w * v.t[j];
             a.depth_sq += w * v.t[j] * v.t[j];
             a.opacity += w;
+            if v.t[j] >= beyond {
+                a.beyond += w;
+            }
         }
         node_out[k] = a;
     }
@@ -397,7 +406,8 @@ fn composite_ray(
                 + ng.rgb[2] * c[2]
                 + ng.depth * v.t[j]
                 + ng.depth_sq * v.t[j] * v.t[j]
-                + ng.opacity;
+                + ng.opacity
+                + if v.t[j] >= beyond { ng.beyond } else { 0.0 };
             v.d_sigma[j] += v.dt[j] * (sc.t_next[q] * gi - suffix);
             suffix += sc.w[q] * gi;
             for ch in 0..3 {

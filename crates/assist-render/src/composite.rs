@@ -22,6 +22,11 @@ pub struct Composite {
     /// Second moment of the weights along the ray, `Σ w_i t_i²` (with `depth` and
     /// `opacity`, the spread of the weight about a depth: `Σ w_i (t_i − d)²`).
     pub depth_sq: f32,
+    /// A node alone in a batch: the opacity of its samples at or past the ray's
+    /// [`Traced::beyond`](crate::Traced::beyond) depth, `Σ_{t_i ≥ b} w_i` (how opaque it is
+    /// behind that point, counting what lies in front of it). 0 without one, and in the
+    /// merged composite.
+    pub beyond: f32,
 }
 
 /// Composites `samples` (sorted by `t`) over `background`; writes each sample's weight

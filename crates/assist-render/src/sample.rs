@@ -167,6 +167,12 @@ impl NodeSamples {
 pub struct Traced {
     pub rays: usize,
     pub nodes: Vec<NodeSamples>,
+    /// Per ray, the distance along it from which each node's [`Composite::beyond`]
+    /// opacity is measured (empty: none, every `beyond` is 0). Set by the caller; sampling
+    /// leaves it alone.
+    ///
+    /// [`Composite::beyond`]: crate::Composite::beyond
+    pub beyond: Vec<f32>,
 }
 
 impl Traced {

@@ -222,6 +222,8 @@ fn batch_backward_matches_finite_differences() {
     };
     sample_rays(&s, &rays, &so, &mut traced);
     assert!(traced.nodes.iter().all(|n| n.len() > 10));
+    // Each node's opacity beyond a depth inside both boxes.
+    traced.beyond = (0..traced.rays).map(|r| 2.75 + 0.04 * r as f32).collect();
     let mut tapes = Vec::new();
     let q = assist_render::Query::Render {
         precision: assist_field::Precision::F32,
@@ -236,6 +238,7 @@ fn batch_backward_matches_finite_differences() {
         let mut out = BatchOutput::default();
         let mut t2 = traced.clone();
         composite_batch(&mut t2, Behind::Color(bg), &mut out, None);
+        let mut beyond_seen = Vec::new();
         for r in 0..traced.rays {
             let mut merged: Vec<assist_render::RaySample> = Vec::new();
             for ns in &traced.nodes {
@@ -263,7 +266,36 @@ fn batch_backward_matches_finite_differences() {
                 out.distortion[r]
             );
             assert!(d > 1e-3, "ray {r}: distortion {d} too small to test");
+            // Each node's opacity beyond `traced.beyond[r]`, from its own weights.
+            for (k, ns) in traced.nodes.iter().enumerate() {
+                let alone: Vec<assist_render::RaySample> = ns
+                    .range(r)
+                    .map(|j| assist_render::RaySample {
+                        sigma: ns.sigma[j],
+                        rgb: [ns.rgb[3 * j], ns.rgb[3 * j + 1], ns.rgb[3 * j + 2]],
+                        t: ns.t[j],
+                        dt: ns.dt[j],
+                    })
+                    .collect();
+                let mut w = vec![0.0; alone.len()];
+                let c = assist_render::composite(&alone, [0.0; 3], Some(&mut w));
+                let b: f32 = (0..w.len())
+                    .filter(|&j| alone[j].t >= traced.beyond[r])
+                    .map(|j| w[j])
+                    .sum();
+                let got = out.nodes[r * 2 + k].beyond;
+                assert!(
+                    (got - b).abs() < 1e-5,
+                    "ray {r} node {k}: beyond {got} against {b}"
+                );
+                beyond_seen.push((b, c.opacity));
+            }
+            assert_eq!(out.rays[r].beyond, 0.0, "the merged composite has none");
         }
+        assert!(
+            beyond_seen.iter().any(|&(b, o)| b > 0.05 && b < o - 0.05),
+            "no ray has part of a node's weight on each side of its depth: {beyond_seen:?}"
+        );
     }
     let coef: Vec<f32> = (0..6 * 32).map(|_| rng.f32() - 0.5).collect();
     let loss = |out: &BatchOutput| -> f64 {
@@ -287,6 +319,7 @@ fn batch_backward_matches_finite_differences() {
                     + a[3] * p.depth
                     + a[4] * p.opacity
                     + q[19 + k] * p.depth_sq
+                    + q[21 + k] * p.beyond
                     + q[15 + k] * out.share[r * 2 + k]) as f64;
             }
         }
@@ -301,6 +334,7 @@ fn batch_backward_matches_finite_differences() {
             depth_sq: q[18],
             share: 0.0,
             distortion: DIST * q[17],
+            beyond: 0.0,
         };
         for k in 0..2 {
             let p = &q[5 + 5 * k..];
@@ -311,6 +345,7 @@ fn batch_backward_matches_finite_differences() {
                 depth_sq: q[19 + k],
                 share: q[15 + k],
                 distortion: 0.0,
+                beyond: q[21 + k],
             };
         }
     };

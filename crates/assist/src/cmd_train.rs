@@ -66,8 +66,10 @@ pub struct TrainArgs {
     /// objects (0 with --prior none) [default: 0.5].
     #[arg(long, value_name = "W")]
     pub lambda_bg_rgb: Option<f32>,
-    /// Weight of an opaque background where its prior speaks (ours; it lets a prior reach
-    /// the background behind objects, but can cover objects with background) [default: 0].
+    /// Weight of an opaque background behind its prior's depth (ours): where the prior has
+    /// a depth, the background alone must be opaque past 95% of it, so that what objects
+    /// hide is learnt as a surface at the prior's depth and not left transparent
+    /// [default: 0].
     #[arg(long, value_name = "W")]
     pub lambda_bg_opacity: Option<f32>,
     /// λ2 of the paper: weight of the background's depth against the prior's depth (0

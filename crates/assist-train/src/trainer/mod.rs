@@ -231,6 +231,7 @@ impl Trainer {
             assist_render::PruneStats::default()
         };
         let nn = self.traced.nodes.len();
+        self.set_beyond();
         phase[0] = tp.elapsed().as_secs_f64();
         let q = assist_render::Query::Train;
         assist_render::query_fields(&self.scene, &mut self.traced, &mut self.tapes, q);
@@ -514,6 +515,40 @@ impl Trainer {
             cancelled,
             stopped_by,
         })
+    }
+}
+
+/// Where the background must be opaque behind: this fraction of the prior's depth along
+/// the ray (the margin absorbs the prior's depth error; what lies between is hidden by the
+/// object that covers the pixel, or is the surface itself).
+const BEYOND_FRACTION: f32 = 0.95;
+
+impl Trainer {
+    /// Sets `Traced::beyond` of every ray whose prior has a depth to
+    /// [`BEYOND_FRACTION`] of it (in world distance along the ray, through the learnt
+    /// scale and shift when the prior's depth has no scale); the background's opacity past
+    /// it is what `Lambdas::bg_opacity` asks to be 1.
+    fn set_beyond(&mut self) {
+        self.traced.beyond.clear();
+        if self.background.is_none() || self.opts.lambdas.bg_opacity <= 0.0 {
+            return;
+        }
+        let (e, [a, b]) = (self.extent, self.depth_wq);
+        let affine = self.opts.depth_affine;
+        self.traced.beyond.extend(self.targets.iter().map(|t| {
+            match (t.inpaint, t.depth) {
+                (Some(_), Some(d)) => {
+                    // The prior's depth in units of the extent: `a·x + b = d`.
+                    let x = if affine { (d - b) / a } else { d };
+                    if x.is_finite() && x > 0.0 {
+                        BEYOND_FRACTION * x * e
+                    } else {
+                        f32::INFINITY
+                    }
+                }
+                _ => f32::INFINITY,
+            }
+        }));
     }
 }
 

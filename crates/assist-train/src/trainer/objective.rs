@@ -96,17 +96,24 @@ impl Objective<'_> {
         if let Some(inp) = t.inpaint {
             // The premultiplied colour term is also met by a background left transparent
             // behind objects, which renders as whatever lies past it once they move;
-            // `bg_opacity` asks the background to be opaque wherever the prior speaks for
-            // it (see `Lambdas::bg_opacity` for why it is off by default).
+            // `bg_opacity` asks the background to be opaque past the prior's depth (its
+            // opacity there, `beyond`, is measured from where the trainer set
+            // `Traced::beyond`; without a prior depth it is 0 and the term is left out).
             let (v, dc, d_o) = losses::premultiplied_rgb(pb.rgb, pb.opacity, inp);
-            let (vo, dob) = losses::opacity(pb.opacity, 1.0);
             terms.bg_rgb = pw * v;
+            let behind = t.depth.is_some() && lam.bg_opacity > 0.0;
+            let (vo, dob) = if behind {
+                losses::opacity(pb.beyond, 1.0)
+            } else {
+                (0.0, 0.0)
+            };
             terms.bg_opacity = pw * vo;
             if let Some((_, gn)) = grads.as_mut() {
                 for ch in 0..3 {
                     gn[b].rgb[ch] += pw * lam.bg_rgb * dc[ch] / n;
                 }
-                gn[b].opacity += pw * (lam.bg_rgb * d_o + lam.bg_opacity * dob) / n;
+                gn[b].opacity += pw * lam.bg_rgb * d_o / n;
+                gn[b].beyond += pw * lam.bg_opacity * dob / n;
             }
         }
         if let Some(d) = t.depth {
@@ -156,6 +163,7 @@ mod tests {
             depth,
             opacity,
             depth_sq,
+            beyond: 0.8 * opacity,
         }
     }
 
@@ -177,6 +185,7 @@ mod tests {
                 depth,
                 opacity,
                 depth_sq,
+                beyond,
             } = n;
             for x in rgb.iter_mut() {
                 v.push(("rgb", k, x));
@@ -184,6 +193,7 @@ mod tests {
             v.push(("depth", k, depth));
             v.push(("opacity", k, opacity));
             v.push(("depth_sq", k, depth_sq));
+            v.push(("beyond", k, beyond));
         }
         for (k, s) in share.iter_mut().enumerate() {
             v.push(("share", k, s));
@@ -199,6 +209,7 @@ mod tests {
             "depth" => g.depth,
             "opacity" => g.opacity,
             "depth_sq" => g.depth_sq,
+            "beyond" => g.beyond,
             _ => g.share,
         }
     }

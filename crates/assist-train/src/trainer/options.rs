@@ -36,12 +36,15 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct Lambdas {
     pub bg_rgb: f32,
-    /// Weight of `Σ (1 − O_bg)²` where the background prior speaks (ours, not the
-    /// paper's): an opaque background behind objects, so that a prior reaches it. 0 by
-    /// default, by measurement: it raised the background under objects (the demo scene
-    /// 20.98 → 22.28 dB) but its gradient is largest in front of the objects, where the
-    /// background grew density over them (panoptic mIoU 0.975 → 0.889, SSIM 0.901 →
-    /// 0.880 at equal steps). See BENCHMARKS.md.
+    /// Weight of `Σ (1 − B_bg)²` where the background prior has a depth `d` (ours, not
+    /// the paper's), `B_bg` being the background's own opacity past `0.95·d` along the ray
+    /// ([`assist_render::Composite::beyond`]): an opaque background behind the objects,
+    /// so that a prior reaches it. The premultiplied colour term alone is met by a
+    /// background left transparent there, which renders as black holes once the objects
+    /// move. Session 10's form asked for the opacity of the whole ray, `(1 − O_bg)²`,
+    /// whose gradient raises density everywhere along it: the background grew over the
+    /// objects (the demo's panoptic mIoU 0.975 → 0.889); past the prior's depth nothing
+    /// is in front of an object, and density in front of that depth is pushed down.
     pub bg_opacity: f32,
     pub bg_depth: f32,
     pub obj_acc: f32,
