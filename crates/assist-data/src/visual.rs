@@ -1,5 +1,5 @@
 //! Pictures for people: instance ids as distinct colours, depth as grey, integer
-//! enlargement, and contact sheets that tile views side by side.
+//! enlargement, captions, and contact sheets that tile views side by side.
 
 use crate::image_io::ImageF32;
 
@@ -67,6 +67,57 @@ pub fn upscale(img: &ImageF32, f: u32) -> ImageF32 {
     out
 }
 
+/// Pixel height of the band [`captioned`] adds above an image at text scale `scale`.
+pub fn caption_height(scale: u32) -> u32 {
+    (8 + 4) * scale.max(1)
+}
+
+/// `img` with a dark band above it holding `text` in white (an 8×8 bitmap font enlarged
+/// `scale` times; printable ASCII, anything else drawn as `?`; text past the right edge is
+/// cut).
+pub fn captioned(img: &ImageF32, text: &str, scale: u32) -> ImageF32 {
+    let s = scale.max(1);
+    let band = caption_height(s);
+    let mut out = ImageF32::new(img.width, img.height + band, 3);
+    for px in out.data[..(band * img.width * 3) as usize].chunks_mut(3) {
+        px.copy_from_slice(&[0.12, 0.12, 0.12]);
+    }
+    for y in 0..img.height {
+        for x in 0..img.width {
+            let src = img.pixel(x, y);
+            let k = (((band + y) * img.width + x) * 3) as usize;
+            out.data[k..k + 3].copy_from_slice(&src[..3]);
+        }
+    }
+    let (x0, y0) = (2 * s, 2 * s);
+    for (n, ch) in text.chars().enumerate() {
+        let ch = if ch.is_ascii() && !ch.is_ascii_control() {
+            ch
+        } else {
+            '?'
+        };
+        let glyph = font8x8::legacy::BASIC_LEGACY[ch as usize];
+        for (row, bits) in glyph.iter().enumerate() {
+            for col in 0..8u32 {
+                if bits >> col & 1 == 0 {
+                    continue;
+                }
+                for dy in 0..s {
+                    for dx in 0..s {
+                        let x = x0 + (n as u32 * 8 + col) * s + dx;
+                        let y = y0 + row as u32 * s + dy;
+                        if x < out.width && y < band {
+                            let k = ((y * out.width + x) * 3) as usize;
+                            out.data[k..k + 3].copy_from_slice(&[1.0; 3]);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
 /// Tiles RGB images into rows of `cols` on white, 2 pixels apart; each cell is as large as
 /// the largest image. An empty list gives an empty image.
 pub fn contact_sheet(images: &[ImageF32], cols: usize) -> ImageF32 {
@@ -94,6 +145,33 @@ pub fn contact_sheet(images: &[ImageF32], cols: usize) -> ImageF32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_caption_is_white_text_on_a_band_above_the_image() {
+        let mut img = ImageF32::new(40, 10, 3);
+        img.data.fill(0.5);
+        let c = captioned(&img, "Hi", 1);
+        assert_eq!((c.width, c.height), (40, 10 + caption_height(1)));
+        // The image is below the band, unchanged.
+        assert!((0..10).all(|y| (0..40).all(|x| c.pixel(x, y + 12)[0] == 0.5)));
+        // 'H' has two vertical strokes: two runs of columns lit from top to bottom.
+        let lit = |x: u32| (2..10).filter(|&y| c.pixel(x, y)[0] == 1.0).count();
+        let full: Vec<bool> = (2..10).map(|x| lit(x) >= 6).collect();
+        let strokes = (0..full.len())
+            .filter(|&i| full[i] && (i == 0 || !full[i - 1]))
+            .count();
+        assert_eq!(
+            strokes,
+            2,
+            "columns lit: {:?}",
+            (2..10).map(lit).collect::<Vec<_>>()
+        );
+        // Nothing is drawn past the two glyphs.
+        assert!((20..40).all(|x| (0..12).all(|y| c.pixel(x, y)[0] < 0.2)));
+        // An unprintable character still takes its place, as '?'.
+        let q = captioned(&img, "\u{1F600}", 1);
+        assert!((2..10).any(|x| (2..10).any(|y| q.pixel(x, y)[0] == 1.0)));
+    }
 
     #[test]
     fn ids_get_distinct_colours_and_background_is_black() {

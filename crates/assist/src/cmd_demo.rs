@@ -12,7 +12,7 @@ use anyhow::{Context, bail};
 use assist_core::{Scene, SceneNode};
 use assist_data::image_io::{ImageF32, write_rgb_png};
 use assist_data::synth::SynthConfig;
-use assist_data::visual::{contact_sheet, depth_image, ids_image, upscale};
+use assist_data::visual::{captioned, contact_sheet, depth_image, ids_image, upscale};
 use assist_data::{LoadOptions, Split};
 use assist_session::{
     Appearance, DatasetOutput, Highlight, NamedCamera, Output, Session, TrainConfig, TrainJob,
@@ -148,6 +148,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     );
 
     eprintln!("5/6 editing with plain language");
+    let backdrop = trained.scene.background_color;
     let before = Session::new(trained);
     let mut session = Session::open(&scene_a)?;
     let (other, _) = assist_scene::scene_file::load_scene_json(&scene_b)?;
@@ -169,15 +170,37 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     let test: Vec<usize> = (0..ds.frames.len())
         .filter(|&i| ds.frames[i].split == Split::Test)
         .collect();
-    let picks: Vec<NamedCamera> = [test[0], test[test.len() / 2]]
+    let picks_at = [test[0], test[test.len() / 2]];
+    let picks: Vec<NamedCamera> = picks_at
         .iter()
         .map(|&i| NamedCamera {
             name: ds.frames[i].name.clone(),
             camera: ds.frames[i].camera,
         })
         .collect();
-    // Each row of the sheet: one view before and after (RGB, depth, panoptic).
-    let mut tiles = vec![Vec::new(); picks.len()];
+    // Each row of the sheet: one view's photograph (the generator's ground truth), then
+    // the trained scene's render, depth and panoptic before the edit and after it.
+    let mut tiles: Vec<Vec<(ImageF32, String)>> = Vec::new();
+    for &i in &picks_at {
+        let f = &ds.frames[i];
+        let v = assist_train::load_view(f, u32::MAX, backdrop)?;
+        let psnr = r
+            .per_image
+            .iter()
+            .find(|s| s.name == f.name)
+            .map(|s| format!(" {:.1} dB", s.psnr))
+            .unwrap_or_default();
+        let truth = ImageF32 {
+            width: v.width as u32,
+            height: v.height as u32,
+            channels: 3,
+            data: v.rgb,
+        };
+        tiles.push(vec![
+            (truth, format!("truth {}", f.name)),
+            (ImageF32::new(1, 1, 3), psnr),
+        ]);
+    }
     for (tag, s) in [("before", &before), ("after", &session)] {
         let job = DatasetOutput {
             out: out.join("render").join(tag),
@@ -187,24 +210,34 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         };
         s.write_dataset(&picks, &job, |v| {
             let (f, (w, h)) = (v.frame, (v.frame.width, v.frame.height));
-            tiles[v.index].extend([
-                ImageF32 {
-                    width: w,
-                    height: h,
-                    channels: 3,
-                    data: f.rgb.clone(),
-                },
-                depth_image(w, h, &f.depth),
-                ids_image(w, h, &f.panoptic),
-            ]);
+            let row = &mut tiles[v.index];
+            let rgb = ImageF32 {
+                width: w,
+                height: h,
+                channels: 3,
+                data: f.rgb.clone(),
+            };
+            if tag == "before" {
+                // The placeholder after the truth carries the view's PSNR.
+                let psnr = row.pop().map(|(_, p)| p).unwrap_or_default();
+                row.push((rgb, format!("render{psnr}")));
+            } else {
+                row.push((rgb, "after the edit".into()));
+            }
+            row.push((depth_image(w, h, &f.depth), format!("{tag}: depth")));
+            row.push((ids_image(w, h, &f.panoptic), format!("{tag}: panoptic")));
         })?;
     }
-    let tiles: Vec<ImageF32> = tiles.concat().iter().map(|t| upscale(t, 2)).collect();
+    let tiles: Vec<ImageF32> = tiles
+        .concat()
+        .iter()
+        .map(|(t, label)| captioned(&upscale(t, 2), label, 1))
+        .collect();
     let sheet = out.join("contact_sheet.png");
-    write_rgb_png(&sheet, &contact_sheet(&tiles, 6))?;
+    write_rgb_png(&sheet, &contact_sheet(&tiles, 7))?;
     println!("Done in {:.0} s. Look at:", t0.elapsed().as_secs_f64());
     println!(
-        "  {}   (each row: before RGB | depth | panoptic, after RGB | depth | panoptic)",
+        "  {}   (each row: ground truth | render, depth, panoptic | the same after the edit)",
         sheet.display()
     );
     println!(
