@@ -264,37 +264,6 @@ pub fn percentile_aabb(points: &[DVec3], per_mille: usize) -> Aabb {
     Aabb::new(lo, hi)
 }
 
-/// Like [`percentile_aabb`], then each face pushed out over the points beyond it for as
-/// long as they continue the trimmed cloud: past the trimmed face, sorted values are
-/// followed outwards while consecutive ones are at most `max_gap` (a fraction of the
-/// trimmed extent on that axis) apart. A surface that runs on past the per-mille cut (the
-/// top of a wall the views see) is kept whole; stray points beyond a gap are not.
-pub fn contiguous_aabb(points: &[DVec3], per_mille: usize, max_gap: f64) -> Aabb {
-    let n = points.len();
-    let mut lo = DVec3::ZERO;
-    let mut hi = DVec3::ZERO;
-    for a in 0..3 {
-        let mut v: Vec<f64> = points.iter().map(|p| p[a]).collect();
-        v.sort_by(f64::total_cmp);
-        let (i_lo, i_hi) = (
-            n * per_mille / 1000,
-            (n * (1000 - per_mille) / 1000).min(n - 1),
-        );
-        let gap = max_gap * (v[i_hi] - v[i_lo]);
-        let mut i = i_lo;
-        while i > 0 && v[i] - v[i - 1] <= gap {
-            i -= 1;
-        }
-        let mut j = i_hi;
-        while j + 1 < n && v[j + 1] - v[j] <= gap {
-            j += 1;
-        }
-        lo[a] = v[i];
-        hi[a] = v[j];
-    }
-    Aabb::new(lo, hi)
-}
-
 /// Bounds from content (points, boxes or a depth range) united with the camera centres,
 /// and the normalisation that maps them into [−1, 1]³.
 pub fn compute_bounds(
@@ -372,39 +341,4 @@ pub fn checked_rotation(m: DMat3, file: &Path, field: &str) -> Result<DMat3> {
         ));
     }
     Ok(m)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// A wall whose top runs past the per-mille cut is kept whole; a stray point beyond
-    /// a gap is not.
-    #[test]
-    fn contiguous_box_keeps_a_surface_past_the_cut_and_drops_strays() {
-        // 10,000 points on a floor at z = 0 over [0, 1]², and a wall at x = 0 from z = 0 to
-        // 0.5 with its points spread evenly in z (a thin tail at the top of the z range).
-        let mut pts = Vec::new();
-        for i in 0..100 {
-            for j in 0..100 {
-                pts.push(DVec3::new(i as f64 / 99.0, j as f64 / 99.0, 0.0));
-            }
-        }
-        for k in 0..500 {
-            pts.push(DVec3::new(0.0, 0.5, 0.5 * k as f64 / 499.0));
-        }
-        pts.push(DVec3::new(0.5, 0.5, 40.0));
-        let trimmed = percentile_aabb(&pts, 2);
-        assert!(
-            trimmed.max.z < 0.49,
-            "the cut should fall inside the wall: {trimmed:?}"
-        );
-        let b = contiguous_aabb(&pts, 2, 0.02);
-        assert!(
-            (b.max.z - 0.5).abs() < 1e-12,
-            "the wall's top is kept: {b:?}"
-        );
-        assert!(b.max.z < 1.0, "the stray point at z = 40 is not: {b:?}");
-        assert_eq!((b.min, b.max.x, b.max.y), (DVec3::ZERO, 1.0, 1.0));
-    }
 }

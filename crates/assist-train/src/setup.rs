@@ -406,11 +406,8 @@ pub fn node_boxes(
     Ok(out)
 }
 
-/// Bounds of what the training depth maps see (every 4th pixel in each direction, back
-/// projected): the 0.2nd–99.8th percentile per axis, each face then pushed out over the
-/// points that continue the cloud without a gap of more than 1% of its extent (the top of
-/// desk's wall lies past the 99.8th percentile of height: cut there, its rays left the box
-/// and rendered black streaks). `None` without depth.
+/// Bounds of what the training depth maps see (0.2nd–99.8th percentile per axis of the
+/// back-projected pixels, every 4th pixel in each direction); `None` without depth.
 pub fn depth_bounds(views: &[View]) -> Option<Aabb> {
     let pts: Vec<DVec3> = views
         .par_iter()
@@ -429,7 +426,7 @@ pub fn depth_bounds(views: &[View]) -> Option<Aabb> {
     if pts.len() < 100 {
         return None;
     }
-    let mut b = assist_data::dataset::contiguous_aabb(&pts, 2, 0.01);
+    let mut b = assist_data::dataset::percentile_aabb(&pts, 2);
     for v in views {
         b.extend(v.camera.pose.center());
     }
