@@ -23,7 +23,8 @@ use crate::views::View;
 pub const MIN_FREE_RAYS: u16 = 2;
 /// Rays stop this fraction of the surface distance short of it.
 pub const SURFACE_MARGIN: f64 = 0.03;
-/// At most about this many rays are cast (every k-th pixel in each direction).
+/// At most about this many rays are marched through the free space (every k-th pixel in
+/// each direction); every pixel's end point is counted.
 const MAX_RAYS: usize = 2_000_000;
 
 /// Cells carved per node (field key, carved fraction of its grid).
@@ -65,10 +66,37 @@ fn free_cells(node: &SceneNode, res: u32, views: &[View]) -> Vec<bool> {
 /// least [`MIN_FREE_RAYS`] of them end on this node's surface (kept occupied in training,
 /// whatever a random point in them says).
 pub fn carve_cells(node: &SceneNode, res: u32, views: &[View]) -> (Vec<bool>, Vec<bool>) {
+    let (free, hit) = ray_counts(node, res, views);
+    // With dense depth maps, a background cell no ray reaches (behind every surface, or
+    // outside every view) can never be trained: its initial haze would only float in front
+    // of a novel view (the demo's test views had fog 0.1–0.7 m from the camera).
+    let unobserved_too = node.is_background() && dense_depth(views);
+    let empty = free
+        .iter()
+        .zip(&hit)
+        .map(|(&f, &h)| h == 0 && (f >= MIN_FREE_RAYS || (unobserved_too && f == 0)))
+        .collect();
+    let kept = hit.iter().map(|&h| h >= MIN_FREE_RAYS).collect();
+    (empty, kept)
+}
+
+/// Per cell of `node`'s `res`³ grid: how many rays cross it freely, and how many end in it
+/// on this node's surface.
+pub fn ray_counts(node: &SceneNode, res: u32, views: &[View]) -> (Vec<u16>, Vec<u16>) {
+    ray_counts_marching(node, res, views, MAX_RAYS)
+}
+
+/// [`ray_counts`], marching at most about `max_rays` rays.
+fn ray_counts_marching(
+    node: &SceneNode,
+    res: u32,
+    views: &[View],
+    max_rays: usize,
+) -> (Vec<u16>, Vec<u16>) {
     let r = res as usize;
     let n = r * r * r;
     let pixels: usize = views.iter().map(|v| v.width * v.height).sum();
-    let stride = ((pixels as f64 / MAX_RAYS as f64).sqrt().ceil() as usize).max(1);
+    let stride = ((pixels as f64 / max_rays.max(1) as f64).sqrt().ceil() as usize).max(1);
     let size = node.half_size * 2.0;
     // One pair of counters per thread's share of the views (a 128³ grid is 4 MB each).
     let share = views.len().div_ceil(rayon::current_num_threads().max(1));
@@ -93,17 +121,7 @@ pub fn carve_cells(node: &SceneNode, res: u32, views: &[View]) -> (Vec<bool>, Ve
                 (fa, ha)
             },
         );
-    // With dense depth maps, a background cell no ray reaches (behind every surface, or
-    // outside every view) can never be trained: its initial haze would only float in front
-    // of a novel view (the demo's test views had fog 0.1–0.7 m from the camera).
-    let unobserved_too = node.is_background() && dense_depth(views);
-    let empty = free
-        .iter()
-        .zip(&hit)
-        .map(|(&f, &h)| h == 0 && (f >= MIN_FREE_RAYS || (unobserved_too && f == 0)))
-        .collect();
-    let kept = hit.iter().map(|&h| h >= MIN_FREE_RAYS).collect();
-    (empty, kept)
+    (free, hit)
 }
 
 /// Whether every view has depth at (nearly) every pixel: depth sensors leave holes on
@@ -144,8 +162,13 @@ fn cast_view(
         let [x, y, z] = [i.x as usize, i.y as usize, i.z as usize].map(|a| a.min(r - 1));
         Some(x + r * (y + r * z))
     };
-    for j in (0..v.height).step_by(stride) {
-        for i in (0..v.width).step_by(stride) {
+    // Every pixel's end point counts (a surface seen at the edge of one or two views would
+    // otherwise have no hit between the cast rays, and with dense depth be carved as never
+    // seen: desk's wall near the top of the views rendered as holes); the space in front
+    // of the surfaces is marched along every `stride`-th ray in each direction.
+    for j in 0..v.height {
+        for i in 0..v.width {
+            let cast = j % stride == 0 && i % stride == 0;
             let p = j * v.width + i;
             let z = depth[p] as f64;
             if z <= 0.0 {
@@ -178,6 +201,9 @@ fn cast_view(
                 if let Some(c) = to_cell(o + d * (zb / cos * per_world)) {
                     hit[c] = hit[c].saturating_add(1);
                 }
+            }
+            if !cast {
+                continue;
             }
             let stop = t_end_local * (1.0 - SURFACE_MARGIN) - margin;
             let aabb = assist_core::Aabb::from_half_size(half);
@@ -309,6 +335,35 @@ mod tests {
         assert!(
             above * 10 >= n * 9,
             "{above} of {n} cells above the plane carved"
+        );
+    }
+
+    /// Every pixel's end point is a hit, however few rays are marched: a surface seen
+    /// between the marched rays (at the edge of one or two views) is not carved.
+    #[test]
+    fn every_pixel_counts_its_hit_whatever_the_marching_stride() {
+        let views = plane_views();
+        let node = SceneNode {
+            id: 0,
+            label: "background".into(),
+            embedding: None,
+            class: None,
+            field: "background".into(),
+            half_size: DVec3::new(0.5, 0.5, 0.5),
+            world_from_local: Similarity3::from_translation(DVec3::new(0.0, 0.0, 0.3)),
+            space: NodeSpace::Box,
+        };
+        let (free_all, hit_all) = ray_counts_marching(&node, 40, &views, usize::MAX);
+        // 9,600 pixels, about 600 marched: every 4th in each direction.
+        let (free_few, hit_few) = ray_counts_marching(&node, 40, &views, 600);
+        let total = |v: &[u16]| v.iter().map(|&c| c as u64).sum::<u64>();
+        assert_eq!(hit_few, hit_all);
+        assert!(total(&hit_all) > 5000, "{}", total(&hit_all));
+        assert!(
+            total(&free_few) * 8 < total(&free_all),
+            "free-space marching is strided: {} against {}",
+            total(&free_few),
+            total(&free_all)
         );
     }
 }
