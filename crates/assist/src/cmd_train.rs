@@ -68,8 +68,9 @@ pub struct TrainArgs {
     pub lambda_bg_rgb: Option<f32>,
     /// Weight of an opaque background behind its prior's depth (ours): where the prior has
     /// a depth, the background alone must be opaque past 95% of it, so that what objects
-    /// hide is learnt as a surface at the prior's depth and not left transparent
-    /// [default: 0].
+    /// hide is learnt as a surface at the prior's depth and not left transparent. It
+    /// improves the background under the objects (what a moved object uncovers) but costs
+    /// the unedited views ~1 dB, so it is off [default: 0].
     #[arg(long, value_name = "W")]
     pub lambda_bg_opacity: Option<f32>,
     /// λ2 of the paper: weight of the background's depth against the prior's depth (0

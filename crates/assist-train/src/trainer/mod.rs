@@ -2,7 +2,7 @@
 //! rendering, the paper's five losses plus one of ours and Nerfacto's distortion loss,
 //! `L = L_comp_rgb + λ1 L_bg_rgb + λ2 L_bg_depth + λ3 L_obj_acc + λ4 L_obj_rgb +
 //! λ5 L_obj_share + λ6 L_dist`, backward into every node's field, Adam with a learning rate decaying exponentially from
-//! 1e-2 to 1e-4 over the run, occupancy-grid updates, periodic atomic checkpoints, and
+//! 1e-2 to 1e-3 over the run, occupancy-grid updates, periodic atomic checkpoints, and
 //! divergence detection (a NaN loss stops training; the last good checkpoint is kept).
 //!
 //! Each term is defined once, with its gradient, in [`crate::losses`]. Two depart from
