@@ -276,12 +276,10 @@ mod tests {
             .collect()
     }
 
-    #[test]
-    fn the_space_above_a_seen_plane_is_carved_and_the_plane_kept() {
-        let views = plane_views();
-        // A box from z = -0.2 to 0.8 over the plane's seen part (off-centre: the local
-        // frame is not the world frame).
-        let node = SceneNode {
+    /// A background box from z = -0.2 to 0.8 over the plane's seen part (off-centre: the
+    /// local frame is not the world frame).
+    fn plane_box() -> SceneNode {
+        SceneNode {
             id: 0,
             label: "background".into(),
             embedding: None,
@@ -290,7 +288,13 @@ mod tests {
             half_size: DVec3::new(0.5, 0.5, 0.5),
             world_from_local: Similarity3::from_translation(DVec3::new(0.0, 0.0, 0.3)),
             space: NodeSpace::Box,
-        };
+        }
+    }
+
+    #[test]
+    fn the_space_above_a_seen_plane_is_carved_and_the_plane_kept() {
+        let views = plane_views();
+        let node = plane_box();
         let res = 20u32;
         let r = res as usize;
         let cell_z = |k: usize| -0.2 + (k as f64 + 0.5) / r as f64;
@@ -343,16 +347,7 @@ mod tests {
     #[test]
     fn every_pixel_counts_its_hit_whatever_the_marching_stride() {
         let views = plane_views();
-        let node = SceneNode {
-            id: 0,
-            label: "background".into(),
-            embedding: None,
-            class: None,
-            field: "background".into(),
-            half_size: DVec3::new(0.5, 0.5, 0.5),
-            world_from_local: Similarity3::from_translation(DVec3::new(0.0, 0.0, 0.3)),
-            space: NodeSpace::Box,
-        };
+        let node = plane_box();
         let (free_all, hit_all) = ray_counts_marching(&node, 40, &views, usize::MAX);
         // 9,600 pixels, about 600 marched: every 4th in each direction.
         let (free_few, hit_few) = ray_counts_marching(&node, 40, &views, 600);
