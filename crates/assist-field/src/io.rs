@@ -11,6 +11,7 @@ use crate::config::FieldConfig;
 use crate::error::FieldError;
 use crate::field::Field;
 use crate::occupancy::OccupancyGrid;
+use crate::shade::ShadeGrid;
 
 pub const FORMAT: &str = "assist-field";
 pub const VERSION: &str = "1";
@@ -44,6 +45,16 @@ fn shape_of(field: &Field, name: &str, len: usize) -> Vec<usize> {
 
 /// Serialises to bytes.
 pub fn to_bytes(field: &Field, occupancy: Option<&OccupancyGrid>) -> Result<Vec<u8>, FieldError> {
+    to_bytes_with_shade(field, occupancy, None)
+}
+
+/// Serialises to bytes, with the object's shadow grid when it has one (tensor `shade`,
+/// `[r, r, r]`, its extent in the metadata).
+pub fn to_bytes_with_shade(
+    field: &Field,
+    occupancy: Option<&OccupancyGrid>,
+    shade: Option<&ShadeGrid>,
+) -> Result<Vec<u8>, FieldError> {
     let groups = field.layout.groups(&field.config);
     let mut bufs: Vec<(String, Vec<usize>, Vec<u8>, Dtype)> = Vec::new();
     for (name, start, len) in &groups {
@@ -66,6 +77,11 @@ pub fn to_bytes(field: &Field, occupancy: Option<&OccupancyGrid>) -> Result<Vec<
         let r = o.res as usize;
         bufs.push(("occupancy.density".into(), vec![r, r, r], bytes, Dtype::F32));
     }
+    if let Some(g) = shade {
+        let bytes: Vec<u8> = g.values.iter().flat_map(|v| v.to_le_bytes()).collect();
+        let r = g.res;
+        bufs.push(("shade".into(), vec![r, r, r], bytes, Dtype::F32));
+    }
     let views: Vec<(String, TensorView)> = bufs
         .iter()
         .map(|(n, s, b, d)| {
@@ -86,6 +102,12 @@ pub fn to_bytes(field: &Field, occupancy: Option<&OccupancyGrid>) -> Result<Vec<
         meta.insert(
             "occupancy".to_string(),
             serde_json::json!({"threshold": o.threshold, "decay": o.decay}).to_string(),
+        );
+    }
+    if let Some(g) = shade {
+        meta.insert(
+            "shade".to_string(),
+            serde_json::json!({"extent": g.extent}).to_string(),
         );
     }
     let bytes = safetensors::serialize(views, Some(meta)).map_err(|e| FieldError::Format {
@@ -144,15 +166,30 @@ pub fn save(
 }
 
 pub fn load(path: &Path) -> Result<(Field, Option<OccupancyGrid>), FieldError> {
+    let (f, o, _) = load_with_shade(path)?;
+    Ok((f, o))
+}
+
+/// A field, its occupancy grid and its shadow grid, as read from a file.
+pub type Loaded = (Field, Option<OccupancyGrid>, Option<ShadeGrid>);
+
+/// Reads a field with its occupancy and shadow grids (each when the file has one).
+pub fn load_with_shade(path: &Path) -> Result<Loaded, FieldError> {
     let bytes = std::fs::read(path).map_err(|e| FieldError::Io {
         path: path.to_path_buf(),
         source: e,
     })?;
-    from_bytes(path, &bytes)
+    from_bytes_with_shade(path, &bytes)
 }
 
 /// Parses and validates; `path` names the file in errors.
 pub fn from_bytes(path: &Path, bytes: &[u8]) -> Result<(Field, Option<OccupancyGrid>), FieldError> {
+    let (f, o, _) = from_bytes_with_shade(path, bytes)?;
+    Ok((f, o))
+}
+
+/// Parses and validates, shadow grid included; `path` names the file in errors.
+pub fn from_bytes_with_shade(path: &Path, bytes: &[u8]) -> Result<Loaded, FieldError> {
     let (_, meta) = safetensors::SafeTensors::read_metadata(bytes)
         .map_err(|e| fmt_err(path, format!("not a valid safetensors file: {e}")))?;
     let st = safetensors::SafeTensors::deserialize(bytes)
@@ -201,6 +238,7 @@ pub fn from_bytes(path: &Path, bytes: &[u8]) -> Result<(Field, Option<OccupancyG
     let groups = field.layout.groups(&field.config);
     let mut expected: Vec<&str> = groups.iter().map(|g| g.0.as_str()).collect();
     expected.push("occupancy.density");
+    expected.push("shade");
     for name in st.names() {
         if !expected.contains(&&*name.to_string()) {
             return Err(fmt_err(
@@ -282,5 +320,38 @@ pub fn from_bytes(path: &Path, bytes: &[u8]) -> Result<(Field, Option<OccupancyG
         }
         Err(_) => None,
     };
-    Ok((field, occupancy))
+    let shade = match st.tensor("shade") {
+        Ok(t) => {
+            let s = t.shape();
+            if t.dtype() != Dtype::F32 || s.len() != 3 || s[0] != s[1] || s[1] != s[2] {
+                return Err(fmt_err(
+                    path,
+                    format!(
+                        "tensor \"shade\": expected F32 of shape [r, r, r], got {:?} {s:?}",
+                        t.dtype()
+                    ),
+                ));
+            }
+            let extent = md
+                .get("shade")
+                .and_then(|t| serde_json::from_str::<serde_json::Value>(t).ok())
+                .and_then(|v| v["extent"].as_f64())
+                .ok_or_else(|| fmt_err(path, "metadata.shade.extent: missing"))?
+                as f32;
+            let g = ShadeGrid {
+                res: s[0],
+                extent,
+                values: t
+                    .data()
+                    .chunks_exact(4)
+                    .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                    .collect(),
+            };
+            g.validate()
+                .map_err(|e| fmt_err(path, format!("tensor \"shade\": {e}")))?;
+            Some(g)
+        }
+        Err(_) => None,
+    };
+    Ok((field, occupancy, shade))
 }

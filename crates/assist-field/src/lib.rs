@@ -23,9 +23,11 @@ pub mod io;
 mod mlp;
 mod occupancy;
 mod sh;
+pub mod shade;
 
 pub use adam::Adam;
 pub use config::FieldConfig;
 pub use error::FieldError;
 pub use field::{Field, ParamLayout, PhaseTimes, Precision, Samples, Tape};
 pub use occupancy::{OccupancyGrid, Step};
+pub use shade::ShadeGrid;

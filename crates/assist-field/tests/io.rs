@@ -52,6 +52,40 @@ fn round_trip_with_occupancy() {
     assert!(from_bytes(Path::new("x"), &bytes).unwrap().1.is_none());
 }
 
+#[test]
+fn shadow_grid_round_trips_and_bad_values_are_named() {
+    use assist_field::ShadeGrid;
+    use assist_field::io::{from_bytes_with_shade, to_bytes_with_shade};
+    let field = Field::new(small(), 3).unwrap();
+    let mut g = ShadeGrid::new(4, 2.5);
+    for (i, v) in g.values.iter_mut().enumerate() {
+        *v = 0.1 + (i % 9) as f32 * 0.1;
+    }
+    let bytes = to_bytes_with_shade(&field, None, Some(&g)).unwrap();
+    let (_, occ, back) = from_bytes_with_shade(Path::new("x"), &bytes).unwrap();
+    assert!(occ.is_none());
+    assert_eq!(back.as_ref(), Some(&g));
+    // A file without one loads without one; the plain reader ignores it.
+    let plain = to_bytes(&field, None).unwrap();
+    assert!(
+        from_bytes_with_shade(Path::new("x"), &plain)
+            .unwrap()
+            .2
+            .is_none()
+    );
+    assert!(from_bytes(Path::new("x"), &bytes).is_ok());
+    // A factor above 1 is refused with the tensor and the element named.
+    g.values[5] = 1.7;
+    let bad = to_bytes_with_shade(&field, None, Some(&g)).unwrap();
+    let e = from_bytes_with_shade(Path::new("node.safetensors"), &bad)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("node.safetensors") && e.contains("shade") && e.contains("value 5"),
+        "{e}"
+    );
+}
+
 /// The metadata a valid file of `small()` carries.
 fn good_metadata() -> std::collections::HashMap<String, String> {
     let mut md = std::collections::HashMap::new();

@@ -1,7 +1,8 @@
 //! Compositing a traced batch: per ray, the samples of all nodes are merged by depth and
 //! composited together (colour, depth, opacity; paper eq. 1), and each node's samples are
 //! also composited alone (per-node colour, depth and opacity; eqs. 2–4). With a gradient
-//! callback, the backward pass writes dL/dσ and dL/dRGB of every sample.
+//! callback, the backward pass writes dL/dσ and dL/dRGB of every sample (and dL/dshade of
+//! the background's samples when objects shade them).
 
 use rayon::prelude::*;
 
@@ -12,9 +13,11 @@ use crate::sample::{NodeSamples, Traced};
 #[derive(Debug, Clone, Default)]
 pub struct BatchOutput {
     pub n_nodes: usize,
-    /// Everything composited together over the background colour.
+    /// Everything composited together over the background colour (the background's
+    /// samples darkened by objects' shadows, [`NodeSamples::shade`]).
     pub rays: Vec<Composite>,
-    /// Each node alone (no background colour).
+    /// Each node alone (no background colour, and no shadows: the background as it is
+    /// without the objects).
     pub nodes: Vec<Composite>,
     /// Each node's share of the composited weight `Σ_{i∈k} T_i α_i` (for panoptic ids).
     pub share: Vec<f32>,
@@ -105,6 +108,20 @@ struct NodeView<'a> {
     dt: &'a [f32],
     d_sigma: &'a mut [f32],
     d_rgb: &'a mut [f32],
+    /// Per sample, the factor on its colour in the composite (empty: 1).
+    shade: &'a [f32],
+    d_shade: &'a mut [f32],
+}
+
+impl NodeView<'_> {
+    #[inline(always)]
+    fn shade(&self, j: usize) -> f32 {
+        if self.shade.is_empty() {
+            1.0
+        } else {
+            self.shade[j]
+        }
+    }
 }
 
 /// Forward (and, with `grad`, backward) compositing of every ray of `traced`; the node
@@ -141,9 +158,21 @@ pub fn composite_batch(
             dt,
             d_sigma,
             d_rgb,
+            shade,
+            d_shade,
             ..
         } = ns;
         let with_grad = grad.is_some();
+        let shaded = !shade.is_empty();
+        if with_grad && shaded {
+            d_shade.clear();
+            d_shade.resize(shade.len(), 0.0);
+        }
+        let mut dsh: &mut [f32] = if with_grad && shaded {
+            d_shade.as_mut_slice()
+        } else {
+            &mut []
+        };
         let mut ds: &mut [f32] = if with_grad {
             d_sigma.as_mut_slice()
         } else {
@@ -164,6 +193,9 @@ pub fn composite_batch(
             let (c, rest) =
                 std::mem::take(&mut dc).split_at_mut(if with_grad { 3 * len } else { 0 });
             dc = rest;
+            let (e, rest) =
+                std::mem::take(&mut dsh).split_at_mut(if with_grad && shaded { len } else { 0 });
+            dsh = rest;
             views.push(NodeView {
                 start: &start[r0..=r1],
                 sigma: &sigma[s0..s1],
@@ -172,6 +204,8 @@ pub fn composite_batch(
                 dt: &dt[s0..s1],
                 d_sigma: a,
                 d_rgb: c,
+                shade: if shaded { &shade[s0..s1] } else { &[] },
+                d_shade: e,
             });
         }
     }
@@ -271,8 +305,9 @@ fn composite_ray(
         log_t -= tau;
         sc.w[q] = w;
         sc.t_next[q] = log_t.exp();
+        let ws = w * v.shade(j);
         for c in 0..3 {
-            acc.rgb[c] += w * v.rgb[3 * j + c];
+            acc.rgb[c] += ws * v.rgb[3 * j + c];
         }
         acc.depth += w * t;
         acc.depth_sq += w * t * t;
@@ -285,7 +320,8 @@ fn composite_ray(
         (Behind::Color(c), _) => c,
         (Behind::LastSample, Some((k, j))) => {
             let c = &views[k].rgb[3 * j..3 * j + 3];
-            [c[0], c[1], c[2]]
+            let sh = views[k].shade(j);
+            [c[0] * sh, c[1] * sh, c[2] * sh]
         }
         (Behind::LastSample, None) => [0.0; 3],
     };
@@ -343,8 +379,14 @@ fn composite_ray(
     // The last sample's colour also shows through what is left of the transmittance.
     if let (Behind::LastSample, Some((k, j))) = (behind, last) {
         let rest = 1.0 - acc.opacity;
+        let v = &mut views[k];
+        let sh = v.shade(j);
         for ch in 0..3 {
-            views[k].d_rgb[3 * j + ch] += rest * g.rgb[ch];
+            v.d_rgb[3 * j + ch] += rest * sh * g.rgb[ch];
+        }
+        if !v.d_shade.is_empty() {
+            let c = &v.rgb[3 * j..3 * j + 3];
+            v.d_shade[j] += rest * (g.rgb[0] * c[0] + g.rgb[1] * c[1] + g.rgb[2] * c[2]);
         }
     }
     // d dist / d w_i = 2 Σ_j w_j |t_i − t_j| = 2 (t_i W_{<i} − S_{<i} + S_{>i} − t_i W_{>i}),
@@ -364,11 +406,11 @@ fn composite_ray(
         } else {
             0.0
         };
+        let sh = v.shade(j);
         let c = &v.rgb[3 * j..3 * j + 3];
+        let gc = g.rgb[0] * c[0] + g.rgb[1] * c[1] + g.rgb[2] * c[2];
         let gi = g_dist
-            + g.rgb[0] * c[0]
-            + g.rgb[1] * c[1]
-            + g.rgb[2] * c[2]
+            + sh * gc
             + g.depth * t
             + g.depth_sq * t * t
             + g_bg
@@ -376,7 +418,10 @@ fn composite_ray(
         v.d_sigma[j] += v.dt[j] * (sc.t_next[q] * gi - suffix);
         suffix += sc.w[q] * gi;
         for ch in 0..3 {
-            v.d_rgb[3 * j + ch] += sc.w[q] * g.rgb[ch];
+            v.d_rgb[3 * j + ch] += sc.w[q] * sh * g.rgb[ch];
+        }
+        if !v.d_shade.is_empty() {
+            v.d_shade[j] += sc.w[q] * gc;
         }
     }
     // Backward through each node alone (no background colour).

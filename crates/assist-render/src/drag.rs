@@ -144,14 +144,37 @@ pub fn render_camera_moving(
         && let Some(mut img) = cache.image.take()
     {
         let c = &mut *cache;
+        // A node that casts a shadow moves it: the background's shade is computed again
+        // and every ray whose shade changed is composited again too.
+        let bg = scene
+            .field_of(k)
+            .shade
+            .as_ref()
+            .and_then(|_| scene.scene.nodes.iter().position(|n| n.is_background()));
         for b in c.batches.iter_mut() {
             sample_rays_node(scene, k, &b.rays, &so, &mut c.fresh);
+            let old_shade = match bg {
+                Some(bi) => {
+                    let before = std::mem::take(&mut b.traced.nodes[bi].shade);
+                    crate::shade::shade_background(scene, &b.rays, &mut b.traced);
+                    before
+                }
+                None => Vec::new(),
+            };
             let old = &b.traced.nodes[k];
+            let bg_ns = bg.map(|bi| &b.traced.nodes[bi]);
+            let shade_changed = |r: usize| {
+                bg_ns.is_some_and(|ns| {
+                    ns.range(r).any(|j| {
+                        old_shade.get(j).copied().unwrap_or(1.0)
+                            != ns.shade.get(j).copied().unwrap_or(1.0)
+                    })
+                })
+            };
             c.affected.clear();
-            c.affected.extend(
-                (0..b.rays.len())
-                    .filter(|&r| !old.range(r).is_empty() || !c.fresh.range(r).is_empty()),
-            );
+            c.affected.extend((0..b.rays.len()).filter(|&r| {
+                !old.range(r).is_empty() || !c.fresh.range(r).is_empty() || shade_changed(r)
+            }));
             if !c.affected.is_empty() {
                 c.sub.rays = c.affected.len();
                 c.sub
@@ -206,6 +229,7 @@ pub fn render_camera_moving(
         };
         sample_rays(scene, &b.rays, &so, &mut b.traced);
         query_fields(scene, &mut b.traced, &mut tapes, q);
+        crate::shade::shade_background(scene, &b.rays, &mut b.traced);
         composite_batch(&mut b.traced, behind, &mut cache.out, None);
         img.write_batch(scene, &cache.out, &b.pixels, &b.cos);
         cache.batches.push(b);

@@ -5,7 +5,8 @@
 //! integrated over canonical distance, so a node's opacity does not change when it is moved,
 //! rotated or scaled. Each node's field is queried once per batch, the samples of all nodes
 //! are merged by depth and composited (`batch`), with per-node colour, depth and opacity
-//! and a backward pass into every sample. `render` turns cameras into images (RGB, z-depth,
+//! and a backward pass into every sample; objects' shadow grids darken the background's
+//! samples in the composite (`shade`). `render` turns cameras into images (RGB, z-depth,
 //! opacity, panoptic ids, per-node layers, selection highlight). Scenes themselves — nodes
 //! with their fields, scene files, the editor — are assist-scene's.
 
@@ -17,6 +18,7 @@ mod drag;
 mod prune;
 mod render;
 mod sample;
+mod shade;
 
 pub use batch::{BatchOutput, Behind, CompositeGrad, GradFn, RayOutputs, composite_batch};
 pub use composite::{Composite, RaySample, composite, composite_backward};
@@ -27,3 +29,4 @@ pub use render::{
     query_node, render_camera, render_rays,
 };
 pub use sample::{NodeSamples, RayBatch, SampleOptions, Traced, sample_rays, sample_rays_node};
+pub use shade::{casts_shadows, shade_background, shade_backward};

@@ -205,6 +205,7 @@ pub fn render_rays(scene: &NeuralScene, opts: &RenderOptions, sc: &mut RenderScr
         highlight: opts.highlight,
     };
     query_fields(scene, &mut sc.traced, &mut sc.tapes, q);
+    crate::shade::shade_background(scene, &sc.rays, &mut sc.traced);
     composite_batch(
         &mut sc.traced,
         crate::batch::Behind::of(&scene.scene),

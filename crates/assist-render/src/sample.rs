@@ -82,6 +82,12 @@ pub struct NodeSamples {
     /// Gradients with respect to σ and RGB (filled by `composite_batch`).
     pub d_sigma: Vec<f32>,
     pub d_rgb: Vec<f32>,
+    /// The background's samples: the light left by objects' shadows, a factor per sample
+    /// multiplying its colour in the composited image (not in the node alone). Empty: 1
+    /// everywhere. Filled by [`crate::shade_background`].
+    pub shade: Vec<f32>,
+    /// Gradient with respect to `shade` (filled by `composite_batch` when `shade` is).
+    pub d_shade: Vec<f32>,
 }
 
 impl NodeSamples {
@@ -110,6 +116,7 @@ impl NodeSamples {
         self.t.clear();
         self.dt.clear();
         self.start.clear();
+        self.shade.clear();
     }
     fn append(&mut self, o: &NodeSamples) {
         let base = self.t.len() as u32;
@@ -130,6 +137,7 @@ impl NodeSamples {
         out.clear();
         out.sigma.clear();
         out.rgb.clear();
+        let shaded = with_outputs && !self.shade.is_empty();
         for &r in rays {
             out.start.push(out.t.len() as u32);
             let g = self.range(r);
@@ -143,6 +151,9 @@ impl NodeSamples {
             if with_outputs {
                 out.sigma.extend_from_slice(&self.sigma[g.clone()]);
                 out.rgb.extend_from_slice(&self.rgb[3 * g.start..3 * g.end]);
+            }
+            if shaded {
+                out.shade.extend_from_slice(&self.shade[g.clone()]);
             }
         }
         out.start.push(out.t.len() as u32);

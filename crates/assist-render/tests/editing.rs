@@ -413,8 +413,21 @@ fn bad_actions_are_refused_and_change_nothing() {
 /// camera) renders everything again.
 #[test]
 fn a_drag_rerenders_the_moving_node_alone_and_bit_for_bit() {
+    drag_bit_for_bit(false);
+    // A node that casts a shadow moves it: the floor's shading changes with the drag.
+    drag_bit_for_bit(true);
+}
+
+fn drag_bit_for_bit(shadow: bool) {
     use assist_render::{DragCache, render_camera_moving};
     let mut s = base();
+    if shadow {
+        let mut g = assist_field::ShadeGrid::new(5, 2.5);
+        for (i, v) in g.values.iter_mut().enumerate() {
+            *v = 0.3 + 0.07 * (i % 10) as f32;
+        }
+        Arc::make_mut(s.fields.get_mut("red").unwrap()).shade = Some(g);
+    }
     let cam = camera();
     let opts = RenderOptions {
         rays_per_batch: 4096,

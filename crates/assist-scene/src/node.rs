@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use assist_core::{DVec3, NodeSpace, Scene};
-use assist_field::{Field, OccupancyGrid};
+use assist_field::{Field, OccupancyGrid, ShadeGrid};
 
 /// Default step growth with distance (instant-NGP's cone angle for large scenes).
 pub const DEFAULT_CONE: f32 = 1.0 / 256.0;
@@ -30,6 +30,9 @@ pub struct NodeField {
     /// Contracted nodes: the step beyond the box, in contracted units (half an occupancy
     /// cell).
     pub contracted_step: f32,
+    /// An object's shadow on the background (multiplies the background's colour around
+    /// the object; see [`ShadeGrid`]). `None`: the node casts none.
+    pub shade: Option<ShadeGrid>,
     /// The file these weights were read from, if any: a scene saved with the same bytes
     /// links that file instead of writing them again (checked byte for byte, so weights
     /// changed since are written).
@@ -74,6 +77,7 @@ impl NodeField {
             cone: DEFAULT_CONE,
             space,
             contracted_step,
+            shade: None,
             origin: None,
         }
     }

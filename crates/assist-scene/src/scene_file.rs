@@ -148,7 +148,8 @@ pub fn save_with_history(
 /// again. A link is a second name for the same file, so deleting either scene leaves the
 /// other whole.
 fn write_field(dest: &Path, nf: &NodeField) -> Result<(), SceneFileError> {
-    let bytes = assist_field::io::to_bytes(&nf.field, Some(&nf.occupancy))?;
+    let bytes =
+        assist_field::io::to_bytes_with_shade(&nf.field, Some(&nf.occupancy), nf.shade.as_ref())?;
     if let Some(origin) = &nf.origin
         && std::fs::metadata(origin).is_ok_and(|m| m.len() == bytes.len() as u64)
         && std::fs::read(origin).is_ok_and(|b| b == bytes)
@@ -275,9 +276,10 @@ pub fn load_field(
             format!("field file {} is missing", fp.display()),
         ));
     }
-    let (field, occ) = assist_field::io::load(&fp)?;
+    let (field, occ, shade) = assist_field::io::load_with_shade(&fp)?;
     let occ = occ.unwrap_or_else(|| assist_field::OccupancyGrid::new(64));
     let mut nf = NodeField::with_space(field, occ, half, space);
+    nf.shade = shade;
     nf.origin = Some(fp);
     Ok(nf)
 }

@@ -89,6 +89,10 @@ pub struct TrainConfig {
     /// Learn a pose correction for every training view with the scene (see
     /// [`assist_train::PoseRefiner`]).
     pub refine_poses: bool,
+    /// Learn each object's shadow on the background (see [`assist_train::shadow`]), so
+    /// the background learns the surface without the objects and an edited object takes
+    /// its shadow along. Only scenes with objects are affected.
+    pub shadows: bool,
     pub seed: u64,
     /// Seconds between checkpoints written to `out`.
     pub checkpoint_every: f64,
@@ -240,6 +244,7 @@ impl Default for TrainConfig {
             appearance: Appearance::Auto,
             background: BackgroundSpace::Auto,
             refine_poses: false,
+            shadows: true,
             seed: 0,
             checkpoint_every: 120.0,
             resume: false,
@@ -265,6 +270,14 @@ pub enum TrainEvent {
     },
     /// Free space carved from the depth maps, per node (share of its grid cells).
     Carved { nodes: Vec<(String, f64)> },
+    /// Objects learn their shadows: `objects` shadow grids were added; the background
+    /// prior near them was made shadow-free on `covered` pixels under objects and `seen`
+    /// pixels around them.
+    Shadows {
+        objects: usize,
+        covered: usize,
+        seen: usize,
+    },
     /// The views have no instance masks; `unused` are mask folders for other sizes.
     NoMasks { unused: Vec<PathBuf> },
     /// The scene's nodes (id, label).
@@ -478,6 +491,20 @@ impl TrainJob {
         let carved = assist_train::carve_scene(&mut scene, &views);
         if !carved.is_empty() {
             on_event(&TrainEvent::Carved { nodes: carved });
+        }
+        // Objects learn their shadows (a resumed scene's grids train on whatever the flag).
+        let objects = if c.shadows {
+            assist_train::add_shadow_grids(&mut scene)
+        } else {
+            0
+        };
+        let st = assist_train::shadow_free_priors(&scene, &mut views);
+        if objects > 0 || st.views > 0 {
+            on_event(&TrainEvent::Shadows {
+                objects,
+                covered: st.covered,
+                seen: st.seen,
+            });
         }
         let lambdas = lambdas(c, views.iter().any(|v| v.inpaint.is_some()));
         if !c.resume && views.iter().all(|v| v.ids.is_none()) {

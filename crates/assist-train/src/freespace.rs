@@ -38,6 +38,13 @@ pub fn carve_scene(scene: &mut NeuralScene, views: &[View]) -> CarveStats {
     }
     let mut stats = Vec::new();
     let mut done = std::collections::BTreeSet::new();
+    let objects: Vec<SceneNode> = scene
+        .scene
+        .nodes
+        .iter()
+        .filter(|n| !n.is_background())
+        .cloned()
+        .collect();
     for node in &scene.scene.nodes {
         if node.space != NodeSpace::Box || !done.insert(node.field.clone()) {
             continue;
@@ -46,7 +53,11 @@ pub fn carve_scene(scene: &mut NeuralScene, views: &[View]) -> CarveStats {
             continue;
         };
         let res = nf.occupancy.res;
-        let (empty, kept) = carve_cells(node, res, views);
+        let (free, hit) = ray_counts(node, res, views);
+        let (mut empty, kept) = classify(node, views, &free, &hit);
+        if node.is_background() && dense_depth(views) {
+            spare_under_objects(node, res, &objects, &free, &mut empty);
+        }
         let frac = empty.iter().filter(|&&e| e).count() as f64 / empty.len().max(1) as f64;
         let occ = &mut Arc::make_mut(nf).occupancy;
         occ.set_empty(&empty);
@@ -62,22 +73,61 @@ fn free_cells(node: &SceneNode, res: u32, views: &[View]) -> Vec<bool> {
     carve_cells(node, res, views).0
 }
 
-/// The cells of `node`'s `res`³ grid the depth maps show to be empty, and those where at
-/// least [`MIN_FREE_RAYS`] of them end on this node's surface (kept occupied in training,
-/// whatever a random point in them says).
-pub fn carve_cells(node: &SceneNode, res: u32, views: &[View]) -> (Vec<bool>, Vec<bool>) {
+/// The empty and kept cells of `node`'s grid (without sparing what objects stand on).
+#[cfg(test)]
+fn carve_cells(node: &SceneNode, res: u32, views: &[View]) -> (Vec<bool>, Vec<bool>) {
     let (free, hit) = ray_counts(node, res, views);
+    classify(node, views, &free, &hit)
+}
+
+/// The cells of a `res`³ grid the depth maps show to be empty, and those where at least
+/// [`MIN_FREE_RAYS`] rays end on this node's surface (kept occupied in training, whatever
+/// a random point in them says), from the ray counts of [`ray_counts`].
+fn classify(node: &SceneNode, views: &[View], free: &[u16], hit: &[u16]) -> (Vec<bool>, Vec<bool>) {
     // With dense depth maps, a background cell no ray reaches (behind every surface, or
     // outside every view) can never be trained: its initial haze would only float in front
     // of a novel view (the demo's test views had fog 0.1–0.7 m from the camera).
     let unobserved_too = node.is_background() && dense_depth(views);
     let empty = free
         .iter()
-        .zip(&hit)
+        .zip(hit)
         .map(|(&f, &h)| h == 0 && (f >= MIN_FREE_RAYS || (unobserved_too && f == 0)))
         .collect();
     let kept = hit.iter().map(|&h| h >= MIN_FREE_RAYS).collect();
     (empty, kept)
+}
+
+/// Gives back the background cells inside an object's box (grown by one background
+/// cell) that were carved only for being unobserved: what an object stands on is hidden
+/// by it in every view, and carved it renders as a hole once the object moves (desk's
+/// table under the mug rendered black where the mug had stood). Their colour and depth
+/// then come from the background prior. Cells rays cross freely stay carved.
+fn spare_under_objects(
+    node: &SceneNode,
+    res: u32,
+    objects: &[SceneNode],
+    free: &[u16],
+    empty: &mut [bool],
+) {
+    let r = res as usize;
+    let size = node.half_size * 2.0;
+    let cell_world = (node.world_from_local.scale * (size / res as f64)).max_element();
+    for (c, e) in empty.iter_mut().enumerate() {
+        if !*e || free[c] > 0 {
+            continue;
+        }
+        let i = DVec3::new((c % r) as f64, ((c / r) % r) as f64, (c / (r * r)) as f64);
+        let local = ((i + 0.5) / res as f64 - 0.5) * size;
+        let p = node.world_from_local.transform_point(local);
+        let inside = objects.iter().any(|o| {
+            let l = o.world_from_local.local_from_world_point(p);
+            let grow = cell_world / o.world_from_local.scale.min_element();
+            (l.abs() - o.half_size).max_element() <= grow
+        });
+        if inside {
+            *e = false;
+        }
+    }
 }
 
 /// Per cell of `node`'s `res`³ grid: how many rays cross it freely, and how many end in it
@@ -271,6 +321,7 @@ mod tests {
                     inpaint: None,
                     inpaint_depth: None,
                     prior_confidence: None,
+                    prior_rgb_weight: None,
                 }
             })
             .collect()
@@ -289,6 +340,31 @@ mod tests {
             world_from_local: Similarity3::from_translation(DVec3::new(0.0, 0.0, 0.3)),
             space: NodeSpace::Box,
         }
+    }
+
+    #[test]
+    fn unobserved_cells_inside_an_object_box_are_spared_but_free_ones_stay_carved() {
+        let node = plane_box();
+        let res = 10u32;
+        let r = res as usize;
+        // An object of half size 0.1 centred at (0.2, 0.2, 0.1) in the world; the
+        // background's box spans [-0.5, 0.5]² × [-0.2, 0.8] (cells of 0.1).
+        let mut object = plane_box();
+        object.id = 1;
+        object.half_size = DVec3::splat(0.1);
+        object.world_from_local = Similarity3::from_translation(DVec3::new(0.2, 0.2, 0.1));
+        let mut empty = vec![true; r * r * r];
+        let mut free = vec![0u16; r * r * r];
+        let cell = |x: usize, y: usize, z: usize| x + r * (y + r * z);
+        // Cell (7, 7, 3) (centre (0.25, 0.25, 0.15)) is inside the box but rays cross it.
+        free[cell(7, 7, 3)] = 3;
+        spare_under_objects(&node, res, std::slice::from_ref(&object), &free, &mut empty);
+        // Centre (0.25, 0.25, 0.05): inside; (0.35, 0.35, 0.05): within one cell of it;
+        // (−0.25, −0.25, 0.05) and (0.25, 0.25, 0.45): away from it.
+        assert!(!empty[cell(7, 7, 2)], "the cell under the object is spared");
+        assert!(!empty[cell(8, 8, 2)], "one cell beyond the box is spared");
+        assert!(empty[cell(7, 7, 3)], "a cell rays cross stays carved");
+        assert!(empty[cell(2, 2, 2)] && empty[cell(7, 7, 6)], "cells away stay carved");
     }
 
     #[test]

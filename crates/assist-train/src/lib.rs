@@ -16,6 +16,7 @@ mod multiview;
 mod optimizer;
 mod prior;
 mod setup;
+pub mod shadow;
 mod trainer;
 mod views;
 
@@ -30,6 +31,7 @@ pub use setup::{
     BackgroundSpace, BoxSource, NodeBox, SetupOptions, background_color, build_scene,
     is_object_capture, near_plane, node_boxes, scene_region,
 };
+pub use shadow::{ShadowPriorStats, add_shadow_grids, shadow_free_priors};
 pub use trainer::{
     Lambdas, POSE_LR, PhaseTimes, PoseRefiner, ResumeState, StepStats, StopReason, TrainOptions,
     TrainReport, Trainer, update_depth_affine,

@@ -376,6 +376,7 @@ mod tests {
             inpaint: None,
             inpaint_depth: None,
             prior_confidence: None,
+            prior_rgb_weight: None,
         }
     }
 

@@ -57,6 +57,9 @@ pub struct View {
     pub inpaint_depth: Option<Vec<f32>>,
     /// Weight of the background prior per pixel (0..1; `None` = 1 everywhere).
     pub prior_confidence: Option<Vec<f32>>,
+    /// Weight of the prior's colour per pixel where it differs from `prior_confidence`
+    /// (near objects that cast shadows: see [`crate::shadow`]); `None` = the confidence.
+    pub prior_rgb_weight: Option<Vec<f32>>,
 }
 
 /// Pixels covered by objects, dilated by this many pixels, are filled by the prior.
@@ -186,6 +189,7 @@ pub fn load_view(frame: &Frame, image_index: u32, background: [f32; 3]) -> Resul
         inpaint,
         inpaint_depth,
         prior_confidence: None,
+        prior_rgb_weight: None,
     })
 }
 

@@ -11,6 +11,13 @@ use assist_train::StopReason;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
+/// A feature switched on or off.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum OnOff {
+    On,
+    Off,
+}
+
 #[derive(Args, Debug)]
 pub struct TrainArgs {
     /// Dataset (any supported format: desk, nerfstudio, Blender, COLMAP, LLFF); also
@@ -108,6 +115,11 @@ pub struct TrainArgs {
     /// translation and rotation (held-out views keep their poses) [default: off]
     #[arg(long)]
     pub refine_poses: bool,
+    /// Learn each object's shadow on the background (on, off): the background then learns
+    /// the surface without the objects, and a moved or deleted object takes its shadow
+    /// along. Only scenes with objects are affected.
+    #[arg(long, value_enum, default_value_t = OnOff::On)]
+    pub shadows: OnOff,
     /// Seed of every random draw (ray batches, initial weights): the same seed, data and
     /// flags give the same scene, bit for bit, on a machine with as many cores.
     #[arg(long, default_value_t = 0)]
@@ -210,6 +222,7 @@ impl TrainArgs {
             appearance,
             background,
             refine_poses: self.refine_poses,
+            shadows: self.shadows == OnOff::On,
             seed: self.seed,
             checkpoint_every: self.checkpoint_every,
             resume: self.resume,
@@ -419,6 +432,13 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
                 .collect();
             eprintln!("free space carved from the depth maps: {}", parts.join(", "));
         }
+        TrainEvent::Shadows {
+            objects,
+            covered,
+            seen,
+        } if text => eprintln!(
+            "shadows: {objects} object(s) learn their shadow; shadow-free background prior on {covered} pixels under objects and {seen} around them"
+        ),
         TrainEvent::NoMasks { unused } if text => eprintln!(
             "no instance masks in {data} (an instance_mask_path per frame, or a masks/ folder beside the images): training the background only{}",
             if unused.is_empty() {

@@ -89,6 +89,8 @@ pub struct Trainer {
     pub poses: Option<PoseRefiner>,
     /// The view each ray of the batch came from.
     ray_views: Vec<u32>,
+    /// Adam over each casting object's shadow grid, by field key.
+    shade_adam: BTreeMap<String, Adam>,
 }
 
 impl Trainer {
@@ -172,6 +174,7 @@ impl Trainer {
             elapsed_before: 0.0,
             poses,
             ray_views: Vec::new(),
+            shade_adam: BTreeMap::new(),
         })
     }
 
@@ -232,6 +235,7 @@ impl Trainer {
         };
         let nn = self.traced.nodes.len();
         self.set_beyond();
+        assist_render::shade_background(&self.scene, &self.rays, &mut self.traced);
         phase[0] = tp.elapsed().as_secs_f64();
         let q = assist_render::Query::Train;
         assist_render::query_fields(&self.scene, &mut self.traced, &mut self.tapes, q);
@@ -339,6 +343,7 @@ impl Trainer {
                     &ns.d_rgb,
                 );
         }
+        let shade_grads = assist_render::shade_backward(&self.scene, &self.rays, &self.traced);
         let pose_step = self.iteration.is_multiple_of(POSE_EVERY);
         if let Some(p) = self.poses.as_mut().filter(|_| pose_step) {
             p.accumulate(
@@ -358,6 +363,17 @@ impl Trainer {
                 .get_mut(key)
                 .expect("optimizer per field")
                 .step(Arc::make_mut(nf), lr);
+        }
+        for (k, mut g) in shade_grads {
+            let key = self.scene.scene.nodes[k].field.clone();
+            let nf = Arc::make_mut(self.scene.fields.get_mut(&key).expect("field of node"));
+            if let Some(grid) = nf.shade.as_mut() {
+                self.shade_adam
+                    .entry(key)
+                    .or_insert_with(|| Adam::new(grid.values.len()))
+                    .update(lr, &mut grid.values, &mut g);
+                grid.clamp();
+            }
         }
         if self.background.is_some() && lam.bg_depth > 0.0 && self.opts.depth_affine {
             update_depth_affine(&mut self.wq_adam, &mut self.depth_wq, &mut g_wq);

@@ -100,7 +100,8 @@ impl Objective<'_> {
             // opacity there, `beyond`, is measured from where the trainer set
             // `Traced::beyond`; without a prior depth it is 0 and the term is left out).
             let (v, dc, d_o) = losses::premultiplied_rgb(pb.rgb, pb.opacity, inp);
-            terms.bg_rgb = pw * v;
+            let rw = t.rgb_weight;
+            terms.bg_rgb = rw * v;
             let behind = t.depth.is_some() && lam.bg_opacity > 0.0;
             let (vo, dob) = if behind {
                 losses::opacity(pb.beyond, 1.0)
@@ -110,9 +111,9 @@ impl Objective<'_> {
             terms.bg_opacity = pw * vo;
             if let Some((_, gn)) = grads.as_mut() {
                 for ch in 0..3 {
-                    gn[b].rgb[ch] += pw * lam.bg_rgb * dc[ch] / n;
+                    gn[b].rgb[ch] += rw * lam.bg_rgb * dc[ch] / n;
                 }
-                gn[b].opacity += pw * lam.bg_rgb * d_o / n;
+                gn[b].opacity += rw * lam.bg_rgb * d_o / n;
                 gn[b].beyond += pw * lam.bg_opacity * dob / n;
             }
         }
@@ -239,6 +240,7 @@ mod tests {
                 inpaint: Some([0.4, 0.3, 0.2]),
                 depth: Some(0.7),
                 prior_weight: 0.8,
+                rgb_weight: 0.3,
             };
             let mut c = comp([0.3, 0.5, 0.7], 1.2, 0.95, 1.9);
             let mut nodes = [

@@ -19,6 +19,8 @@ pub(super) struct Target {
     pub(super) depth: Option<f32>,
     /// Weight of the prior terms (the prior's confidence at this pixel).
     pub(super) prior_weight: f32,
+    /// Weight of the prior's colour term (the confidence, or less near objects' shadows).
+    pub(super) rgb_weight: f32,
 }
 
 /// A pixel `(view, index)` drawn uniformly over the pixels to train on: one a `mask_path`
@@ -82,6 +84,7 @@ impl Trainer {
                     .filter(|&z| z > 0.0 && cos > 1e-3)
                     .map(|z| z / cos / extent);
                 let prior_weight = v.prior_confidence.as_ref().map_or(1.0, |c| c[p]);
+                let rgb_weight = v.prior_rgb_weight.as_ref().map_or(prior_weight, |c| c[p]);
                 Some((
                     ray,
                     v.image_index,
@@ -93,6 +96,7 @@ impl Trainer {
                         inpaint,
                         depth,
                         prior_weight,
+                        rgb_weight,
                     },
                 ))
             })
@@ -137,6 +141,7 @@ mod tests {
             inpaint: None,
             inpaint_depth: None,
             prior_confidence: None,
+            prior_rgb_weight: None,
         };
         // View 0: only pixel 5 is valid; view 1: all; view 2: none.
         let mut only5 = vec![false; 8];

@@ -1,0 +1,155 @@
+//! Objects' shadows on the background: each background sample's colour, in the composited
+//! image, is multiplied by the shadow grids ([`assist_field::ShadeGrid`]) of the objects
+//! whose region it lies in, evaluated in each object's own frame. Moving, turning, scaling
+//! or deleting an object moves, turns, scales or removes its shadow; the background alone
+//! (a node layer, or the scene without its objects) has none.
+
+use assist_core::{DVec3, SceneNode};
+use assist_field::ShadeGrid;
+use assist_field::shade::Corners;
+use rayon::prelude::*;
+
+use crate::sample::{RayBatch, Traced};
+use assist_scene::NeuralScene;
+
+/// An object that casts a shadow: its node index, its node and its grid.
+struct Caster<'a> {
+    node: usize,
+    scene_node: &'a SceneNode,
+    grid: &'a ShadeGrid,
+}
+
+impl Caster<'_> {
+    /// Where world point `p` lies in the grid, if inside its region.
+    #[inline]
+    fn corners(&self, p: DVec3) -> Option<Corners> {
+        let l = self.scene_node.world_from_local.local_from_world_point(p);
+        let c = (l / self.scene_node.half_size).as_vec3().to_array();
+        self.grid.corners(c)
+    }
+}
+
+fn casters(scene: &NeuralScene) -> Vec<Caster<'_>> {
+    scene
+        .scene
+        .nodes
+        .iter()
+        .enumerate()
+        .filter(|(_, n)| !n.is_background())
+        .filter_map(|(k, n)| {
+            scene.field_of(k).shade.as_ref().map(|grid| Caster {
+                node: k,
+                scene_node: n,
+                grid,
+            })
+        })
+        .collect()
+}
+
+/// The index of the background node, if the scene has one.
+fn background(scene: &NeuralScene) -> Option<usize> {
+    scene.scene.nodes.iter().position(|n| n.is_background())
+}
+
+/// Whether any object of `scene` casts a shadow.
+pub fn casts_shadows(scene: &NeuralScene) -> bool {
+    !casters(scene).is_empty()
+}
+
+/// World position of sample `j` of ray `r` (sample distances are world distances along
+/// the ray's unit direction).
+#[inline]
+fn position(rays: &RayBatch, r: usize, t: f32) -> DVec3 {
+    let o = DVec3::from(rays.origin[r].map(f64::from));
+    let d = DVec3::from(rays.dir[r].map(f64::from));
+    o + d * t as f64
+}
+
+/// Fills the background node's [`NodeSamples::shade`](crate::NodeSamples::shade) from the
+/// objects' shadow grids (left empty — no shadow — when no object has one). Call after
+/// sampling, before compositing.
+pub fn shade_background(scene: &NeuralScene, rays: &RayBatch, traced: &mut Traced) {
+    let Some(b) = background(scene) else { return };
+    let Some(ns) = traced.nodes.get_mut(b) else {
+        return;
+    };
+    let cs = casters(scene);
+    if cs.is_empty() {
+        ns.shade.clear();
+        return;
+    }
+    let ns_ref = &*ns;
+    let shade: Vec<f32> = (0..traced.rays)
+        .into_par_iter()
+        .flat_map_iter(|r| {
+            let cs = &cs;
+            ns_ref.range(r).map(move |j| {
+                let p = position(rays, r, ns_ref.t[j]);
+                cs.iter()
+                    .map(|c| c.corners(p).map_or(1.0, |k| c.grid.at(&k)))
+                    .product::<f32>()
+            })
+        })
+        .collect();
+    ns.shade = shade;
+}
+
+/// Backward of [`shade_background`]: from the background samples' `d_shade` (written by
+/// `composite_batch`), the gradient of the loss with respect to each casting object's grid
+/// values, as `(node index, gradient sized like its grid's values)`.
+pub fn shade_backward(
+    scene: &NeuralScene,
+    rays: &RayBatch,
+    traced: &Traced,
+) -> Vec<(usize, Vec<f32>)> {
+    let cs = casters(scene);
+    let Some(ns) = background(scene).and_then(|b| traced.nodes.get(b)) else {
+        return Vec::new();
+    };
+    if cs.is_empty() || ns.d_shade.len() != ns.len() {
+        return Vec::new();
+    }
+    let zero = || {
+        cs.iter()
+            .map(|c| vec![0.0f32; c.grid.values.len()])
+            .collect::<Vec<_>>()
+    };
+    let grads = (0..traced.rays)
+        .into_par_iter()
+        .fold(zero, |mut acc, r| {
+            let mut hit: Vec<(usize, Corners, f32)> = Vec::with_capacity(cs.len());
+            for j in ns.range(r) {
+                let g = ns.d_shade[j];
+                if g == 0.0 {
+                    continue;
+                }
+                let p = position(rays, r, ns.t[j]);
+                hit.clear();
+                for (i, c) in cs.iter().enumerate() {
+                    if let Some(k) = c.corners(p) {
+                        hit.push((i, k, c.grid.at(&k)));
+                    }
+                }
+                // d(Π s_i)/d s_i = Π_{other} s_j.
+                for (a, &(i, ref k, _)) in hit.iter().enumerate() {
+                    let others: f32 = hit
+                        .iter()
+                        .enumerate()
+                        .filter(|(b, _)| *b != a)
+                        .map(|(_, h)| h.2)
+                        .product();
+                    ShadeGrid::splat(k, g * others, &mut acc[i]);
+                }
+            }
+            acc
+        })
+        .reduce(zero, |mut a, b| {
+            for (x, y) in a.iter_mut().zip(b) {
+                for (u, v) in x.iter_mut().zip(y) {
+                    *u += v;
+                }
+            }
+            a
+        });
+    cs.iter().map(|c| c.node).zip(grads).collect()
+}
