@@ -364,7 +364,10 @@ mod tests {
         assert!(!empty[cell(7, 7, 2)], "the cell under the object is spared");
         assert!(!empty[cell(8, 8, 2)], "one cell beyond the box is spared");
         assert!(empty[cell(7, 7, 3)], "a cell rays cross stays carved");
-        assert!(empty[cell(2, 2, 2)] && empty[cell(7, 7, 6)], "cells away stay carved");
+        assert!(
+            empty[cell(2, 2, 2)] && empty[cell(7, 7, 6)],
+            "cells away stay carved"
+        );
     }
 
     #[test]
