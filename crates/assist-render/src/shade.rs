@@ -65,33 +65,40 @@ fn position(rays: &RayBatch, r: usize, t: f32) -> DVec3 {
     o + d * t as f64
 }
 
+/// `f(casters, world position)` of every sample of the background node, in order; `None`
+/// when the scene has no background or no object casts a shadow.
+fn per_background_sample<T: Send>(
+    scene: &NeuralScene,
+    rays: &RayBatch,
+    traced: &Traced,
+    f: impl Fn(&[Caster], DVec3) -> T + Sync,
+) -> Option<Vec<T>> {
+    let ns = background(scene).and_then(|b| traced.nodes.get(b))?;
+    let cs = casters(scene);
+    if cs.is_empty() {
+        return None;
+    }
+    let (cs, f) = (&cs, &f);
+    Some(
+        (0..traced.rays)
+            .into_par_iter()
+            .flat_map_iter(|r| ns.range(r).map(move |j| f(cs, position(rays, r, ns.t[j]))))
+            .collect(),
+    )
+}
+
 /// Fills the background node's [`NodeSamples::shade`](crate::NodeSamples::shade) from the
 /// objects' shadow grids (left empty — no shadow — when no object has one). Call after
 /// sampling, before compositing.
 pub fn shade_background(scene: &NeuralScene, rays: &RayBatch, traced: &mut Traced) {
-    let Some(b) = background(scene) else { return };
-    let Some(ns) = traced.nodes.get_mut(b) else {
-        return;
-    };
-    let cs = casters(scene);
-    if cs.is_empty() {
-        ns.shade.clear();
-        return;
+    let shade = per_background_sample(scene, rays, traced, |cs, p| {
+        cs.iter()
+            .map(|c| c.corners(p).map_or(1.0, |k| c.grid.at(&k)))
+            .product::<f32>()
+    });
+    if let Some(ns) = background(scene).and_then(|b| traced.nodes.get_mut(b)) {
+        ns.shade = shade.unwrap_or_default();
     }
-    let ns_ref = &*ns;
-    let shade: Vec<f32> = (0..traced.rays)
-        .into_par_iter()
-        .flat_map_iter(|r| {
-            let cs = &cs;
-            ns_ref.range(r).map(move |j| {
-                let p = position(rays, r, ns_ref.t[j]);
-                cs.iter()
-                    .map(|c| c.corners(p).map_or(1.0, |k| c.grid.at(&k)))
-                    .product::<f32>()
-            })
-        })
-        .collect();
-    ns.shade = shade;
 }
 
 /// Backward of [`shade_background`]: from the background samples' `d_shade` (written by

@@ -377,6 +377,7 @@ mod tests {
             inpaint_depth: None,
             prior_confidence: None,
             prior_rgb_weight: None,
+            prior_from_user: false,
         }
     }
 

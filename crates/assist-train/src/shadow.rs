@@ -22,7 +22,7 @@ use crate::prior;
 use crate::views::{PRIOR_DILATION, View};
 
 /// Lattice points per axis of an object's shadow grid.
-pub const SHADE_RES: usize = 24;
+pub const SHADE_RES: usize = 40;
 
 /// Half-width of the shadow region in box units: the object's box grown three times about
 /// its centre (a 10 cm mug's shadow may reach 10 cm beyond it).
@@ -77,7 +77,8 @@ fn regions(scene: &NeuralScene) -> Vec<(&SceneNode, f32)> {
 }
 
 /// Replaces the background prior near every casting object of `scene` by the shadow-free
-/// fill (see the module's documentation), in every view that has a prior. A pixel is near
+/// fill (see the module's documentation), in every view that has a built-in prior (a
+/// prior from the user's files is left as it is). A pixel is near
 /// an object when the background point its prior depth gives lies in the object's region;
 /// without a prior depth, when its ray crosses the region.
 pub fn shadow_free_priors(scene: &NeuralScene, views: &mut [View]) -> ShadowPriorStats {
@@ -107,6 +108,10 @@ fn shadow_free_view(regions: &[(&SceneNode, f32)], v: &mut View) -> ShadowPriorS
     let (Some(ids), Some(inpaint)) = (&v.ids, &v.inpaint) else {
         return ShadowPriorStats::default();
     };
+    if v.prior_from_user {
+        // The user's inpainting is what they want the background to be: it stays.
+        return ShadowPriorStats::default();
+    }
     let (w, h) = (v.width, v.height);
     let objects: Vec<bool> = ids.iter().map(|&i| i != 0).collect();
     let hole = prior::dilate(&objects, w, h, PRIOR_DILATION);
@@ -252,6 +257,7 @@ mod tests {
             inpaint_depth: Some(depth),
             prior_confidence: None,
             prior_rgb_weight: None,
+            prior_from_user: false,
         };
         (scene, view)
     }
@@ -259,6 +265,9 @@ mod tests {
     #[test]
     fn the_prior_near_a_casting_object_is_filled_from_outside_its_region() {
         let (mut scene, mut view) = setup();
+        // A prior the user supplied is never replaced.
+        let mut user = view.clone();
+        user.prior_from_user = true;
         // Without shadow grids nothing changes.
         let mut views = vec![view.clone()];
         assert_eq!(
@@ -268,6 +277,10 @@ mod tests {
         assert!(views[0].prior_rgb_weight.is_none());
         assert_eq!(add_shadow_grids(&mut scene), 1);
         assert_eq!(add_shadow_grids(&mut scene), 0, "added once");
+        let given = user.inpaint.clone();
+        let st = shadow_free_priors(&scene, std::slice::from_mut(&mut user));
+        assert_eq!(st, ShadowPriorStats::default());
+        assert_eq!(user.inpaint, given);
         let st = shadow_free_priors(&scene, std::slice::from_mut(&mut view));
         assert!(st.views == 1 && st.covered > 0 && st.seen > 0, "{st:?}");
         let weight = view.prior_rgb_weight.as_ref().unwrap();

@@ -60,6 +60,9 @@ pub struct View {
     /// Weight of the prior's colour per pixel where it differs from `prior_confidence`
     /// (near objects that cast shadows: see [`crate::shadow`]); `None` = the confidence.
     pub prior_rgb_weight: Option<Vec<f32>>,
+    /// The prior colour came from the user's files (`inpaint_path`, `--prior-dir`): it is
+    /// used as given, never replaced by a built-in fill.
+    pub prior_from_user: bool,
 }
 
 /// Pixels covered by objects, dilated by this many pixels, are filled by the prior.
@@ -186,6 +189,7 @@ pub fn load_view(frame: &Frame, image_index: u32, background: [f32; 3]) -> Resul
         ids,
         valid,
         depth,
+        prior_from_user: inpaint.is_some(),
         inpaint,
         inpaint_depth,
         prior_confidence: None,

@@ -142,6 +142,7 @@ mod tests {
             inpaint_depth: None,
             prior_confidence: None,
             prior_rgb_weight: None,
+            prior_from_user: false,
         };
         // View 0: only pixel 5 is valid; view 1: all; view 2: none.
         let mut only5 = vec![false; 8];
