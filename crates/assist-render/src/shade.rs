@@ -116,14 +116,12 @@ pub fn shade_backward(
     if cs.is_empty() || ns.d_shade.len() != ns.len() {
         return Vec::new();
     }
-    let zero = || {
-        cs.iter()
-            .map(|c| vec![0.0f32; c.grid.values.len()])
-            .collect::<Vec<_>>()
-    };
-    let grads = (0..traced.rays)
+    // Each sample's contributions, gathered in sample order and summed in that order: the
+    // same seed trains the same bits however the threads split the rays.
+    let contributions: Vec<(u32, u32, f32)> = (0..traced.rays)
         .into_par_iter()
-        .fold(zero, |mut acc, r| {
+        .flat_map_iter(|r| {
+            let mut out: Vec<(u32, u32, f32)> = Vec::new();
             let mut hit: Vec<(usize, Corners, f32)> = Vec::with_capacity(cs.len());
             for j in ns.range(r) {
                 let g = ns.d_shade[j];
@@ -145,18 +143,20 @@ pub fn shade_backward(
                         .filter(|(b, _)| *b != a)
                         .map(|(_, h)| h.2)
                         .product();
-                    ShadeGrid::splat(k, g * others, &mut acc[i]);
+                    for q in 0..8 {
+                        out.push((i as u32, k.index[q], g * others * k.weight[q]));
+                    }
                 }
             }
-            acc
+            out
         })
-        .reduce(zero, |mut a, b| {
-            for (x, y) in a.iter_mut().zip(b) {
-                for (u, v) in x.iter_mut().zip(y) {
-                    *u += v;
-                }
-            }
-            a
-        });
+        .collect();
+    let mut grads: Vec<Vec<f32>> = cs
+        .iter()
+        .map(|c| vec![0.0f32; c.grid.values.len()])
+        .collect();
+    for (i, idx, v) in contributions {
+        grads[i as usize][idx as usize] += v;
+    }
     cs.iter().map(|c| c.node).zip(grads).collect()
 }
