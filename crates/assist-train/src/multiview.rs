@@ -34,6 +34,12 @@ const BEHIND_TOLERANCE: f32 = 0.02;
 const LAYER_TOLERANCE: f32 = 0.04;
 /// Largest splat radius in pixels (a source much closer to the surface than the target).
 const MAX_SPLAT_RADIUS: i64 = 2;
+/// On object pixels a candidate is kept only up to this fraction behind the background
+/// the surrounding pixels continue into (their depth filled in by push–pull): the floor
+/// another view sees beside the table lies far behind the unseen table under an object,
+/// and without the test it filled every object's footprint (desk: black discs where the
+/// objects had stood, and a prior depth through the table).
+const PAST_SURROUNDINGS_TOLERANCE: f32 = 0.15;
 
 /// What the multi-view fill achieved over all views.
 #[derive(Debug, Clone, Copy, Default, serde::Serialize)]
@@ -97,6 +103,7 @@ fn splat(
     target: &Camera,
     target_depth: &[f32],
     target_ids: &[u16],
+    surroundings: &[f32],
     hole: &[bool],
     out: &mut Vec<Candidate>,
 ) {
@@ -140,8 +147,12 @@ fn splat(
                     true
                 } else if target_ids[p] != 0 {
                     zt > d * (1.0 + BEHIND_TOLERANCE)
+                        && (surroundings[p] <= 0.0
+                            || zt <= surroundings[p] * (1.0 + PAST_SURROUNDINGS_TOLERANCE))
                 } else {
+                    // The background this pixel sees, not something behind it.
                     zt > d * (1.0 - BEHIND_TOLERANCE)
+                        && zt <= d * (1.0 + PAST_SURROUNDINGS_TOLERANCE)
                 };
                 if visible {
                     out.push(Candidate {
@@ -259,13 +270,26 @@ pub fn fill_multiview(views: &mut [View]) -> MultiViewStats {
                 return None;
             }
             let hole = prior::dilate(&objects, w, h, PRIOR_DILATION);
+            // The depth of the background around the hole, continued across it.
+            let mut surroundings = depth.clone();
+            let unknown: Vec<bool> = (0..w * h).map(|p| hole[p] || depth[p] <= 0.0).collect();
+            prior::push_pull(&mut surroundings, w, h, 1, &unknown);
             let mut cands = Vec::new();
             for (s, src) in sources.iter().enumerate() {
                 if s == t {
                     continue;
                 }
                 if let Some(src) = src {
-                    splat(src, s as u32, &v.camera, depth, ids, &hole, &mut cands);
+                    splat(
+                        src,
+                        s as u32,
+                        &v.camera,
+                        depth,
+                        ids,
+                        &surroundings,
+                        &hole,
+                        &mut cands,
+                    );
                 }
             }
             let fill = blend(&cands, w * h);
@@ -334,6 +358,15 @@ mod tests {
     /// Ray-cast view of a textured ground plane with a magenta sphere on it; with
     /// `object` false the sphere is absent (the background truth).
     fn render(camera: &Camera, object: bool) -> View {
+        render_on(camera, object, None)
+    }
+
+    /// Depth of the floor below a table of half-size `table` (the plane is the table top).
+    const FLOOR: f64 = -0.75;
+
+    /// [`render`], the plane being a square table of half-size `table` (when given) above
+    /// a dark floor.
+    fn render_on(camera: &Camera, object: bool, table: Option<f64>) -> View {
         let (w, h) = (camera.width() as usize, camera.height() as usize);
         let mut rgb = vec![0.0; 3 * w * h];
         let mut ids = vec![0u16; w * h];
@@ -343,7 +376,14 @@ mod tests {
             let mut best = f64::INFINITY;
             if ray.dir.z < 0.0 {
                 best = -ray.origin.z / ray.dir.z;
-                let c = plane_colour(ray.origin + ray.dir * best);
+                let hit = ray.origin + ray.dir * best;
+                let c = match table {
+                    Some(s) if hit.x.abs() > s || hit.y.abs() > s => {
+                        best = (FLOOR - ray.origin.z) / ray.dir.z;
+                        [0.05, 0.05, 0.08]
+                    }
+                    _ => plane_colour(hit),
+                };
                 rgb[3 * p..3 * p + 3].copy_from_slice(&c);
             }
             if object {
@@ -439,5 +479,44 @@ mod tests {
         assert!(n > 3 * fallback, "filled {n}, fallback {fallback}");
         assert!(fallback > 0);
         assert!(mean < 0.03, "mean colour error {mean} over {n} pixels");
+    }
+
+    #[test]
+    fn the_floor_seen_beside_a_table_never_fills_what_an_object_stands_on() {
+        let cams = cameras(12);
+        let table = Some(0.45);
+        let mut views: Vec<View> = cams.iter().map(|c| render_on(c, true, table)).collect();
+        let truth: Vec<View> = cams.iter().map(|c| render_on(c, false, table)).collect();
+        // The floor is in view beside the table, so it is a source for the fill.
+        let floor_seen = truth
+            .iter()
+            .flat_map(|t| t.rgb.chunks(3))
+            .filter(|c| c[2] == 0.08)
+            .count();
+        assert!(floor_seen > 1000, "{floor_seen}");
+        fill_multiview(&mut views);
+        let (mut on_table, mut wrong) = (0, 0);
+        for (v, t) in views.iter().zip(&truth) {
+            let depth = v.inpaint_depth.as_ref().unwrap();
+            let fill = v.inpaint.as_ref().unwrap();
+            for p in 0..v.width * v.height {
+                if v.ids.as_ref().unwrap()[p] == 0 || t.rgb[3 * p + 2] == 0.08 {
+                    continue;
+                }
+                // The table is behind the object here.
+                on_table += 1;
+                let dz = t.depth.as_ref().unwrap()[p];
+                let floor = [0.05, 0.05, 0.08];
+                let dark = (0..3).all(|k| (fill[3 * p + k] - floor[k]).abs() < 0.03);
+                if (depth[p] - dz).abs() > 0.1 * dz || dark {
+                    wrong += 1;
+                }
+            }
+        }
+        assert!(on_table > 500, "{on_table}");
+        assert_eq!(
+            wrong, 0,
+            "{wrong} of {on_table} pixels filled from past the table"
+        );
     }
 }
