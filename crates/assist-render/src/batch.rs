@@ -7,7 +7,7 @@
 use rayon::prelude::*;
 
 use crate::composite::Composite;
-use crate::sample::{NodeSamples, Traced};
+use crate::sample::{HiddenStop, NodeSamples, Traced};
 
 /// Outputs of one batch. Per-node arrays are ray-major: `nodes[r * n_nodes + k]`.
 #[derive(Debug, Clone, Default)]
@@ -136,6 +136,9 @@ pub fn composite_batch(
     let n = traced.rays;
     let nn = traced.nodes.len();
     let beyond = &traced.beyond;
+    let hidden = traced
+        .hidden_stop
+        .filter(|h| h.background < nn && grad.is_some());
     out.n_nodes = nn;
     out.rays.clear();
     out.rays.resize(n, Composite::default());
@@ -227,6 +230,7 @@ pub fn composite_batch(
                         beyond.get(r).copied().unwrap_or(f32::INFINITY),
                         &mut views,
                         background,
+                        hidden,
                         RayOut {
                             composite: ray_out,
                             nodes: &mut nodes[i * nn..(i + 1) * nn],
@@ -254,6 +258,8 @@ struct RayScratch {
     merged: Vec<(f32, u32, u32)>,
     w: Vec<f32>,
     t_next: Vec<f32>,
+    /// Per merged sample: whether it is a background sample objects hide (`HiddenStop`).
+    hidden: Vec<bool>,
     node_grads: Vec<CompositeGrad>,
 }
 
@@ -265,6 +271,7 @@ fn composite_ray(
     beyond: f32,
     views: &mut [NodeView],
     behind: Behind,
+    hidden: Option<HiddenStop>,
     o: RayOut,
     grad: Option<&GradFn>,
     sc: &mut RayScratch,
@@ -295,14 +302,25 @@ fn composite_ray(
     sc.w.resize(m, 0.0);
     sc.t_next.clear();
     sc.t_next.resize(m, 0.0);
+    sc.hidden.clear();
+    sc.hidden.resize(m, false);
     let mut acc = Composite::default();
     let mut log_t = 0.0f32;
+    // Log transmittance through the objects' samples alone (for `HiddenStop`).
+    let mut log_t_obj = 0.0f32;
     for (q, &(t, k, j)) in sc.merged.iter().enumerate() {
         let v = &views[k as usize];
         let j = j as usize;
         let tau = v.sigma[j] * v.dt[j];
         let w = log_t.exp() * (1.0 - (-tau).exp());
         log_t -= tau;
+        if let Some(h) = hidden {
+            if k as usize == h.background {
+                sc.hidden[q] = log_t_obj.exp() < h.below;
+            } else {
+                log_t_obj -= tau;
+            }
+        }
         sc.w[q] = w;
         sc.t_next[q] = log_t.exp();
         let ws = w * v.shade(j);
@@ -377,7 +395,8 @@ fn composite_ray(
     let g_bg = g.opacity
         - (g.rgb[0] * background[0] + g.rgb[1] * background[1] + g.rgb[2] * background[2]);
     // The last sample's colour also shows through what is left of the transmittance.
-    if let (Behind::LastSample, Some((k, j))) = (behind, last) {
+    let last_hidden = m > 0 && sc.hidden[m - 1];
+    if let (Behind::LastSample, Some((k, j)), false) = (behind, last, last_hidden) {
         let rest = 1.0 - acc.opacity;
         let v = &mut views[k];
         let sh = v.shade(j);
@@ -415,6 +434,11 @@ fn composite_ray(
             + g.depth_sq * t * t
             + g_bg
             + sc.node_grads[k as usize].share;
+        if sc.hidden[q] {
+            // Its effect on the samples in front of it still counts (through `suffix`).
+            suffix += sc.w[q] * gi;
+            continue;
+        }
         v.d_sigma[j] += v.dt[j] * (sc.t_next[q] * gi - suffix);
         suffix += sc.w[q] * gi;
         for ch in 0..3 {
@@ -459,5 +483,89 @@ fn composite_ray(
                 v.d_rgb[3 * j + ch] += sc.w[q] * ng.rgb[ch];
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// One ray's samples of node `k`, with their gradients sized and zeroed.
+    fn node(k: usize, t: &[f32], sigma: &[f32]) -> NodeSamples {
+        let n = t.len();
+        NodeSamples {
+            node: k,
+            start: vec![0, n as u32],
+            t: t.to_vec(),
+            dt: vec![0.1; n],
+            sigma: sigma.to_vec(),
+            rgb: (0..3 * n).map(|i| 0.2 + 0.1 * i as f32).collect(),
+            d_sigma: vec![0.0; n],
+            d_rgb: vec![0.0; 3 * n],
+            ..Default::default()
+        }
+    }
+
+    /// Gradients of every sample (σ then RGB, per node) for a loss on the composite
+    /// (`merged`) and on the background alone, with or without the stop.
+    fn grads(stop: Option<HiddenStop>, merged: bool) -> Vec<Vec<f32>> {
+        // Background samples in front of the object, behind it, and further behind.
+        let mut traced = Traced {
+            rays: 1,
+            nodes: vec![
+                node(0, &[1.0, 2.0, 3.0], &[2.0, 5.0, 5.0]),
+                node(1, &[1.5], &[40.0]),
+            ],
+            beyond: Vec::new(),
+            hidden_stop: stop,
+        };
+        let grad = |_: &RayOutputs, g: &mut CompositeGrad, gn: &mut [CompositeGrad]| {
+            if merged {
+                g.rgb = [1.0, -0.5, 0.3];
+                g.distortion = 0.2;
+                g.opacity = 0.1;
+            }
+            gn[0].rgb = [0.4, 0.2, -0.3];
+            gn[0].depth = 0.05;
+        };
+        let mut out = BatchOutput::default();
+        composite_batch(&mut traced, Behind::LastSample, &mut out, Some(&grad));
+        traced
+            .nodes
+            .iter()
+            .map(|n| n.d_sigma.iter().chain(&n.d_rgb).copied().collect())
+            .collect()
+    }
+
+    #[test]
+    fn what_objects_hide_of_the_background_learns_only_from_its_own_terms() {
+        let stop = Some(HiddenStop {
+            background: 0,
+            below: 0.5,
+        });
+        let full = grads(None, true);
+        let stopped = grads(stop, true);
+        let alone = grads(None, false);
+        // The sample in front of the object keeps its gradient; those behind it (the
+        // object's transmittance is e^−4) keep only the background-alone terms'.
+        let (bg, bg_full, bg_alone) = (&stopped[0], &full[0], &alone[0]);
+        for (i, v) in [0usize, 3, 4, 5].into_iter().map(|i| (i, bg[i])) {
+            assert_eq!(v, bg_full[i], "visible sample, gradient {i}");
+        }
+        for i in [1usize, 2, 6, 7, 8, 9, 10, 11] {
+            assert_eq!(bg[i], bg_alone[i], "hidden sample, gradient {i}");
+            assert_ne!(bg_full[i], bg_alone[i], "gradient {i} has a composite part");
+        }
+        // The object's gradient is the true one: the hidden samples' effect on it counts.
+        assert_eq!(stopped[1], full[1]);
+        // A stop below the object's transmittance changes nothing.
+        let loose = grads(
+            Some(HiddenStop {
+                background: 0,
+                below: 0.01,
+            }),
+            true,
+        );
+        assert_eq!(loose, full);
     }
 }

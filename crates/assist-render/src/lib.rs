@@ -28,5 +28,7 @@ pub use render::{
     HIGHLIGHT, NodeLayer, Query, RenderOptions, RenderScratch, RenderedImage, query_fields,
     query_node, render_camera, render_rays,
 };
-pub use sample::{NodeSamples, RayBatch, SampleOptions, Traced, sample_rays, sample_rays_node};
+pub use sample::{
+    HiddenStop, NodeSamples, RayBatch, SampleOptions, Traced, sample_rays, sample_rays_node,
+};
 pub use shade::{casts_shadows, shade_background, shade_backward};

@@ -184,6 +184,25 @@ pub struct Traced {
     ///
     /// [`Composite::beyond`]: crate::Composite::beyond
     pub beyond: Vec<f32>,
+    /// Training: the background's samples an object hides get no gradient from the
+    /// composited image (see [`HiddenStop`]). `None`: every sample gets its full gradient.
+    pub hidden_stop: Option<HiddenStop>,
+}
+
+/// What objects hide of the background learns from the background's own prior, not from
+/// the photographs: in the backward pass of the composite, a sample of node `background`
+/// whose transmittance through the objects' samples in front of it is below `below` gets
+/// no gradient (density, colour, shade) from the composited outputs. Its effect on the
+/// samples in front (the transmittance it takes from those behind) is still propagated,
+/// and its node-alone composite keeps its full gradient.
+///
+/// Without it, the photographs also shape the surface under an object, through the
+/// object's imperfect opacity (a dark mug interior is matched as well by a darker table,
+/// or by none). Off in training by default (`assist_train::TrainOptions::hidden_stop`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HiddenStop {
+    pub background: usize,
+    pub below: f32,
 }
 
 impl Traced {

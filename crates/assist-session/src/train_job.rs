@@ -93,6 +93,9 @@ pub struct TrainConfig {
     /// the background learns the surface without the objects and an edited object takes
     /// its shadow along. Only scenes with objects are affected.
     pub shadows: bool,
+    /// What objects hide of the background learns only from its prior (see
+    /// [`TrainOptions::hidden_stop`]; 0 = off).
+    pub hidden_stop: f32,
     pub seed: u64,
     /// Seconds between checkpoints written to `out`.
     pub checkpoint_every: f64,
@@ -245,6 +248,7 @@ impl Default for TrainConfig {
             background: BackgroundSpace::Auto,
             refine_poses: false,
             shadows: true,
+            hidden_stop: t.hidden_stop,
             seed: 0,
             checkpoint_every: 120.0,
             resume: false,
@@ -376,6 +380,15 @@ impl TrainJob {
             return Err(request(
                 "object_rays",
                 format!("expected a fraction between 0 and 1, got {}", c.object_rays),
+            ));
+        }
+        if !(0.0..=1.0).contains(&c.hidden_stop) {
+            return Err(request(
+                "hidden_stop",
+                format!(
+                    "expected a transmittance between 0 and 1 (0 = off), got {}",
+                    c.hidden_stop
+                ),
             ));
         }
         if c.resume && c.boxes.is_some() {
@@ -528,6 +541,7 @@ impl TrainJob {
             downscale: c.downscale,
             depth_affine,
             refine_poses: c.refine_poses,
+            hidden_stop: c.hidden_stop,
             lambdas,
             seed: c.seed,
             checkpoint: Some(c.out.clone()),

@@ -120,6 +120,11 @@ pub struct TrainArgs {
     /// along. Only scenes with objects are affected.
     #[arg(long, value_enum, default_value_t = OnOff::On)]
     pub shadows: OnOff,
+    /// What objects hide of the background learns only from the background's prior: its
+    /// samples whose transmittance through the objects in front of them is below this get
+    /// no gradient from the photographs (0 = off; a transmittance in [0, 1]).
+    #[arg(long, value_name = "T", default_value_t = TrainConfig::default().hidden_stop)]
+    pub hidden_stop: f32,
     /// Seed of every random draw (ray batches, initial weights): the same seed, data and
     /// flags give the same scene, bit for bit, on a machine with as many cores.
     #[arg(long, default_value_t = 0)]
@@ -223,6 +228,7 @@ impl TrainArgs {
             background,
             refine_poses: self.refine_poses,
             shadows: self.shadows == OnOff::On,
+            hidden_stop: self.hidden_stop,
             seed: self.seed,
             checkpoint_every: self.checkpoint_every,
             resume: self.resume,

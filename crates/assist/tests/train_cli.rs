@@ -246,6 +246,14 @@ fn boxes_are_listed_carved_overridden_and_checked() {
         );
         assert!(!out2.exists());
     }
+    for bad_t in ["1.5", "-0.1", "NaN"] {
+        let arg = format!("--hidden-stop={bad_t}");
+        fails_with(
+            &assist(&["train", s(&data), "--out", s(&out2), "--iters", "1", &arg]),
+            &["--hidden-stop", "between 0 and 1", bad_t],
+        );
+        assert!(!out2.exists());
+    }
 }
 
 #[test]

@@ -235,6 +235,15 @@ impl Trainer {
         };
         let nn = self.traced.nodes.len();
         self.set_beyond();
+        self.traced.hidden_stop = match self.background {
+            Some(b) if self.opts.hidden_stop > 0.0 && self.traced.nodes.len() > 1 => {
+                Some(assist_render::HiddenStop {
+                    background: b,
+                    below: self.opts.hidden_stop,
+                })
+            }
+            _ => None,
+        };
         assist_render::shade_background(&self.scene, &self.rays, &mut self.traced);
         phase[0] = tp.elapsed().as_secs_f64();
         let q = assist_render::Query::Train;

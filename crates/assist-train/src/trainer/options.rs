@@ -105,6 +105,16 @@ pub struct TrainOptions {
     /// 23.42 dB in 300 s); lego_400 ended higher (30.06 against 29.61 dB: its batches
     /// held twice the rays). See BENCHMARKS.md.
     pub prune_eps: f32,
+    /// The background's samples whose transmittance through the objects in front of them
+    /// is below this learn only from the background's own terms (its prior), not from the
+    /// photographs through the objects' imperfect opacity ([`assist_render::HiddenStop`];
+    /// 0 = off). What an object hides is not in the photographs: through a dark mug
+    /// interior they favoured no table at all. Off by default, by measurement on desk
+    /// (7,890 steps, session 20, with the multi-view prior fixed): 0.5 gave the moved mug
+    /// +0.14 dB (30.61 against 30.47) but cost the unedited views 0.28 dB (35.42 / 35.70)
+    /// and the background under objects 0.2 dB (21.98 / 22.19); on the built-in scene
+    /// (700 steps) 30.59 / 30.68 dB. See BENCHMARKS.md.
+    pub hidden_stop: f32,
     /// The dataset's `--downscale` (recorded in the scene for evaluation; 1 = none).
     pub downscale: u32,
     /// Learn a scale and shift of the background depth prior (`depth_wq`). For priors
@@ -147,6 +157,7 @@ impl Default for TrainOptions {
             depth_affine: false,
             refine_poses: false,
             prune_eps: 0.0,
+            hidden_stop: 0.0,
             poison_at: None,
             cancel: None,
             provenance: serde_json::Map::new(),
