@@ -31,4 +31,4 @@ pub use render::{
 pub use sample::{
     HiddenStop, NodeSamples, RayBatch, SampleOptions, Traced, sample_rays, sample_rays_node,
 };
-pub use shade::{casts_shadows, shade_background, shade_backward};
+pub use shade::{Caster, casters, casts_shadows, shade_background, shade_backward};

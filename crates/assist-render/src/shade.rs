@@ -13,10 +13,10 @@ use crate::sample::{RayBatch, Traced};
 use assist_scene::NeuralScene;
 
 /// An object that casts a shadow: its node index, its node and its grid.
-struct Caster<'a> {
-    node: usize,
-    scene_node: &'a SceneNode,
-    grid: &'a ShadeGrid,
+pub struct Caster<'a> {
+    pub node: usize,
+    pub scene_node: &'a SceneNode,
+    pub grid: &'a ShadeGrid,
 }
 
 impl Caster<'_> {
@@ -29,7 +29,8 @@ impl Caster<'_> {
     }
 }
 
-fn casters(scene: &NeuralScene) -> Vec<Caster<'_>> {
+/// The objects of `scene` that cast a shadow (those whose field has a shadow grid).
+pub fn casters(scene: &NeuralScene) -> Vec<Caster<'_>> {
     scene
         .scene
         .nodes

@@ -66,13 +66,9 @@ pub struct ShadowPriorStats {
 
 /// The shadow regions of `scene`'s casting objects: each node and the region in its frame.
 fn regions(scene: &NeuralScene) -> Vec<(&SceneNode, f32)> {
-    scene
-        .scene
-        .nodes
-        .iter()
-        .enumerate()
-        .filter(|(_, n)| !n.is_background())
-        .filter_map(|(k, n)| scene.field_of(k).shade.as_ref().map(|g| (n, g.extent)))
+    assist_render::casters(scene)
+        .into_iter()
+        .map(|c| (c.scene_node, c.grid.extent))
         .collect()
 }
 
