@@ -34,11 +34,12 @@ const BEHIND_TOLERANCE: f32 = 0.02;
 const LAYER_TOLERANCE: f32 = 0.04;
 /// Largest splat radius in pixels (a source much closer to the surface than the target).
 const MAX_SPLAT_RADIUS: i64 = 2;
-/// On object pixels a candidate is kept only up to this fraction behind the background
-/// the surrounding pixels continue into (their depth filled in by push–pull): the floor
-/// another view sees beside the table lies far behind the unseen table under an object,
-/// and without the test it filled every object's footprint (desk: black discs where the
-/// objects had stood, and a prior depth through the table).
+/// A candidate is kept only up to this fraction behind the background: on object pixels
+/// the one the surrounding pixels continue into (their depth filled in by push–pull), on
+/// the dilated border the one the pixel sees. The floor another view sees beside the table
+/// lies far behind the unseen table under an object, and without the test it filled every
+/// object's footprint (desk: black discs where the objects had stood, and a prior depth
+/// through the table).
 const PAST_SURROUNDINGS_TOLERANCE: f32 = 0.15;
 
 /// What the multi-view fill achieved over all views.

@@ -238,21 +238,16 @@ fn boxes_are_listed_carved_overridden_and_checked() {
         &["--boxes", "resumed"],
     );
     assert_eq!(before, std::fs::read(scene.join("scene.json")).unwrap());
-    for bad_fraction in ["1.5", "-0.1", "NaN"] {
-        let arg = format!("--object-rays={bad_fraction}");
-        fails_with(
-            &assist(&["train", s(&data), "--out", s(&out2), "--iters", "1", &arg]),
-            &["--object-rays", "between 0 and 1", bad_fraction],
-        );
-        assert!(!out2.exists());
-    }
-    for bad_t in ["1.5", "-0.1", "NaN"] {
-        let arg = format!("--hidden-stop={bad_t}");
-        fails_with(
-            &assist(&["train", s(&data), "--out", s(&out2), "--iters", "1", &arg]),
-            &["--hidden-stop", "between 0 and 1", bad_t],
-        );
-        assert!(!out2.exists());
+    // Fractions and transmittances are refused outside [0, 1], naming the flag.
+    for flag in ["--object-rays", "--hidden-stop"] {
+        for bad in ["1.5", "-0.1", "NaN"] {
+            let arg = format!("{flag}={bad}");
+            fails_with(
+                &assist(&["train", s(&data), "--out", s(&out2), "--iters", "1", &arg]),
+                &[flag, "between 0 and 1", bad],
+            );
+            assert!(!out2.exists());
+        }
     }
 }
 
