@@ -77,6 +77,8 @@ pub struct CompositeGrad {
     pub distortion: f32,
     /// For a node: dL/d([`Composite::beyond`]). Unused in the ray-level gradient.
     pub beyond: f32,
+    /// For a node: dL/d([`Composite::front`]). Unused in the ray-level gradient.
+    pub front: f32,
 }
 
 /// What the gradient callback sees of one ray.
@@ -136,6 +138,7 @@ pub fn composite_batch(
     let n = traced.rays;
     let nn = traced.nodes.len();
     let beyond = &traced.beyond;
+    let front = &traced.front;
     let hidden = traced
         .hidden_stop
         .filter(|h| h.background < nn && grad.is_some());
@@ -227,7 +230,10 @@ pub fn composite_batch(
                     composite_ray(
                         r,
                         i,
-                        beyond.get(r).copied().unwrap_or(f32::INFINITY),
+                        (
+                            beyond.get(r).copied().unwrap_or(f32::INFINITY),
+                            front.get(r).copied().unwrap_or(f32::NEG_INFINITY),
+                        ),
                         &mut views,
                         background,
                         hidden,
@@ -268,7 +274,7 @@ struct RayScratch {
 fn composite_ray(
     r: usize,
     i: usize,
-    beyond: f32,
+    (beyond, front): (f32, f32),
     views: &mut [NodeView],
     behind: Behind,
     hidden: Option<HiddenStop>,
@@ -374,6 +380,9 @@ fn composite_ray(
             if v.t[j] >= beyond {
                 a.beyond += w;
             }
+            if v.t[j] < front {
+                a.front += w;
+            }
         }
         node_out[k] = a;
     }
@@ -476,7 +485,8 @@ fn composite_ray(
                 + ng.depth * v.t[j]
                 + ng.depth_sq * v.t[j] * v.t[j]
                 + ng.opacity
-                + if v.t[j] >= beyond { ng.beyond } else { 0.0 };
+                + if v.t[j] >= beyond { ng.beyond } else { 0.0 }
+                + if v.t[j] < front { ng.front } else { 0.0 };
             v.d_sigma[j] += v.dt[j] * (sc.t_next[q] * gi - suffix);
             suffix += sc.w[q] * gi;
             for ch in 0..3 {
@@ -517,6 +527,7 @@ mod tests {
                 node(1, &[1.5], &[40.0]),
             ],
             beyond: Vec::new(),
+            front: Vec::new(),
             hidden_stop: stop,
         };
         let grad = |_: &RayOutputs, g: &mut CompositeGrad, gn: &mut [CompositeGrad]| {

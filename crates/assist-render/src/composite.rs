@@ -27,6 +27,10 @@ pub struct Composite {
     /// behind that point, counting what lies in front of it). 0 without one, and in the
     /// merged composite.
     pub beyond: f32,
+    /// A node alone in a batch: the opacity of its samples in front of the ray's
+    /// [`Traced::front`](crate::Traced::front) depth, `Σ_{t_i < f} w_i` (what it puts in
+    /// front of the surface a depth map sees). 0 without one, and in the merged composite.
+    pub front: f32,
 }
 
 /// Composites `samples` (sorted by `t`) over `background`; writes each sample's weight

@@ -184,6 +184,11 @@ pub struct Traced {
     ///
     /// [`Composite::beyond`]: crate::Composite::beyond
     pub beyond: Vec<f32>,
+    /// Per ray, the distance along it before which each node's [`Composite::front`]
+    /// opacity is measured (empty: none, every `front` is 0). Set by the caller.
+    ///
+    /// [`Composite::front`]: crate::Composite::front
+    pub front: Vec<f32>,
     /// Training: the background's samples an object hides get no gradient from the
     /// composited image (see [`HiddenStop`]). `None`: every sample gets its full gradient.
     pub hidden_stop: Option<HiddenStop>,

@@ -224,6 +224,8 @@ fn batch_backward_matches_finite_differences() {
     assert!(traced.nodes.iter().all(|n| n.len() > 10));
     // Each node's opacity beyond a depth inside both boxes.
     traced.beyond = (0..traced.rays).map(|r| 2.75 + 0.04 * r as f32).collect();
+    // And in front of another.
+    traced.front = (0..traced.rays).map(|r| 2.85 - 0.03 * r as f32).collect();
     let mut tapes = Vec::new();
     let q = assist_render::Query::Render {
         precision: assist_field::Precision::F32,
@@ -239,6 +241,7 @@ fn batch_backward_matches_finite_differences() {
         let mut t2 = traced.clone();
         composite_batch(&mut t2, Behind::Color(bg), &mut out, None);
         let mut beyond_seen = Vec::new();
+        let mut front_seen = Vec::new();
         for r in 0..traced.rays {
             let mut merged: Vec<assist_render::RaySample> = Vec::new();
             for ns in &traced.nodes {
@@ -289,9 +292,24 @@ fn batch_backward_matches_finite_differences() {
                     "ray {r} node {k}: beyond {got} against {b}"
                 );
                 beyond_seen.push((b, c.opacity));
+                let f: f32 = (0..w.len())
+                    .filter(|&j| alone[j].t < traced.front[r])
+                    .map(|j| w[j])
+                    .sum();
+                let got = out.nodes[r * 2 + k].front;
+                assert!(
+                    (got - f).abs() < 1e-5,
+                    "ray {r} node {k}: front {got} against {f}"
+                );
+                front_seen.push((f, c.opacity));
             }
             assert_eq!(out.rays[r].beyond, 0.0, "the merged composite has none");
+            assert_eq!(out.rays[r].front, 0.0, "the merged composite has none");
         }
+        assert!(
+            front_seen.iter().any(|&(f, o)| f > 0.05 && f < o - 0.05),
+            "no ray has part of a node's weight on each side of its front: {front_seen:?}"
+        );
         assert!(
             beyond_seen.iter().any(|&(b, o)| b > 0.05 && b < o - 0.05),
             "no ray has part of a node's weight on each side of its depth: {beyond_seen:?}"
@@ -320,6 +338,7 @@ fn batch_backward_matches_finite_differences() {
                     + a[4] * p.opacity
                     + q[19 + k] * p.depth_sq
                     + q[21 + k] * p.beyond
+                    + q[23 + k] * p.front
                     + q[15 + k] * out.share[r * 2 + k]) as f64;
             }
         }
@@ -335,6 +354,7 @@ fn batch_backward_matches_finite_differences() {
             share: 0.0,
             distortion: DIST * q[17],
             beyond: 0.0,
+            front: 0.0,
         };
         for k in 0..2 {
             let p = &q[5 + 5 * k..];
@@ -346,6 +366,7 @@ fn batch_backward_matches_finite_differences() {
                 share: q[15 + k],
                 distortion: 0.0,
                 beyond: q[21 + k],
+                front: q[23 + k],
             };
         }
     };

@@ -54,6 +54,7 @@ pub struct LambdaOverrides {
     pub obj_rgb: Option<f32>,
     pub obj_share: Option<f32>,
     pub distortion: Option<f32>,
+    pub empty: Option<f32>,
 }
 
 /// Everything a training run is configured with. `data` and `out` have no default; every
@@ -672,6 +673,7 @@ pub fn lambdas(c: &TrainConfig, dataset_inpaint: bool) -> Lambdas {
         (&mut l.obj_rgb, o.obj_rgb),
         (&mut l.obj_share, o.obj_share),
         (&mut l.distortion, o.distortion),
+        (&mut l.empty, o.empty),
     ] {
         if let Some(v) = v {
             *slot = v;

@@ -33,7 +33,7 @@ pub use setup::{
 };
 pub use shadow::{ShadowPriorStats, add_shadow_grids, shadow_free_priors};
 pub use trainer::{
-    Lambdas, POSE_LR, PhaseTimes, PoseRefiner, ResumeState, StepStats, StopReason, TrainOptions,
-    TrainReport, Trainer, update_depth_affine,
+    EMPTY_MARGIN, Lambdas, POSE_LR, PhaseTimes, PoseRefiner, ResumeState, StepStats, StopReason,
+    TrainOptions, TrainReport, Trainer, update_depth_affine,
 };
 pub use views::{PriorKind, View, fill_prior, fill_priors, load_view, load_views};

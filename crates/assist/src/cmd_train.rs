@@ -98,6 +98,12 @@ pub struct TrainArgs {
     /// Weight of the distortion loss (Nerfacto's; 0 turns it off) [default: 0].
     #[arg(long, value_name = "W")]
     pub lambda_distortion: Option<f32>,
+    /// Weight of the empty-space term (ours, after Urban Radiance Fields' line-of-sight
+    /// prior): where the dataset has depth, every node must be empty in front of the
+    /// surface the depth map sees (no haze over a surface, which would cover the base of an
+    /// object moved onto it) [default: 0].
+    #[arg(long, value_name = "W")]
+    pub lambda_empty: Option<f32>,
     /// Object boxes overriding the dataset's and the carved ones, used as given (a JSON file
     /// as `assist dataset boxes DATA --json` writes: {"instances": [{"id" or "label", "bbox":
     /// {"center", "size", "rotation"}}]}).
@@ -222,6 +228,7 @@ impl TrainArgs {
                 obj_rgb: self.lambda_obj_rgb,
                 obj_share: self.lambda_obj_share,
                 distortion: self.lambda_distortion,
+                empty: self.lambda_empty,
             },
             boxes: self.boxes.clone(),
             appearance,
@@ -339,6 +346,7 @@ fn step_line(s: &assist_train::StepStats) -> serde_json::Value {
         "obj_rgb": s.obj_rgb,
         "obj_share": s.obj_share,
         "distortion": s.distortion,
+        "empty": s.empty,
         "phases": phases,
     })
 }
@@ -520,7 +528,7 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
                     .map(|(k, f)| format!("{k} {:.1}%", f * 100.0))
                     .collect();
                 eprintln!(
-                    "         pruned {} of {} samples; samples/ray {:.1?} terms: comp {:.5} bg_rgb {:.5} bg_opacity {:.5} bg_depth {:.5} obj_acc {:.5} obj_rgb {:.5} obj_share {:.5} dist {:.5}; occupied: {}",
+                    "         pruned {} of {} samples; samples/ray {:.1?} terms: comp {:.5} bg_rgb {:.5} bg_opacity {:.5} bg_depth {:.5} obj_acc {:.5} obj_rgb {:.5} obj_share {:.5} dist {:.5} empty {:.5}; occupied: {}",
                     s.pruned,
                     s.candidates,
                     s.samples_per_ray,
@@ -532,6 +540,7 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
                     s.obj_rgb,
                     s.obj_share,
                     s.distortion,
+                    s.empty,
                     occ.join(", ")
                 );
             }

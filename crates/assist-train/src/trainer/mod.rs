@@ -41,7 +41,8 @@ mod rays;
 
 use objective::Objective;
 pub use options::{
-    Lambdas, PhaseTimes, ResumeState, StepStats, StopReason, TrainOptions, TrainReport,
+    EMPTY_MARGIN, Lambdas, PhaseTimes, ResumeState, StepStats, StopReason, TrainOptions,
+    TrainReport,
 };
 pub use poses::{POSE_EVERY, POSE_LR, PoseRefiner};
 use rays::Target;
@@ -306,6 +307,7 @@ impl Trainer {
             s.bg_rgb += v.bg_rgb as f64;
             s.bg_opacity += v.bg_opacity as f64;
             s.bg_depth += v.bg_depth as f64;
+            s.empty += v.empty as f64;
             g_wq[0] += v.d_depth_wq[0];
             g_wq[1] += v.d_depth_wq[1];
         }
@@ -318,6 +320,7 @@ impl Trainer {
         s.bg_rgb /= nr;
         s.bg_opacity /= nr;
         s.bg_depth /= nr;
+        s.empty /= nr;
         s.loss = s.comp_rgb
             + lam.bg_rgb as f64 * s.bg_rgb
             + lam.bg_opacity as f64 * s.bg_opacity
@@ -325,7 +328,8 @@ impl Trainer {
             + lam.obj_acc as f64 * s.obj_acc
             + lam.obj_rgb as f64 * s.obj_rgb
             + lam.obj_share as f64 * s.obj_share
-            + lam.distortion as f64 * s.distortion;
+            + lam.distortion as f64 * s.distortion
+            + lam.empty as f64 * s.empty;
         s.psnr = crate::metrics::mse_to_psnr(s.comp_rgb);
         if !s.loss.is_finite() {
             return Err(TrainError::Diverged {
@@ -554,6 +558,15 @@ impl Trainer {
     /// scale and shift when the prior's depth has no scale); the background's opacity past
     /// it is what `Lambdas::bg_opacity` asks to be 1.
     fn set_beyond(&mut self) {
+        self.traced.front.clear();
+        if self.opts.lambdas.empty > 0.0 {
+            let e = self.extent * (1.0 - EMPTY_MARGIN);
+            self.traced.front.extend(
+                self.targets
+                    .iter()
+                    .map(|t| t.surface.map_or(f32::NEG_INFINITY, |d| d * e)),
+            );
+        }
         self.traced.beyond.clear();
         if self.background.is_none() || self.opts.lambdas.bg_opacity <= 0.0 {
             return;

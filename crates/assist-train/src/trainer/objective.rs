@@ -36,6 +36,7 @@ pub(super) struct RayTerms {
     pub(super) bg_rgb: f32,
     pub(super) bg_opacity: f32,
     pub(super) bg_depth: f32,
+    pub(super) empty: f32,
     pub(super) d_depth_wq: [f32; 2],
 }
 
@@ -57,6 +58,16 @@ impl Objective<'_> {
         if let Some((g, _)) = grads.as_mut() {
             g.rgb = d.map(|v| v / n);
             g.distortion = lam.distortion / self.extent / n;
+        }
+        if t.surface.is_some() && lam.empty > 0.0 {
+            // Every node's opacity in front of the surface the depth map sees.
+            for (k, pk) in per.iter().enumerate() {
+                let (v, d) = losses::opacity(pk.front, 0.0);
+                terms.empty += v;
+                if let Some((_, gn)) = grads.as_mut() {
+                    gn[k].front += lam.empty * d / n;
+                }
+            }
         }
         if t.masked {
             for (k, pk) in per.iter().enumerate() {
@@ -154,7 +165,8 @@ mod tests {
             + l.distortion * v.distortion
             + l.bg_rgb * v.bg_rgb
             + l.bg_opacity * v.bg_opacity
-            + l.bg_depth * v.bg_depth) as f64
+            + l.bg_depth * v.bg_depth
+            + l.empty * v.empty) as f64
             / obj.n_rays as f64
     }
 
@@ -165,6 +177,7 @@ mod tests {
             opacity,
             depth_sq,
             beyond: 0.8 * opacity,
+            front: 0.3 * opacity,
         }
     }
 
@@ -187,6 +200,7 @@ mod tests {
                 opacity,
                 depth_sq,
                 beyond,
+                front,
             } = n;
             for x in rgb.iter_mut() {
                 v.push(("rgb", k, x));
@@ -195,6 +209,7 @@ mod tests {
             v.push(("opacity", k, opacity));
             v.push(("depth_sq", k, depth_sq));
             v.push(("beyond", k, beyond));
+            v.push(("front", k, front));
         }
         for (k, s) in share.iter_mut().enumerate() {
             v.push(("share", k, s));
@@ -211,6 +226,7 @@ mod tests {
             "opacity" => g.opacity,
             "depth_sq" => g.depth_sq,
             "beyond" => g.beyond,
+            "front" => g.front,
             _ => g.share,
         }
     }
@@ -224,6 +240,7 @@ mod tests {
                 lam: Lambdas {
                     distortion: 0.3,
                     bg_opacity: 0.4,
+                    empty: 0.7,
                     ..Lambdas::default()
                 },
                 n_rays: 4.0,
@@ -241,6 +258,7 @@ mod tests {
                 depth: Some(0.7),
                 prior_weight: 0.8,
                 rgb_weight: 0.3,
+                surface: Some(1.1),
             };
             let mut c = comp([0.3, 0.5, 0.7], 1.2, 0.95, 1.9);
             let mut nodes = [

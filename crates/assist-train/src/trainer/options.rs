@@ -57,7 +57,20 @@ pub struct Lambdas {
     pub obj_rgb: f32,
     pub obj_share: f32,
     pub distortion: f32,
+    /// Weight of `Σ_k F_k²` where the dataset has depth (ours; the "empty space" term of
+    /// Urban Radiance Fields' line-of-sight prior), `F_k` being node k's own opacity in
+    /// front of [`EMPTY_MARGIN`] of the depth map's distance along the ray
+    /// ([`assist_render::Composite::front`]): nothing stands in front of the surface the
+    /// depth map sees. The depth term alone holds only the mean and spread of the depth,
+    /// in units of the scene's extent, which leaves a surface's density spread over
+    /// millimetres in front of it; that haze is invisible where the node was trained but
+    /// covers the base of an object moved onto it.
+    pub empty: f32,
 }
+
+/// The part of the depth map's distance in front of which [`Lambdas::empty`] asks every
+/// node to be empty: the rest absorbs depth quantisation and mixed edge pixels.
+pub const EMPTY_MARGIN: f32 = 0.005;
 
 impl Default for Lambdas {
     fn default() -> Self {
@@ -69,6 +82,7 @@ impl Default for Lambdas {
             obj_rgb: 0.5,
             obj_share: 0.1,
             distortion: 0.0,
+            empty: 0.0,
         }
     }
 }
@@ -174,6 +188,7 @@ pub struct StepStats {
     pub bg_rgb: f64,
     pub bg_opacity: f64,
     pub bg_depth: f64,
+    pub empty: f64,
     pub obj_acc: f64,
     pub obj_rgb: f64,
     pub obj_share: f64,

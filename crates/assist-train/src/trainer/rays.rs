@@ -21,6 +21,9 @@ pub(super) struct Target {
     pub(super) prior_weight: f32,
     /// Weight of the prior's colour term (the confidence, or less near objects' shadows).
     pub(super) rgb_weight: f32,
+    /// The dataset's depth as distance along the ray, in units of the scene extent: the
+    /// first surface the ray meets (`None`: no depth map, or none at this pixel).
+    pub(super) surface: Option<f32>,
 }
 
 /// A pixel `(view, index)` drawn uniformly over the pixels to train on: one a `mask_path`
@@ -83,6 +86,12 @@ impl Trainer {
                     .map(|d| d[p])
                     .filter(|&z| z > 0.0 && cos > 1e-3)
                     .map(|z| z / cos / extent);
+                let surface = v
+                    .depth
+                    .as_ref()
+                    .map(|d| d[p])
+                    .filter(|&z| z > 0.0 && z.is_finite() && cos > 1e-3)
+                    .map(|z| z / cos / extent);
                 let prior_weight = v.prior_confidence.as_ref().map_or(1.0, |c| c[p]);
                 let rgb_weight = v.prior_rgb_weight.as_ref().map_or(prior_weight, |c| c[p]);
                 Some((
@@ -97,6 +106,7 @@ impl Trainer {
                         depth,
                         prior_weight,
                         rgb_weight,
+                        surface,
                     },
                 ))
             })
