@@ -94,6 +94,9 @@ pub struct TrainConfig {
     /// the background learns the surface without the objects and an edited object takes
     /// its shadow along. Only scenes with objects are affected.
     pub shadows: bool,
+    /// Start each new shadow grid from the photographs' darkening around its object
+    /// ([`assist_train::estimate_shadows`]) instead of from no shadow.
+    pub shadow_estimate: bool,
     /// What objects hide of the background learns only from its prior (see
     /// [`TrainOptions::hidden_stop`]; 0 = off).
     pub hidden_stop: f32,
@@ -249,6 +252,7 @@ impl Default for TrainConfig {
             background: BackgroundSpace::Auto,
             refine_poses: false,
             shadows: true,
+            shadow_estimate: true,
             hidden_stop: t.hidden_stop,
             seed: 0,
             checkpoint_every: 120.0,
@@ -277,11 +281,13 @@ pub enum TrainEvent {
     Carved { nodes: Vec<(String, f64)> },
     /// Objects learn their shadows: `objects` shadow grids were added; the background
     /// prior near them was made shadow-free on `covered` pixels under objects and `seen`
-    /// pixels around them.
+    /// pixels around them; `estimated` photograph pixels gave the new grids their first
+    /// estimate ([`assist_train::estimate_shadows`]).
     Shadows {
         objects: usize,
         covered: usize,
         seen: usize,
+        estimated: usize,
     },
     /// The views have no instance masks; `unused` are mask folders for other sizes.
     NoMasks { unused: Vec<PathBuf> },
@@ -513,11 +519,18 @@ impl TrainJob {
             0
         };
         let st = assist_train::shadow_free_priors(&scene, &mut views);
+        // New grids start from the photographs' darkening (trained ones are left as they are).
+        let est = if c.shadows && c.shadow_estimate {
+            assist_train::estimate_shadows(&mut scene, &views)
+        } else {
+            assist_train::ShadowEstimate::default()
+        };
         if objects > 0 || st.views > 0 {
             on_event(&TrainEvent::Shadows {
                 objects,
                 covered: st.covered,
                 seen: st.seen,
+                estimated: est.pixels,
             });
         }
         let lambdas = lambdas(c, views.iter().any(|v| v.inpaint.is_some()));

@@ -31,7 +31,9 @@ pub use setup::{
     BackgroundSpace, BoxSource, NodeBox, SetupOptions, background_color, build_scene,
     is_object_capture, near_plane, node_boxes, scene_region,
 };
-pub use shadow::{ShadowPriorStats, add_shadow_grids, shadow_free_priors};
+pub use shadow::{
+    ShadowEstimate, ShadowPriorStats, add_shadow_grids, estimate_shadows, shadow_free_priors,
+};
 pub use trainer::{
     EMPTY_MARGIN, Lambdas, POSE_LR, PhaseTimes, PoseRefiner, ResumeState, StepStats, StopReason,
     TrainOptions, TrainReport, Trainer, update_depth_affine,

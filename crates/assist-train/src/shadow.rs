@@ -169,6 +169,165 @@ fn shadow_free_view(regions: &[(&SceneNode, f32)], v: &mut View) -> ShadowPriorS
     s
 }
 
+/// Weight, in pixels, of the "no shadow" guess each lattice point starts from in
+/// [`estimate_shadows`]: a point seen by few pixels stays near 1.
+const ESTIMATE_PRIOR: f64 = 1.0;
+
+/// What [`estimate_shadows`] did.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ShadowEstimate {
+    /// Grids that were given a first estimate.
+    pub grids: usize,
+    /// Photograph pixels that went into them.
+    pub pixels: usize,
+}
+
+/// Gives every shadow grid of `scene` that casts no shadow yet (every factor 1: new, not
+/// trained) a first estimate from the photographs: at each background point a training
+/// view sees inside an object's region (the point from the prior's depth; pixels near
+/// objects left out), the photograph's brightness over the shadow-free prior's there
+/// (see [`shadow_free_priors`], which must run first), clamped to `[MIN_SHADE, 1]` and
+/// averaged onto the lattice with its trilinear weights over all views. Where regions
+/// overlap, the object nearest the point (the distance to its box) casts the darkening,
+/// and the others' grids are given no shadow there: on a crowded table a neighbour's
+/// region covers each object's shadow too, and a shadow split between them stays
+/// partly behind when one moves.
+///
+/// The photograph is the surface times the shadow, and training alone finds the two only
+/// slowly: the background learns the shadowed photograph first, and only the light
+/// shadow-free prior pulls the shadow out of it, so on desk most of each object's
+/// shadow stayed on the background and was left behind when the object moved. Starting
+/// the grid at this ratio starts the background at the surface itself.
+pub fn estimate_shadows(scene: &mut NeuralScene, views: &[View]) -> ShadowEstimate {
+    // (node index, node, lattice size, region half-width) of every untrained grid.
+    let grids: Vec<(usize, SceneNode, usize, f32)> = assist_render::casters(scene)
+        .into_iter()
+        .filter(|c| c.grid.values.iter().all(|&v| v == 1.0))
+        .map(|c| (c.node, c.scene_node.clone(), c.grid.res, c.grid.extent))
+        .collect();
+    if grids.is_empty() {
+        return ShadowEstimate::default();
+    }
+    let shapes: Vec<(usize, f32)> = grids.iter().map(|g| (g.2, g.3)).collect();
+    let empty = || -> (Vec<Vec<[f64; 2]>>, usize) {
+        (
+            shapes
+                .iter()
+                .map(|(r, _)| vec![[0.0; 2]; r * r * r])
+                .collect(),
+            0,
+        )
+    };
+    let (sums, pixels) = views
+        .par_iter()
+        .map(|v| {
+            let mut acc = empty();
+            estimate_view(&grids, v, &mut acc);
+            acc
+        })
+        .reduce(empty, |mut a, b| {
+            for (x, y) in a.0.iter_mut().zip(&b.0) {
+                for (p, q) in x.iter_mut().zip(y) {
+                    p[0] += q[0];
+                    p[1] += q[1];
+                }
+            }
+            (a.0, a.1 + b.1)
+        });
+    for ((k, _, _, _), sum) in grids.iter().zip(&sums) {
+        let key = scene.scene.nodes[*k].field.clone();
+        let nf = std::sync::Arc::make_mut(scene.fields.get_mut(&key).expect("field of node"));
+        let grid = nf.shade.as_mut().expect("a caster has a grid");
+        for (v, [wr, w]) in grid.values.iter_mut().zip(sum) {
+            *v = ((wr + ESTIMATE_PRIOR) / (w + ESTIMATE_PRIOR)) as f32;
+        }
+        grid.clamp();
+    }
+    ShadowEstimate {
+        grids: grids.len(),
+        pixels,
+    }
+}
+
+/// Adds one view's ratios into `acc` (per grid: `[Σ w·r, Σ w]` per lattice point; the
+/// number of pixels used).
+fn estimate_view(
+    grids: &[(usize, SceneNode, usize, f32)],
+    v: &View,
+    acc: &mut (Vec<Vec<[f64; 2]>>, usize),
+) {
+    use assist_field::shade::MIN_SHADE;
+    let (Some(ids), Some(prior), Some(depth)) = (&v.ids, &v.inpaint, &v.inpaint_depth) else {
+        return;
+    };
+    if v.prior_from_user {
+        return;
+    }
+    let (w, h) = (v.width, v.height);
+    let objects: Vec<bool> = ids.iter().map(|&i| i != 0).collect();
+    let near = prior::dilate(&objects, w, h, PRIOR_DILATION);
+    let forward = v.camera.pose.forward();
+    // A lattice only to find corners: every grid has its own shape.
+    let lattices: Vec<ShadeGrid> = grids
+        .iter()
+        .map(|g| ShadeGrid {
+            res: g.2,
+            extent: g.3,
+            values: Vec::new(),
+        })
+        .collect();
+    let mut inside = Vec::with_capacity(grids.len());
+    for p in 0..w * h {
+        if near[p] || depth[p] <= 0.0 || v.valid.as_ref().is_some_and(|m| !m[p]) {
+            continue;
+        }
+        let Some(ray) = v.camera.pixel_ray((p % w) as u32, (p / w) as u32) else {
+            continue;
+        };
+        let cos = ray.dir.dot(forward);
+        if cos <= 1e-3 {
+            continue;
+        }
+        let point = ray.origin + ray.dir * (depth[p] as f64 / cos);
+        // Every region the point lies in, with the point's distance to that object's box
+        // (world units).
+        inside.clear();
+        for (g, ((_, node, _, _), lattice)) in grids.iter().zip(&lattices).enumerate() {
+            let local = node.world_from_local.local_from_world_point(point);
+            let l = local / node.half_size;
+            if let Some(c) = lattice.corners(l.as_vec3().to_array()) {
+                let out = (local.abs() - node.half_size).max(DVec3::ZERO);
+                let dist = (out * node.world_from_local.scale).length();
+                inside.push((g, c, dist));
+            }
+        }
+        let Some(nearest) = inside
+            .iter()
+            .min_by(|a, b| a.2.total_cmp(&b.2))
+            .map(|n| n.0)
+        else {
+            continue;
+        };
+        let seen: f32 = v.rgb[3 * p..3 * p + 3].iter().sum();
+        let free: f32 = prior[3 * p..3 * p + 3].iter().sum();
+        if free < 1e-3 {
+            continue;
+        }
+        let ratio = (seen / free).clamp(MIN_SHADE, 1.0) as f64;
+        for (g, c, _) in &inside {
+            // The nearest object casts it; the others are told they do not.
+            let r = if *g == nearest { ratio } else { 1.0 };
+            let sum = &mut acc.0[*g];
+            for i in 0..8 {
+                let wt = c.weight[i] as f64;
+                sum[c.index[i] as usize][0] += wt * r;
+                sum[c.index[i] as usize][1] += wt;
+            }
+        }
+        acc.1 += 1;
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -193,6 +352,12 @@ mod tests {
     /// A floor (z = 0) seen from above, bright on the left half (x < 0) and dark on the
     /// right, with a cube of half size 0.1 at (0.5, 0, 0.1) covering the pixels around it.
     fn setup() -> (NeuralScene, View) {
+        setup_sized(64, 48, 1.0)
+    }
+
+    /// As [`setup`], `w × h` pixels, with the floor at `0.62 < x < 0.78, |y| < 0.1` (beside
+    /// the cube) darkened by `shadow`.
+    fn setup_sized(w: usize, h: usize, shadow: f32) -> (NeuralScene, View) {
         let nodes = vec![
             node(0, "background", 2.0, DVec3::ZERO),
             node(1, "cube", 0.1, DVec3::new(0.5, 0.0, 0.1)),
@@ -216,7 +381,6 @@ mod tests {
             },
             fields,
         };
-        let (w, h) = (64usize, 48usize);
         let camera = Camera {
             intrinsics: Intrinsics::from_fov_x(w as u32, h as u32, 1.2),
             pose: Pose::look_at(DVec3::new(0.0, -0.01, 2.0), DVec3::ZERO, DVec3::Y).unwrap(),
@@ -234,6 +398,8 @@ mod tests {
                 0.9
             } else if x.x < 0.0 {
                 0.8
+            } else if x.x > 0.62 && x.x < 0.78 && x.y.abs() < 0.1 {
+                0.3 * shadow
             } else {
                 0.3
             };
@@ -301,5 +467,91 @@ mod tests {
             let p = at(x, y);
             assert_eq!((inpaint[3 * p], weight[p]), (c, 1.0), "at ({x}, {y})");
         }
+    }
+
+    #[test]
+    fn a_new_grid_starts_from_the_photographs_darkening() {
+        let (mut scene, view) = setup_sized(640, 480, 0.5);
+        let mut views = vec![view];
+        // Without grids, nothing to estimate.
+        assert_eq!(
+            estimate_shadows(&mut scene, &views),
+            ShadowEstimate::default()
+        );
+        add_shadow_grids(&mut scene);
+        shadow_free_priors(&scene, &mut views);
+        let st = estimate_shadows(&mut scene, &views);
+        assert_eq!(st.grids, 1);
+        assert!(st.pixels > 1000, "{st:?}");
+        let node = scene.scene.nodes[1].clone();
+        let grid = scene.field_of(1).shade.clone().unwrap();
+        let at = |x: f64, y: f64| {
+            let l = node
+                .world_from_local
+                .local_from_world_point(DVec3::new(x, y, 0.0))
+                / node.half_size;
+            grid.value(l.as_vec3().to_array())
+        };
+        // In the shadow: half as bright as the floor around it.
+        for (x, y) in [(0.66, 0.0), (0.7, 0.05), (0.74, -0.05)] {
+            let s = at(x, y);
+            assert!((s - 0.5).abs() < 0.1, "shade {s} at ({x}, {y})");
+        }
+        // Seen, unshadowed, inside the region: no shadow.
+        for (x, y) in [(0.5, 0.22), (0.3, -0.2), (0.75, 0.2)] {
+            let s = at(x, y);
+            assert!(s > 0.9, "shade {s} at ({x}, {y})");
+        }
+        // Under the cube nothing is seen: no shadow is guessed there.
+        assert!(at(0.5, 0.0) > 0.95);
+        // A grid that has been trained is left as it is.
+        let before = grid.values.clone();
+        assert_eq!(
+            estimate_shadows(&mut scene, &views),
+            ShadowEstimate::default()
+        );
+        assert_eq!(scene.field_of(1).shade.as_ref().unwrap().values, before);
+        // No shadow in the photographs: none estimated.
+        let (mut scene, view) = setup_sized(640, 480, 1.0);
+        let mut views = vec![view];
+        add_shadow_grids(&mut scene);
+        shadow_free_priors(&scene, &mut views);
+        estimate_shadows(&mut scene, &views);
+        let g = scene.field_of(1).shade.as_ref().unwrap();
+        let low = g.values.iter().copied().fold(1.0f32, f32::min);
+        assert!(low > 0.85, "lowest factor {low} with no shadow");
+    }
+
+    #[test]
+    fn where_regions_overlap_the_nearest_object_casts_the_shadow() {
+        let (mut scene, view) = setup_sized(640, 480, 0.5);
+        // A second object beside the cube whose region covers the shadow too (nothing of
+        // it is photographed: only its region matters here).
+        let other = node(2, "other", 0.1, DVec3::new(0.5, 0.3, 0.1));
+        let f = assist_field::Field::constant(1.0, [0.5; 3], false, 1).unwrap();
+        let nf = NodeField::new(f, assist_field::OccupancyGrid::new(8), other.half_size);
+        scene.fields.insert(other.field.clone(), Arc::new(nf));
+        scene.scene.nodes.push(other);
+        let mut views = vec![view];
+        add_shadow_grids(&mut scene);
+        shadow_free_priors(&scene, &mut views);
+        assert_eq!(estimate_shadows(&mut scene, &views).grids, 2);
+        let shade = |k: usize, x: f64, y: f64| {
+            let n = &scene.scene.nodes[k];
+            let l = n
+                .world_from_local
+                .local_from_world_point(DVec3::new(x, y, 0.0))
+                / n.half_size;
+            scene
+                .field_of(k)
+                .shade
+                .as_ref()
+                .unwrap()
+                .value(l.as_vec3().to_array())
+        };
+        // (0.66, 0.05) is 0.06 from the cube's box and 0.15 from the other's.
+        let (mine, theirs) = (shade(1, 0.66, 0.05), shade(2, 0.66, 0.05));
+        assert!((mine - 0.5).abs() < 0.1, "the cube's factor {mine}");
+        assert!(theirs > 0.9, "the other object's factor {theirs}");
     }
 }

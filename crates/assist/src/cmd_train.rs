@@ -126,6 +126,10 @@ pub struct TrainArgs {
     /// along. Only scenes with objects are affected.
     #[arg(long, value_enum, default_value_t = OnOff::On)]
     pub shadows: OnOff,
+    /// Start each object's shadow from the photographs (on, off): the darkening around it,
+    /// photograph over the shadow-free prior, instead of no shadow.
+    #[arg(long, value_enum, default_value_t = OnOff::On)]
+    pub shadow_estimate: OnOff,
     /// What objects hide of the background learns only from the background's prior: its
     /// samples whose transmittance through the objects in front of them is below this get
     /// no gradient from the photographs (0 = off; a transmittance in [0, 1]).
@@ -235,6 +239,7 @@ impl TrainArgs {
             background,
             refine_poses: self.refine_poses,
             shadows: self.shadows == OnOff::On,
+            shadow_estimate: self.shadow_estimate == OnOff::On,
             hidden_stop: self.hidden_stop,
             seed: self.seed,
             checkpoint_every: self.checkpoint_every,
@@ -450,8 +455,9 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
             objects,
             covered,
             seen,
+            estimated,
         } if text => eprintln!(
-            "shadows: {objects} object(s) learn their shadow; shadow-free background prior on {covered} pixels under objects and {seen} around them"
+            "shadows: {objects} object(s) learn their shadow, first estimated from {estimated} pixels; shadow-free background prior on {covered} pixels under objects and {seen} around them"
         ),
         TrainEvent::NoMasks { unused } if text => eprintln!(
             "no instance masks in {data} (an instance_mask_path per frame, or a masks/ folder beside the images): training the background only{}",

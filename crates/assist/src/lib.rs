@@ -58,7 +58,7 @@ pub enum Command {
         command: cmd_scene::SceneCommand,
     },
     /// Train a compositional scene (background + one node per object) from a dataset.
-    Train(cmd_train::TrainArgs),
+    Train(Box<cmd_train::TrainArgs>),
     /// Measure a trained scene against a dataset split (PSNR, SSIM, panoptic mIoU, background).
     Eval(cmd_eval::EvalArgs),
     /// Edit a trained scene: plain-language instructions, action scripts, undo/redo.
@@ -89,7 +89,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Synth(a) => cmd_synth::run(a),
         Command::Demo(a) => cmd_demo::run(a),
         Command::Scene { command } => cmd_scene::run(command),
-        Command::Train(a) => cmd_train::run(a),
+        Command::Train(a) => cmd_train::run(*a),
         Command::Eval(a) => cmd_eval::run(a),
         Command::Edit(a) => cmd_edit::run(a),
         Command::Render(a) => cmd_render::run(a),
