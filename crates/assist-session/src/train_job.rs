@@ -97,6 +97,9 @@ pub struct TrainConfig {
     /// Start each new shadow grid from the photographs' darkening around its object
     /// ([`assist_train::estimate_shadows`]) instead of from no shadow.
     pub shadow_estimate: bool,
+    /// The shadow grids keep the values they start from (the estimate) instead of training
+    /// with the scene.
+    pub shadows_fixed: bool,
     /// What objects hide of the background learns only from its prior (see
     /// [`TrainOptions::hidden_stop`]; 0 = off).
     pub hidden_stop: f32,
@@ -253,6 +256,7 @@ impl Default for TrainConfig {
             refine_poses: false,
             shadows: true,
             shadow_estimate: true,
+            shadows_fixed: false,
             hidden_stop: t.hidden_stop,
             seed: 0,
             checkpoint_every: 120.0,
@@ -520,7 +524,7 @@ impl TrainJob {
         };
         let st = assist_train::shadow_free_priors(&scene, &mut views);
         // New grids start from the photographs' darkening (trained ones are left as they are).
-        let est = if c.shadows && c.shadow_estimate {
+        let est = if c.shadows && (c.shadow_estimate || c.shadows_fixed) {
             assist_train::estimate_shadows(&mut scene, &views)
         } else {
             assist_train::ShadowEstimate::default()
@@ -533,6 +537,7 @@ impl TrainJob {
                 estimated: est.pixels,
             });
         }
+        let held_shadows = est.held;
         let lambdas = lambdas(c, views.iter().any(|v| v.inpaint.is_some()));
         if !c.resume && views.iter().all(|v| v.ids.is_none()) {
             on_event(&TrainEvent::NoMasks {
@@ -581,6 +586,11 @@ impl TrainJob {
         let preview = preview_path(&c.out);
         let mut eval_error = None;
         let mut trainer = Trainer::new(scene, views, opts)?;
+        if c.shadows_fixed {
+            // What the photographs show of each shadow stays as estimated; what they do
+            // not (under the objects) trains with the scene.
+            trainer.shade_held = held_shadows;
+        }
         if let Some(r) = &resume {
             trainer.resume_from(r);
         }

@@ -174,13 +174,21 @@ fn shadow_free_view(regions: &[(&SceneNode, f32)], v: &mut View) -> ShadowPriorS
 const ESTIMATE_PRIOR: f64 = 1.0;
 
 /// What [`estimate_shadows`] did.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct ShadowEstimate {
     /// Grids that were given a first estimate.
     pub grids: usize,
     /// Photograph pixels that went into them.
     pub pixels: usize,
+    /// Per estimated grid (by field key), its lattice points the photographs support
+    /// well (trilinear weight of at least [`HELD_SUPPORT`] pixels): what training keeps
+    /// when the shadows are held (`train --shadows fixed`).
+    pub held: std::collections::BTreeMap<String, Vec<bool>>,
 }
+
+/// Support, in pixels' trilinear weight summed over the views, from which an estimated
+/// lattice point is held (see [`ShadowEstimate::held`]).
+pub const HELD_SUPPORT: f64 = 20.0;
 
 /// Gives every shadow grid of `scene` that casts no shadow yet (every factor 1: new, not
 /// trained) a first estimate from the photographs: at each background point a training
@@ -234,8 +242,13 @@ pub fn estimate_shadows(scene: &mut NeuralScene, views: &[View]) -> ShadowEstima
             }
             (a.0, a.1 + b.1)
         });
+    let mut held = std::collections::BTreeMap::new();
     for ((k, _, _, _), sum) in grids.iter().zip(&sums) {
         let key = scene.scene.nodes[*k].field.clone();
+        held.insert(
+            key.clone(),
+            sum.iter().map(|[_, w]| *w >= HELD_SUPPORT).collect(),
+        );
         let nf = std::sync::Arc::make_mut(scene.fields.get_mut(&key).expect("field of node"));
         let grid = nf.shade.as_mut().expect("a caster has a grid");
         for (v, [wr, w]) in grid.values.iter_mut().zip(sum) {
@@ -246,6 +259,7 @@ pub fn estimate_shadows(scene: &mut NeuralScene, views: &[View]) -> ShadowEstima
     ShadowEstimate {
         grids: grids.len(),
         pixels,
+        held,
     }
 }
 

@@ -219,3 +219,39 @@ fn the_empty_space_term_clears_haze_in_front_of_surfaces() {
         "the term must clear haze in front of surfaces: {haze:?}"
     );
 }
+
+#[test]
+fn held_shadow_lattice_points_keep_their_values_and_the_rest_train() {
+    let ds = assist_data::load(synth(), &LoadOptions::default()).unwrap();
+    let mut t = setup(&ds);
+    assert!(assist_train::add_shadow_grids(&mut t.scene) > 0);
+    let est = assist_train::estimate_shadows(&mut t.scene, &t.views);
+    assert!(est.grids > 0 && est.pixels > 0, "{est:?}");
+    // Hold the even lattice points of every grid.
+    let grids = |t: &Trainer| -> Vec<(String, Vec<f32>)> {
+        t.scene
+            .fields
+            .iter()
+            .filter_map(|(k, f)| f.shade.as_ref().map(|g| (k.clone(), g.values.clone())))
+            .collect()
+    };
+    let before = grids(&t);
+    t.shade_held = before
+        .iter()
+        .map(|(k, v)| (k.clone(), (0..v.len()).map(|i| i % 2 == 0).collect()))
+        .collect();
+    t.opts.iters = 40;
+    t.run(|_, _| {}).unwrap();
+    let (mut moved, mut kept) = (0usize, true);
+    for ((_, a), (_, b)) in before.iter().zip(grids(&t)) {
+        for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+            if i % 2 == 0 {
+                kept &= x == y;
+            } else if x != y {
+                moved += 1;
+            }
+        }
+    }
+    assert!(kept, "a held lattice point changed");
+    assert!(moved > 0, "no free lattice point trained");
+}

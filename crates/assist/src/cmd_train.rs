@@ -18,6 +18,17 @@ pub enum OnOff {
     Off,
 }
 
+/// `--shadows`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Shadows {
+    /// Estimated from the photographs, then trained with the scene.
+    On,
+    /// None: shadows stay on the background.
+    Off,
+    /// Estimated from the photographs and kept where they show it.
+    Fixed,
+}
+
 #[derive(Args, Debug)]
 pub struct TrainArgs {
     /// Dataset (any supported format: desk, nerfstudio, Blender, COLMAP, LLFF); also
@@ -121,11 +132,13 @@ pub struct TrainArgs {
     /// translation and rotation (held-out views keep their poses) [default: off]
     #[arg(long)]
     pub refine_poses: bool,
-    /// Learn each object's shadow on the background (on, off): the background then learns
-    /// the surface without the objects, and a moved or deleted object takes its shadow
-    /// along. Only scenes with objects are affected.
-    #[arg(long, value_enum, default_value_t = OnOff::On)]
-    pub shadows: OnOff,
+    /// Learn each object's shadow on the background (on, off, fixed): the background then
+    /// learns the surface without the objects, and a moved or deleted object takes its
+    /// shadow along; `fixed` keeps each shadow where the photographs show it as estimated
+    /// from them, and trains only the rest (under the object) with the scene. Only scenes
+    /// with objects are affected.
+    #[arg(long, value_enum, default_value_t = Shadows::On)]
+    pub shadows: Shadows,
     /// Start each object's shadow from the photographs (on, off): the darkening around it,
     /// photograph over the shadow-free prior, instead of no shadow.
     #[arg(long, value_enum, default_value_t = OnOff::On)]
@@ -238,7 +251,8 @@ impl TrainArgs {
             appearance,
             background,
             refine_poses: self.refine_poses,
-            shadows: self.shadows == OnOff::On,
+            shadows: self.shadows != Shadows::Off,
+            shadows_fixed: self.shadows == Shadows::Fixed,
             shadow_estimate: self.shadow_estimate == OnOff::On,
             hidden_stop: self.hidden_stop,
             seed: self.seed,

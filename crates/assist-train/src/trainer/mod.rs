@@ -92,6 +92,9 @@ pub struct Trainer {
     ray_views: Vec<u32>,
     /// Adam over each casting object's shadow grid, by field key.
     shade_adam: BTreeMap<String, Adam>,
+    /// Lattice points of shadow grids that keep their values (by field key; see
+    /// [`crate::ShadowEstimate::held`]): every other point trains with the scene.
+    pub shade_held: BTreeMap<String, Vec<bool>>,
 }
 
 impl Trainer {
@@ -176,6 +179,7 @@ impl Trainer {
             poses,
             ray_views: Vec::new(),
             shade_adam: BTreeMap::new(),
+            shade_held: BTreeMap::new(),
         })
     }
 
@@ -381,11 +385,23 @@ impl Trainer {
             let key = self.scene.scene.nodes[k].field.clone();
             let nf = Arc::make_mut(self.scene.fields.get_mut(&key).expect("field of node"));
             if let Some(grid) = nf.shade.as_mut() {
+                let held = self
+                    .shade_held
+                    .get(&key)
+                    .filter(|h| h.len() == grid.values.len());
+                let keep: Vec<f32> = held.map_or_else(Vec::new, |_| grid.values.clone());
                 self.shade_adam
                     .entry(key)
                     .or_insert_with(|| Adam::new(grid.values.len()))
                     .update(lr, &mut grid.values, &mut g);
                 grid.clamp();
+                if let Some(h) = held {
+                    for ((v, k), &hold) in grid.values.iter_mut().zip(&keep).zip(h) {
+                        if hold {
+                            *v = *k;
+                        }
+                    }
+                }
             }
         }
         if self.background.is_some() && lam.bg_depth > 0.0 && self.opts.depth_affine {
