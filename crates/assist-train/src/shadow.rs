@@ -226,22 +226,28 @@ pub fn estimate_shadows(scene: &mut NeuralScene, views: &[View]) -> ShadowEstima
             0,
         )
     };
-    let (sums, pixels) = views
-        .par_iter()
-        .map(|v| {
-            let mut acc = empty();
-            estimate_view(&grids, v, &mut acc);
-            acc
-        })
-        .reduce(empty, |mut a, b| {
-            for (x, y) in a.0.iter_mut().zip(&b.0) {
+    // Views in parallel, a few at a time, summed in view order: the same bits whatever
+    // the threads do.
+    let (mut sums, mut pixels) = empty();
+    for chunk in views.chunks(rayon::current_num_threads().max(1) * 2) {
+        let parts: Vec<(Vec<Vec<[f64; 2]>>, usize)> = chunk
+            .par_iter()
+            .map(|v| {
+                let mut acc = empty();
+                estimate_view(&grids, v, &mut acc);
+                acc
+            })
+            .collect();
+        for (part, n) in parts {
+            for (x, y) in sums.iter_mut().zip(&part) {
                 for (p, q) in x.iter_mut().zip(y) {
                     p[0] += q[0];
                     p[1] += q[1];
                 }
             }
-            (a.0, a.1 + b.1)
-        });
+            pixels += n;
+        }
+    }
     let mut held = std::collections::BTreeMap::new();
     for ((k, _, _, _), sum) in grids.iter().zip(&sums) {
         let key = scene.scene.nodes[*k].field.clone();
