@@ -256,7 +256,7 @@ impl Default for TrainConfig {
             refine_poses: false,
             shadows: true,
             shadow_estimate: true,
-            shadows_fixed: false,
+            shadows_fixed: true,
             hidden_stop: t.hidden_stop,
             seed: 0,
             checkpoint_every: 120.0,

@@ -132,12 +132,12 @@ pub struct TrainArgs {
     /// translation and rotation (held-out views keep their poses) [default: off]
     #[arg(long)]
     pub refine_poses: bool,
-    /// Learn each object's shadow on the background (on, off, fixed): the background then
+    /// Learn each object's shadow on the background (fixed, on, off): the background then
     /// learns the surface without the objects, and a moved or deleted object takes its
-    /// shadow along; `fixed` keeps each shadow where the photographs show it as estimated
-    /// from them, and trains only the rest (under the object) with the scene. Only scenes
-    /// with objects are affected.
-    #[arg(long, value_enum, default_value_t = Shadows::On)]
+    /// shadow along; `fixed` (the default) keeps each shadow where the photographs show it
+    /// as estimated from them and trains only the rest (under the object) with the scene,
+    /// `on` trains all of it. Only scenes with objects are affected.
+    #[arg(long, value_enum, default_value_t = Shadows::Fixed)]
     pub shadows: Shadows,
     /// Start each object's shadow from the photographs (on, off): the darkening around it,
     /// photograph over the shadow-free prior, instead of no shadow.
