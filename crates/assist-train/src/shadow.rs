@@ -95,6 +95,12 @@ pub fn shadow_free_priors(scene: &NeuralScene, views: &mut [View]) -> ShadowPrio
         })
 }
 
+/// The pixels an object covers, dilated by [`PRIOR_DILATION`].
+fn near_objects(ids: &[u16], w: usize, h: usize) -> Vec<bool> {
+    let objects: Vec<bool> = ids.iter().map(|&i| i != 0).collect();
+    prior::dilate(&objects, w, h, PRIOR_DILATION)
+}
+
 fn in_region(node: &SceneNode, extent: f32, p: DVec3) -> bool {
     let l = node.world_from_local.local_from_world_point(p) / node.half_size;
     l.abs().max_element() <= extent as f64
@@ -109,8 +115,7 @@ fn shadow_free_view(regions: &[(&SceneNode, f32)], v: &mut View) -> ShadowPriorS
         return ShadowPriorStats::default();
     }
     let (w, h) = (v.width, v.height);
-    let objects: Vec<bool> = ids.iter().map(|&i| i != 0).collect();
-    let hole = prior::dilate(&objects, w, h, PRIOR_DILATION);
+    let hole = near_objects(ids, w, h);
     let forward = v.camera.pose.forward();
     let boxes: Vec<Aabb> = regions
         .iter()
@@ -207,21 +212,27 @@ pub const HELD_SUPPORT: f64 = 20.0;
 /// shadow stayed on the background and was left behind when the object moved. Starting
 /// the grid at this ratio starts the background at the surface itself.
 pub fn estimate_shadows(scene: &mut NeuralScene, views: &[View]) -> ShadowEstimate {
-    // (node index, node, lattice size, region half-width) of every untrained grid.
-    let grids: Vec<(usize, SceneNode, usize, f32)> = assist_render::casters(scene)
+    // Every untrained grid.
+    let grids: Vec<Lattice> = assist_render::casters(scene)
         .into_iter()
         .filter(|c| c.grid.values.iter().all(|&v| v == 1.0))
-        .map(|c| (c.node, c.scene_node.clone(), c.grid.res, c.grid.extent))
+        .map(|c| {
+            let shape = ShadeGrid {
+                res: c.grid.res,
+                extent: c.grid.extent,
+                values: Vec::new(),
+            };
+            (c.node, c.scene_node.clone(), shape)
+        })
         .collect();
     if grids.is_empty() {
         return ShadowEstimate::default();
     }
-    let shapes: Vec<(usize, f32)> = grids.iter().map(|g| (g.2, g.3)).collect();
     let empty = || -> (Vec<Vec<[f64; 2]>>, usize) {
         (
-            shapes
+            grids
                 .iter()
-                .map(|(r, _)| vec![[0.0; 2]; r * r * r])
+                .map(|g| vec![[0.0; 2]; g.2.res.pow(3)])
                 .collect(),
             0,
         )
@@ -249,7 +260,7 @@ pub fn estimate_shadows(scene: &mut NeuralScene, views: &[View]) -> ShadowEstima
         }
     }
     let mut held = std::collections::BTreeMap::new();
-    for ((k, _, _, _), sum) in grids.iter().zip(&sums) {
+    for ((k, _, _), sum) in grids.iter().zip(&sums) {
         let key = scene.scene.nodes[*k].field.clone();
         held.insert(
             key.clone(),
@@ -269,13 +280,13 @@ pub fn estimate_shadows(scene: &mut NeuralScene, views: &[View]) -> ShadowEstima
     }
 }
 
+/// A grid to estimate: its node's index, the node, and the grid's shape (no values; it
+/// only finds lattice corners).
+type Lattice = (usize, SceneNode, ShadeGrid);
+
 /// Adds one view's ratios into `acc` (per grid: `[Σ w·r, Σ w]` per lattice point; the
 /// number of pixels used).
-fn estimate_view(
-    grids: &[(usize, SceneNode, usize, f32)],
-    v: &View,
-    acc: &mut (Vec<Vec<[f64; 2]>>, usize),
-) {
+fn estimate_view(grids: &[Lattice], v: &View, acc: &mut (Vec<Vec<[f64; 2]>>, usize)) {
     use assist_field::shade::MIN_SHADE;
     let (Some(ids), Some(prior), Some(depth)) = (&v.ids, &v.inpaint, &v.inpaint_depth) else {
         return;
@@ -284,18 +295,8 @@ fn estimate_view(
         return;
     }
     let (w, h) = (v.width, v.height);
-    let objects: Vec<bool> = ids.iter().map(|&i| i != 0).collect();
-    let near = prior::dilate(&objects, w, h, PRIOR_DILATION);
+    let near = near_objects(ids, w, h);
     let forward = v.camera.pose.forward();
-    // A lattice only to find corners: every grid has its own shape.
-    let lattices: Vec<ShadeGrid> = grids
-        .iter()
-        .map(|g| ShadeGrid {
-            res: g.2,
-            extent: g.3,
-            values: Vec::new(),
-        })
-        .collect();
     let mut inside = Vec::with_capacity(grids.len());
     for p in 0..w * h {
         if near[p] || depth[p] <= 0.0 || v.valid.as_ref().is_some_and(|m| !m[p]) {
@@ -312,7 +313,7 @@ fn estimate_view(
         // Every region the point lies in, with the point's distance to that object's box
         // (world units).
         inside.clear();
-        for (g, ((_, node, _, _), lattice)) in grids.iter().zip(&lattices).enumerate() {
+        for (g, (_, node, lattice)) in grids.iter().enumerate() {
             let local = node.world_from_local.local_from_world_point(point);
             let l = local / node.half_size;
             if let Some(c) = lattice.corners(l.as_vec3().to_array()) {
