@@ -402,6 +402,24 @@ impl TrainJob {
                 ),
             ));
         }
+        let o = &c.lambdas;
+        for (name, v) in [
+            ("lambda_bg_rgb", o.bg_rgb),
+            ("lambda_bg_opacity", o.bg_opacity),
+            ("lambda_bg_depth", o.bg_depth),
+            ("lambda_obj_acc", o.obj_acc),
+            ("lambda_obj_rgb", o.obj_rgb),
+            ("lambda_obj_share", o.obj_share),
+            ("lambda_distortion", o.distortion),
+            ("lambda_empty", o.empty),
+        ] {
+            if let Some(v) = v.filter(|v| !(v.is_finite() && *v >= 0.0)) {
+                return Err(request(
+                    name,
+                    format!("expected a finite weight of 0 or more (0 = off), got {v}"),
+                ));
+            }
+        }
         if c.resume && c.boxes.is_some() {
             return Err(request(
                 "boxes",

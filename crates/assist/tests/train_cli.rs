@@ -249,6 +249,17 @@ fn boxes_are_listed_carved_overridden_and_checked() {
             assert!(!out2.exists());
         }
     }
+    // Loss weights are refused when negative or not a number, naming the flag.
+    for flag in ["--lambda-empty", "--lambda-distortion"] {
+        for bad in ["-1", "NaN", "inf"] {
+            let arg = format!("{flag}={bad}");
+            fails_with(
+                &assist(&["train", s(&data), "--out", s(&out2), "--iters", "1", &arg]),
+                &[flag, "finite weight of 0 or more"],
+            );
+            assert!(!out2.exists());
+        }
+    }
 }
 
 #[test]
