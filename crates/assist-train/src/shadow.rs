@@ -259,17 +259,33 @@ pub fn estimate_shadows(scene: &mut NeuralScene, views: &[View]) -> ShadowEstima
             pixels += n;
         }
     }
+    // Every object's box, for the ownership of lattice points.
+    let objects: Vec<SceneNode> = scene
+        .scene
+        .nodes
+        .iter()
+        .filter(|n| !n.is_background())
+        .cloned()
+        .collect();
     let mut held = std::collections::BTreeMap::new();
-    for ((k, _, _), sum) in grids.iter().zip(&sums) {
+    for ((k, node, lattice), sum) in grids.iter().zip(&sums) {
         let key = scene.scene.nodes[*k].field.clone();
+        let foreign = foreign_points(node, lattice, &objects);
         held.insert(
             key.clone(),
-            sum.iter().map(|[_, w]| *w >= HELD_SUPPORT).collect(),
+            sum.iter()
+                .zip(&foreign)
+                .map(|([_, w], &f)| f || *w >= HELD_SUPPORT)
+                .collect(),
         );
         let nf = std::sync::Arc::make_mut(scene.fields.get_mut(&key).expect("field of node"));
         let grid = nf.shade.as_mut().expect("a caster has a grid");
-        for (v, [wr, w]) in grid.values.iter_mut().zip(sum) {
-            *v = ((wr + ESTIMATE_PRIOR) / (w + ESTIMATE_PRIOR)) as f32;
+        for ((v, [wr, w]), &f) in grid.values.iter_mut().zip(sum).zip(&foreign) {
+            *v = if f {
+                1.0
+            } else {
+                ((wr + ESTIMATE_PRIOR) / (w + ESTIMATE_PRIOR)) as f32
+            };
         }
         grid.clamp();
     }
@@ -278,6 +294,38 @@ pub fn estimate_shadows(scene: &mut NeuralScene, views: &[View]) -> ShadowEstima
         pixels,
         held,
     }
+}
+
+/// The distance, in world units, from world point `p` to `node`'s box (0 inside it).
+fn box_distance(node: &SceneNode, p: DVec3) -> f64 {
+    let local = node.world_from_local.local_from_world_point(p);
+    let out = (local.abs() - node.half_size).max(DVec3::ZERO);
+    (out * node.world_from_local.scale).length()
+}
+
+/// Per lattice point of `node`'s grid (shaped like `lattice`): whether another of
+/// `objects` is nearer to it than `node` (by the distance to each box). What lies nearer
+/// another object is that object's to darken — its contact shadow, the table under it —
+/// and is no part of this one's shadow: a point there that no photograph settles would
+/// otherwise learn the neighbour's shadow, and carry it along when this object moves.
+fn foreign_points(node: &SceneNode, lattice: &ShadeGrid, objects: &[SceneNode]) -> Vec<bool> {
+    let (r, e) = (lattice.res, lattice.extent as f64);
+    let step = if r > 1 { 2.0 * e / (r - 1) as f64 } else { 0.0 };
+    (0..r * r * r)
+        .map(|i| {
+            let c = DVec3::new(
+                (i % r) as f64 * step - e,
+                (i / r % r) as f64 * step - e,
+                (i / (r * r)) as f64 * step - e,
+            );
+            let p = node.world_from_local.transform_point(c * node.half_size);
+            let own = box_distance(node, p);
+            objects
+                .iter()
+                .filter(|o| o.id != node.id)
+                .any(|o| box_distance(o, p) < own)
+        })
+        .collect()
 }
 
 /// A grid to estimate: its node's index, the node, and the grid's shape (no values; it
@@ -314,12 +362,9 @@ fn estimate_view(grids: &[Lattice], v: &View, acc: &mut (Vec<Vec<[f64; 2]>>, usi
         // (world units).
         inside.clear();
         for (g, (_, node, lattice)) in grids.iter().enumerate() {
-            let local = node.world_from_local.local_from_world_point(point);
-            let l = local / node.half_size;
+            let l = node.world_from_local.local_from_world_point(point) / node.half_size;
             if let Some(c) = lattice.corners(l.as_vec3().to_array()) {
-                let out = (local.abs() - node.half_size).max(DVec3::ZERO);
-                let dist = (out * node.world_from_local.scale).length();
-                inside.push((g, c, dist));
+                inside.push((g, c, box_distance(node, point)));
             }
         }
         let Some(nearest) = inside
@@ -574,5 +619,46 @@ mod tests {
         let (mine, theirs) = (shade(1, 0.66, 0.05), shade(2, 0.66, 0.05));
         assert!((mine - 0.5).abs() < 0.1, "the cube's factor {mine}");
         assert!(theirs > 0.9, "the other object's factor {theirs}");
+    }
+
+    #[test]
+    fn what_lies_nearer_another_object_is_held_shadow_free() {
+        let (mut scene, view) = setup_sized(320, 240, 0.5);
+        let other = node(2, "other", 0.1, DVec3::new(0.5, 0.3, 0.1));
+        let f = assist_field::Field::constant(1.0, [0.5; 3], false, 1).unwrap();
+        let nf = NodeField::new(f, assist_field::OccupancyGrid::new(8), other.half_size);
+        scene.fields.insert(other.field.clone(), Arc::new(nf));
+        scene.scene.nodes.push(other);
+        let mut views = vec![view];
+        add_shadow_grids(&mut scene);
+        shadow_free_priors(&scene, &mut views);
+        let st = estimate_shadows(&mut scene, &views);
+        let (cube, other) = (&scene.scene.nodes[1], &scene.scene.nodes[2]);
+        let grid = scene.field_of(2).shade.as_ref().unwrap();
+        let held = &st.held["other"];
+        let r = grid.res;
+        let e = grid.extent as f64;
+        let step = 2.0 * e / (r - 1) as f64;
+        let (mut foreign, mut own_free) = (0, 0);
+        for i in 0..r * r * r {
+            let c = DVec3::new(
+                (i % r) as f64 * step - e,
+                (i / r % r) as f64 * step - e,
+                (i / (r * r)) as f64 * step - e,
+            );
+            let p = other.world_from_local.transform_point(c * other.half_size);
+            if box_distance(cube, p) < box_distance(other, p) {
+                // The cube's: held, casting nothing — even under the cube, where no
+                // photograph sees the floor.
+                assert!(held[i], "point {i} at {p} is the cube's");
+                assert_eq!(grid.values[i], 1.0);
+                foreign += 1;
+            } else if !held[i] {
+                own_free += 1;
+            }
+        }
+        assert!(foreign > 1000, "{foreign} points nearer the cube");
+        // Its own unseen points (under itself) still train.
+        assert!(own_free > 1000, "{own_free} free points of its own");
     }
 }
