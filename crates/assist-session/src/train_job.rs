@@ -605,8 +605,9 @@ impl TrainJob {
         let mut eval_error = None;
         let mut trainer = Trainer::new(scene, views, opts)?;
         if c.shadows_fixed {
-            // What the photographs show of each shadow stays as estimated; what they do
-            // not (under the objects) trains with the scene.
+            // What the photographs show of each shadow stays as estimated, and what lies
+            // nearer another object stays shadow-free; the rest (under the object) trains
+            // with the scene.
             trainer.shade_held = held_shadows;
         }
         if let Some(r) = &resume {
