@@ -253,6 +253,10 @@ impl Scene {
     pub fn node(&self, id: InstanceId) -> Option<&SceneNode> {
         self.nodes.iter().find(|n| n.id == id)
     }
+    /// The object nodes (every node but the background), in order.
+    pub fn objects(&self) -> impl Iterator<Item = &SceneNode> {
+        self.nodes.iter().filter(|n| !n.is_background())
+    }
     pub fn node_mut(&mut self, id: InstanceId) -> Option<&mut SceneNode> {
         self.nodes.iter_mut().find(|n| n.id == id)
     }

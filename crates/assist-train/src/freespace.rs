@@ -38,13 +38,7 @@ pub fn carve_scene(scene: &mut NeuralScene, views: &[View]) -> CarveStats {
     }
     let mut stats = Vec::new();
     let mut done = std::collections::BTreeSet::new();
-    let objects: Vec<SceneNode> = scene
-        .scene
-        .nodes
-        .iter()
-        .filter(|n| !n.is_background())
-        .cloned()
-        .collect();
+    let objects: Vec<SceneNode> = scene.scene.objects().cloned().collect();
     for node in &scene.scene.nodes {
         if node.space != NodeSpace::Box || !done.insert(node.field.clone()) {
             continue;

@@ -260,13 +260,7 @@ pub fn estimate_shadows(scene: &mut NeuralScene, views: &[View]) -> ShadowEstima
         }
     }
     // Every object's box, for the ownership of lattice points.
-    let objects: Vec<SceneNode> = scene
-        .scene
-        .nodes
-        .iter()
-        .filter(|n| !n.is_background())
-        .cloned()
-        .collect();
+    let objects: Vec<SceneNode> = scene.scene.objects().cloned().collect();
     let mut held = std::collections::BTreeMap::new();
     for ((k, node, lattice), sum) in grids.iter().zip(&sums) {
         let key = scene.scene.nodes[*k].field.clone();
@@ -588,16 +582,20 @@ mod tests {
         assert!(low > 0.85, "lowest factor {low} with no shadow");
     }
 
-    #[test]
-    fn where_regions_overlap_the_nearest_object_casts_the_shadow() {
-        let (mut scene, view) = setup_sized(640, 480, 0.5);
-        // A second object beside the cube whose region covers the shadow too (nothing of
-        // it is photographed: only its region matters here).
+    /// Adds a second object, "other", of half size 0.1 at (0.5, 0.3, 0.1): beside the
+    /// cube, its region covering the cube's shadow too (nothing of it is photographed).
+    fn add_other(scene: &mut NeuralScene) {
         let other = node(2, "other", 0.1, DVec3::new(0.5, 0.3, 0.1));
         let f = assist_field::Field::constant(1.0, [0.5; 3], false, 1).unwrap();
         let nf = NodeField::new(f, assist_field::OccupancyGrid::new(8), other.half_size);
         scene.fields.insert(other.field.clone(), Arc::new(nf));
         scene.scene.nodes.push(other);
+    }
+
+    #[test]
+    fn where_regions_overlap_the_nearest_object_casts_the_shadow() {
+        let (mut scene, view) = setup_sized(640, 480, 0.5);
+        add_other(&mut scene);
         let mut views = vec![view];
         add_shadow_grids(&mut scene);
         shadow_free_priors(&scene, &mut views);
@@ -624,11 +622,7 @@ mod tests {
     #[test]
     fn what_lies_nearer_another_object_is_held_shadow_free() {
         let (mut scene, view) = setup_sized(320, 240, 0.5);
-        let other = node(2, "other", 0.1, DVec3::new(0.5, 0.3, 0.1));
-        let f = assist_field::Field::constant(1.0, [0.5; 3], false, 1).unwrap();
-        let nf = NodeField::new(f, assist_field::OccupancyGrid::new(8), other.half_size);
-        scene.fields.insert(other.field.clone(), Arc::new(nf));
-        scene.scene.nodes.push(other);
+        add_other(&mut scene);
         let mut views = vec![view];
         add_shadow_grids(&mut scene);
         shadow_free_priors(&scene, &mut views);
