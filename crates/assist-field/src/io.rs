@@ -49,7 +49,7 @@ pub fn to_bytes(field: &Field, occupancy: Option<&OccupancyGrid>) -> Result<Vec<
 }
 
 /// Serialises to bytes, with the object's shadow grid when it has one (tensor `shade`,
-/// `[r, r, r]`, its extent in the metadata).
+/// `[r, r, r, 3]`, its extent in the metadata).
 pub fn to_bytes_with_shade(
     field: &Field,
     occupancy: Option<&OccupancyGrid>,
@@ -80,7 +80,7 @@ pub fn to_bytes_with_shade(
     if let Some(g) = shade {
         let bytes: Vec<u8> = g.values.iter().flat_map(|v| v.to_le_bytes()).collect();
         let r = g.res;
-        bufs.push(("shade".into(), vec![r, r, r], bytes, Dtype::F32));
+        bufs.push(("shade".into(), vec![r, r, r, 3], bytes, Dtype::F32));
     }
     let views: Vec<(String, TensorView)> = bufs
         .iter()
@@ -322,12 +322,17 @@ pub fn from_bytes_with_shade(path: &Path, bytes: &[u8]) -> Result<Loaded, FieldE
     };
     let shade = match st.tensor("shade") {
         Ok(t) => {
+            // `[r, r, r, 3]`: a factor per colour channel; `[r, r, r]`: one factor for all
+            // three (files written before the factors had colour).
             let s = t.shape();
-            if t.dtype() != Dtype::F32 || s.len() != 3 || s[0] != s[1] || s[1] != s[2] {
+            let cube = s.len() >= 3 && s[0] == s[1] && s[1] == s[2];
+            let grey = s.len() == 3;
+            if t.dtype() != Dtype::F32 || !cube || !(grey || (s.len() == 4 && s[3] == 3)) {
                 return Err(fmt_err(
                     path,
                     format!(
-                        "tensor \"shade\": expected F32 of shape [r, r, r], got {:?} {s:?}",
+                        "tensor \"shade\": expected F32 of shape [r, r, r, 3] (or [r, r, r]), \
+                         got {:?} {s:?}",
                         t.dtype()
                     ),
                 ));
@@ -338,14 +343,19 @@ pub fn from_bytes_with_shade(path: &Path, bytes: &[u8]) -> Result<Loaded, FieldE
                 .and_then(|v| v["extent"].as_f64())
                 .ok_or_else(|| fmt_err(path, "metadata.shade.extent: missing"))?
                 as f32;
-            let g = ShadeGrid {
-                res: s[0],
-                extent,
-                values: t
-                    .data()
-                    .chunks_exact(4)
-                    .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                    .collect(),
+            let values: Vec<f32> = t
+                .data()
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect();
+            let g = if grey {
+                ShadeGrid::from_grey(s[0], extent, &values)
+            } else {
+                ShadeGrid {
+                    res: s[0],
+                    extent,
+                    values,
+                }
             };
             g.validate()
                 .map_err(|e| fmt_err(path, format!("tensor \"shade\": {e}")))?;

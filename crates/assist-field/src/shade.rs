@@ -1,12 +1,14 @@
 //! An object's shadow on the background: a coarse grid of light-attenuation factors in
-//! `[0, 1]` over a region around the object's box, in the object's own frame. The
-//! background's colour at a point is multiplied by the factor there (1 outside the region),
-//! so the darkening an object casts on the table moves, turns and disappears with the
+//! `[0, 1]`, one per colour channel, over a region around the object's box, in the
+//! object's own frame. The background's colour at a point is multiplied channel by channel
+//! by the factors there (1 outside the region), so the darkening an object casts on the
+//! table — and the tint of the light it reflects there (a red mug leaves the table beside
+//! it less dark in red than in green and blue) — moves, turns and disappears with the
 //! object, and the background itself learns the surface without it.
 //!
 //! Coordinates are box units: the object's box is `[−1, 1]³` (its local position divided by
-//! its half size) and the grid spans `[−extent, extent]³`. Values sit on the `res³` lattice
-//! points spanning that cube and are interpolated trilinearly.
+//! its half size) and the grid spans `[−extent, extent]³`. Factors sit on the `res³`
+//! lattice points spanning that cube and are interpolated trilinearly.
 
 /// Smallest factor a grid may hold (the optimiser clamps to it): an object never hides the
 /// light entirely, and a factor of zero would stop the background's colour learning there.
@@ -18,7 +20,7 @@ pub struct ShadeGrid {
     pub res: usize,
     /// Half-width of the region in box units (1 = the box itself).
     pub extent: f32,
-    /// `res³` factors, x fastest.
+    /// `res³` lattice points, x fastest, each `[r, g, b]`: `3 · res³` factors.
     pub values: Vec<f32>,
 }
 
@@ -36,8 +38,23 @@ impl ShadeGrid {
         ShadeGrid {
             res,
             extent,
-            values: vec![1.0; res * res * res],
+            values: vec![1.0; 3 * res * res * res],
         }
+    }
+
+    /// A grid whose every lattice point has the same factor in all three channels
+    /// (`grey`, `res³` values: the layout of files written before the factors had colour).
+    pub fn from_grey(res: usize, extent: f32, grey: &[f32]) -> Self {
+        ShadeGrid {
+            res,
+            extent,
+            values: grey.iter().flat_map(|&v| [v; 3]).collect(),
+        }
+    }
+
+    /// Lattice points (`res³`).
+    pub fn points(&self) -> usize {
+        self.res.pow(3)
     }
 
     /// The lattice points around `c` (box units) and their weights; `None` outside the
@@ -72,28 +89,36 @@ impl ShadeGrid {
         Some(out)
     }
 
-    /// The factor at `c` (box units): 1 outside the region.
+    /// The factors at `c` (box units): 1 outside the region.
     #[inline]
-    pub fn value(&self, c: [f32; 3]) -> f32 {
+    pub fn value(&self, c: [f32; 3]) -> [f32; 3] {
         match self.corners(c) {
             Some(k) => self.at(&k),
-            None => 1.0,
+            None => [1.0; 3],
         }
     }
 
-    /// The interpolated factor at `k`.
+    /// The interpolated factors at `k`.
     #[inline]
-    pub fn at(&self, k: &Corners) -> f32 {
-        (0..8)
-            .map(|i| k.weight[i] * self.values[k.index[i] as usize])
-            .sum()
+    pub fn at(&self, k: &Corners) -> [f32; 3] {
+        let mut out = [0.0f32; 3];
+        for i in 0..8 {
+            let v = &self.values[3 * k.index[i] as usize..3 * k.index[i] as usize + 3];
+            for ch in 0..3 {
+                out[ch] += k.weight[i] * v[ch];
+            }
+        }
+        out
     }
 
-    /// Adds `g · ∂value/∂values` at `k` into `grad` (sized like `values`).
+    /// Adds `Σ_ch g[ch] · ∂value[ch]/∂values` at `k` into `grad` (sized like `values`).
     #[inline]
-    pub fn splat(k: &Corners, g: f32, grad: &mut [f32]) {
+    pub fn splat(k: &Corners, g: [f32; 3], grad: &mut [f32]) {
         for i in 0..8 {
-            grad[k.index[i] as usize] += g * k.weight[i];
+            let at = 3 * k.index[i] as usize;
+            for ch in 0..3 {
+                grad[at + ch] += g[ch] * k.weight[i];
+            }
         }
     }
 
@@ -106,9 +131,9 @@ impl ShadeGrid {
 
     /// Checks a grid read from a file: the shape and every value in `[0, 1]`.
     pub fn validate(&self) -> Result<(), String> {
-        if self.res < 2 || self.values.len() != self.res.pow(3) {
+        if self.res < 2 || self.values.len() != 3 * self.res.pow(3) {
             return Err(format!(
-                "expected res³ values with res ≥ 2, got {} values for res {}",
+                "expected 3·res³ values with res ≥ 2, got {} values for res {}",
                 self.values.len(),
                 self.res
             ));
@@ -140,16 +165,22 @@ mod tests {
     #[test]
     fn interpolates_the_lattice_and_is_one_outside() {
         let mut g = ShadeGrid::new(3, 2.0);
-        // Lattice points at −2, 0, 2 per axis; the centre point is index 13.
-        g.values[13] = 0.2;
-        assert!((g.value([0.0, 0.0, 0.0]) - 0.2).abs() < 1e-6);
-        // Halfway from the centre to a face: halfway between 0.2 and 1.
-        assert!((g.value([1.0, 0.0, 0.0]) - 0.6).abs() < 1e-6);
-        assert!((g.value([1.0, 1.0, 0.0]) - 0.8).abs() < 1e-6);
-        assert_eq!(g.value([2.5, 0.0, 0.0]), 1.0);
-        assert_eq!(g.value([0.0, -2.01, 0.0]), 1.0);
+        // Lattice points at −2, 0, 2 per axis; the centre point is index 13: its green
+        // factor is 0.2, its red and blue ones 1 and 0.6.
+        g.values[3 * 13..3 * 13 + 3].copy_from_slice(&[1.0, 0.2, 0.6]);
+        let near = |a: [f32; 3], b: [f32; 3]| (0..3).all(|c| (a[c] - b[c]).abs() < 1e-6);
+        assert!(near(g.value([0.0, 0.0, 0.0]), [1.0, 0.2, 0.6]));
+        // Halfway from the centre to a face: halfway between it and 1.
+        assert!(near(g.value([1.0, 0.0, 0.0]), [1.0, 0.6, 0.8]));
+        assert!(near(g.value([1.0, 1.0, 0.0]), [1.0, 0.8, 0.9]));
+        assert_eq!(g.value([2.5, 0.0, 0.0]), [1.0; 3]);
+        assert_eq!(g.value([0.0, -2.01, 0.0]), [1.0; 3]);
         // The region's faces are inside it.
-        assert!((g.value([2.0, 2.0, 2.0]) - 1.0).abs() < 1e-6);
+        assert!(near(g.value([2.0, 2.0, 2.0]), [1.0; 3]));
+        // A grey grid (an older file's) has one factor in every channel.
+        let grey = ShadeGrid::from_grey(2, 2.0, &[0.5; 8]);
+        assert_eq!(grey.values.len(), 24);
+        assert!(near(grey.value([0.3, -1.0, 1.5]), [0.5; 3]));
     }
 
     #[test]
@@ -162,14 +193,20 @@ mod tests {
         for _ in 0..50 {
             let c = [0, 1, 2].map(|_| (rng.f32() * 2.0 - 1.0) * 2.9);
             let k = g.corners(c).expect("inside");
+            // The gradient of a weighted sum of the three channels.
+            let wt = [0.3 + rng.f32(), -0.5 * rng.f32(), 2.0 * rng.f32()];
+            let f = |g: &ShadeGrid| {
+                let v = g.value(c);
+                wt[0] * v[0] + wt[1] * v[1] + wt[2] * v[2]
+            };
             let mut grad = vec![0.0; g.values.len()];
-            ShadeGrid::splat(&k, 1.0, &mut grad);
+            ShadeGrid::splat(&k, wt, &mut grad);
             for (i, &an) in grad.iter().enumerate() {
                 let eps = 1e-2;
                 let (mut p, mut m) = (g.clone(), g.clone());
                 p.values[i] += eps;
                 m.values[i] -= eps;
-                let num = (p.value(c) - m.value(c)) / (2.0 * eps);
+                let num = (f(&p) - f(&m)) / (2.0 * eps);
                 assert!((num - an).abs() < 1e-4, "value {i}: {an} vs {num}");
             }
         }

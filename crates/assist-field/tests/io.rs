@@ -74,6 +74,25 @@ fn shadow_grid_round_trips_and_bad_values_are_named() {
             .is_none()
     );
     assert!(from_bytes(Path::new("x"), &bytes).is_ok());
+    // A file written before the factors had colour (one per lattice point, `[r, r, r]`)
+    // loads with that factor in every channel.
+    let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+    let (_, md) = safetensors::SafeTensors::read_metadata(&bytes).unwrap();
+    let grey: Vec<f32> = (0..64).map(|i| 0.2 + 0.01 * i as f32).collect();
+    let grey_bytes: Vec<u8> = grey.iter().flat_map(|v| v.to_le_bytes()).collect();
+    let mut views: Vec<(String, safetensors::tensor::TensorView)> = st
+        .tensors()
+        .into_iter()
+        .filter(|(n, _)| n != "shade")
+        .collect();
+    views.push((
+        "shade".into(),
+        safetensors::tensor::TensorView::new(safetensors::Dtype::F32, vec![4, 4, 4], &grey_bytes)
+            .unwrap(),
+    ));
+    let old = safetensors::serialize(views, md.metadata().clone()).unwrap();
+    let (_, _, back) = from_bytes_with_shade(Path::new("x"), &old).unwrap();
+    assert_eq!(back, Some(ShadeGrid::from_grey(4, 2.5, &grey)));
     // A factor above 1 is refused with the tensor and the element named.
     g.values[5] = 1.7;
     let bad = to_bytes_with_shade(&field, None, Some(&g)).unwrap();

@@ -110,18 +110,22 @@ struct NodeView<'a> {
     dt: &'a [f32],
     d_sigma: &'a mut [f32],
     d_rgb: &'a mut [f32],
-    /// Per sample, the factor on its colour in the composite (empty: 1).
+    /// Per sample, the factors on its colour's channels in the composite (empty: 1).
     shade: &'a [f32],
     d_shade: &'a mut [f32],
 }
 
 impl NodeView<'_> {
     #[inline(always)]
-    fn shade(&self, j: usize) -> f32 {
+    fn shade(&self, j: usize) -> [f32; 3] {
         if self.shade.is_empty() {
-            1.0
+            [1.0; 3]
         } else {
-            self.shade[j]
+            [
+                self.shade[3 * j],
+                self.shade[3 * j + 1],
+                self.shade[3 * j + 2],
+            ]
         }
     }
 }
@@ -199,8 +203,11 @@ pub fn composite_batch(
             let (c, rest) =
                 std::mem::take(&mut dc).split_at_mut(if with_grad { 3 * len } else { 0 });
             dc = rest;
-            let (e, rest) =
-                std::mem::take(&mut dsh).split_at_mut(if with_grad && shaded { len } else { 0 });
+            let (e, rest) = std::mem::take(&mut dsh).split_at_mut(if with_grad && shaded {
+                3 * len
+            } else {
+                0
+            });
             dsh = rest;
             views.push(NodeView {
                 start: &start[r0..=r1],
@@ -210,7 +217,7 @@ pub fn composite_batch(
                 dt: &dt[s0..s1],
                 d_sigma: a,
                 d_rgb: c,
-                shade: if shaded { &shade[s0..s1] } else { &[] },
+                shade: if shaded { &shade[3 * s0..3 * s1] } else { &[] },
                 d_shade: e,
             });
         }
@@ -329,9 +336,9 @@ fn composite_ray(
         }
         sc.w[q] = w;
         sc.t_next[q] = log_t.exp();
-        let ws = w * v.shade(j);
+        let sh = v.shade(j);
         for c in 0..3 {
-            acc.rgb[c] += ws * v.rgb[3 * j + c];
+            acc.rgb[c] += w * sh[c] * v.rgb[3 * j + c];
         }
         acc.depth += w * t;
         acc.depth_sq += w * t * t;
@@ -345,7 +352,7 @@ fn composite_ray(
         (Behind::LastSample, Some((k, j))) => {
             let c = &views[k].rgb[3 * j..3 * j + 3];
             let sh = views[k].shade(j);
-            [c[0] * sh, c[1] * sh, c[2] * sh]
+            [c[0] * sh[0], c[1] * sh[1], c[2] * sh[2]]
         }
         (Behind::LastSample, None) => [0.0; 3],
     };
@@ -410,11 +417,12 @@ fn composite_ray(
         let v = &mut views[k];
         let sh = v.shade(j);
         for ch in 0..3 {
-            v.d_rgb[3 * j + ch] += rest * sh * g.rgb[ch];
+            v.d_rgb[3 * j + ch] += rest * sh[ch] * g.rgb[ch];
         }
         if !v.d_shade.is_empty() {
-            let c = &v.rgb[3 * j..3 * j + 3];
-            v.d_shade[j] += rest * (g.rgb[0] * c[0] + g.rgb[1] * c[1] + g.rgb[2] * c[2]);
+            for ch in 0..3 {
+                v.d_shade[3 * j + ch] += rest * g.rgb[ch] * v.rgb[3 * j + ch];
+            }
         }
     }
     // d dist / d w_i = 2 Σ_j w_j |t_i − t_j| = 2 (t_i W_{<i} − S_{<i} + S_{>i} − t_i W_{>i}),
@@ -436,9 +444,12 @@ fn composite_ray(
         };
         let sh = v.shade(j);
         let c = &v.rgb[3 * j..3 * j + 3];
-        let gc = g.rgb[0] * c[0] + g.rgb[1] * c[1] + g.rgb[2] * c[2];
+        // The gradient on the shaded colour, per channel, and its sum.
+        let gcs = [g.rgb[0] * c[0], g.rgb[1] * c[1], g.rgb[2] * c[2]];
         let gi = g_dist
-            + sh * gc
+            + sh[0] * gcs[0]
+            + sh[1] * gcs[1]
+            + sh[2] * gcs[2]
             + g.depth * t
             + g.depth_sq * t * t
             + g_bg
@@ -451,10 +462,12 @@ fn composite_ray(
         v.d_sigma[j] += v.dt[j] * (sc.t_next[q] * gi - suffix);
         suffix += sc.w[q] * gi;
         for ch in 0..3 {
-            v.d_rgb[3 * j + ch] += sc.w[q] * sh * g.rgb[ch];
+            v.d_rgb[3 * j + ch] += sc.w[q] * sh[ch] * g.rgb[ch];
         }
         if !v.d_shade.is_empty() {
-            v.d_shade[j] += sc.w[q] * gc;
+            for ch in 0..3 {
+                v.d_shade[3 * j + ch] += sc.w[q] * gcs[ch];
+            }
         }
     }
     // Backward through each node alone (no background colour).

@@ -165,9 +165,9 @@ pub fn render_camera_moving(
             let bg_ns = bg.map(|bi| &b.traced.nodes[bi]);
             let shade_changed = |r: usize| {
                 bg_ns.is_some_and(|ns| {
-                    ns.range(r).any(|j| {
-                        old_shade.get(j).copied().unwrap_or(1.0)
-                            != ns.shade.get(j).copied().unwrap_or(1.0)
+                    ns.range(r).flat_map(|j| 3 * j..3 * j + 3).any(|i| {
+                        old_shade.get(i).copied().unwrap_or(1.0)
+                            != ns.shade.get(i).copied().unwrap_or(1.0)
                     })
                 })
             };

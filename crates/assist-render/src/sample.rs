@@ -82,9 +82,9 @@ pub struct NodeSamples {
     /// Gradients with respect to σ and RGB (filled by `composite_batch`).
     pub d_sigma: Vec<f32>,
     pub d_rgb: Vec<f32>,
-    /// The background's samples: the light left by objects' shadows, a factor per sample
-    /// multiplying its colour in the composited image (not in the node alone). Empty: 1
-    /// everywhere. Filled by [`crate::shade_background`].
+    /// The background's samples: the light left by objects' shadows, three factors per
+    /// sample (`[r, g, b]`, like `rgb`) multiplying its colour in the composited image (not
+    /// in the node alone). Empty: 1 everywhere. Filled by [`crate::shade_background`].
     pub shade: Vec<f32>,
     /// Gradient with respect to `shade` (filled by `composite_batch` when `shade` is).
     pub d_shade: Vec<f32>,
@@ -153,7 +153,8 @@ impl NodeSamples {
                 out.rgb.extend_from_slice(&self.rgb[3 * g.start..3 * g.end]);
             }
             if shaded {
-                out.shade.extend_from_slice(&self.shade[g.clone()]);
+                out.shade
+                    .extend_from_slice(&self.shade[3 * g.start..3 * g.end]);
             }
         }
         out.start.push(out.t.len() as u32);

@@ -1,5 +1,5 @@
 //! Objects' shadows on the background: each background sample's colour, in the composited
-//! image, is multiplied by the shadow grids ([`assist_field::ShadeGrid`]) of the objects
+//! image, is multiplied channel by channel by the shadow grids ([`assist_field::ShadeGrid`]) of the objects
 //! whose region it lies in, evaluated in each object's own frame. Moving, turning, scaling
 //! or deleting an object moves, turns, scales or removes its shadow; the background alone
 //! (a node layer, or the scene without its objects) has none.
@@ -88,17 +88,24 @@ fn per_background_sample<T: Send>(
     )
 }
 
-/// Fills the background node's [`NodeSamples::shade`](crate::NodeSamples::shade) from the
-/// objects' shadow grids (left empty — no shadow — when no object has one). Call after
-/// sampling, before compositing.
+/// Fills the background node's [`NodeSamples::shade`](crate::NodeSamples::shade) (three
+/// factors per sample) from the objects' shadow grids (left empty — no shadow — when no
+/// object has one). Call after sampling, before compositing.
 pub fn shade_background(scene: &NeuralScene, rays: &RayBatch, traced: &mut Traced) {
     let shade = per_background_sample(scene, rays, traced, |cs, p| {
-        cs.iter()
-            .map(|c| c.corners(p).map_or(1.0, |k| c.grid.at(&k)))
-            .product::<f32>()
+        let mut f = [1.0f32; 3];
+        for c in cs {
+            if let Some(k) = c.corners(p) {
+                let v = c.grid.at(&k);
+                for ch in 0..3 {
+                    f[ch] *= v[ch];
+                }
+            }
+        }
+        f
     });
     if let Some(ns) = background(scene).and_then(|b| traced.nodes.get_mut(b)) {
-        ns.shade = shade.unwrap_or_default();
+        ns.shade = shade.map_or_else(Vec::new, |s| s.into_iter().flatten().collect());
     }
 }
 
@@ -114,19 +121,19 @@ pub fn shade_backward(
     let Some(ns) = background(scene).and_then(|b| traced.nodes.get(b)) else {
         return Vec::new();
     };
-    if cs.is_empty() || ns.d_shade.len() != ns.len() {
+    if cs.is_empty() || ns.d_shade.len() != 3 * ns.len() {
         return Vec::new();
     }
     // Each sample's contributions, gathered in sample order and summed in that order: the
     // same seed trains the same bits however the threads split the rays.
-    let contributions: Vec<(u32, u32, f32)> = (0..traced.rays)
+    let contributions: Vec<(u32, u32, [f32; 3])> = (0..traced.rays)
         .into_par_iter()
         .flat_map_iter(|r| {
-            let mut out: Vec<(u32, u32, f32)> = Vec::new();
-            let mut hit: Vec<(usize, Corners, f32)> = Vec::with_capacity(cs.len());
+            let mut out: Vec<(u32, u32, [f32; 3])> = Vec::new();
+            let mut hit: Vec<(usize, Corners, [f32; 3])> = Vec::with_capacity(cs.len());
             for j in ns.range(r) {
-                let g = ns.d_shade[j];
-                if g == 0.0 {
+                let g: [f32; 3] = ns.d_shade[3 * j..3 * j + 3].try_into().expect("3");
+                if g == [0.0; 3] {
                     continue;
                 }
                 let p = position(rays, r, ns.t[j]);
@@ -136,16 +143,19 @@ pub fn shade_backward(
                         hit.push((i, k, c.grid.at(&k)));
                     }
                 }
-                // d(Π s_i)/d s_i = Π_{other} s_j.
+                // d(Π s_i)/d s_i = Π_{other} s_j, channel by channel.
                 for (a, &(i, ref k, _)) in hit.iter().enumerate() {
-                    let others: f32 = hit
-                        .iter()
-                        .enumerate()
-                        .filter(|(b, _)| *b != a)
-                        .map(|(_, h)| h.2)
-                        .product();
+                    let mut gi = g;
+                    for (b, h) in hit.iter().enumerate() {
+                        if b != a {
+                            for ch in 0..3 {
+                                gi[ch] *= h.2[ch];
+                            }
+                        }
+                    }
                     for q in 0..8 {
-                        out.push((i as u32, k.index[q], g * others * k.weight[q]));
+                        let w = k.weight[q];
+                        out.push((i as u32, k.index[q], gi.map(|v| v * w)));
                     }
                 }
             }
@@ -157,7 +167,10 @@ pub fn shade_backward(
         .map(|c| vec![0.0f32; c.grid.values.len()])
         .collect();
     for (i, idx, v) in contributions {
-        grads[i as usize][idx as usize] += v;
+        let at = 3 * idx as usize;
+        for ch in 0..3 {
+            grads[i as usize][at + ch] += v[ch];
+        }
     }
     cs.iter().map(|c| c.node).zip(grads).collect()
 }

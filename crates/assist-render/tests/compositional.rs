@@ -372,7 +372,7 @@ fn batch_backward_matches_finite_differences() {
     };
     // Node 0's samples are shaded in the composite (as objects' shadows shade the
     // background's): the shade's gradient is checked with the others.
-    traced.nodes[0].shade = (0..traced.nodes[0].len())
+    traced.nodes[0].shade = (0..3 * traced.nodes[0].len())
         .map(|_| 0.3 + 0.7 * rng.f32())
         .collect();
     // Over a background colour, and showing the last sample past the transmittance.
@@ -386,17 +386,18 @@ fn batch_backward_matches_finite_differences() {
         let h = 1e-3f32;
         for k in 0..2 {
             for i in 0..traced.nodes[k].len() {
-                for which in 0..if k == 0 { 5 } else { 4 } {
+                // σ, the colour's channels, and (node 0) the shade's channels.
+                for which in 0..if k == 0 { 7 } else { 4 } {
                     let analytic = match which {
                         0 => traced.nodes[k].d_sigma[i],
-                        4 => traced.nodes[k].d_shade[i],
+                        4..=6 => traced.nodes[k].d_shade[3 * i + which - 4],
                         _ => traced.nodes[k].d_rgb[3 * i + which - 1],
                     };
                     let eval = |delta: f32| {
                         let mut t = traced.clone();
                         match which {
                             0 => t.nodes[k].sigma[i] += delta,
-                            4 => t.nodes[k].shade[i] += delta,
+                            4..=6 => t.nodes[k].shade[3 * i + which - 4] += delta,
                             _ => t.nodes[k].rgb[3 * i + which - 1] += delta,
                         }
                         let mut o = BatchOutput::default();

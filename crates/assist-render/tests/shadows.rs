@@ -50,6 +50,13 @@ fn shaded() -> NeuralScene {
 /// Red channel of the composite and of the background alone at the floor point (x, y),
 /// seen from 20 units above it.
 fn floor_at(s: &NeuralScene, x: f64, y: f64) -> (f32, f32) {
+    let (c, layer) = floor_rgb(s, x, y);
+    (c[0], layer[0])
+}
+
+/// The composite's and the background alone's colour at the floor point (x, y), seen
+/// from 20 units above it.
+fn floor_rgb(s: &NeuralScene, x: f64, y: f64) -> ([f32; 3], [f32; 3]) {
     let mut sc = RenderScratch::default();
     let target = DVec3::new(x, y, -0.2);
     let origin = DVec3::new(0.0, 0.0, 20.0);
@@ -59,7 +66,7 @@ fn floor_at(s: &NeuralScene, x: f64, y: f64) -> (f32, f32) {
     };
     sc.rays.push(&ray, u32::MAX);
     render_rays(s, &RenderOptions::default(), &mut sc);
-    (sc.out.rays[0].rgb[0], sc.out.nodes[0].rgb[0])
+    (sc.out.rays[0].rgb, sc.out.nodes[0].rgb)
 }
 
 #[test]
@@ -91,6 +98,19 @@ fn a_shadow_darkens_the_composite_follows_its_object_and_goes_with_it() {
     gone.scene.nodes.truncate(1);
     let (c, _) = floor_at(&gone, -0.1, 0.0);
     assert!((c - GREY[0]).abs() < 0.02, "shadow of a deleted cube {c}");
+    // A tinted shadow (the red cube's light on the floor): each channel has its own factor.
+    let mut tinted = s.clone();
+    {
+        let nf = Arc::make_mut(tinted.fields.get_mut("red").unwrap());
+        for p in nf.shade.as_mut().unwrap().values.chunks_exact_mut(3) {
+            p.copy_from_slice(&[0.8, 0.4, 0.3]);
+        }
+    }
+    let (c, layer) = floor_rgb(&tinted, -0.1, 0.0);
+    for (ch, f) in [0.8, 0.4, 0.3].into_iter().enumerate() {
+        assert!((c[ch] - f * GREY[ch]).abs() < 0.02, "channel {ch}: {c:?}");
+        assert!((layer[ch] - GREY[ch]).abs() < 0.02, "layer {layer:?}");
+    }
 }
 
 #[test]
@@ -140,7 +160,8 @@ fn the_shadow_gradient_matches_central_differences() {
     shade_background(&s, &rays, &mut traced);
     let n = traced.nodes[0].len();
     assert!(n > 0);
-    let coef: Vec<f32> = (0..n).map(|_| rng.f32() - 0.5).collect();
+    // A weight per sample and colour channel.
+    let coef: Vec<f32> = (0..3 * n).map(|_| rng.f32() - 0.5).collect();
     traced.nodes[0].d_shade = coef.clone();
     let grads = shade_backward(&s, &rays, &traced);
     assert_eq!(grads.len(), 2);

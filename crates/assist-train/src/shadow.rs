@@ -197,6 +197,10 @@ fn shadow_free_view(regions: &[(&SceneNode, f32)], v: &mut View) -> ShadowPriorS
 /// [`estimate_shadows`]: a point seen by few pixels stays near 1.
 const ESTIMATE_PRIOR: f64 = 1.0;
 
+/// Added to both sides of each channel's ratio in [`estimate_shadows`] (colour in
+/// `[0, 1]`): a channel with almost no light in it gives a factor near 1, not noise.
+const RATIO_FLOOR: f32 = 0.02;
+
 /// What [`estimate_shadows`] did.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ShadowEstimate {
@@ -217,7 +221,7 @@ pub const HELD_SUPPORT: f64 = 20.0;
 /// Gives every shadow grid of `scene` that casts no shadow yet (every factor 1: new, not
 /// trained) a first estimate from the photographs: at each background point a training
 /// view sees inside an object's region (the point from the prior's depth; pixels near
-/// objects left out), the photograph's brightness over the shadow-free prior's there
+/// objects left out), the photograph over the shadow-free prior there, channel by channel
 /// (see [`shadow_free_priors`], which must run first), clamped to `[MIN_SHADE, 1]` and
 /// averaged onto the lattice with its trilinear weights over all views. Where regions
 /// overlap, the object nearest the point (the distance to its box) casts the darkening,
@@ -247,11 +251,12 @@ pub fn estimate_shadows(scene: &mut NeuralScene, views: &[View]) -> ShadowEstima
     if grids.is_empty() {
         return ShadowEstimate::default();
     }
-    let empty = || -> (Vec<Vec<[f64; 2]>>, usize) {
+    // Per grid, per lattice point: `[Σ w·r_red, Σ w·r_green, Σ w·r_blue, Σ w]`.
+    let empty = || -> (Vec<Vec<[f64; 4]>>, usize) {
         (
             grids
                 .iter()
-                .map(|g| vec![[0.0; 2]; g.2.res.pow(3)])
+                .map(|g| vec![[0.0; 4]; g.2.res.pow(3)])
                 .collect(),
             0,
         )
@@ -260,7 +265,7 @@ pub fn estimate_shadows(scene: &mut NeuralScene, views: &[View]) -> ShadowEstima
     // the threads do.
     let (mut sums, mut pixels) = empty();
     for chunk in views.chunks(rayon::current_num_threads().max(1) * 2) {
-        let parts: Vec<(Vec<Vec<[f64; 2]>>, usize)> = chunk
+        let parts: Vec<(Vec<Vec<[f64; 4]>>, usize)> = chunk
             .par_iter()
             .map(|v| {
                 let mut acc = empty();
@@ -271,8 +276,9 @@ pub fn estimate_shadows(scene: &mut NeuralScene, views: &[View]) -> ShadowEstima
         for (part, n) in parts {
             for (x, y) in sums.iter_mut().zip(&part) {
                 for (p, q) in x.iter_mut().zip(y) {
-                    p[0] += q[0];
-                    p[1] += q[1];
+                    for c in 0..4 {
+                        p[c] += q[c];
+                    }
                 }
             }
             pixels += n;
@@ -288,17 +294,19 @@ pub fn estimate_shadows(scene: &mut NeuralScene, views: &[View]) -> ShadowEstima
             key.clone(),
             sum.iter()
                 .zip(&foreign)
-                .map(|([_, w], &f)| f || *w >= HELD_SUPPORT)
+                .map(|(s, &f)| f || s[3] >= HELD_SUPPORT)
                 .collect(),
         );
         let nf = std::sync::Arc::make_mut(scene.fields.get_mut(&key).expect("field of node"));
         let grid = nf.shade.as_mut().expect("a caster has a grid");
-        for ((v, [wr, w]), &f) in grid.values.iter_mut().zip(sum).zip(&foreign) {
-            *v = if f {
-                1.0
-            } else {
-                ((wr + ESTIMATE_PRIOR) / (w + ESTIMATE_PRIOR)) as f32
-            };
+        for ((v, s), &f) in grid.values.chunks_exact_mut(3).zip(sum).zip(&foreign) {
+            for c in 0..3 {
+                v[c] = if f {
+                    1.0
+                } else {
+                    ((s[c] + ESTIMATE_PRIOR) / (s[3] + ESTIMATE_PRIOR)) as f32
+                };
+            }
         }
         grid.clamp();
     }
@@ -347,7 +355,7 @@ type Lattice = (usize, SceneNode, ShadeGrid);
 
 /// Adds one view's ratios into `acc` (per grid: `[Σ w·r, Σ w]` per lattice point; the
 /// number of pixels used).
-fn estimate_view(grids: &[Lattice], v: &View, acc: &mut (Vec<Vec<[f64; 2]>>, usize)) {
+fn estimate_view(grids: &[Lattice], v: &View, acc: &mut (Vec<Vec<[f64; 4]>>, usize)) {
     use assist_field::shade::MIN_SHADE;
     let (Some(ids), Some(prior), Some(depth)) = (&v.ids, &v.inpaint, &v.inpaint_depth) else {
         return;
@@ -387,20 +395,26 @@ fn estimate_view(grids: &[Lattice], v: &View, acc: &mut (Vec<Vec<[f64; 2]>>, usi
         else {
             continue;
         };
-        let seen: f32 = v.rgb[3 * p..3 * p + 3].iter().sum();
-        let free: f32 = prior[3 * p..3 * p + 3].iter().sum();
-        if free < 1e-3 {
+        // Per channel: the light reflected by the object tints what it darkens.
+        // (A dark channel's ratio is softened by RATIO_FLOOR rather than left to noise.)
+        let (seen, free) = (&v.rgb[3 * p..3 * p + 3], &prior[3 * p..3 * p + 3]);
+        if free.iter().sum::<f32>() < 1e-3 {
             continue;
         }
-        let ratio = (seen / free).clamp(MIN_SHADE, 1.0) as f64;
+        let ratio: [f64; 3] = std::array::from_fn(|c| {
+            ((seen[c] + RATIO_FLOOR) / (free[c] + RATIO_FLOOR)).clamp(MIN_SHADE, 1.0) as f64
+        });
         for (g, c, _) in &inside {
             // The nearest object casts it; the others are told they do not.
-            let r = if *g == nearest { ratio } else { 1.0 };
+            let r = if *g == nearest { ratio } else { [1.0; 3] };
             let sum = &mut acc.0[*g];
             for i in 0..8 {
                 let wt = c.weight[i] as f64;
-                sum[c.index[i] as usize][0] += wt * r;
-                sum[c.index[i] as usize][1] += wt;
+                let s = &mut sum[c.index[i] as usize];
+                for ch in 0..3 {
+                    s[ch] += wt * r[ch];
+                }
+                s[3] += wt;
             }
         }
         acc.1 += 1;
@@ -431,7 +445,9 @@ mod tests {
     /// A floor (z = 0) seen from above in `w × h` pixels, bright on the left half (x < 0)
     /// and dark on the right, with a cube of half size 0.1 at (0.5, 0, 0.1) covering the
     /// pixels around it, and the floor at `0.61 < x < 0.69, |y| < 0.1` (beside
-    /// the cube, within its prior's fill region) darkened by `shadow`.
+    /// the cube, within its prior's fill region) darkened by `shadow` in red and by
+    /// `0.8 · shadow` in green and blue (a shadow tinted by the cube's light) when
+    /// `shadow < 1`.
     fn setup_sized(w: usize, h: usize, shadow: f32) -> (NeuralScene, View) {
         let nodes = vec![
             node(0, "background", 2.0, DVec3::ZERO),
@@ -469,16 +485,17 @@ mod tests {
             depth[p] = camera.z_depth(ray.dir, t) as f32;
             let on_cube = (x.x - 0.5).abs() < 0.1 && x.y.abs() < 0.1;
             ids[p] = u16::from(on_cube);
+            let tint = if shadow < 1.0 { 0.8 } else { 1.0 };
             let c = if on_cube {
-                0.9
+                [0.9; 3]
             } else if x.x < 0.0 {
-                0.8
+                [0.8; 3]
             } else if x.x > 0.61 && x.x < 0.69 && x.y.abs() < 0.1 {
-                0.3 * shadow
+                [0.3 * shadow, 0.3 * shadow * tint, 0.3 * shadow * tint]
             } else {
-                0.3
+                [0.3; 3]
             };
-            rgb[3 * p..3 * p + 3].fill(c);
+            rgb[3 * p..3 * p + 3].copy_from_slice(&c);
         }
         let view = View {
             name: "v".into(),
@@ -568,18 +585,23 @@ mod tests {
                 / node.half_size;
             grid.value(l.as_vec3().to_array())
         };
-        // In the shadow: half as bright as the floor around it.
+        // In the shadow: half as bright as the floor around it in red, 0.4 in green and
+        // blue (each channel's ratio, softened by RATIO_FLOOR).
         for (x, y) in [(0.63, 0.0), (0.65, 0.05), (0.67, -0.05)] {
             let s = at(x, y);
-            assert!((s - 0.5).abs() < 0.1, "shade {s} at ({x}, {y})");
+            assert!(
+                (s[0] - 0.5).abs() < 0.1 && (s[1] - 0.4).abs() < 0.1 && (s[2] - 0.4).abs() < 0.1,
+                "shade {s:?} at ({x}, {y})"
+            );
+            assert!(s[0] - s[1] > 0.05, "tinted: {s:?}");
         }
         // Seen, unshadowed, inside the region: no shadow.
         for (x, y) in [(0.5, 0.22), (0.3, -0.2), (0.75, 0.2)] {
             let s = at(x, y);
-            assert!(s > 0.9, "shade {s} at ({x}, {y})");
+            assert!(s.iter().all(|&v| v > 0.9), "shade {s:?} at ({x}, {y})");
         }
         // Under the cube nothing is seen: no shadow is guessed there.
-        assert!(at(0.5, 0.0) > 0.95);
+        assert!(at(0.5, 0.0).iter().all(|&v| v > 0.95));
         // A grid that has been trained is left as it is.
         let before = grid.values.clone();
         assert_eq!(
@@ -631,8 +653,11 @@ mod tests {
         };
         // (0.65, 0.05) is 0.05 from the cube's box and 0.16 from the other's.
         let (mine, theirs) = (shade(1, 0.65, 0.05), shade(2, 0.65, 0.05));
-        assert!((mine - 0.5).abs() < 0.1, "the cube's factor {mine}");
-        assert!(theirs > 0.9, "the other object's factor {theirs}");
+        assert!((mine[0] - 0.5).abs() < 0.1, "the cube's factors {mine:?}");
+        assert!(
+            theirs.iter().all(|&v| v > 0.9),
+            "the other object's factors {theirs:?}"
+        );
     }
 
     #[test]
@@ -661,7 +686,7 @@ mod tests {
                 // The cube's: held, casting nothing — even under the cube, where no
                 // photograph sees the floor.
                 assert!(held[i], "point {i} at {p} is the cube's");
-                assert_eq!(grid.values[i], 1.0);
+                assert_eq!(grid.values[3 * i..3 * i + 3], [1.0; 3]);
                 foreign += 1;
             } else if !held[i] {
                 own_free += 1;

@@ -388,7 +388,7 @@ impl Trainer {
                 let held = self
                     .shade_held
                     .get(&key)
-                    .filter(|h| h.len() == grid.values.len());
+                    .filter(|h| 3 * h.len() == grid.values.len());
                 let keep: Vec<f32> = held.map_or_else(Vec::new, |_| grid.values.clone());
                 self.shade_adam
                     .entry(key)
@@ -396,9 +396,15 @@ impl Trainer {
                     .update(lr, &mut grid.values, &mut g);
                 grid.clamp();
                 if let Some(h) = held {
-                    for ((v, k), &hold) in grid.values.iter_mut().zip(&keep).zip(h) {
+                    // Per lattice point: its three factors.
+                    for ((v, k), &hold) in grid
+                        .values
+                        .chunks_exact_mut(3)
+                        .zip(keep.chunks_exact(3))
+                        .zip(h)
+                    {
                         if hold {
-                            *v = *k;
+                            v.copy_from_slice(k);
                         }
                     }
                 }
