@@ -22,8 +22,10 @@ use rayon::prelude::*;
 use crate::prior;
 use crate::views::{PRIOR_DILATION, View};
 
-/// Lattice points per axis of an object's shadow grid.
-pub const SHADE_RES: usize = 40;
+/// Lattice points per axis of an object's shadow grid: 5 mm apart around a 10 cm mug.
+/// On desk (7,890 steps) 60 against 40 gave the moved mug +0.34 dB (its contact shadow is
+/// sharper) at equal unedited quality, for ~3% more time per step (the grids' Adam).
+pub const SHADE_RES: usize = 60;
 
 /// Half-width of the shadow region in box units: the object's box grown three times about
 /// its centre (a 10 cm mug's shadow may reach 10 cm beyond it).
