@@ -566,7 +566,9 @@ mod tests {
 
     #[test]
     fn a_new_grid_starts_from_the_photographs_darkening() {
-        let (mut scene, view) = setup_sized(640, 480, 0.5);
+        // (Enough pixels per lattice point that the estimate's one-pixel prior towards no
+        // shadow is small: ~15 each on the 60³ lattice.)
+        let (mut scene, view) = setup_sized(1280, 960, 0.5);
         let mut views = vec![view];
         // Without grids, nothing to estimate.
         assert_eq!(
@@ -634,7 +636,7 @@ mod tests {
 
     #[test]
     fn where_regions_overlap_the_nearest_object_casts_the_shadow() {
-        let (mut scene, view) = setup_sized(640, 480, 0.5);
+        let (mut scene, view) = setup_sized(1280, 960, 0.5);
         add_other(&mut scene);
         let mut views = vec![view];
         add_shadow_grids(&mut scene);
