@@ -165,10 +165,11 @@ pub fn render_camera_moving(
             let bg_ns = bg.map(|bi| &b.traced.nodes[bi]);
             let shade_changed = |r: usize| {
                 bg_ns.is_some_and(|ns| {
-                    ns.range(r).flat_map(|j| 3 * j..3 * j + 3).any(|i| {
-                        old_shade.get(i).copied().unwrap_or(1.0)
-                            != ns.shade.get(i).copied().unwrap_or(1.0)
-                    })
+                    // The ray's three factors per sample, before and after (a missing
+                    // side counts as changed).
+                    let g = ns.range(r);
+                    let s = 3 * g.start..3 * g.end;
+                    old_shade.get(s.clone()) != ns.shade.get(s)
                 })
             };
             c.affected.clear();

@@ -105,7 +105,14 @@ pub fn shade_background(scene: &NeuralScene, rays: &RayBatch, traced: &mut Trace
         f
     });
     if let Some(ns) = background(scene).and_then(|b| traced.nodes.get_mut(b)) {
-        ns.shade = shade.map_or_else(Vec::new, |s| s.into_iter().flatten().collect());
+        // Three factors per sample, in place of the previous ones (no new buffer).
+        ns.shade.clear();
+        if let Some(s) = shade {
+            ns.shade.reserve(3 * s.len());
+            for f in s {
+                ns.shade.extend_from_slice(&f);
+            }
+        }
     }
 }
 
