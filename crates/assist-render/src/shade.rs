@@ -1,6 +1,7 @@
 //! Objects' shadows on the background: each background sample's colour, in the composited
-//! image, is multiplied channel by channel by the shadow grids ([`assist_field::ShadeGrid`]) of the objects
-//! whose region it lies in, evaluated in each object's own frame. Moving, turning, scaling
+//! image, is multiplied channel by channel by the shadow grids
+//! ([`assist_field::ShadeGrid`]) of the objects whose region it lies in, evaluated in each
+//! object's own frame. Moving, turning, scaling
 //! or deleting an object moves, turns, scales or removes its shadow; the background alone
 //! (a node layer, or the scene without its objects) has none.
 
@@ -105,7 +106,7 @@ pub fn shade_background(scene: &NeuralScene, rays: &RayBatch, traced: &mut Trace
         f
     });
     if let Some(ns) = background(scene).and_then(|b| traced.nodes.get_mut(b)) {
-        // Three factors per sample, in place of the previous ones (no new buffer).
+        // Three factors per sample, replacing the previous ones.
         ns.shade.clear();
         if let Some(s) = shade {
             ns.shade.reserve(3 * s.len());
