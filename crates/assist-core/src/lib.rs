@@ -32,7 +32,7 @@ pub use geometry::{Aabb, BoxHit, Obb, Ray};
 pub use glam;
 pub use glam::{DAffine3, DMat3, DMat4, DQuat, DVec2, DVec3, Vec3};
 pub use rng::Rng;
-pub use scene::{Backdrop, NodeSpace, Scene, SceneNode};
+pub use scene::{Backdrop, KeyLight, NodeSpace, Scene, SceneNode, ShadowCast};
 pub use similarity::Similarity3;
 
 /// Instance identifier of a scene node; 0 is the background.

@@ -36,6 +36,30 @@ pub struct SceneNode {
     /// finite shell (unbounded backgrounds of real captures).
     #[serde(default, skip_serializing_if = "NodeSpace::is_box")]
     pub space: NodeSpace,
+    /// How the object's shadow was photographed, when the scene's [`KeyLight`] is known:
+    /// moved, its shadow is re-cast under that light (see [`ShadowCast`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cast: Option<ShadowCast>,
+}
+
+/// Where an object stood when its shadow grid was learned, and how much of the light
+/// falling around it comes from the scene's [`KeyLight`] (per colour channel, `[0, 1]`).
+/// Placed elsewhere, its shadow is the learned one plus `strength` times the change in
+/// the key light's visibility between the two poses: the part of the shadow the key
+/// light casts turns and stretches with the light's direction, and the rest (contact
+/// shadow, colour bleeding) stays as learned.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ShadowCast {
+    pub pose: Similarity3,
+    pub strength: [f32; 3],
+}
+
+/// The light that casts the objects' shadows, as estimated from them: a disc of `radius`
+/// facing the scene's up, centred at `position` (world units).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct KeyLight {
+    pub position: DVec3,
+    pub radius: f64,
 }
 
 /// The space a node's field covers.
@@ -79,6 +103,7 @@ impl SceneNode {
             half_size: obb.half_size,
             world_from_local: obb.world_from_box(),
             space: NodeSpace::Box,
+            cast: None,
         }
     }
     /// Where the box's corners are in the world (after scale, rotation, translation).
@@ -194,6 +219,9 @@ pub struct Scene {
     /// are stable across edits and renders; see [`Scene::register_classes`].
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub classes: Vec<String>,
+    /// The light that casts the objects' shadows, when estimated (see [`ShadowCast`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub light: Option<KeyLight>,
 }
 
 fn is_zero(v: &f64) -> bool {
@@ -213,6 +241,7 @@ impl Scene {
             selected: None,
             near: 0.0,
             classes: Vec::new(),
+            light: None,
         }
     }
     /// The classes of objects not yet in `classes`, in id order of first appearance.
@@ -303,6 +332,7 @@ mod tests {
             selected: None,
             near: 0.0,
             classes: Vec::new(),
+            light: None,
         };
         assert_eq!(s.fresh_id(), 1);
     }

@@ -42,6 +42,7 @@ fn scene() -> Scene {
         selected: None,
         near: 0.0,
         classes: Vec::new(),
+        light: None,
     }
 }
 

@@ -36,6 +36,7 @@ fn scene() -> Scene {
         selected: None,
         near: 0.0,
         classes: Vec::new(),
+        light: None,
     }
 }
 

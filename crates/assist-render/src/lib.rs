@@ -15,6 +15,7 @@
 mod batch;
 mod composite;
 mod drag;
+pub mod light;
 mod prune;
 mod render;
 mod sample;
@@ -31,4 +32,4 @@ pub use render::{
 pub use sample::{
     HiddenStop, NodeSamples, RayBatch, SampleOptions, Traced, sample_rays, sample_rays_node,
 };
-pub use shade::{Caster, casters, casts_shadows, shade_background, shade_backward};
+pub use shade::{Caster, CasterGrid, casters, casts_shadows, shade_background, shade_backward};

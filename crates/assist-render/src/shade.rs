@@ -8,6 +8,8 @@
 use assist_core::{DVec3, SceneNode};
 use assist_field::ShadeGrid;
 use assist_field::shade::Corners;
+use std::sync::Arc;
+
 use rayon::prelude::*;
 
 use crate::sample::{RayBatch, Traced};
@@ -17,7 +19,24 @@ use assist_scene::NeuralScene;
 pub struct Caster<'a> {
     pub node: usize,
     pub scene_node: &'a SceneNode,
-    pub grid: &'a ShadeGrid,
+    pub grid: CasterGrid<'a>,
+}
+
+/// A caster's shadow grid: the learned one, or the one re-cast for where the object
+/// stands now ([`crate::light`]).
+pub enum CasterGrid<'a> {
+    Learned(&'a ShadeGrid),
+    Recast(Arc<ShadeGrid>),
+}
+
+impl std::ops::Deref for CasterGrid<'_> {
+    type Target = ShadeGrid;
+    fn deref(&self) -> &ShadeGrid {
+        match self {
+            CasterGrid::Learned(g) => g,
+            CasterGrid::Recast(g) => g,
+        }
+    }
 }
 
 impl Caster<'_> {
@@ -30,8 +49,14 @@ impl Caster<'_> {
     }
 }
 
-/// The objects of `scene` that cast a shadow (those whose field has a shadow grid).
+/// The objects of `scene` that cast a shadow (those whose field has a shadow grid), each
+/// with its grid re-cast under the scene's key light when it stands elsewhere than where
+/// its shadow was learned ([`crate::light`]).
 pub fn casters(scene: &NeuralScene) -> Vec<Caster<'_>> {
+    let lights = scene
+        .scene
+        .light
+        .map(|l| crate::light::light_points(&l, scene.scene.up));
     scene
         .scene
         .nodes
@@ -39,7 +64,23 @@ pub fn casters(scene: &NeuralScene) -> Vec<Caster<'_>> {
         .enumerate()
         .filter(|(_, n)| !n.is_background())
         .filter_map(|(k, n)| {
-            scene.field_of(k).shade.as_ref().map(|grid| Caster {
+            let nf = scene.field_of(k);
+            let learned = nf.shade.as_ref()?;
+            let grid = match (&n.cast, &lights) {
+                (Some(cast), Some(lights)) if cast.pose != n.world_from_local => {
+                    CasterGrid::Recast(crate::light::recast_cached(
+                        &n.field,
+                        learned,
+                        &nf.occupancy,
+                        n.half_size,
+                        &n.world_from_local,
+                        cast,
+                        lights,
+                    ))
+                }
+                _ => CasterGrid::Learned(learned),
+            };
+            Some(Caster {
                 node: k,
                 scene_node: n,
                 grid,

@@ -306,6 +306,10 @@ pub enum TrainEvent {
     },
     /// Held-out views measured (every `eval_every` iterations).
     HeldOut(HeldOut),
+    /// The key light was looked for in the learned shadows
+    /// ([`assist_train::estimate_light`]); moved objects' shadows are re-cast under it when
+    /// one was found.
+    Light(assist_train::LightEstimate),
     /// The scene is saved.
     Saved { path: PathBuf },
 }
@@ -636,6 +640,11 @@ impl TrainJob {
                 occupancy,
             });
         })?;
+        if assist_render::casts_shadows(&trainer.scene) {
+            on_event(&TrainEvent::Light(assist_train::estimate_light(
+                &mut trainer.scene,
+            )));
+        }
         assist_scene::scene_file::save(&c.out, &trainer.scene, trainer.info(report.seconds), true)?;
         on_event(&TrainEvent::Saved {
             path: c.out.clone(),

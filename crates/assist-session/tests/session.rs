@@ -20,6 +20,7 @@ fn node(id: u16, label: &str, half: f64, at: DVec3) -> SceneNode {
         half_size: DVec3::splat(half),
         world_from_local: Similarity3::from_translation(at),
         space: NodeSpace::Box,
+        cast: None,
     }
 }
 
@@ -50,6 +51,7 @@ fn table_scene() -> NeuralScene {
             selected: None,
             near: 0.0,
             classes: Vec::new(),
+            light: None,
         },
         fields: map,
     }

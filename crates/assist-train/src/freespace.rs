@@ -334,6 +334,7 @@ mod tests {
             half_size: DVec3::new(0.5, 0.5, 0.5),
             world_from_local: Similarity3::from_translation(DVec3::new(0.0, 0.0, 0.3)),
             space: NodeSpace::Box,
+            cast: None,
         }
     }
 

@@ -10,6 +10,7 @@
 mod error;
 mod eval;
 mod freespace;
+pub mod light;
 pub mod losses;
 pub mod metrics;
 mod multiview;
@@ -25,6 +26,7 @@ pub use eval::{
     EvalReport, ImageScore, PriorReport, PriorScore, background_dataset, evaluate, evaluate_priors,
 };
 pub use freespace::{CarveStats, carve_scene};
+pub use light::{LightEstimate, estimate_light, estimate_light_from};
 pub use multiview::MultiViewStats;
 pub use optimizer::{CpuOptimizer, NodeOptimizer};
 pub use setup::{

@@ -132,6 +132,7 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
             half_size: half,
             world_from_local: Similarity3::from_translation(c),
             space,
+            cast: None,
         };
         let field = Field::new(app(FieldConfig::nerfacto(n_images)), opts.seed)?;
         fields.insert(
@@ -173,6 +174,7 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
         selected: None,
         near,
         classes: Vec::new(),
+        light: None,
     };
     let mut scene = scene;
     scene.register_classes();

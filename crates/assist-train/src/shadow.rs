@@ -441,6 +441,7 @@ mod tests {
             half_size: DVec3::splat(half),
             world_from_local: Similarity3::from_translation(at),
             space: NodeSpace::Box,
+            cast: None,
         }
     }
 
@@ -471,6 +472,7 @@ mod tests {
                 selected: None,
                 near: 0.0,
                 classes: Vec::new(),
+                light: None,
             },
             fields,
         };

@@ -26,6 +26,7 @@ fn node(id: u16, label: &str, half: f64, at: DVec3) -> SceneNode {
         half_size: DVec3::splat(half),
         world_from_local: Similarity3::from_translation(at),
         space: NodeSpace::Box,
+        cast: None,
     }
 }
 
@@ -60,6 +61,7 @@ fn scene_at(path: &std::path::Path) -> std::path::PathBuf {
             selected: None,
             near: 0.0,
             classes: Vec::new(),
+            light: None,
         },
         fields: map,
     };

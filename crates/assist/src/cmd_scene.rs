@@ -15,6 +15,89 @@ pub enum SceneCommand {
     /// List a scene's nodes (id, label, box, pose, field file, size), its edit history and
     /// its training provenance.
     Info(InfoArgs),
+    /// Find the light that casts the objects' shadows from their learned shadow grids, so
+    /// that a moved object's shadow is re-cast under it (training does this at its end;
+    /// this is for scenes trained before, or to look again). Writes the scene to `--out`.
+    Light(LightArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct LightArgs {
+    /// Scene directory (or its scene.json).
+    pub scene: PathBuf,
+    /// Where to write the scene with its light (may be the scene itself, with --force).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Replace --out if it exists.
+    #[arg(long)]
+    pub force: bool,
+    /// Machine-readable output on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// One line on what [`assist_train::estimate_light`] found.
+pub fn describe_light(e: &assist_train::LightEstimate) -> String {
+    match &e.light {
+        Some(l) => format!(
+            "key light: at {:.3?}, disc radius {:.3}, explains {:.0}% of the shadows ({} lattice points); moved objects' shadows are re-cast under it",
+            l.position.to_array(),
+            l.radius,
+            100.0 * e.explained,
+            e.points
+        ),
+        None => format!(
+            "key light: none explains the shadows (best {:.0}% of {} lattice points, {:.0}% needed); moved objects keep their shadows as learned",
+            100.0 * e.explained.max(0.0),
+            e.points,
+            100.0 * assist_train::light::MIN_EXPLAINED
+        ),
+    }
+}
+
+fn light(a: LightArgs) -> anyhow::Result<()> {
+    let (mut scene, mut history, meta) = scene_file::load_with_history(&a.scene)
+        .with_context(|| format!("reading scene {}", a.scene.display()))?;
+    // Where each object's shadow was learned: where it stood before the first edit (a
+    // replica where its original stood; a node from another scene is left out).
+    let first = history.undo.first().map(|s| s.scene.clone());
+    let e = assist_train::estimate_light_from(&mut scene, |n| match (&n.cast, &first) {
+        (Some(c), _) => Some(c.pose),
+        (None, None) => Some(n.world_from_local),
+        (None, Some(first)) => first
+            .nodes
+            .iter()
+            .find(|o| o.field == n.field)
+            .map(|o| o.world_from_local),
+    });
+    // The scenes the history holds get the same light, so an undo keeps it.
+    let casts: Vec<(u16, String, Option<assist_core::ShadowCast>)> = scene
+        .scene
+        .nodes
+        .iter()
+        .map(|n| (n.id, n.field.clone(), n.cast.clone()))
+        .collect();
+    for step in history.undo.iter_mut().chain(history.redo.iter_mut()) {
+        step.scene.light = scene.scene.light;
+        for n in &mut step.scene.nodes {
+            n.cast = casts
+                .iter()
+                .find(|(id, f, _)| *id == n.id && *f == n.field)
+                .and_then(|(_, _, c)| c.clone());
+        }
+    }
+    scene_file::save_with_history(&a.out, &scene, &history, meta, a.force)
+        .with_context(|| format!("writing scene {}", a.out.display()))?;
+    if a.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&json!({"light": e, "out": a.out}))?
+        );
+    } else {
+        println!("{}", describe_light(&e));
+        println!("saved {}", a.out.display());
+    }
+    Ok(())
 }
 
 #[derive(Args, Debug)]
@@ -29,6 +112,7 @@ pub struct InfoArgs {
 pub fn run(c: SceneCommand) -> anyhow::Result<()> {
     match c {
         SceneCommand::Info(a) => info(a),
+        SceneCommand::Light(a) => light(a),
     }
 }
 

@@ -485,6 +485,7 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
                 )
             }
         ),
+        TrainEvent::Light(e) if text => eprintln!("{}", crate::cmd_scene::describe_light(e)),
         TrainEvent::Nodes { nodes } if text => {
             let n: Vec<String> = nodes.iter().map(|(id, l)| format!("{id} {l:?}")).collect();
             eprintln!("nodes: {}", n.join(", "));

@@ -482,6 +482,7 @@ fn an_object_pushed_into_its_support_is_warned_about() {
             selected: None,
             near: 0.0,
             classes: Vec::new(),
+            light: None,
         },
         fields,
     };

@@ -104,6 +104,8 @@ pub(super) fn import(
         scale: p.scale * s,
     };
     node.field = free_field_key(&n.field, scene, taken_fields);
+    // Its shadow was learned under the other scene's light: it keeps it as learned.
+    node.cast = None;
     Ok(Imported {
         node,
         source: path.to_string(),

@@ -23,6 +23,7 @@ pub fn node(id: u16, key: &str, half: f64, pose: Similarity3) -> SceneNode {
         half_size: DVec3::splat(half),
         world_from_local: pose,
         space: assist_core::NodeSpace::Box,
+        cast: None,
     }
 }
 
@@ -44,6 +45,7 @@ pub fn scene(nodes: Vec<SceneNode>, fields: Vec<(&str, Field)>, cone: f32) -> Ne
             selected: None,
             near: 0.0,
             classes: Vec::new(),
+            light: None,
         },
         fields: map,
     }

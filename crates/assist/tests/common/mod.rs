@@ -55,6 +55,7 @@ pub fn write_scene(dir: &Path) {
             selected: None,
             near: 0.0,
             classes: Vec::new(),
+            light: None,
         },
         fields,
     };

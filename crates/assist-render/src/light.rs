@@ -1,0 +1,243 @@
+//! Shadows under the scene's key light: an object's shadow grid is learned where the
+//! object was photographed, and a lamp above a table casts a shadow that turns and
+//! stretches as the object moves under it. When the scene knows its key light
+//! ([`assist_core::KeyLight`], estimated from the shadows themselves after training) and
+//! the object how much of the light around it is that lamp's
+//! ([`assist_core::ShadowCast`]), the grid of a moved object is the learned one plus
+//! `strength` times the change of the lamp's visibility at each lattice point between the
+//! learned pose and the present one. The visibility is a shadow ray from the point to
+//! points on the lamp through the object's own density (its occupancy grid's estimate), so
+//! the re-cast shadow has the object's shape; the rest of the learned grid (the contact
+//! shadow, light the object reflects) moves with the object as before.
+
+use std::sync::{Arc, Mutex};
+
+use assist_core::{DVec3, KeyLight, ShadowCast, Similarity3};
+use assist_field::{OccupancyGrid, ShadeGrid};
+use rayon::prelude::*;
+
+/// Points taken on the lamp's disc for soft shadows (its centre and a ring).
+pub const LIGHT_SAMPLES: usize = 7;
+
+/// Optical depth beyond which a shadow ray is taken as blocked.
+const OPAQUE_DEPTH: f32 = 12.0;
+
+/// Points on `light`'s disc (facing `up`): its centre and [`LIGHT_SAMPLES`]` − 1` points on
+/// the circle that splits the disc's area in two, so their mean visibility approximates
+/// the disc's. A disc of radius 0 is one point.
+pub fn light_points(light: &KeyLight, up: DVec3) -> Vec<DVec3> {
+    if light.radius <= 0.0 {
+        return vec![light.position];
+    }
+    let (e1, e2) = up.normalize().any_orthonormal_pair();
+    let r = light.radius * std::f64::consts::FRAC_1_SQRT_2;
+    let ring = LIGHT_SAMPLES - 1;
+    std::iter::once(light.position)
+        .chain((0..ring).map(|i| {
+            let a = std::f64::consts::TAU * i as f64 / ring as f64;
+            light.position + (e1 * a.cos() + e2 * a.sin()) * r
+        }))
+        .collect()
+}
+
+/// An object as shadow rays see it: its density in its box and where the box is.
+#[derive(Clone, Copy)]
+pub struct Occluder<'a> {
+    pub occupancy: &'a OccupancyGrid,
+    pub half_size: DVec3,
+    pub pose: &'a Similarity3,
+}
+
+impl Occluder<'_> {
+    /// Transmittance of the segment from world point `p` to world point `l` through the
+    /// object: `exp(−∫σ)` with the occupancy grid's density, half a cell per step
+    /// (distances in the node's local units, as its density is).
+    pub fn transmittance(&self, p: DVec3, l: DVec3) -> f32 {
+        let occ = self.occupancy;
+        let res = occ.res as usize;
+        if res == 0 || occ.density.len() != res.pow(3) {
+            return 1.0;
+        }
+        // The segment in the box's unit cube: u(s) = u0 + s·du, s ∈ [0, 1].
+        let lp = self.pose.local_from_world_point(p);
+        let dl = self.pose.local_from_world_vector(l - p);
+        let u0 = (lp / self.half_size + 1.0) * 0.5;
+        let du = dl / self.half_size * 0.5;
+        let (mut s0, mut s1) = (0.0f64, 1.0f64);
+        for a in 0..3 {
+            if du[a].abs() < 1e-15 {
+                if !(0.0..=1.0).contains(&u0[a]) {
+                    return 1.0;
+                }
+                continue;
+            }
+            let (ta, tb) = ((0.0 - u0[a]) / du[a], (1.0 - u0[a]) / du[a]);
+            s0 = s0.max(ta.min(tb));
+            s1 = s1.min(ta.max(tb));
+        }
+        if s0 >= s1 {
+            return 1.0;
+        }
+        let len_u = du.length();
+        let ds = 0.5 / res as f64 / len_u;
+        let step_local = (dl.length() * ds) as f32;
+        let mut tau = 0.0f32;
+        let mut s = s0 + 0.5 * ds;
+        while s < s1 {
+            let u = u0 + du * s;
+            let i = |a: usize| ((u[a] * res as f64) as usize).min(res - 1);
+            let sigma = occ.density[i(0) + res * (i(1) + res * i(2))];
+            tau += if sigma.is_finite() {
+                sigma.max(0.0)
+            } else {
+                1e4
+            } * step_local;
+            if tau > OPAQUE_DEPTH {
+                return 0.0;
+            }
+            s += ds;
+        }
+        (-tau).exp()
+    }
+
+    /// Mean transmittance from world point `p` to `lights`.
+    pub fn visibility(&self, p: DVec3, lights: &[DVec3]) -> f32 {
+        lights
+            .iter()
+            .map(|&l| self.transmittance(p, l))
+            .sum::<f32>()
+            / lights.len() as f32
+    }
+}
+
+/// Box coordinates (`[−extent, extent]`) of lattice index `i` of `n` points per axis.
+#[inline]
+fn lattice_coord(i: usize, n: usize, extent: f32) -> f64 {
+    (i as f64 / (n - 1) as f64 * 2.0 - 1.0) * extent as f64
+}
+
+/// The shadow grid of an object posed at `now` whose grid `grid` was learned at
+/// `cast.pose`: each factor plus `cast.strength` times the change of `lights`' visibility
+/// at the lattice point between the two poses, clamped to the grid's range. Visibilities
+/// are taken on a lattice half as fine and interpolated (a lamp's shadow is soft).
+pub fn recast(
+    grid: &ShadeGrid,
+    occupancy: &OccupancyGrid,
+    half_size: DVec3,
+    now: &Similarity3,
+    cast: &ShadowCast,
+    lights: &[DVec3],
+) -> ShadeGrid {
+    let n = grid.res.div_ceil(2).max(2);
+    let then = Occluder {
+        occupancy,
+        half_size,
+        pose: &cast.pose,
+    };
+    let here = Occluder {
+        occupancy,
+        half_size,
+        pose: now,
+    };
+    let coarse: Vec<f32> = (0..n * n * n)
+        .into_par_iter()
+        .map(|k| {
+            let c = DVec3::new(
+                lattice_coord(k % n, n, grid.extent),
+                lattice_coord(k / n % n, n, grid.extent),
+                lattice_coord(k / (n * n), n, grid.extent),
+            ) * half_size;
+            here.visibility(now.transform_point(c), lights)
+                - then.visibility(cast.pose.transform_point(c), lights)
+        })
+        .collect();
+    let r = grid.res;
+    let mut out = grid.clone();
+    out.values
+        .par_chunks_mut(3 * r)
+        .enumerate()
+        .for_each(|(row, vals)| {
+            let (y, z) = (row % r, row / r);
+            let f = |i: usize| {
+                let u = i as f64 / (r - 1) as f64 * (n - 1) as f64;
+                let i0 = (u.floor() as usize).min(n - 2);
+                (i0, (u - i0 as f64) as f32)
+            };
+            let ((y0, fy), (z0, fz)) = (f(y), f(z));
+            for x in 0..r {
+                let (x0, fx) = f(x);
+                let mut dv = 0.0f32;
+                for corner in 0..8 {
+                    let (dx, dy, dz) = (corner & 1, corner >> 1 & 1, corner >> 2 & 1);
+                    let w = if dx == 1 { fx } else { 1.0 - fx }
+                        * if dy == 1 { fy } else { 1.0 - fy }
+                        * if dz == 1 { fz } else { 1.0 - fz };
+                    dv += w * coarse[(x0 + dx) + n * ((y0 + dy) + n * (z0 + dz))];
+                }
+                for c in 0..3 {
+                    let v = &mut vals[3 * x + c];
+                    *v += cast.strength[c] * dv;
+                }
+            }
+        });
+    out.clamp();
+    out
+}
+
+/// Re-cast grids lately made, by what they were made from: a viewer redrawing a moved
+/// object, or a batch of renders of one edit, computes each only once.
+static CACHE: Mutex<Vec<(u64, Arc<ShadeGrid>)>> = Mutex::new(Vec::new());
+const CACHE_ENTRIES: usize = 8;
+
+/// [`recast`], remembered by its inputs (the grid and density by a sample of their values).
+pub fn recast_cached(
+    key: &str,
+    grid: &ShadeGrid,
+    occupancy: &OccupancyGrid,
+    half_size: DVec3,
+    now: &Similarity3,
+    cast: &ShadowCast,
+    lights: &[DVec3],
+) -> Arc<ShadeGrid> {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    key.hash(&mut h);
+    let f64s = |h: &mut std::collections::hash_map::DefaultHasher, v: &[f64]| {
+        for x in v {
+            x.to_bits().hash(h);
+        }
+    };
+    let pose = |h: &mut std::collections::hash_map::DefaultHasher, p: &Similarity3| {
+        f64s(h, &p.rotation.to_array());
+        f64s(h, &p.translation.to_array());
+        f64s(h, &p.scale.to_array());
+    };
+    pose(&mut h, now);
+    pose(&mut h, &cast.pose);
+    f64s(&mut h, &half_size.to_array());
+    for l in lights {
+        f64s(&mut h, &l.to_array());
+    }
+    for s in cast.strength {
+        s.to_bits().hash(&mut h);
+    }
+    (grid.res, grid.extent.to_bits(), grid.values.len()).hash(&mut h);
+    for v in grid.values.iter().step_by(61) {
+        v.to_bits().hash(&mut h);
+    }
+    (occupancy.res, occupancy.density.len()).hash(&mut h);
+    for v in occupancy.density.iter().step_by(59) {
+        v.to_bits().hash(&mut h);
+    }
+    let id = h.finish();
+    if let Some((_, g)) = CACHE.lock().expect("cache").iter().find(|(k, _)| *k == id) {
+        return g.clone();
+    }
+    let g = Arc::new(recast(grid, occupancy, half_size, now, cast, lights));
+    let mut c = CACHE.lock().expect("cache");
+    if c.len() >= CACHE_ENTRIES {
+        c.remove(0);
+    }
+    c.push((id, g.clone()));
+    g
+}
