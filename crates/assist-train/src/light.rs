@@ -17,9 +17,15 @@ use assist_render::light::{Occluder, light_points};
 use assist_scene::NeuralScene;
 use rayon::prelude::*;
 
-/// Share of the grids' darkening (sum of squares of `1 − s` over the fitted points) a
-/// lamp must explain to be adopted.
-pub const MIN_EXPLAINED: f64 = 0.15;
+/// Share of the grids' darkening (sum of squares of `1 − s` about each object's mean, over
+/// the fitted points) a lamp must explain to be adopted: it must do better than a uniform
+/// darkening of each object's surroundings. Desk's lamp explains 11%, the built-in
+/// scene's 17%, a made-up lamp's exact shadows over 80%; speckle no lamp cast, −146%.
+pub const MIN_EXPLAINED: f64 = 0.05;
+
+/// Lowest a lamp may be seen from the objects' centre, above the horizon (radians): a
+/// lamp at the horizon shadows everything and fits any uniform darkening.
+const MIN_ELEVATION: f64 = 10.0 * std::f64::consts::PI / 180.0;
 
 /// Lattice points fitted per object at most (evenly strided over those training set).
 const FIT_POINTS: usize = 1500;
@@ -29,8 +35,8 @@ const FIT_POINTS: usize = 1500;
 pub struct LightEstimate {
     /// The light adopted, if one explains the shadows.
     pub light: Option<KeyLight>,
-    /// The best lamp's share of the darkening explained (0 = none; adopted from
-    /// [`MIN_EXPLAINED`]).
+    /// The best lamp's share of the darkening explained beyond a uniform one per object
+    /// (0 = none; adopted from [`MIN_EXPLAINED`]).
     pub explained: f64,
     /// Per object (node id) its strength per channel under the adopted light.
     pub strength: Vec<(u16, [f32; 3])>,
@@ -167,7 +173,15 @@ pub fn estimate_light_from(
         })
         .collect();
     let points: usize = fits.iter().map(|f| f.points.len()).sum();
-    let total: f64 = fits.iter().flat_map(|f| &f.dark).map(|b| b * b).sum();
+    // What a uniform darkening per object leaves unexplained: a lamp must do better than
+    // that (one low enough to shadow every point fits any uniform darkening).
+    let total: f64 = fits
+        .iter()
+        .map(|f| {
+            let m = f.dark.iter().sum::<f64>() / f.dark.len() as f64;
+            f.dark.iter().map(|b| (b - m).powi(2)).sum::<f64>()
+        })
+        .sum();
     let mut out = LightEstimate {
         light: None,
         explained: 0.0,
@@ -186,7 +200,7 @@ pub fn estimate_light_from(
         / fits.len() as f64;
     // Coarse: directions above the objects × distances from them.
     let mut best = (f64::INFINITY, centre + up * 8.0 * size);
-    for d in cap_directions(up, 48, 10f64.to_radians()) {
+    for d in cap_directions(up, 48, MIN_ELEVATION) {
         for dist in [4.0, 8.0, 16.0, 32.0, 64.0] {
             let l = centre + d * dist * size;
             let r = residual(&fits, &[l]);
@@ -203,7 +217,7 @@ pub fn estimate_light_from(
         for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
             for sign in [-1.0, 1.0] {
                 let l = pos + axis * sign * step;
-                if (l - centre).dot(up) <= 0.0 {
+                if (l - centre).normalize().dot(up) < MIN_ELEVATION.sin() {
                     continue;
                 }
                 let r = residual(&fits, &[l]);
