@@ -51,7 +51,9 @@ pub struct Occluder<'a> {
 impl Occluder<'_> {
     /// Transmittance of the segment from world point `p` to world point `l` through the
     /// object: `exp(−∫σ)` with the occupancy grid's density, half a cell per step
-    /// (distances in the node's local units, as its density is).
+    /// (distances in the node's local units, as its density is); 0 through a cell never
+    /// measured (infinite density) or occupied whatever its estimate
+    /// ([`OccupancyGrid::warming`]).
     pub fn transmittance(&self, p: DVec3, l: DVec3) -> f32 {
         let occ = self.occupancy;
         let res = occ.res as usize;
@@ -86,12 +88,15 @@ impl Occluder<'_> {
         while s < s1 {
             let u = u0 + du * s;
             let i = |a: usize| ((u[a] * res as f64) as usize).min(res - 1);
-            let sigma = occ.density[i(0) + res * (i(1) + res * i(2))];
-            tau += if sigma.is_finite() {
-                sigma.max(0.0)
-            } else {
-                1e4
-            } * step_local;
+            let c = i(0) + res * (i(1) + res * i(2));
+            // A cell occupied whatever its estimate (known to hold a surface, or in
+            // warm-up) blocks the light as its file says (saved as never measured:
+            // infinite density), so a scene finds the same light before and after saving.
+            let sigma = occ.density[c];
+            if !sigma.is_finite() || occ.warming(c) {
+                return 0.0;
+            }
+            tau += sigma.max(0.0) * step_local;
             if tau > OPAQUE_DEPTH {
                 return 0.0;
             }
