@@ -1,6 +1,8 @@
 //! `assist scene info SCENE [--json]`: what a trained scene holds — its nodes (id, label,
 //! box, pose, field file and size), its edit history and how it was trained — read from
-//! `scene.json` and `history.json` without loading any weights.
+//! `scene.json` and `history.json` without loading any weights; `assist scene light SCENE
+//! --out OUT`: the lamp that casts the objects' shadows, found from their shadow grids
+//! ([`assist_train::estimate_light`]).
 
 use std::path::{Path, PathBuf};
 
@@ -186,6 +188,7 @@ fn info(a: InfoArgs) -> anyhow::Result<()> {
             "meters_per_unit": mpu,
             "up": scene.up.to_array(),
             "selected": scene.selected,
+            "light": scene.light,
             "nodes": nodes,
             "history": history_json(&history),
             "training": training,
@@ -200,6 +203,14 @@ fn info(a: InfoArgs) -> anyhow::Result<()> {
         mpu,
         scene.up.to_array()
     );
+    match &scene.light {
+        Some(l) => println!(
+            "key light: at {:.3?} m, disc radius {:.3} m (moved objects' shadows are re-cast under it)",
+            (l.position * mpu).to_array(),
+            l.radius * mpu
+        ),
+        None => println!("key light: none (moved objects keep their shadows as learned)"),
+    }
     println!(
         "{:>4}  {:<32} {:<10} {:>22}  {:>24}  {:>7}  field",
         "id", "label", "kind", "size (m)", "position (m)", "yaw °"

@@ -85,6 +85,11 @@ fn scene_light_finds_the_lamp_and_edits_keep_where_shadows_were_learned() {
     );
     let angle = dir.angle_between(DVec3::new(0.6, -0.5, 1.4)).to_degrees();
     assert!(angle < 10.0, "{angle}° off: {v}");
+    // `scene info` tells it.
+    let info = String::from_utf8_lossy(&run(&["scene", "info", s(&b)]).stdout).into_owned();
+    assert!(info.contains("key light: at"), "{info}");
+    let info = String::from_utf8_lossy(&run(&["scene", "info", s(&a)]).stdout).into_owned();
+    assert!(info.contains("key light: none"), "{info}");
     // An existing output is refused without --force, and left as it was.
     let before = std::fs::read(b.join("scene.json")).unwrap();
     refused(
