@@ -56,6 +56,10 @@ pub struct DragCache {
     /// their samples.
     fresh: NodeSamples,
     affected: Vec<usize>,
+    /// The moving node as the last render saw it, and per ray whether its shading
+    /// changed since.
+    moved: Option<SceneNode>,
+    shade_changed: Vec<bool>,
     sub: Traced,
     pixels: Vec<usize>,
     cos: Vec<f32>,
@@ -73,6 +77,7 @@ impl DragCache {
         self.key = None;
         self.batches.clear();
         self.image = None;
+        self.moved = None;
     }
 }
 
@@ -151,26 +156,44 @@ pub fn render_camera_moving(
             .shade
             .as_ref()
             .and_then(|_| scene.scene.nodes.iter().position(|n| n.is_background()));
+        let before = c.moved.take();
         for b in c.batches.iter_mut() {
             sample_rays_node(scene, k, &b.rays, &so, &mut c.fresh);
-            let old_shade = match bg {
-                Some(bi) => {
-                    let before = std::mem::take(&mut b.traced.nodes[bi].shade);
+            // Only the samples in the moved node's shadow region, before or after, can
+            // change their shading; without the node as it was, all are shaded again.
+            c.shade_changed.clear();
+            c.shade_changed.resize(b.rays.len(), false);
+            let mut old_shade = None;
+            if let Some(bi) = bg {
+                let done = before.as_ref().is_some_and(|n| {
+                    crate::shade::reshade_moved(
+                        scene,
+                        &b.rays,
+                        &mut b.traced,
+                        k,
+                        n,
+                        &mut c.shade_changed,
+                    )
+                });
+                if !done {
+                    let was = std::mem::take(&mut b.traced.nodes[bi].shade);
                     crate::shade::shade_background(scene, &b.rays, &mut b.traced);
-                    before
+                    old_shade = Some(was);
                 }
-                None => Vec::new(),
-            };
+            }
             let old = &b.traced.nodes[k];
             let bg_ns = bg.map(|bi| &b.traced.nodes[bi]);
             let shade_changed = |r: usize| {
-                bg_ns.is_some_and(|ns| {
-                    // The ray's three factors per sample, before and after (a missing
-                    // side counts as changed).
-                    let g = ns.range(r);
-                    let s = 3 * g.start..3 * g.end;
-                    old_shade.get(s.clone()) != ns.shade.get(s)
-                })
+                c.shade_changed[r]
+                    || old_shade.as_ref().is_some_and(|was| {
+                        bg_ns.is_some_and(|ns| {
+                            // The ray's three factors per sample, before and after (a
+                            // missing side counts as changed).
+                            let g = ns.range(r);
+                            let s = 3 * g.start..3 * g.end;
+                            was.get(s.clone()) != ns.shade.get(s)
+                        })
+                    })
             };
             c.affected.clear();
             c.affected.extend((0..b.rays.len()).filter(|&r| {
@@ -200,6 +223,7 @@ pub fn render_camera_moving(
             }
             std::mem::swap(&mut b.traced.nodes[k], &mut c.fresh);
         }
+        cache.moved = Some(scene.scene.nodes[k].clone());
         cache.image = Some(img.clone());
         return img;
     }
@@ -237,6 +261,7 @@ pub fn render_camera_moving(
         p = end;
     }
     cache.key = Some(key);
+    cache.moved = Some(scene.scene.nodes[k].clone());
     cache.image = Some(img.clone());
     img
 }

@@ -158,6 +158,77 @@ pub fn shade_background(scene: &NeuralScene, rays: &RayBatch, traced: &mut Trace
     }
 }
 
+/// After node `k` alone moved (it stood as `before`), the background samples' shading
+/// again where it can have changed: inside `k`'s shadow region where it stands now or
+/// where it stood (every other caster's grid is as it was). Each sample there gets the
+/// product over all casters, in [`shade_background`]'s order (the same bits); `changed[r]`
+/// is set for every ray `r` with a factor that changed. Returns false, doing nothing,
+/// when the background's shading is not laid out as [`shade_background`] leaves it or `k`
+/// casts no shadow (then shade everything again).
+pub(crate) fn reshade_moved(
+    scene: &NeuralScene,
+    rays: &RayBatch,
+    traced: &mut Traced,
+    k: usize,
+    before: &SceneNode,
+    changed: &mut [bool],
+) -> bool {
+    let Some(bi) = background(scene) else {
+        return false;
+    };
+    let cs = casters(scene);
+    let Some(moved) = cs.iter().find(|c| c.node == k) else {
+        return false;
+    };
+    let Some(ns) = traced.nodes.get(bi) else {
+        return false;
+    };
+    if ns.shade.len() != 3 * ns.t.len() {
+        return false;
+    }
+    let extent = moved.grid.extent as f64;
+    let in_region = |n: &SceneNode, p: DVec3| {
+        let c = n.world_from_local.local_from_world_point(p) / n.half_size;
+        c.abs().max_element() <= extent
+    };
+    let (cs, ns_ref) = (&cs, ns);
+    // Per ray with a change, its samples' new factors.
+    type Changes = Vec<(usize, [f32; 3])>;
+    let updates: Vec<(usize, Changes)> = (0..traced.rays)
+        .into_par_iter()
+        .filter_map(|r| {
+            let mut u = Vec::new();
+            for j in ns_ref.range(r) {
+                let p = position(rays, r, ns_ref.t[j]);
+                if !in_region(moved.scene_node, p) && !in_region(before, p) {
+                    continue;
+                }
+                let mut f = [1.0f32; 3];
+                for c in cs {
+                    if let Some(k) = c.corners(p) {
+                        let v = c.grid.at(&k);
+                        for ch in 0..3 {
+                            f[ch] *= v[ch];
+                        }
+                    }
+                }
+                if ns_ref.shade[3 * j..3 * j + 3] != f {
+                    u.push((j, f));
+                }
+            }
+            (!u.is_empty()).then_some((r, u))
+        })
+        .collect();
+    let ns = &mut traced.nodes[bi];
+    for (r, u) in updates {
+        changed[r] = true;
+        for (j, f) in u {
+            ns.shade[3 * j..3 * j + 3].copy_from_slice(&f);
+        }
+    }
+    true
+}
+
 /// Backward of [`shade_background`]: from the background samples' `d_shade` (written by
 /// `composite_batch`), the gradient of the loss with respect to each casting object's grid
 /// values, as `(node index, gradient sized like its grid's values)`.

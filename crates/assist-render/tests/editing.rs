@@ -413,12 +413,15 @@ fn bad_actions_are_refused_and_change_nothing() {
 /// camera) renders everything again.
 #[test]
 fn a_drag_rerenders_the_moving_node_alone_and_bit_for_bit() {
-    drag_bit_for_bit(false);
+    drag_bit_for_bit(false, false);
     // A node that casts a shadow moves it: the floor's shading changes with the drag.
-    drag_bit_for_bit(true);
+    drag_bit_for_bit(true, false);
+    // Under a key light, with a second caster: the moved node's shadow is re-cast at
+    // every step, and where the two regions overlap the factors multiply.
+    drag_bit_for_bit(true, true);
 }
 
-fn drag_bit_for_bit(shadow: bool) {
+fn drag_bit_for_bit(shadow: bool, lit: bool) {
     use assist_render::{DragCache, render_camera_moving};
     let mut s = base();
     if shadow {
@@ -426,7 +429,20 @@ fn drag_bit_for_bit(shadow: bool) {
         for (i, v) in g.values.iter_mut().enumerate() {
             *v = 0.3 + 0.07 * (i % 10) as f32;
         }
-        Arc::make_mut(s.fields.get_mut("red").unwrap()).shade = Some(g);
+        Arc::make_mut(s.fields.get_mut("red").unwrap()).shade = Some(g.clone());
+        if lit {
+            let key = s.scene.nodes[2].field.clone();
+            Arc::make_mut(s.fields.get_mut(&key).unwrap()).shade = Some(g);
+            s.scene.light = Some(assist_core::KeyLight {
+                position: s.scene.nodes[1].world_from_local.translation
+                    + assist_core::DVec3::new(0.5, -0.3, 1.5),
+                radius: 0.2,
+            });
+            s.scene.nodes[1].cast = Some(assist_core::ShadowCast {
+                pose: s.scene.nodes[1].world_from_local,
+                strength: [0.6, 0.5, 0.4],
+            });
+        }
     }
     let cam = camera();
     let opts = RenderOptions {
@@ -446,6 +462,15 @@ fn drag_bit_for_bit(shadow: bool) {
         assert_eq!(cached.depth, full.depth, "step {step}");
         assert_eq!(cached.panoptic, full.panoptic, "step {step}");
         assert_ne!(cached.panoptic, first.panoptic, "the node moved");
+    }
+    if lit {
+        // The re-cast shadow shows.
+        let mut unlit = s.clone();
+        unlit.scene.light = None;
+        assert_ne!(
+            render_camera(&unlit, &cam, u32::MAX, &opts).rgb,
+            render_camera(&s, &cam, u32::MAX, &opts).rgb
+        );
     }
     // Another node moving invalidates the cache: still the same image as a full render.
     s.scene.nodes[2].world_from_local.translation.x -= 0.2;
