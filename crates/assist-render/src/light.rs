@@ -121,10 +121,44 @@ fn lattice_coord(i: usize, n: usize, extent: f32) -> f64 {
     (i as f64 / (n - 1) as f64 * 2.0 - 1.0) * extent as f64
 }
 
+/// Mean visibility of `lights` past the object posed at `pose`, at the `n³` lattice
+/// points spanning `[−extent, extent]³` box units (x fastest).
+fn lattice_visibility(
+    occupancy: &OccupancyGrid,
+    half_size: DVec3,
+    pose: &Similarity3,
+    lights: &[DVec3],
+    n: usize,
+    extent: f32,
+) -> Vec<f32> {
+    let o = Occluder {
+        occupancy,
+        half_size,
+        pose,
+    };
+    (0..n * n * n)
+        .into_par_iter()
+        .map(|k| {
+            let c = DVec3::new(
+                lattice_coord(k % n, n, extent),
+                lattice_coord(k / n % n, n, extent),
+                lattice_coord(k / (n * n), n, extent),
+            ) * half_size;
+            o.visibility(pose.transform_point(c), lights)
+        })
+        .collect()
+}
+
+/// Points per axis of the lattice visibilities are taken on for a grid of `res`: half as
+/// fine (a lamp's shadow is soft).
+fn coarse_res(res: usize) -> usize {
+    res.div_ceil(2).max(2)
+}
+
 /// The shadow grid of an object posed at `now` whose grid `grid` was learned at
 /// `cast.pose`: each factor plus `cast.strength` times the change of `lights`' visibility
 /// at the lattice point between the two poses, clamped to the grid's range. Visibilities
-/// are taken on a lattice half as fine and interpolated (a lamp's shadow is soft).
+/// are taken on a lattice half as fine and interpolated.
 pub fn recast(
     grid: &ShadeGrid,
     occupancy: &OccupancyGrid,
@@ -133,29 +167,17 @@ pub fn recast(
     cast: &ShadowCast,
     lights: &[DVec3],
 ) -> ShadeGrid {
-    let n = grid.res.div_ceil(2).max(2);
-    let then = Occluder {
-        occupancy,
-        half_size,
-        pose: &cast.pose,
-    };
-    let here = Occluder {
-        occupancy,
-        half_size,
-        pose: now,
-    };
-    let coarse: Vec<f32> = (0..n * n * n)
-        .into_par_iter()
-        .map(|k| {
-            let c = DVec3::new(
-                lattice_coord(k % n, n, grid.extent),
-                lattice_coord(k / n % n, n, grid.extent),
-                lattice_coord(k / (n * n), n, grid.extent),
-            ) * half_size;
-            here.visibility(now.transform_point(c), lights)
-                - then.visibility(cast.pose.transform_point(c), lights)
-        })
-        .collect();
+    let n = coarse_res(grid.res);
+    let then = lattice_visibility(occupancy, half_size, &cast.pose, lights, n, grid.extent);
+    let here = lattice_visibility(occupancy, half_size, now, lights, n, grid.extent);
+    recast_from(grid, &then, &here, cast.strength)
+}
+
+/// [`recast`] from the coarse visibilities where the grid was learned (`then`) and where
+/// the object stands (`here`).
+fn recast_from(grid: &ShadeGrid, then: &[f32], here: &[f32], strength: [f32; 3]) -> ShadeGrid {
+    let n = coarse_res(grid.res);
+    let coarse: Vec<f32> = here.iter().zip(then).map(|(a, b)| a - b).collect();
     let r = grid.res;
     let mut out = grid.clone();
     out.values
@@ -180,8 +202,7 @@ pub fn recast(
                     dv += w * coarse[(x0 + dx) + n * ((y0 + dy) + n * (z0 + dz))];
                 }
                 for c in 0..3 {
-                    let v = &mut vals[3 * x + c];
-                    *v += cast.strength[c] * dv;
+                    vals[3 * x + c] += strength[c] * dv;
                 }
             }
         });
@@ -193,6 +214,22 @@ pub fn recast(
 /// object, or a batch of renders of one edit, computes each only once.
 static CACHE: Mutex<Vec<(u64, Arc<ShadeGrid>)>> = Mutex::new(Vec::new());
 const CACHE_ENTRIES: usize = 8;
+/// The visibilities where grids were learned, which a drag does not change.
+static LEARNED: Mutex<Vec<(u64, Arc<Vec<f32>>)>> = Mutex::new(Vec::new());
+
+/// The entry of `cache` for `id`, made by `make` (and kept, the oldest dropped) if none.
+fn cached<T>(cache: &Mutex<Vec<(u64, Arc<T>)>>, id: u64, make: impl FnOnce() -> T) -> Arc<T> {
+    if let Some((_, v)) = cache.lock().expect("cache").iter().find(|(k, _)| *k == id) {
+        return v.clone();
+    }
+    let v = Arc::new(make());
+    let mut c = cache.lock().expect("cache");
+    if c.len() >= CACHE_ENTRIES {
+        c.remove(0);
+    }
+    c.push((id, v.clone()));
+    v
+}
 
 /// [`recast`], remembered by its inputs (the grid and density by a sample of their values).
 pub fn recast_cached(
@@ -217,32 +254,32 @@ pub fn recast_cached(
         f64s(h, &p.translation.to_array());
         f64s(h, &p.scale.to_array());
     };
-    pose(&mut h, now);
     pose(&mut h, &cast.pose);
     f64s(&mut h, &half_size.to_array());
     for l in lights {
         f64s(&mut h, &l.to_array());
     }
-    for s in cast.strength {
-        s.to_bits().hash(&mut h);
-    }
-    (grid.res, grid.extent.to_bits(), grid.values.len()).hash(&mut h);
-    for v in grid.values.iter().step_by(61) {
-        v.to_bits().hash(&mut h);
-    }
+    (grid.res, grid.extent.to_bits()).hash(&mut h);
     (occupancy.res, occupancy.density.len()).hash(&mut h);
     for v in occupancy.density.iter().step_by(59) {
         v.to_bits().hash(&mut h);
     }
+    let learned_id = h.finish();
+    pose(&mut h, now);
+    for s in cast.strength {
+        s.to_bits().hash(&mut h);
+    }
+    grid.values.len().hash(&mut h);
+    for v in grid.values.iter().step_by(61) {
+        v.to_bits().hash(&mut h);
+    }
     let id = h.finish();
-    if let Some((_, g)) = CACHE.lock().expect("cache").iter().find(|(k, _)| *k == id) {
-        return g.clone();
-    }
-    let g = Arc::new(recast(grid, occupancy, half_size, now, cast, lights));
-    let mut c = CACHE.lock().expect("cache");
-    if c.len() >= CACHE_ENTRIES {
-        c.remove(0);
-    }
-    c.push((id, g.clone()));
-    g
+    cached(&CACHE, id, || {
+        let n = coarse_res(grid.res);
+        let then = cached(&LEARNED, learned_id, || {
+            lattice_visibility(occupancy, half_size, &cast.pose, lights, n, grid.extent)
+        });
+        let here = lattice_visibility(occupancy, half_size, now, lights, n, grid.extent);
+        recast_from(grid, &then, &here, cast.strength)
+    })
 }
