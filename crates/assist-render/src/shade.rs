@@ -20,6 +20,29 @@ pub struct Caster<'a> {
     pub node: usize,
     pub scene_node: &'a SceneNode,
     pub grid: CasterGrid<'a>,
+    /// A world box holding the whole region (slightly grown): most samples lie outside
+    /// it, and are known to be without a transform into the node's frame.
+    bounds: (DVec3, DVec3),
+}
+
+/// The world box around `node`'s box grown `extent` times, grown by a relative margin so
+/// that rounding never puts a point inside the region outside it.
+fn region_bounds(node: &SceneNode, extent: f32) -> (DVec3, DVec3) {
+    let h = node.half_size * extent as f64;
+    let mut lo = DVec3::splat(f64::INFINITY);
+    let mut hi = DVec3::splat(f64::NEG_INFINITY);
+    for i in 0..8 {
+        let c = DVec3::new(
+            if i & 1 == 0 { -h.x } else { h.x },
+            if i & 2 == 0 { -h.y } else { h.y },
+            if i & 4 == 0 { -h.z } else { h.z },
+        );
+        let w = node.world_from_local.transform_point(c);
+        lo = lo.min(w);
+        hi = hi.max(w);
+    }
+    let pad = (hi - lo).max_element() * 1e-6 + 1e-9;
+    (lo - pad, hi + pad)
 }
 
 /// A caster's shadow grid: the learned one, or the one re-cast for where the object
@@ -43,6 +66,10 @@ impl Caster<'_> {
     /// Where world point `p` lies in the grid, if inside its region.
     #[inline]
     fn corners(&self, p: DVec3) -> Option<Corners> {
+        let (lo, hi) = self.bounds;
+        if p.cmplt(lo).any() || p.cmpgt(hi).any() {
+            return None;
+        }
         let l = self.scene_node.world_from_local.local_from_world_point(p);
         let c = (l / self.scene_node.half_size).as_vec3().to_array();
         self.grid.corners(c)
@@ -80,10 +107,12 @@ pub fn casters(scene: &NeuralScene) -> Vec<Caster<'_>> {
                 }
                 _ => CasterGrid::Learned(learned),
             };
+            let bounds = region_bounds(n, grid.extent);
             Some(Caster {
                 node: k,
                 scene_node: n,
                 grid,
+                bounds,
             })
         })
         .collect()
@@ -187,9 +216,17 @@ pub(crate) fn reshade_moved(
         return false;
     }
     let extent = moved.grid.extent as f64;
-    let in_region = |n: &SceneNode, p: DVec3| {
-        let c = n.world_from_local.local_from_world_point(p) / n.half_size;
-        c.abs().max_element() <= extent
+    let regions = [
+        (moved.scene_node, moved.bounds),
+        (before, region_bounds(before, moved.grid.extent)),
+    ];
+    let in_region = |p: DVec3| {
+        regions.iter().any(|&(n, (lo, hi))| {
+            !(p.cmplt(lo).any() || p.cmpgt(hi).any()) && {
+                let c = n.world_from_local.local_from_world_point(p) / n.half_size;
+                c.abs().max_element() <= extent
+            }
+        })
     };
     let (cs, ns_ref) = (&cs, ns);
     // Per ray with a change, its samples' new factors.
@@ -200,7 +237,7 @@ pub(crate) fn reshade_moved(
             let mut u = Vec::new();
             for j in ns_ref.range(r) {
                 let p = position(rays, r, ns_ref.t[j]);
-                if !in_region(moved.scene_node, p) && !in_region(before, p) {
+                if !in_region(p) {
                     continue;
                 }
                 let mut f = [1.0f32; 3];
