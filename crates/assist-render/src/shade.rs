@@ -159,22 +159,26 @@ fn per_background_sample<T: Send>(
     )
 }
 
+/// The background's shading at world point `p`: per channel, the product of the factors
+/// of the casters whose region holds it, in their order.
+fn shade_at(cs: &[Caster], p: DVec3) -> [f32; 3] {
+    let mut f = [1.0f32; 3];
+    for c in cs {
+        if let Some(k) = c.corners(p) {
+            let v = c.grid.at(&k);
+            for ch in 0..3 {
+                f[ch] *= v[ch];
+            }
+        }
+    }
+    f
+}
+
 /// Fills the background node's [`NodeSamples::shade`](crate::NodeSamples::shade) (three
 /// factors per sample) from the objects' shadow grids (left empty — no shadow — when no
 /// object has one). Call after sampling, before compositing.
 pub fn shade_background(scene: &NeuralScene, rays: &RayBatch, traced: &mut Traced) {
-    let shade = per_background_sample(scene, rays, traced, |cs, p| {
-        let mut f = [1.0f32; 3];
-        for c in cs {
-            if let Some(k) = c.corners(p) {
-                let v = c.grid.at(&k);
-                for ch in 0..3 {
-                    f[ch] *= v[ch];
-                }
-            }
-        }
-        f
-    });
+    let shade = per_background_sample(scene, rays, traced, shade_at);
     if let Some(ns) = background(scene).and_then(|b| traced.nodes.get_mut(b)) {
         // Three factors per sample, replacing the previous ones.
         ns.shade.clear();
@@ -240,15 +244,7 @@ pub(crate) fn reshade_moved(
                 if !in_region(p) {
                     continue;
                 }
-                let mut f = [1.0f32; 3];
-                for c in cs {
-                    if let Some(k) = c.corners(p) {
-                        let v = c.grid.at(&k);
-                        for ch in 0..3 {
-                            f[ch] *= v[ch];
-                        }
-                    }
-                }
+                let f = shade_at(cs, p);
                 if ns_ref.shade[3 * j..3 * j + 3] != f {
                     u.push((j, f));
                 }
