@@ -123,8 +123,9 @@ pub const SCALE_RANGE: (f64, f64) = (1e-6, 1e6);
 impl SceneNode {
     /// Why this node's box and pose cannot be saved and loaded again, if they cannot:
     /// every value finite, the box positive, the rotation a unit quaternion, the scale in
-    /// [`SCALE_RANGE`] and the position within [`MAX_COORDINATE`]. Returns the field and
-    /// the message.
+    /// [`SCALE_RANGE`] and the position within [`MAX_COORDINATE`] — the same of its
+    /// [`ShadowCast`]'s pose, whose strengths lie in `[0, 1]`. Returns the field and the
+    /// message.
     pub fn check(&self) -> Result<(), (&'static str, String)> {
         let hs = self.half_size.to_array();
         if !hs.iter().all(|v| v.is_finite() && *v > 0.0) {
@@ -133,44 +134,72 @@ impl SceneNode {
                 format!("expected 3 positive numbers, got {hs:?}"),
             ));
         }
-        let p = &self.world_from_local;
-        let vals: Vec<f64> = p
-            .rotation
-            .to_array()
-            .into_iter()
-            .chain(p.translation.to_array())
-            .chain(p.scale.to_array())
-            .collect();
-        if !vals.iter().all(|v| v.is_finite()) {
-            return Err(("world_from_local", "expected finite numbers".into()));
-        }
-        let (lo, hi) = SCALE_RANGE;
-        if p.scale.min_element() < lo || p.scale.max_element() > hi {
-            return Err((
+        check_pose(
+            &self.world_from_local,
+            [
+                "world_from_local",
                 "world_from_local.scale",
-                format!(
-                    "expected every factor from {lo:e} to {hi:e}, got {:?}",
-                    p.scale.to_array()
-                ),
-            ));
-        }
-        if p.translation.abs().max_element() > MAX_COORDINATE {
-            return Err((
                 "world_from_local.translation",
-                format!(
-                    "expected coordinates within ±{MAX_COORDINATE:e}, got {:?}",
-                    p.translation.to_array()
-                ),
-            ));
-        }
-        if (p.rotation.length() - 1.0).abs() > 1e-3 {
-            return Err((
                 "world_from_local.rotation",
-                "expected a unit quaternion".into(),
-            ));
+            ],
+        )?;
+        if let Some(c) = &self.cast {
+            check_pose(
+                &c.pose,
+                [
+                    "cast.pose",
+                    "cast.pose.scale",
+                    "cast.pose.translation",
+                    "cast.pose.rotation",
+                ],
+            )?;
+            if !c.strength.iter().all(|k| (0.0..=1.0).contains(k)) {
+                return Err((
+                    "cast.strength",
+                    format!("expected 3 numbers from 0 to 1, got {:?}", c.strength),
+                ));
+            }
         }
         Ok(())
     }
+}
+
+/// Why pose `p` cannot be saved and loaded again, if it cannot: the field at fault (of
+/// `fields`: the whole pose, its scale, translation, rotation) and the message.
+fn check_pose(p: &Similarity3, fields: [&'static str; 4]) -> Result<(), (&'static str, String)> {
+    let vals: Vec<f64> = p
+        .rotation
+        .to_array()
+        .into_iter()
+        .chain(p.translation.to_array())
+        .chain(p.scale.to_array())
+        .collect();
+    if !vals.iter().all(|v| v.is_finite()) {
+        return Err((fields[0], "expected finite numbers".into()));
+    }
+    let (lo, hi) = SCALE_RANGE;
+    if p.scale.min_element() < lo || p.scale.max_element() > hi {
+        return Err((
+            fields[1],
+            format!(
+                "expected every factor from {lo:e} to {hi:e}, got {:?}",
+                p.scale.to_array()
+            ),
+        ));
+    }
+    if p.translation.abs().max_element() > MAX_COORDINATE {
+        return Err((
+            fields[2],
+            format!(
+                "expected coordinates within ±{MAX_COORDINATE:e}, got {:?}",
+                p.translation.to_array()
+            ),
+        ));
+    }
+    if (p.rotation.length() - 1.0).abs() > 1e-3 {
+        return Err((fields[3], "expected a unit quaternion".into()));
+    }
+    Ok(())
 }
 
 /// What a ray shows past its last sample, where the nodes leave it transparent.

@@ -386,6 +386,32 @@ fn check_scene_values(file: &Path, prefix: &str, s: &Scene) -> Result<(), SceneF
             format!("expected finite numbers, got {:?}", s.background_color),
         ));
     }
+    if let Some(l) = &s.light {
+        if !(l.position.is_finite()
+            && l.position.abs().max_element() <= assist_core::scene::MAX_COORDINATE)
+        {
+            return Err(invalid(
+                file,
+                f("light.position"),
+                format!(
+                    "expected coordinates within ±{:e}, got {:?}",
+                    assist_core::scene::MAX_COORDINATE,
+                    l.position.to_array()
+                ),
+            ));
+        }
+        if !(l.radius.is_finite() && (0.0..=assist_core::scene::MAX_COORDINATE).contains(&l.radius))
+        {
+            return Err(invalid(
+                file,
+                f("light.radius"),
+                format!(
+                    "expected a radius of 0 or more world units, got {}",
+                    l.radius
+                ),
+            ));
+        }
+    }
     if let Some(id) = s.selected
         && s.node(id).is_none()
     {

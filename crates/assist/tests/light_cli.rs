@@ -128,4 +128,34 @@ fn scene_light_finds_the_lamp_and_edits_keep_where_shadows_were_learned() {
     let undone = scene_json(&e);
     assert_eq!(undone["light"], scene["light"]);
     assert_eq!(undone["nodes"][2]["cast"], mug["cast"]);
+
+    // Bad values in a scene file are named, nothing is written, and nothing panics.
+    for (field, value, what) in [
+        (
+            "light",
+            serde_json::json!({"position": [0.0, 0.0, 1.0], "radius": -1.0}),
+            "light.radius",
+        ),
+        (
+            "cast",
+            serde_json::json!({"pose": mug["cast"]["pose"], "strength": [0.5, 2.0, 0.5]}),
+            "cast.strength",
+        ),
+    ] {
+        let bad = tmp.path().join(format!("bad-{field}.assist"));
+        let out = tmp.path().join(format!("bad-{field}-out.assist"));
+        ok(&run(&["scene", "light", s(&a), "--out", s(&bad)]));
+        let mut j = scene_json(&bad);
+        if field == "light" {
+            j["light"] = value;
+        } else {
+            j["nodes"][2]["cast"] = value;
+        }
+        std::fs::write(bad.join("scene.json"), serde_json::to_vec(&j).unwrap()).unwrap();
+        let err = refused(
+            &run(&["scene", "light", s(&bad), "--out", s(&out)]),
+            &["scene.json", what],
+        );
+        assert!(!out.exists(), "{err}");
+    }
 }
