@@ -172,7 +172,7 @@ def train(
     callback: Optional[Callable[[dict[str, Any]], None]] = None,
     **options: Any,
 ) -> dict[str, Any]:
-    """Trains a scene as `assist train` does; options are its settings (downscale, seed,
-    resume, force, lambdas, …). The callback sees every event as a dict. Ctrl+C saves the
+    """Trains a scene as `assist train` does; options are its flags with `_` for `-`
+    (downscale=2, seed=1, resume=True, force=True, shadows="off", lambda_obj_share=0.0, …). The callback sees every event as a dict. Ctrl+C saves the
     scene and raises KeyboardInterrupt. Returns the report (iterations, seconds,
     stopped_by, final_stats)."""

@@ -415,7 +415,7 @@ fn lib_node(
     session: &Session,
     j: usize,
     l: &spec::LibraryEntry,
-) -> Result<(LibNode, std::sync::Arc<assist_scene::NodeField>)> {
+) -> Result<(LibNode, std::sync::Arc<assist_session::NodeField>)> {
     let bad = |message: String| GenError::Spec {
         path: l.scene.clone(),
         field: format!("library[{j}]"),

@@ -10,7 +10,7 @@
 //! hid them), so what training left there is not part of the object.
 
 use assist_core::{DMat3, DQuat, DVec3, Obb, SceneNode, Similarity3};
-use assist_scene::NodeField;
+use assist_session::NodeField;
 
 use crate::surface::SupportMap;
 

@@ -562,11 +562,11 @@ impl Generator {
             for c in &cameras {
                 let frame = session.render(&c.camera, &req)?;
                 let bg = background.as_ref().map(|b| {
-                    assist_render::render_camera(
+                    assist_session::render_camera(
                         b,
                         &c.camera,
                         u32::MAX,
-                        &assist_render::RenderOptions::default(),
+                        &assist_session::RenderOptions::default(),
                     )
                     .rgb
                 });

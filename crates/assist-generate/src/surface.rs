@@ -14,9 +14,8 @@
 //! invented: the `unobserved` masks).
 
 use assist_core::{Camera, DVec2, DVec3};
-use assist_render::{RenderOptions, render_camera};
-use assist_scene::NeuralScene;
 use assist_session::{NamedCamera, Session};
+use assist_session::{NeuralScene, RenderOptions, render_camera};
 use rayon::prelude::*;
 
 /// The scene's up and two axes spanning the plane perpendicular to it.

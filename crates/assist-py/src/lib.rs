@@ -674,8 +674,8 @@ fn generate(
 }
 
 /// Trains a scene on the dataset at `data` into `out` (`NAME.assist`), as `assist train`
-/// does; `options` are `assist train`'s (`downscale=2`, `seed=1`, `resume=True`,
-/// `force=True`, `lambdas={"bg_rgb": 0.5}`, …). `callback`, if given, is called with every
+/// does; `options` are `assist train`'s flags with `_` for `-` (`downscale=2`, `seed=1`,
+/// `resume=True`, `force=True`, `shadows="off"`, `lambda_obj_share=0.0`, …). `callback`, if given, is called with every
 /// event as a dict (`{"event": "step", "stats": {...}, "eta_seconds": ...}`, `loading`,
 /// `saved`, …). Ctrl+C saves the scene, then raises `KeyboardInterrupt`. Returns the
 /// report: iterations, seconds, what stopped it (`stopped_by`), the last step's figures.

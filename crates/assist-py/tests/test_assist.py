@@ -185,6 +185,10 @@ def test_train_reports_and_calls_back(trained):
             raise RuntimeError("enough")
     with pytest.raises(RuntimeError, match="enough"):
         assist.train(cap, root / "py2.assist", iters=50, callback=stop)
+    # Keywords are the CLI's long flags with `_`, recorded in the trained scene.
+    assist.train(cap, root / "py5.assist", iters=2, lambda_obj_share=0.0, shadows="off")
+    record = json.loads((root / "py5.assist" / "scene.json").read_text())["info"]["train_config"]
+    assert record["lambda_obj_share"] == 0.0 and record["shadows"] == "off"
     with pytest.raises(assist.AssistError, match='unknown option "colour"'):
         assist.train(cap, root / "py3.assist", colour=1)
     with pytest.raises(assist.AssistError, match="nowhere"):

@@ -13,17 +13,18 @@
 mod cameras;
 mod embed;
 mod export;
+mod held_out;
+mod jobs;
 mod render_job;
+mod train_config;
 mod train_job;
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 
 use assist_core::{Action, Camera, DVec3, Edit, InstanceId, Scene, SceneNode};
-use assist_render::{
-    HIGHLIGHT, RenderOptions, RenderScratch, render_camera, render_camera_moving, render_rays,
-};
-use assist_scene::{EditError, Editor, NeuralScene, SceneFileError};
+use assist_render::{HIGHLIGHT, RenderScratch, render_camera_moving, render_rays};
+use assist_scene::{EditError, Editor, SceneFileError};
 
 pub use assist_clip as clip;
 pub use assist_data::Output;
@@ -33,8 +34,10 @@ pub use assist_mesh::{
     DEFAULT_DENSITY, DEFAULT_MAX_TRIANGLES, DEFAULT_MIN_PART, DEFAULT_RESOLUTION, DEFAULT_SMOOTH,
     ExtractOptions, MeshFrame,
 };
-pub use assist_render::DragCache;
 pub use assist_render::RenderedImage as Frame;
+pub use assist_render::{DragCache, RenderOptions, render_camera};
+pub use assist_scene::scene_file;
+pub use assist_scene::{NeuralScene, NodeField};
 pub use cameras::{
     CameraSource, NamedCamera, Orbit, SplitChoice, dataset_cameras, objects_box, orbit,
 };
@@ -44,13 +47,18 @@ pub use embed::{
 pub use export::{
     DEFAULT_MATERIAL_DENSITY, DEFAULT_POINTS, ExportJob, ExportSummary, ExportedNode, SimModel,
 };
+pub use jobs::{
+    EvalJob, EvalReport, LIGHT_MIN_EXPLAINED, LightEstimate, LightJob, Photograph, photograph,
+    trained_downscale,
+};
 pub use render_job::{
     DatasetOutput, Highlight, RenderJob, RenderSummary, ViewDone, frame_layers, view_images,
 };
-pub use train_job::{
-    Appearance, DEFAULT_EVAL_VIEWS, HeldOut, LambdaOverrides, TrainConfig, TrainEvent, TrainJob,
-    TrainOutcome, lambdas, preview_path,
+pub use train_config::{
+    Appearance, DEFAULT_EVAL_VIEWS, LambdaOverrides, MAX_BATCH_SAMPLES, MIN_BATCH_SAMPLES, OnOff,
+    Shadows, TrainConfig, lambda_key, lambdas,
 };
+pub use train_job::{HeldOut, TrainEvent, TrainJob, TrainOutcome, preview_path};
 
 #[derive(Debug, thiserror::Error)]
 pub enum SessionError {
@@ -67,6 +75,9 @@ pub enum SessionError {
     /// An output folder that may not be written (not assist's, in use, no space).
     #[error(transparent)]
     Output(assist_fs::FsError),
+    /// The output of a training run exists and neither `force` nor `resume` was given.
+    #[error("{} already exists (replace it with force, or continue it with resume)", .0.display())]
+    OutExists(PathBuf),
     /// A request that cannot be served (a size, a pixel, an id).
     #[error("{what}: {message}")]
     Request { what: String, message: String },
@@ -550,21 +561,6 @@ impl Session {
             return Ok(None);
         }
         Ok(Some(ray.origin + ray.dir * (c.depth / c.opacity) as f64))
-    }
-
-    /// The scene's objects as a dataset writer lists them (id and label; the background
-    /// is not an instance).
-    pub fn instances(&self) -> Vec<assist_data::Instance> {
-        self.nodes()
-            .iter()
-            .filter(|n| !n.is_background())
-            .map(|n| assist_data::Instance {
-                id: n.id,
-                label: n.label.clone(),
-                class: n.class.clone(),
-                bbox: None,
-            })
-            .collect()
     }
 
     /// Another scene's description (nodes, units; no weights), for cross-scene edits.

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use assist_core::InstanceId;
-use assist_data::{DatasetWriter, Layer, Output, ViewImages, WriterConfig};
+use assist_data::{DatasetWriter, Layer, Output, ViewImages};
 use assist_render::{HIGHLIGHT, RenderOptions, render_camera};
 use assist_scene::NeuralScene;
 use serde::{Deserialize, Serialize};
@@ -77,16 +77,7 @@ impl Session {
         job: &DatasetOutput,
         on_view: impl FnMut(&ViewDone),
     ) -> Result<RenderSummary> {
-        let scene = self.scene();
-        let cfg = WriterConfig {
-            outputs: job.outputs.clone(),
-            meters_per_unit: scene.scene.meters_per_unit,
-            world_up: scene.scene.up.to_array(),
-            instances: self.instances(),
-            // The scene's own class list: the same ids in every render of it.
-            classes: scene.scene.class_names(),
-            ..WriterConfig::default()
-        };
+        let cfg = self.writer_config(job.outputs.clone());
         let writer = DatasetWriter::create(&job.out, cfg, job.force).map_err(SessionError::Data)?;
         self.render_into(&writer, cameras, job.highlight, false, on_view)?;
         let views = writer.finish().map_err(SessionError::Data)?;
@@ -197,5 +188,36 @@ pub fn view_images<'a>(
         panoptic: &frame.panoptic,
         layers,
         background,
+    }
+}
+
+impl Session {
+    /// The dataset writer's settings for renders of this scene: its units, up, objects
+    /// and class list (the same class ids in every render of it), and `outputs`.
+    pub fn writer_config(&self, outputs: Vec<Output>) -> assist_data::WriterConfig {
+        let d = self.description();
+        assist_data::WriterConfig {
+            outputs,
+            meters_per_unit: d.meters_per_unit,
+            world_up: d.up.to_array(),
+            instances: self.instances(),
+            classes: d.class_names(),
+            ..assist_data::WriterConfig::default()
+        }
+    }
+
+    /// The scene's objects as a dataset writer lists them (id and label; the background
+    /// is not an instance).
+    pub fn instances(&self) -> Vec<assist_data::Instance> {
+        self.nodes()
+            .iter()
+            .filter(|n| !n.is_background())
+            .map(|n| assist_data::Instance {
+                id: n.id,
+                label: n.label.clone(),
+                class: n.class.clone(),
+                bbox: None,
+            })
+            .collect()
     }
 }

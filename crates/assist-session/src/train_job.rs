@@ -8,266 +8,19 @@ use std::sync::atomic::AtomicBool;
 
 use assist_data::{Dataset, LoadOptions, Split};
 use assist_scene::NeuralScene;
-use assist_train::{BackgroundSpace, SetupOptions, background_color, build_scene};
-use assist_train::{Lambdas, ResumeState, StepStats};
-use assist_train::{PriorKind, TrainOptions, TrainReport, Trainer};
+use assist_train::{ResumeState, StepStats};
+use assist_train::{
+    SetupOptions, TrainOptions, TrainReport, Trainer, background_color, build_scene,
+};
 use assist_train::{fill_priors, load_views};
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
+use crate::held_out::HeldOutSet;
+pub use crate::held_out::{HeldOut, preview_path};
+use crate::train_config::{
+    Appearance, MAX_BATCH_SAMPLES, MIN_BATCH_SAMPLES, OnOff, Shadows, TrainConfig, lambdas,
+};
 use crate::{Result, SessionError, request};
-
-/// Per-image appearance embeddings.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Appearance {
-    /// On for real captures (COLMAP, LLFF), off for rendered ones.
-    #[default]
-    Auto,
-    On,
-    Off,
-}
-
-impl Appearance {
-    pub fn parse(s: &str) -> Option<Self> {
-        Some(match s {
-            "auto" => Appearance::Auto,
-            "on" => Appearance::On,
-            "off" => Appearance::Off,
-            _ => return None,
-        })
-    }
-}
-
-/// Fewest samples a training step may take.
-pub const MIN_BATCH_SAMPLES: usize = 1 << 10;
-/// Most samples a training step may take (2²⁴: about 2 GB of activations).
-pub const MAX_BATCH_SAMPLES: usize = 1 << 24;
-
-/// Loss weights the user sets; `None` keeps the rule's value (see [`Lambdas`]).
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
-#[serde(default)]
-pub struct LambdaOverrides {
-    pub bg_rgb: Option<f32>,
-    pub bg_opacity: Option<f32>,
-    pub bg_depth: Option<f32>,
-    pub obj_acc: Option<f32>,
-    pub obj_rgb: Option<f32>,
-    pub obj_share: Option<f32>,
-    pub distortion: Option<f32>,
-    pub empty: Option<f32>,
-}
-
-/// Everything a training run is configured with. `data` and `out` have no default; every
-/// other field's default is the one `assist train` uses.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
-pub struct TrainConfig {
-    /// The dataset (any supported format).
-    pub data: PathBuf,
-    /// The scene directory written (`NAME.assist`).
-    pub out: PathBuf,
-    pub iters: usize,
-    /// Stop after this many seconds (the learning-rate schedule then runs on time).
-    pub max_time: Option<f64>,
-    /// Train on images this many times smaller.
-    pub downscale: u32,
-    /// Samples per training step (the ray count adapts).
-    pub batch_samples: usize,
-    /// Share of each batch's rays drawn from pixels on or next to objects.
-    pub object_rays: f64,
-    /// Background prior under the objects (`None` also sets λ1 = λ2 = 0 when the dataset
-    /// supplies no inpainted images).
-    pub prior: PriorKind,
-    /// Background priors made elsewhere: per training image, the view inpainted without
-    /// its objects, and optionally its depth (see [`assist_data::priors`]). They replace
-    /// the built-in fill where present.
-    pub prior_dir: Option<PathBuf>,
-    pub lambdas: LambdaOverrides,
-    /// Object boxes overriding the dataset's and the carved ones.
-    pub boxes: Option<PathBuf>,
-    pub appearance: Appearance,
-    pub background: BackgroundSpace,
-    /// Learn a pose correction for every training view with the scene (see
-    /// [`assist_train::PoseRefiner`]).
-    pub refine_poses: bool,
-    /// Learn each object's shadow on the background (see [`assist_train::shadow`]), so
-    /// the background learns the surface without the objects and an edited object takes
-    /// its shadow along. Only scenes with objects are affected.
-    pub shadows: bool,
-    /// Start each new shadow grid from the photographs' darkening around its object
-    /// ([`assist_train::estimate_shadows`]) instead of from no shadow.
-    pub shadow_estimate: bool,
-    /// The shadow grids keep the values they start from (the estimate) instead of training
-    /// with the scene.
-    pub shadows_fixed: bool,
-    /// What objects hide of the background learns only from its prior (see
-    /// [`TrainOptions::hidden_stop`]; 0 = off).
-    pub hidden_stop: f32,
-    pub seed: u64,
-    /// Seconds between checkpoints written to `out`.
-    pub checkpoint_every: f64,
-    /// Continue training the scene in `out`.
-    pub resume: bool,
-    /// Replace `out` if it exists.
-    pub force: bool,
-    /// Measure held-out views (the test split, else val) every this many iterations,
-    /// writing a preview image beside `out` (see [`preview_path`]).
-    pub eval_every: Option<usize>,
-    /// Held-out views measured, evenly spread over the split (0 = none, not even at the
-    /// end of the run).
-    pub eval_views: usize,
-    /// Testing aid: poison a parameter with NaN at this iteration.
-    #[serde(skip)]
-    pub poison_at: Option<usize>,
-}
-
-/// Held-out views measured during and after training.
-pub const DEFAULT_EVAL_VIEWS: usize = 4;
-
-/// Where periodic held-out evaluations leave their preview: beside the scene,
-/// `NAME.preview.png` for `NAME.assist`.
-pub fn preview_path(out: &std::path::Path) -> PathBuf {
-    out.with_extension("preview.png")
-}
-
-/// How the scene does on views it did not train on.
-#[derive(Debug, Clone, Serialize)]
-pub struct HeldOut {
-    pub iteration: usize,
-    /// Training seconds when measured.
-    pub elapsed: f64,
-    /// The split the views come from (test, else val).
-    pub split: String,
-    pub views: usize,
-    /// Mean of per-view PSNR (dB) and SSIM.
-    pub psnr: f64,
-    pub ssim: f64,
-    /// Seconds the measurement took (counted in the run's time).
-    pub seconds: f64,
-    /// The first view, ground truth left and render right (periodic evaluations).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub preview: Option<PathBuf>,
-}
-
-/// The held-out views of a run, loaded once.
-struct HeldOutSet {
-    split: Split,
-    views: Vec<(assist_core::Camera, assist_train::View)>,
-}
-
-impl HeldOutSet {
-    /// Up to `n` views of the test split (else val), evenly spread; `None` without one.
-    fn load(ds: &Dataset, n: usize) -> Result<Option<HeldOutSet>> {
-        if n == 0 {
-            return Ok(None);
-        }
-        let bg = background_color(ds);
-        for split in [Split::Test, Split::Val] {
-            let frames: Vec<_> = ds.frames_in(split).collect();
-            if frames.is_empty() {
-                continue;
-            }
-            let k = n.min(frames.len());
-            let mut views = Vec::with_capacity(k);
-            for i in 0..k {
-                let f = frames[i * frames.len() / k];
-                let v = assist_train::load_view(f, u32::MAX, bg)?;
-                views.push((f.camera, v));
-            }
-            return Ok(Some(HeldOutSet { split, views }));
-        }
-        Ok(None)
-    }
-
-    /// Renders the views with `scene` (the average appearance) and scores them; with
-    /// `preview`, writes the first view beside its render there.
-    fn measure(
-        &self,
-        scene: &NeuralScene,
-        iteration: usize,
-        elapsed: f64,
-        preview: Option<&std::path::Path>,
-    ) -> Result<HeldOut> {
-        use assist_train::metrics::{psnr, ssim};
-        let t0 = std::time::Instant::now();
-        let opts = assist_render::RenderOptions::default();
-        let (mut p, mut q) = (0.0, 0.0);
-        let mut first = None;
-        for (cam, v) in &self.views {
-            let img = assist_render::render_camera(scene, cam, u32::MAX, &opts);
-            let rgb: Vec<f32> = img.rgb.iter().map(|x| x.clamp(0.0, 1.0)).collect();
-            p += psnr(&rgb, &v.rgb, 3, None)
-                .unwrap_or(f64::INFINITY)
-                .min(100.0);
-            q += ssim(&rgb, &v.rgb, v.width, v.height, 3);
-            if first.is_none() {
-                first = Some(rgb);
-            }
-        }
-        let n = self.views.len().max(1) as f64;
-        let mut written = None;
-        if let (Some(path), Some(rgb), Some((_, v))) = (preview, &first, self.views.first()) {
-            let (w, h) = (v.width, v.height);
-            let mut side = vec![0u8; 2 * w * h * 3];
-            let to8 = |x: f32| (x.clamp(0.0, 1.0) * 255.0 + 0.5) as u8;
-            for y in 0..h {
-                for x in 0..w {
-                    for c in 0..3 {
-                        let i = 3 * (y * w + x) + c;
-                        side[3 * (y * 2 * w + x) + c] = to8(v.rgb[i]);
-                        side[3 * (y * 2 * w + w + x) + c] = to8(rgb[i]);
-                    }
-                }
-            }
-            assist_data::image_io::write_rgb8_png(path, 2 * w as u32, h as u32, &side)
-                .map_err(SessionError::Data)?;
-            written = Some(path.to_path_buf());
-        }
-        Ok(HeldOut {
-            iteration,
-            elapsed,
-            split: self.split.name().to_string(),
-            views: self.views.len(),
-            psnr: p / n,
-            ssim: q / n,
-            seconds: t0.elapsed().as_secs_f64(),
-            preview: written,
-        })
-    }
-}
-
-impl Default for TrainConfig {
-    fn default() -> Self {
-        let t = TrainOptions::default();
-        TrainConfig {
-            data: PathBuf::new(),
-            out: PathBuf::new(),
-            iters: t.iters,
-            max_time: t.max_time,
-            downscale: 1,
-            batch_samples: t.batch_samples,
-            object_rays: t.object_ray_fraction,
-            prior: PriorKind::default(),
-            prior_dir: None,
-            lambdas: LambdaOverrides::default(),
-            boxes: None,
-            appearance: Appearance::Auto,
-            background: BackgroundSpace::Auto,
-            refine_poses: false,
-            shadows: true,
-            shadow_estimate: true,
-            shadows_fixed: true,
-            hidden_stop: t.hidden_stop,
-            seed: 0,
-            checkpoint_every: 120.0,
-            resume: false,
-            force: false,
-            eval_every: None,
-            eval_views: DEFAULT_EVAL_VIEWS,
-            poison_at: None,
-        }
-    }
-}
 
 /// What a training job tells while it runs.
 #[derive(Debug, Clone, Serialize)]
@@ -354,13 +107,7 @@ impl TrainJob {
             return Err(request("out", "expected a scene path to write".into()));
         }
         if c.out.exists() && !c.force && !c.resume {
-            return Err(request(
-                "out",
-                format!(
-                    "{} already exists (replace it with force, or continue it with resume)",
-                    c.out.display()
-                ),
-            ));
+            return Err(SessionError::OutExists(c.out.clone()));
         }
         if !(MIN_BATCH_SAMPLES..=MAX_BATCH_SAMPLES).contains(&c.batch_samples) {
             return Err(request(
@@ -406,20 +153,10 @@ impl TrainJob {
                 ),
             ));
         }
-        let o = &c.lambdas;
-        for (name, v) in [
-            ("lambda_bg_rgb", o.bg_rgb),
-            ("lambda_bg_opacity", o.bg_opacity),
-            ("lambda_bg_depth", o.bg_depth),
-            ("lambda_obj_acc", o.obj_acc),
-            ("lambda_obj_rgb", o.obj_rgb),
-            ("lambda_obj_share", o.obj_share),
-            ("lambda_distortion", o.distortion),
-            ("lambda_empty", o.empty),
-        ] {
-            if let Some(v) = v.filter(|v| !(v.is_finite() && *v >= 0.0)) {
+        for (name, v) in c.lambdas.iter() {
+            if !(v.is_finite() && v >= 0.0) {
                 return Err(request(
-                    name,
+                    &crate::train_config::lambda_key(name),
                     format!("expected a finite weight of 0 or more (0 = off), got {v}"),
                 ));
             }
@@ -470,41 +207,7 @@ impl TrainJob {
         // A resumed run: the same dataset, iterations left, and more time (checked before
         // the images are read).
         let fingerprint = ds.fingerprint();
-        let mut max_time = c.max_time;
-        let mut resume = None;
-        if c.resume {
-            let (_, info) = assist_scene::scene_file::load_scene_json(&c.out)?;
-            let state = resume_state(&c.out, &info)?;
-            resume = Some(state.clone());
-            let before = info.get("dataset_fingerprint").and_then(|v| v.as_str());
-            if let Some(before) = before.filter(|b| *b != fingerprint)
-                && !c.force
-            {
-                return Err(request(
-                    "resume",
-                    format!(
-                        "{} was trained on another dataset ({}, fingerprint {before}); {} has fingerprint {fingerprint} (other frames or poses). Pass --force to continue on it anyway",
-                        c.out.display(),
-                        info.get("dataset")
-                            .and_then(|v| v.as_str())
-                            .unwrap_or("path not recorded"),
-                        c.data.display()
-                    ),
-                ));
-            }
-            if state.iteration >= c.iters {
-                return Err(request(
-                    "iters",
-                    format!(
-                        "{} has already trained {} iterations; a resumed run continues up to --iters (raise it to train more)",
-                        c.out.display(),
-                        state.iteration
-                    ),
-                ));
-            }
-            // A resumed run's time budget is additional: it counts from where it stopped.
-            max_time = max_time.map(|t| state.elapsed_seconds + t);
-        }
+        let (resume, max_time) = self.resume_point(&fingerprint)?;
         on_event(&TrainEvent::Loading {
             images: n_train,
             data: c.data.clone(),
@@ -538,28 +241,7 @@ impl TrainJob {
         if !carved.is_empty() {
             on_event(&TrainEvent::Carved { nodes: carved });
         }
-        // Objects learn their shadows (a resumed scene's grids train on whatever the flag).
-        let objects = if c.shadows {
-            assist_train::add_shadow_grids(&mut scene)
-        } else {
-            0
-        };
-        let st = assist_train::shadow_free_priors(&scene, &mut views);
-        // New grids start from the photographs' darkening (trained ones are left as they are).
-        let est = if c.shadows && (c.shadow_estimate || c.shadows_fixed) {
-            assist_train::estimate_shadows(&mut scene, &views)
-        } else {
-            assist_train::ShadowEstimate::default()
-        };
-        if objects > 0 || st.views > 0 {
-            on_event(&TrainEvent::Shadows {
-                objects,
-                covered: st.covered,
-                seen: st.seen,
-                estimated: est.pixels,
-            });
-        }
-        let held_shadows = est.held;
+        let held_shadows = self.shadows(&mut scene, &mut views, &mut on_event);
         let lambdas = lambdas(c, views.iter().any(|v| v.inpaint.is_some()));
         if !c.resume && views.iter().all(|v| v.ids.is_none()) {
             on_event(&TrainEvent::NoMasks {
@@ -574,27 +256,7 @@ impl TrainJob {
                 .map(|n| (n.id, n.label.clone()))
                 .collect(),
         });
-        let opts = TrainOptions {
-            iters: c.iters,
-            max_time,
-            batch_samples: c.batch_samples,
-            object_ray_fraction: c.object_rays,
-            downscale: c.downscale,
-            depth_affine,
-            refine_poses: c.refine_poses,
-            hidden_stop: c.hidden_stop,
-            lambdas,
-            seed: c.seed,
-            checkpoint: Some(c.out.clone()),
-            checkpoint_every: c.checkpoint_every,
-            poison_at: c.poison_at,
-            cancel: Some(self.cancel.clone()),
-            provenance: serde_json::Map::from_iter([
-                ("dataset".to_string(), c.data.display().to_string().into()),
-                ("dataset_fingerprint".to_string(), fingerprint.into()),
-            ]),
-            ..Default::default()
-        };
+        let opts = self.options(max_time, depth_affine, lambdas, fingerprint);
         let held = HeldOutSet::load(&ds, c.eval_views)?;
         if c.eval_every.is_some() && held.is_none() {
             return Err(request(
@@ -608,7 +270,7 @@ impl TrainJob {
         let preview = preview_path(&c.out);
         let mut eval_error = None;
         let mut trainer = Trainer::new(scene, views, opts)?;
-        if c.shadows_fixed {
+        if c.shadows == Shadows::Fixed {
             // What the photographs show of each shadow stays as estimated, and what lies
             // nearer another object stays shadow-free; the rest (under the object) trains
             // with the scene.
@@ -665,6 +327,118 @@ impl TrainJob {
         })
     }
 
+    /// Gives the objects their shadow grids (as configured), makes the background prior
+    /// shadow-free near them and estimates new grids from the photographs; returns the
+    /// lattice points the photographs hold (see [`Trainer::shade_held`]).
+    fn shadows(
+        &self,
+        scene: &mut NeuralScene,
+        views: &mut [assist_train::View],
+        on_event: &mut impl FnMut(&TrainEvent),
+    ) -> std::collections::BTreeMap<String, Vec<bool>> {
+        let c = &self.config;
+        // Objects learn their shadows (a resumed scene's grids train on whatever the flag).
+        let objects = if c.learns_shadows() {
+            assist_train::add_shadow_grids(scene)
+        } else {
+            0
+        };
+        let st = assist_train::shadow_free_priors(scene, views);
+        // New grids start from the photographs' darkening (trained ones are left as they are).
+        let est = if c.learns_shadows()
+            && (c.shadow_estimate == OnOff::On || c.shadows == Shadows::Fixed)
+        {
+            assist_train::estimate_shadows(scene, views)
+        } else {
+            assist_train::ShadowEstimate::default()
+        };
+        if objects > 0 || st.views > 0 {
+            on_event(&TrainEvent::Shadows {
+                objects,
+                covered: st.covered,
+                seen: st.seen,
+                estimated: est.pixels,
+            });
+        }
+        est.held
+    }
+
+    /// The trainer's options for this job's configuration.
+    fn options(
+        &self,
+        max_time: Option<f64>,
+        depth_affine: bool,
+        lambdas: assist_train::Lambdas,
+        fingerprint: String,
+    ) -> TrainOptions {
+        let c = &self.config;
+        TrainOptions {
+            iters: c.iters,
+            max_time,
+            batch_samples: c.batch_samples,
+            object_ray_fraction: c.object_rays,
+            downscale: c.downscale,
+            depth_affine,
+            refine_poses: c.refine_poses,
+            hidden_stop: c.hidden_stop,
+            lambdas,
+            seed: c.seed,
+            checkpoint: Some(c.out.clone()),
+            checkpoint_every: c.checkpoint_every,
+            poison_at: c.poison_at,
+            cancel: Some(self.cancel.clone()),
+            provenance: serde_json::Map::from_iter([
+                ("dataset".to_string(), c.data.display().to_string().into()),
+                ("dataset_fingerprint".to_string(), fingerprint.into()),
+                ("train_config".to_string(), c.record()),
+            ]),
+            ..Default::default()
+        }
+    }
+
+    /// Where a resumed run starts, and the run's time budget (a resumed run's counts from
+    /// where it stopped); refused when the scene was trained on another dataset (unless
+    /// `force`) or has no iterations left.
+    fn resume_point(&self, fingerprint: &str) -> Result<(Option<ResumeState>, Option<f64>)> {
+        let c = &self.config;
+        let mut max_time = c.max_time;
+        let mut resume = None;
+        if c.resume {
+            let (_, info) = assist_scene::scene_file::load_scene_json(&c.out)?;
+            let state = resume_state(&c.out, &info)?;
+            resume = Some(state.clone());
+            let before = info.get("dataset_fingerprint").and_then(|v| v.as_str());
+            if let Some(before) = before.filter(|b| *b != fingerprint)
+                && !c.force
+            {
+                return Err(request(
+                    "resume",
+                    format!(
+                        "{} was trained on another dataset ({}, fingerprint {before}); {} has fingerprint {fingerprint} (other frames or poses). Pass --force to continue on it anyway",
+                        c.out.display(),
+                        info.get("dataset")
+                            .and_then(|v| v.as_str())
+                            .unwrap_or("path not recorded"),
+                        c.data.display()
+                    ),
+                ));
+            }
+            if state.iteration >= c.iters {
+                return Err(request(
+                    "iters",
+                    format!(
+                        "{} has already trained {} iterations; a resumed run continues up to --iters (raise it to train more)",
+                        c.out.display(),
+                        state.iteration
+                    ),
+                ));
+            }
+            // A resumed run's time budget is additional: it counts from where it stopped.
+            max_time = max_time.map(|t| state.elapsed_seconds + t);
+        }
+        Ok((resume, max_time))
+    }
+
     /// A new scene for the dataset, or the one being resumed.
     fn scene(
         &self,
@@ -705,30 +479,4 @@ fn resume_state(out: &std::path::Path, info: &serde_json::Value) -> Result<Resum
             format!("{}: {m}", out.join("scene.json").display()),
         )
     })
-}
-
-/// The loss weights of a run: the defaults, the background-prior terms off when there is
-/// no prior at all, then the user's values.
-pub fn lambdas(c: &TrainConfig, dataset_inpaint: bool) -> Lambdas {
-    let mut l = Lambdas::default();
-    if c.prior == PriorKind::None && !dataset_inpaint {
-        l.bg_rgb = 0.0;
-        l.bg_depth = 0.0;
-    }
-    let o = &c.lambdas;
-    for (slot, v) in [
-        (&mut l.bg_rgb, o.bg_rgb),
-        (&mut l.bg_opacity, o.bg_opacity),
-        (&mut l.bg_depth, o.bg_depth),
-        (&mut l.obj_acc, o.obj_acc),
-        (&mut l.obj_rgb, o.obj_rgb),
-        (&mut l.obj_share, o.obj_share),
-        (&mut l.distortion, o.distortion),
-        (&mut l.empty, o.empty),
-    ] {
-        if let Some(v) = v {
-            *slot = v;
-        }
-    }
-    l
 }

@@ -38,6 +38,6 @@ pub use shadow::{
 };
 pub use trainer::{
     EMPTY_MARGIN, Lambdas, POSE_LR, PhaseTimes, PoseRefiner, ResumeState, StepStats, StopReason,
-    TrainOptions, TrainReport, Trainer, update_depth_affine,
+    TERMS, TermInfo, Terms, TrainOptions, TrainReport, Trainer, term, update_depth_affine,
 };
 pub use views::{PriorKind, View, fill_prior, fill_priors, load_view, load_views};

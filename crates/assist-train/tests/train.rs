@@ -207,7 +207,7 @@ fn the_empty_space_term_clears_haze_in_front_of_surfaces() {
         t.opts.iters = 80;
         t.opts.lambdas.empty = empty;
         let mut last = 0.0;
-        t.run(|s, _| last = s.empty).unwrap();
+        t.run(|s, _| last = s.terms.empty).unwrap();
         terms.push(last);
         haze.push(haze_in_front_of_surfaces(&t.scene, &ds));
     }

@@ -12,7 +12,7 @@ use assist_core::{
     Action, ActionConfig, AxisSpec, Camera, DVec3, InstanceId, Operation, SceneNode,
 };
 use assist_data::visual::{depth_image, ids_image};
-use assist_data::{DatasetWriter, Output as WriterOutput, ViewImages, WriterConfig};
+use assist_data::{DatasetWriter, Output as WriterOutput, ViewImages};
 use assist_session::{DragCache, RenderRequest, Session, Steps};
 
 use crate::protocol::{ClientMsg, DragOp, DragPhase, NodeState, Output, ServerMsg, View};
@@ -572,19 +572,11 @@ impl Worker {
             .map(|k| parent.join(format!("{stem}-view-{k}")))
             .find(|d| !d.exists())
             .ok_or("save view: no free folder name")?;
-        let d = self.session.description();
-        let cfg = WriterConfig {
-            outputs: vec![
-                WriterOutput::Rgb,
-                WriterOutput::Depth,
-                WriterOutput::Panoptic,
-            ],
-            meters_per_unit: d.meters_per_unit,
-            world_up: d.up.to_array(),
-            instances: self.session.instances(),
-            classes: d.class_names(),
-            ..WriterConfig::default()
-        };
+        let cfg = self.session.writer_config(vec![
+            WriterOutput::Rgb,
+            WriterOutput::Depth,
+            WriterOutput::Panoptic,
+        ]);
         let w = DatasetWriter::create(&dir, cfg, false).map_err(|e| e.to_string())?;
         let view = ViewImages {
             width: frame.width,

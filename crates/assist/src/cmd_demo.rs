@@ -136,8 +136,8 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     train(&data_b, &scene_b, a.other_seconds, a.seed)?;
 
     eprintln!("4/6 measuring the trained scene on its test views");
-    let (trained, _) = assist_scene::scene_file::load(&scene_a)?;
-    let r = assist_train::evaluate(&trained, &ds, Some(Split::Test), 1, |_, _| {})?;
+    let before = Session::open(&scene_a)?;
+    let r = before.evaluate(&ds, Some(Split::Test), 1, |_, _| {})?;
     eprintln!(
         "    test PSNR {:.2} dB, SSIM {:.3}, panoptic mIoU {:.3}, background depth error {:.1}% ({} views)",
         r.psnr,
@@ -148,10 +148,9 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     );
 
     eprintln!("5/6 editing with plain language");
-    let backdrop = trained.scene.background_color;
-    let before = Session::new(trained);
+    let backdrop = before.description().background_color;
     let mut session = Session::open(&scene_a)?;
-    let (other, _) = assist_scene::scene_file::load_scene_json(&scene_b)?;
+    let other = Session::describe(&scene_b)?;
     let text = instruction(&session.scene().scene, &other, &scene_b.to_string_lossy())?;
     eprintln!("    \"{text}\"");
     let edits = session.apply_text(&text, None)?;
@@ -183,7 +182,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     let mut tiles: Vec<Vec<(ImageF32, String)>> = Vec::new();
     for &i in &picks_at {
         let f = &ds.frames[i];
-        let v = assist_train::load_view(f, u32::MAX, backdrop)?;
+        let v = assist_session::photograph(f, backdrop)?;
         let psnr = r
             .per_image
             .iter()

@@ -4,7 +4,7 @@ use std::io::IsTerminal;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use assist_data::{LoadOptions, Split};
+use assist_data::Split;
 use clap::Args;
 
 #[derive(Args, Debug)]
@@ -29,15 +29,6 @@ pub struct EvalArgs {
     pub json: bool,
 }
 
-/// The `--downscale` a scene was trained with (1 when it does not say).
-pub(crate) fn trained_downscale(info: &serde_json::Value) -> u32 {
-    info.pointer("/options/downscale")
-        .and_then(|v| v.as_u64())
-        .map_or(1, |v| {
-            v.clamp(1, assist_data::downscale::MAX_DOWNSCALE as u64) as u32
-        })
-}
-
 /// `--split`: a split name, or `all` (`None`).
 pub(crate) fn parse_split(s: &str) -> anyhow::Result<Option<Split>> {
     if s == "all" {
@@ -50,17 +41,17 @@ pub(crate) fn parse_split(s: &str) -> anyhow::Result<Option<Split>> {
 
 pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     let split = parse_split(&a.split)?;
-    let (scene, info) = assist_scene::scene_file::load(&a.scene)
-        .with_context(|| format!("loading scene {}", a.scene.display()))?;
-    let downscale = a.downscale.unwrap_or_else(|| trained_downscale(&info));
-    let opts = LoadOptions {
-        downscale,
-        ..Default::default()
+    let job = assist_session::EvalJob {
+        scene: a.scene.clone(),
+        data: a.data.clone(),
+        split,
+        stride: a.stride,
+        downscale: a.downscale,
     };
-    let ds = assist_data::load(&a.data, &opts)
-        .with_context(|| format!("loading dataset {}", a.data.display()))?;
     let bar = crate::progress::bar(!a.json && std::io::stderr().is_terminal(), "eval");
-    let r = assist_train::evaluate(&scene, &ds, split, a.stride, crate::progress::steps(&bar))?;
+    let r = job
+        .run(crate::progress::steps(&bar))
+        .with_context(|| format!("evaluating {} on {}", a.scene.display(), a.data.display()))?;
     bar.finish_and_clear();
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);

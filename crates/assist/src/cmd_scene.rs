@@ -2,13 +2,13 @@
 //! box, pose, field file and size), its edit history and how it was trained — read from
 //! `scene.json` and `history.json` without loading any weights; `assist scene light SCENE
 //! --out OUT`: the lamp that casts the objects' shadows, found from their shadow grids
-//! ([`assist_train::estimate_light`]).
+//! ([`assist_session::LightJob`]).
 
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use assist_core::{History, Scene, SceneNode};
-use assist_scene::scene_file;
+use assist_session::scene_file;
 use clap::{Args, Subcommand};
 use serde_json::{Value, json};
 
@@ -38,8 +38,8 @@ pub struct LightArgs {
     pub json: bool,
 }
 
-/// One line on what [`assist_train::estimate_light`] found.
-pub fn describe_light(e: &assist_train::LightEstimate) -> String {
+/// One line on what [`assist_session::LightJob`] found.
+pub fn describe_light(e: &assist_session::LightEstimate) -> String {
     match &e.light {
         Some(l) => format!(
             "key light: at {:.3?}, disc radius {:.3}, explains {:.0}% of the shadows ({} lattice points); moved objects' shadows are re-cast under it",
@@ -52,44 +52,18 @@ pub fn describe_light(e: &assist_train::LightEstimate) -> String {
             "key light: none explains the shadows (best {:.0}% of {} lattice points, {:.0}% needed); moved objects keep their shadows as learned",
             100.0 * e.explained.max(0.0),
             e.points,
-            100.0 * assist_train::light::MIN_EXPLAINED
+            100.0 * assist_session::LIGHT_MIN_EXPLAINED
         ),
     }
 }
 
 fn light(a: LightArgs) -> anyhow::Result<()> {
-    let (mut scene, mut history, meta) = scene_file::load_with_history(&a.scene)
-        .with_context(|| format!("reading scene {}", a.scene.display()))?;
-    // Where each object's shadow was learned: where it stood before the first edit (a
-    // replica where its original stood; a node from another scene is left out).
-    let first = history.undo.first().map(|s| s.scene.clone());
-    let e = assist_train::estimate_light_from(&mut scene, |n| match (&n.cast, &first) {
-        (Some(c), _) => Some(c.pose),
-        (None, None) => Some(n.world_from_local),
-        (None, Some(first)) => first
-            .nodes
-            .iter()
-            .find(|o| o.field == n.field)
-            .map(|o| o.world_from_local),
-    });
-    // The scenes the history holds get the same light, so an undo keeps it.
-    let casts: Vec<(u16, String, Option<assist_core::ShadowCast>)> = scene
-        .scene
-        .nodes
-        .iter()
-        .map(|n| (n.id, n.field.clone(), n.cast.clone()))
-        .collect();
-    for step in history.undo.iter_mut().chain(history.redo.iter_mut()) {
-        step.scene.light = scene.scene.light;
-        for n in &mut step.scene.nodes {
-            n.cast = casts
-                .iter()
-                .find(|(id, f, _)| *id == n.id && *f == n.field)
-                .and_then(|(_, _, c)| c.clone());
-        }
-    }
-    scene_file::save_with_history(&a.out, &scene, &history, meta, a.force)
-        .with_context(|| format!("writing scene {}", a.out.display()))?;
+    let job = assist_session::LightJob {
+        scene: a.scene.clone(),
+        out: a.out.clone(),
+        force: a.force,
+    };
+    let e = job.run()?;
     if a.json {
         println!(
             "{}",

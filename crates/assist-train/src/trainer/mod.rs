@@ -38,14 +38,15 @@ mod objective;
 mod options;
 mod poses;
 mod rays;
+mod terms;
 
 use objective::Objective;
 pub use options::{
-    EMPTY_MARGIN, Lambdas, PhaseTimes, ResumeState, StepStats, StopReason, TrainOptions,
-    TrainReport,
+    EMPTY_MARGIN, PhaseTimes, ResumeState, StepStats, StopReason, TrainOptions, TrainReport,
 };
 pub use poses::{POSE_EVERY, POSE_LR, PoseRefiner};
 use rays::Target;
+pub use terms::{Lambdas, TERMS, TermInfo, Terms, term};
 
 /// Smallest scale the depth prior's affine map may take.
 pub const MIN_DEPTH_SCALE: f32 = 1e-3;
@@ -303,38 +304,14 @@ impl Trainer {
                 distortion: self.out.distortion[r],
             };
             let v = objective.ray(t, &o, None);
-            s.comp_rgb += v.comp_rgb as f64;
-            s.distortion += v.distortion as f64;
-            s.obj_acc += v.obj_acc as f64;
-            s.obj_rgb += v.obj_rgb as f64;
-            s.obj_share += v.obj_share as f64;
-            s.bg_rgb += v.bg_rgb as f64;
-            s.bg_opacity += v.bg_opacity as f64;
-            s.bg_depth += v.bg_depth as f64;
-            s.empty += v.empty as f64;
+            s.terms.zip_with(&v.map(f64::from), |a, b| *a += b);
             g_wq[0] += v.d_depth_wq[0];
             g_wq[1] += v.d_depth_wq[1];
         }
         let nr = self.targets.len().max(1) as f64;
-        s.comp_rgb /= nr;
-        s.obj_acc /= nr;
-        s.obj_rgb /= nr;
-        s.obj_share /= nr;
-        s.distortion /= nr;
-        s.bg_rgb /= nr;
-        s.bg_opacity /= nr;
-        s.bg_depth /= nr;
-        s.empty /= nr;
-        s.loss = s.comp_rgb
-            + lam.bg_rgb as f64 * s.bg_rgb
-            + lam.bg_opacity as f64 * s.bg_opacity
-            + lam.bg_depth as f64 * s.bg_depth
-            + lam.obj_acc as f64 * s.obj_acc
-            + lam.obj_rgb as f64 * s.obj_rgb
-            + lam.obj_share as f64 * s.obj_share
-            + lam.distortion as f64 * s.distortion
-            + lam.empty as f64 * s.empty;
-        s.psnr = crate::metrics::mse_to_psnr(s.comp_rgb);
+        s.terms = s.terms.map(|v| v / nr);
+        s.loss = s.terms.weighted(&lam);
+        s.psnr = crate::metrics::mse_to_psnr(s.terms.comp_rgb);
         if !s.loss.is_finite() {
             return Err(TrainError::Diverged {
                 iteration: self.iteration,

@@ -4,8 +4,8 @@
 
 use assist_render::{CompositeGrad, RayOutputs};
 
-use super::Lambdas;
 use super::rays::Target;
+use super::{Lambdas, Terms};
 use crate::losses;
 
 /// What the terms of a batch depend on besides the ray.
@@ -28,16 +28,21 @@ pub(super) struct Objective<'a> {
 /// confidence), and its part of the gradient of the depth prior's scale and shift.
 #[derive(Debug, Clone, Copy, Default)]
 pub(super) struct RayTerms {
-    pub(super) comp_rgb: f32,
-    pub(super) obj_acc: f32,
-    pub(super) obj_rgb: f32,
-    pub(super) obj_share: f32,
-    pub(super) distortion: f32,
-    pub(super) bg_rgb: f32,
-    pub(super) bg_opacity: f32,
-    pub(super) bg_depth: f32,
-    pub(super) empty: f32,
+    pub(super) terms: Terms<f32>,
     pub(super) d_depth_wq: [f32; 2],
+}
+
+impl std::ops::Deref for RayTerms {
+    type Target = Terms<f32>;
+    fn deref(&self) -> &Terms<f32> {
+        &self.terms
+    }
+}
+
+impl std::ops::DerefMut for RayTerms {
+    fn deref_mut(&mut self) -> &mut Terms<f32> {
+        &mut self.terms
+    }
 }
 
 impl Objective<'_> {
@@ -56,7 +61,7 @@ impl Objective<'_> {
         terms.comp_rgb = v;
         terms.distortion = o.distortion / self.extent;
         if let Some((g, _)) = grads.as_mut() {
-            g.rgb = d.map(|v| v / n);
+            g.rgb = d.map(|v| lam.comp_rgb * v / n);
             g.distortion = lam.distortion / self.extent / n;
         }
         if t.surface.is_some() && lam.empty > 0.0 {

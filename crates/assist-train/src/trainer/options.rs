@@ -7,85 +7,11 @@ use std::sync::atomic::AtomicBool;
 
 use serde::{Deserialize, Serialize};
 
-/// Loss weights. Defaults: λ1 = 0.5 (bg colour), λ2 = 0.1 (bg depth, in units of the
-/// scene's extent), λ3 = 0.1 (object opacity), λ4 = 0.5 (object colour). The paper calls
-/// them "normalising constants" and gives no values; these were chosen on the synth scene.
-///
-/// λ5 = 0.1 weighs a sixth term that is not in the paper, `L_obj_share = Σ_k M^k (1 − W^k)²`,
-/// where `W^k` is node k's share of the weight composited along the ray (the quantity the
-/// panoptic id is taken from). The paper's `M^k` means "the ray *first* hits object k", but
-/// its `L_obj_acc` looks at each node alone, so it cannot tell whether another node — in
-/// practice the background — has density in front of the object: both colour losses are
-/// satisfied when the background grows a copy of the object's surface in front of it, and
-/// the object then loses its pixels in the panoptic output. `L_obj_share` says what the mask
-/// says, on the composite. `λ5 = 0` gives the paper's loss exactly.
-///
-/// λ6 weighs the distortion loss of mip-NeRF 360 (inter-interval term), which the paper's
-/// per-node model, nerfstudio's Nerfacto, trains with: `Σ_{i,j} w_i w_j |t_i − t_j|` over
-/// the composited weights of a ray, with `t` in units of the scene's extent. It removes the
-/// semi-transparent haze that otherwise spreads a surface over centimetres of depth (on
-/// desk without it: transmittance falls from 0.9 to 0.1 over 8 cm of depth at the median
-/// ray, over 82 cm at the 90th percentile), which blurs novel views and costs samples.
-/// λ6 defaults to 0 (off), by measurement on desk (150 s runs, λ6 = 0 / 0.01 / 0.1 / 1: background samples per
-/// ray 138 / 147 / 114 / 40, rays per second 3.4 k / 3.8 k / 4.4 k / 7.2 k, test PSNR
-/// 24.8 / 24.6 / 24.9 / 25.5 dB) — but λ6 = 1 over 900 s ended 0.7 dB *below* the run
-/// without it (28.9 dB, 20 background samples per ray: the occupancy grid, fed by the
-/// over-sharpened density, pruned cells surfaces still needed), and λ6 = 0.1 over 900 s
-/// 0.15 dB below (29.42 dB, SSIM 0.864 against 0.882). It stays available for speed (λ6 =
-/// 0.1 trains 2× the rays per second). See BENCHMARKS.md.
-#[derive(Debug, Clone, Copy, Serialize)]
-pub struct Lambdas {
-    pub bg_rgb: f32,
-    /// Weight of `Σ (1 − B_bg)²` where the background prior has a depth `d` (ours, not
-    /// the paper's), `B_bg` being the background's own opacity past `0.95·d` along the ray
-    /// ([`assist_render::Composite::beyond`]): an opaque background behind the objects,
-    /// so that a prior reaches it. The premultiplied colour term alone is met by a
-    /// background left transparent there, which renders as black holes once the objects
-    /// move. Session 10's form asked for the opacity of the whole ray, `(1 − O_bg)²`,
-    /// whose gradient raises density everywhere along it: the background grew over the
-    /// objects (the demo's panoptic mIoU 0.975 → 0.889); past the prior's depth nothing
-    /// is in front of an object, and density in front of that depth is pushed down.
-    /// Still 0 by default, by measurement on desk (7,890 steps, session 18): 0.5 raised
-    /// the background under the objects by 0.95 dB (11.81 → 12.76) and the moved-mug edit
-    /// by 0.46 dB (25.98 → 26.44), but cost the unedited test views 1.7 dB (35.97 →
-    /// 34.24) at the same mIoU; on the built-in scene (700 steps) it raised the hidden
-    /// background by 2.4 dB but cost 1.0 dB and panoptic mIoU 0.974 → 0.950. See
-    /// BENCHMARKS.md.
-    pub bg_opacity: f32,
-    pub bg_depth: f32,
-    pub obj_acc: f32,
-    pub obj_rgb: f32,
-    pub obj_share: f32,
-    pub distortion: f32,
-    /// Weight of `Σ_k F_k²` where the dataset has depth (ours; the "empty space" term of
-    /// Urban Radiance Fields' line-of-sight prior), `F_k` being node k's own opacity in
-    /// front of [`EMPTY_MARGIN`] of the depth map's distance along the ray
-    /// ([`assist_render::Composite::front`]): nothing stands in front of the surface the
-    /// depth map sees. The depth term alone holds only the mean and spread of the depth,
-    /// in units of the scene's extent, which leaves a surface's density spread over
-    /// millimetres in front of it; that haze is invisible where the node was trained but
-    /// covers the base of an object moved onto it.
-    pub empty: f32,
-}
+use super::terms::{Lambdas, Terms};
 
 /// The part of the depth map's distance in front of which [`Lambdas::empty`] asks every
 /// node to be empty: the rest absorbs depth quantisation and mixed edge pixels.
 pub const EMPTY_MARGIN: f32 = 0.005;
-
-impl Default for Lambdas {
-    fn default() -> Self {
-        Lambdas {
-            bg_rgb: 0.5,
-            bg_opacity: 0.0,
-            bg_depth: 0.1,
-            obj_acc: 0.1,
-            obj_rgb: 0.5,
-            obj_share: 0.1,
-            distortion: 0.0,
-            empty: 0.0,
-        }
-    }
-}
 
 #[derive(Debug, Clone, Serialize)]
 pub struct TrainOptions {
@@ -184,15 +110,9 @@ impl Default for TrainOptions {
 pub struct StepStats {
     pub iteration: usize,
     pub loss: f64,
-    pub comp_rgb: f64,
-    pub bg_rgb: f64,
-    pub bg_opacity: f64,
-    pub bg_depth: f64,
-    pub empty: f64,
-    pub obj_acc: f64,
-    pub obj_rgb: f64,
-    pub obj_share: f64,
-    pub distortion: f64,
+    /// Each term of the loss (batch means, before the weights).
+    #[serde(flatten)]
+    pub terms: Terms<f64>,
     /// PSNR of the composite colour on this batch.
     pub psnr: f64,
     pub rays: usize,
