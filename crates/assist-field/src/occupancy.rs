@@ -175,9 +175,8 @@ impl OccupancyGrid {
     ///
     /// One random point per cell says little about a thin surface early in training: a
     /// point that misses the table top, or lego's thin parts, empties the cell, no ray
-    /// samples it again, and nothing but hash collisions can bring it back (a 150-step
-    /// run of the built-in scene fell from 20 to 6.5 dB training PSNR as the first three
-    /// refreshes emptied most of its table, before it recovered).
+    /// samples it again, and nothing but hash collisions can bring it back: early
+    /// refreshes can empty most of a table top before training recovers it.
     pub fn start_warmup(&mut self, samples: u8) {
         self.warmup = if samples == 0 {
             Vec::new()

@@ -25,9 +25,8 @@ pub const MAX_RESOLUTION: u32 = 1024;
 /// Default density level of the surface, in the field's units (per box diagonal of
 /// canonical distance): twice the level at which the renderer's occupancy grid starts
 /// sampling a cell (1% opacity per smallest marching step, 10.24), so the surface lies in
-/// cells the renderer draws. Chosen by `assist bench mesh` on desk and a built-in scene
-/// (levels 5–69.3; BENCHMARKS.md): 69.3 (half opacity over 1% of the diagonal) left the
-/// seen surface 2–6 mm inside the mesh, 10–20 within about 1 mm.
+/// cells the renderer draws. Chosen with `assist bench mesh` (BENCHMARKS.md): higher
+/// levels leave the seen surface inside the mesh.
 pub const DEFAULT_DENSITY: f32 = 20.0;
 /// Default triangle budget per node (a collision body for a simulator, detailed enough
 /// for a render).

@@ -54,8 +54,7 @@ pub fn share(w: f32) -> (f32, f32) {
 /// alone (the paper's `L_bg_depth`) is also met by a partly transparent node whose weight
 /// sits at the far end of the ray in the right proportion, or by haze spread evenly
 /// around the target — a node can then paint each training view on the walls of its box
-/// and match its depth maps (the demo's background: 30 dB on its training views, 18 dB
-/// on the others, 52% depth error).
+/// and match its depth maps, which then fails on every view it did not train on.
 pub fn depth_moment(depth: f32, depth_sq: f32, extent: f32, target: f32) -> (f32, f32, f32) {
     let (x, x2) = (depth / extent, depth_sq / (extent * extent));
     let value = x2 - 2.0 * target * x + target * target;

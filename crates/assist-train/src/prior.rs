@@ -4,10 +4,10 @@
 //! frame instead (`inpaint_path`, `inpaint_depth_path`).
 //!
 //! Two classical fills are offered and compared on the desk benchmark's background ground
-//! truth (`assist bench prior`): a multi-scale push–pull fill (smooth, fast; the default,
-//! 17.1 dB under the objects on desk's test views) and push–pull followed by exemplar patch
-//! synthesis (texture from the unmasked pixels; 14.3 dB — copied texture that lands in the
-//! wrong place costs more than a smooth guess).
+//! truth (`assist bench prior`, figures in BENCHMARKS.md): a multi-scale push–pull fill
+//! (smooth, fast) and push–pull followed by exemplar patch synthesis (texture from the
+//! unmasked pixels; copied texture that lands in the wrong place costs more than a smooth
+//! guess).
 
 /// Dilates a boolean mask by `r` pixels (square structuring element).
 pub fn dilate(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {

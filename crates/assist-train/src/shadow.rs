@@ -23,8 +23,8 @@ use crate::prior;
 use crate::views::{PRIOR_DILATION, View};
 
 /// Lattice points per axis of an object's shadow grid: 5 mm apart around a 10 cm mug.
-/// On desk (7,890 steps) 60 against 40 gave the moved mug +0.34 dB (its contact shadow is
-/// sharper) at equal unedited quality, for ~3% more time per step (the grids' Adam).
+/// Finer than 40 gives a moved object a sharper contact shadow at a few per cent more time
+/// per step (BENCHMARKS.md).
 pub const SHADE_RES: usize = 60;
 
 /// Half-width of the shadow region in box units: the object's box grown three times about

@@ -169,6 +169,10 @@ fn config_files_give_flags_and_print_config_round_trips() {
         "4096",
         "--eval-views",
         "0",
+        "--lambda-obj-share",
+        "0.25",
+        "--shadows",
+        "off",
         "--print-config",
     ]);
     ok(&out);
@@ -200,6 +204,10 @@ fn config_files_give_flags_and_print_config_round_trips() {
     assert_eq!(v["iterations"], 3, "{v}");
     let info = common::scene_info(&t);
     assert_eq!(info["options"]["batch_samples"], 4096, "{info}");
+    // A loss weight and an option of the term table and the config, through the file.
+    assert_eq!(info["options"]["lambdas"]["obj_share"], 0.25, "{info}");
+    assert_eq!(info["train_config"]["lambda_obj_share"], 0.25, "{info}");
+    assert_eq!(info["train_config"]["shadows"], "off", "{info}");
 
     let bad = tmp.path().join("bad.toml");
     std::fs::write(&bad, "colour = 3\n").unwrap();

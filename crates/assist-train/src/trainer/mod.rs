@@ -1,20 +1,18 @@
 //! The training loop (paper §III-C): random rays over the training images, compositional
-//! rendering, the paper's five losses plus one of ours and Nerfacto's distortion loss,
-//! `L = L_comp_rgb + λ1 L_bg_rgb + λ2 L_bg_depth + λ3 L_obj_acc + λ4 L_obj_rgb +
-//! λ5 L_obj_share + λ6 L_dist`, backward into every node's field, Adam with a learning rate decaying exponentially from
-//! 1e-2 to 1e-3 over the run, occupancy-grid updates, periodic atomic checkpoints, and
-//! divergence detection (a NaN loss stops training; the last good checkpoint is kept).
+//! rendering, the loss as the weighted sum of the terms in [`TERMS`] (the paper's five,
+//! and ours, each with its weight), backward into every node's field, Adam with a learning
+//! rate decaying exponentially over the run, occupancy-grid updates, periodic atomic
+//! checkpoints, and divergence detection (a NaN loss stops training; the last good
+//! checkpoint is kept).
 //!
 //! Each term is defined once, with its gradient, in [`crate::losses`]. Two depart from
-//! the paper's text, by measurement: a node's colour terms (`L_bg_rgb`, `L_obj_rgb`)
-//! compare its composited colour with the target scaled by its own opacity
+//! the paper's text: a node's colour terms (`L_bg_rgb`, `L_obj_rgb`) compare its
+//! composited colour with the target scaled by its own opacity
 //! ([`losses::premultiplied_rgb`]), and a depth prior of known scale (the dataset's own
 //! depth) is met by the whole weight distribution, not only its mean
 //! ([`losses::depth_moment`]); a prior of unknown scale (a monocular model's, supplied by
 //! the user) keeps the paper's squared error of the mean depth under a learnable affine
-//! map. On the built-in demo scene the two together took held-out PSNR from 20.0 to 30.2
-//! dB and the background's depth error from 52% to 0.4% (with free-space carving and the
-//! last-sample backdrop; see BENCHMARKS.md).
+//! map. Both are measured in BENCHMARKS.md.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -53,10 +51,9 @@ pub const MIN_DEPTH_SCALE: f32 = 1e-3;
 
 /// One Adam step on the depth prior's scale and shift, then the scale is kept positive.
 /// A prior depth is ordered like the true one (far stays far), so only a positive scale
-/// means anything; a negative one turns the loss into a push *away* from the prior. On
-/// desk without the object losses the scale did go negative (-3.3) and the background
-/// lost its back wall (21.5 dB): far pixels rendered with little weight have a small
-/// rendered depth, which the flipped scale then rewarded.
+/// means anything; a negative one turns the loss into a push *away* from the prior (far
+/// pixels rendered with little weight have a small rendered depth, which a flipped scale
+/// rewards, and the background loses its far walls).
 pub fn update_depth_affine(adam: &mut Adam, wq: &mut [f32; 2], grad: &mut [f32; 2]) {
     adam.update(1e-3, wq, grad);
     wq[0] = wq[0].max(MIN_DEPTH_SCALE);

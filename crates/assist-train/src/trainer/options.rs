@@ -22,9 +22,7 @@ pub struct TrainOptions {
     pub batch_samples: usize,
     pub lr_start: f32,
     /// The learning rate at the end of the run (it decays exponentially from `lr_start`
-    /// over the iterations or the time budget). 1e-3 by measurement: fern after 300 s
-    /// gained 0.37 dB over 1e-4 (24.51 / 24.14 dB), whose second half trained at a tenth of
-    /// the starting rate or less; see BENCHMARKS.md for the other scenes.
+    /// over the iterations or the time budget); measured against 1e-4 in BENCHMARKS.md.
     pub lr_end: f32,
     pub lambdas: Lambdas,
     pub occupancy_every: usize,
@@ -33,27 +31,21 @@ pub struct TrainOptions {
     pub checkpoint: Option<PathBuf>,
     pub checkpoint_every: f64,
     /// Fraction of each batch drawn from pixels on or near objects (when masks exist); the
-    /// rest are drawn uniformly over all pixels. 0.25 by measurement on desk (900 s: 32.42
-    /// dB against 30.76 dB with 0.5, the same mIoU).
+    /// rest are drawn uniformly over all pixels, so that small objects get enough rays
+    /// (the default is measured in BENCHMARKS.md).
     pub object_ray_fraction: f64,
     /// Samples behind the point where their node's transmittance falls below this are
     /// dropped after a density-only pass, before the forward and backward passes (0 =
-    /// keep all; nerfacc's early stop, see `assist_render::prune`). Off by default, by
-    /// measurement: on beer's contracted background it drops 9% of the samples (the
-    /// contracted occupancy grid already keeps ~45 per ray) for a density pass over all
-    /// of them, and beer and fern ended lower with it (23.96 / 22.80 dB against 24.20 /
-    /// 23.42 dB in 300 s); lego_400 ended higher (30.06 against 29.61 dB: its batches
-    /// held twice the rays). See BENCHMARKS.md.
+    /// keep all; nerfacc's early stop, see `assist_render::prune`). Off by default: the
+    /// occupancy grid already drops most of what it would, and the density pass costs more
+    /// than it saves on real captures (BENCHMARKS.md).
     pub prune_eps: f32,
     /// The background's samples whose transmittance through the objects in front of them
     /// is below this learn only from the background's own terms (its prior), not from the
     /// photographs through the objects' imperfect opacity ([`assist_render::HiddenStop`];
     /// 0 = off). What an object hides is not in the photographs: through a dark mug
-    /// interior they favoured no table at all. Off by default, by measurement on desk
-    /// (7,890 steps, session 20, with the multi-view prior fixed): 0.5 gave the moved mug
-    /// +0.14 dB (30.61 against 30.47) but cost the unedited views 0.28 dB (35.42 / 35.70)
-    /// and the background under objects 0.2 dB (21.98 / 22.19); on the built-in scene
-    /// (700 steps) 30.59 / 30.68 dB. See BENCHMARKS.md.
+    /// interior they favoured no table at all. Off by default: it costs the unedited views
+    /// more than it gives a moved object (BENCHMARKS.md).
     pub hidden_stop: f32,
     /// The dataset's `--downscale` (recorded in the scene for evaluation; 1 = none).
     pub downscale: u32,
