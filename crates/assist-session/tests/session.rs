@@ -1,60 +1,15 @@
 //! A session in memory: load a scene once, then edit in words, render, pick and undo with
 //! no disk access.
 
-use std::collections::BTreeMap;
-use std::sync::Arc;
 
-use assist_core::{Camera, DVec3, Intrinsics, NodeSpace, Pose, Scene, SceneNode, Similarity3};
-use assist_field::{Field, OccupancyGrid};
-use assist_scene::{NeuralScene, NodeField};
+use assist_core::{Camera, DVec3, Intrinsics, Pose};
+use assist_scene::NeuralScene;
 use assist_session::{RenderRequest, Session, SessionError};
 use assist_testkit::TempDir;
 
-fn node(id: u16, label: &str, half: f64, at: DVec3) -> SceneNode {
-    SceneNode {
-        id,
-        label: label.into(),
-        embedding: None,
-        class: None,
-        field: format!("f{id}"),
-        half_size: DVec3::splat(half),
-        world_from_local: Similarity3::from_translation(at),
-        space: NodeSpace::Box,
-        cast: None,
-    }
-}
-
 /// A grey room-sized background with a red and a green cube on the floor.
 fn table_scene() -> NeuralScene {
-    let nodes = vec![
-        node(0, "background", 1.5, DVec3::new(0.0, 0.0, 0.0)),
-        node(1, "red box", 0.05, DVec3::new(-0.15, 0.0, 0.05)),
-        node(2, "green box", 0.05, DVec3::new(0.15, 0.0, 0.05)),
-    ];
-    let fields = [
-        Field::constant(3.0, [0.5, 0.5, 0.5], false, 1),
-        Field::constant(3000.0, [0.9, 0.1, 0.1], false, 2),
-        Field::constant(3000.0, [0.1, 0.8, 0.2], false, 3),
-    ];
-    let mut map = BTreeMap::new();
-    for (n, f) in nodes.iter().zip(fields) {
-        let nf = NodeField::new(f.unwrap(), OccupancyGrid::new(16), n.half_size);
-        map.insert(n.field.clone(), Arc::new(nf));
-    }
-    NeuralScene {
-        scene: Scene {
-            nodes,
-            up: DVec3::Z,
-            meters_per_unit: 1.0,
-            background_color: [0.0; 3],
-            backdrop: Default::default(),
-            selected: None,
-            near: 0.0,
-            classes: Vec::new(),
-            light: None,
-        },
-        fields: map,
-    }
+    assist_testkit::scenes::two_boxes(0.05)
 }
 
 fn camera() -> Camera {

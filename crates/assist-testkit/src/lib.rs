@@ -2,9 +2,12 @@
 //!
 //! Finding the shared datasets (`ASSIST_DATA` or `../shared/data` beside the project),
 //! skipping loudly when they are absent, temporary directories that clean up, and
-//! tolerance statistics.
+//! tolerance statistics; with the `scenes` feature, hand-built scenes of constant fields.
 
 #![forbid(unsafe_code)]
+
+#[cfg(feature = "scenes")]
+pub mod scenes;
 
 use std::path::{Path, PathBuf};
 

@@ -2,33 +2,14 @@
 //! selects, edits, undoes and saves; bad messages get error replies and the session goes
 //! on; a non-loopback viewer refuses clients without its token.
 
-use std::collections::BTreeMap;
 use std::net::{IpAddr, Ipv4Addr};
-use std::sync::Arc;
 use std::time::Duration;
 
-use assist_core::{DVec3, NodeSpace, Scene, SceneNode, Similarity3};
-use assist_field::{Field, OccupancyGrid};
-use assist_scene::{NeuralScene, NodeField};
 use assist_testkit::TempDir;
 use assist_viewer::{ViewerOptions, start};
 use futures_util::{SinkExt, StreamExt};
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
-
-fn node(id: u16, label: &str, half: f64, at: DVec3) -> SceneNode {
-    SceneNode {
-        id,
-        label: label.into(),
-        embedding: None,
-        class: None,
-        field: format!("f{id}"),
-        half_size: DVec3::splat(half),
-        world_from_local: Similarity3::from_translation(at),
-        space: NodeSpace::Box,
-        cast: None,
-    }
-}
 
 /// A grey background box with a red and a green cube, saved as `scene.assist`.
 fn scene_on_disk(dir: &TempDir) -> std::path::PathBuf {
@@ -36,35 +17,7 @@ fn scene_on_disk(dir: &TempDir) -> std::path::PathBuf {
 }
 
 fn scene_at(path: &std::path::Path) -> std::path::PathBuf {
-    let nodes = vec![
-        node(0, "background", 1.5, DVec3::ZERO),
-        node(1, "red box", 0.08, DVec3::new(-0.15, 0.0, 0.05)),
-        node(2, "green box", 0.08, DVec3::new(0.15, 0.0, 0.05)),
-    ];
-    let fields = [
-        Field::constant(3.0, [0.5, 0.5, 0.5], false, 1),
-        Field::constant(3000.0, [0.9, 0.1, 0.1], false, 2),
-        Field::constant(3000.0, [0.1, 0.8, 0.2], false, 3),
-    ];
-    let mut map = BTreeMap::new();
-    for (n, f) in nodes.iter().zip(fields) {
-        let nf = NodeField::new(f.unwrap(), OccupancyGrid::new(16), n.half_size);
-        map.insert(n.field.clone(), Arc::new(nf));
-    }
-    let scene = NeuralScene {
-        scene: Scene {
-            nodes,
-            up: DVec3::Z,
-            meters_per_unit: 1.0,
-            background_color: [0.0; 3],
-            backdrop: Default::default(),
-            selected: None,
-            near: 0.0,
-            classes: Vec::new(),
-            light: None,
-        },
-        fields: map,
-    };
+    let scene = assist_testkit::scenes::two_boxes(0.08);
     assist_scene::scene_file::save(path, &scene, json!({}), false).unwrap();
     path.to_path_buf()
 }
