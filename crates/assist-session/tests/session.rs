@@ -1,7 +1,6 @@
 //! A session in memory: load a scene once, then edit in words, render, pick and undo with
 //! no disk access.
 
-
 use assist_core::{Camera, DVec3, Intrinsics, Pose};
 use assist_scene::NeuralScene;
 use assist_session::{RenderRequest, Session, SessionError};

@@ -30,6 +30,65 @@ pub const PREVIEW_DIVISOR: u32 = 4;
 /// JPEG quality of the frames.
 const JPEG_QUALITY: u8 = 85;
 
+mod handlers;
+
+/// What a handled message changed: the frame (render again) and the scene's state (send
+/// the client the node list and history again).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub(crate) struct Changed {
+    pub frame: bool,
+    pub state: bool,
+}
+
+impl Changed {
+    const NOTHING: Changed = Changed {
+        frame: false,
+        state: false,
+    };
+    const FRAME: Changed = Changed {
+        frame: true,
+        state: false,
+    };
+    const STATE: Changed = Changed {
+        frame: false,
+        state: true,
+    };
+    const ALL: Changed = Changed {
+        frame: true,
+        state: true,
+    };
+}
+
+/// Why a message was not served; the client is sent its text.
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum Refused {
+    /// The session refused the request (a bad edit, a failed save, …).
+    #[error(transparent)]
+    Session(#[from] assist_session::SessionError),
+    /// The message asks for something this client cannot have (no selection, no such
+    /// scene, a name outside the scenes folder, …).
+    #[error("{0}")]
+    Request(String),
+    /// The output folder may not be written (in use, not assist's, no space).
+    #[error(transparent)]
+    Output(#[from] assist_fs::FsError),
+    /// Writing a saved view failed.
+    #[error(transparent)]
+    Write(#[from] assist_data::DataError),
+}
+
+impl From<String> for Refused {
+    fn from(s: String) -> Self {
+        Refused::Request(s)
+    }
+}
+
+impl From<&str> for Refused {
+    fn from(s: &str) -> Self {
+        Refused::Request(s.to_string())
+    }
+}
+
 /// The state of a drag in progress: the undo depth before it began, and whether a preview
 /// edit is applied.
 struct Drag {
@@ -154,9 +213,9 @@ impl Worker {
             let mut dirty = false;
             let mut state = false;
             while let Some(m) = pending.pop_front() {
-                let (d, s) = self.handle(m, &send);
-                dirty |= d;
-                state |= s;
+                let changed = self.handle(m, &send);
+                dirty |= changed.frame;
+                state |= changed.state;
             }
             if state && !send(Outgoing::Json(self.state())) {
                 return;
@@ -196,23 +255,23 @@ impl Worker {
         }));
     }
 
-    /// Applies one message; returns (the frame changed, the scene state changed).
-    fn handle(&mut self, m: ClientMsg, send: &impl Fn(Outgoing) -> bool) -> (bool, bool) {
-        let r: Result<(bool, bool), String> = match m {
+    /// Applies one message; returns what it changed (a refusal is sent to the client).
+    fn handle(&mut self, m: ClientMsg, send: &impl Fn(Outgoing) -> bool) -> Changed {
+        let r: Result<Changed, Refused> = match m {
             ClientMsg::View { view } => {
                 self.view = Some(view);
-                Ok((true, false))
+                Ok(Changed::FRAME)
             }
             ClientMsg::Output { output } => {
                 self.output = output;
-                Ok((true, false))
+                Ok(Changed::FRAME)
             }
             ClientMsg::Click { x, y } => self.click(x, y),
             ClientMsg::Select { id } => self
                 .session
                 .select(id)
-                .map(|_| (true, true))
-                .map_err(|e| e.to_string()),
+                .map(|_| Changed::ALL)
+                .map_err(Refused::from),
             ClientMsg::Delete => self.on_selected(Operation::Delete, ActionConfig::default()),
             ClientMsg::Replicate => self.on_selected(Operation::Replicate, ActionConfig::default()),
             ClientMsg::Drag {
@@ -229,9 +288,9 @@ impl Worker {
                 .apply_with(&actions, Steps::One)
                 .map(|edits| {
                     self.log.push(format!("{} action(s) applied", edits.len()));
-                    (true, true)
+                    Changed::ALL
                 })
-                .map_err(|e| e.to_string()),
+                .map_err(Refused::from),
             ClientMsg::Open { scene } => self.open(&scene, send),
             ClientMsg::AddFrom { scene, node, x, y } => self.add_from(&scene, node, x, y),
             ClientMsg::SwapWith { scene, node } => self.swap_with(&scene, node),
@@ -240,12 +299,12 @@ impl Worker {
                 .rename(id, &label)
                 .map(|_| {
                     self.log.push(format!("node {id} renamed {label:?}"));
-                    (false, true)
+                    Changed::STATE
                 })
-                .map_err(|e| e.to_string()),
+                .map_err(Refused::from),
             ClientMsg::Hide { id, hidden } => {
                 if self.session.node(id).is_none() {
-                    Err(format!("hide: no node with id {id}"))
+                    Err(format!("hide: no node with id {id}").into())
                 } else {
                     if hidden {
                         self.hidden.insert(id);
@@ -253,346 +312,28 @@ impl Worker {
                         self.hidden.remove(&id);
                     }
                     self.cache = DragCache::default();
-                    Ok((true, true))
+                    Ok(Changed::ALL)
                 }
             }
             ClientMsg::Undo => Ok(if self.session.undo() {
                 self.log.push("undo".into());
-                (true, true)
+                Changed::ALL
             } else {
-                (false, false)
+                Changed::NOTHING
             }),
             ClientMsg::Redo => Ok(if self.session.redo() {
                 self.log.push("redo".into());
-                (true, true)
+                Changed::ALL
             } else {
-                (false, false)
+                Changed::NOTHING
             }),
             ClientMsg::Save { path, force } => self.save(path.as_deref(), force, send),
             ClientMsg::SaveView => self.save_view(send),
         };
-        r.unwrap_or_else(|message| {
-            self.error(send, message);
-            (false, false)
+        r.unwrap_or_else(|e| {
+            self.error(send, e.to_string());
+            Changed::NOTHING
         })
-    }
-
-    fn open(
-        &mut self,
-        name: &str,
-        send: &impl Fn(Outgoing) -> bool,
-    ) -> Result<(bool, bool), String> {
-        let path = self.others.resolve(name)?;
-        let other = Session::describe(&path).map_err(|e| e.to_string())?;
-        send(Outgoing::Json(ServerMsg::Other {
-            scene: name.to_string(),
-            nodes: other.nodes.iter().map(node_state).collect(),
-        }));
-        Ok((false, false))
-    }
-
-    fn add_from(
-        &mut self,
-        name: &str,
-        node: InstanceId,
-        x: f64,
-        y: f64,
-    ) -> Result<(bool, bool), String> {
-        let path = self.others.resolve(name)?;
-        let cam = self.camera()?;
-        let at = self
-            .session
-            .surface(&cam, x, y)
-            .map_err(|e| e.to_string())?
-            .ok_or("add: no surface under that pixel to put the node on")?;
-        let other = Session::describe(&path).map_err(|e| e.to_string())?;
-        let n = other
-            .nodes
-            .iter()
-            .find(|n| n.id == node)
-            .ok_or_else(|| format!("scene {name:?} has no node {node}"))?;
-        // The node rests on the surface: its centre half its height above the point.
-        let up = self.session.description().up.normalize();
-        let scale = self.session.description().meters_per_unit / other.meters_per_unit;
-        let half = (n.half_size * n.world_from_local.scale).z / scale.max(1e-12);
-        let centre = at + up * half;
-        let config = ActionConfig {
-            scene: Some(path.display().to_string()),
-            node: Some(assist_core::NodeRef::Id(node)),
-            position: Some(centre.to_array()),
-            unit: Some("units".into()),
-            ..ActionConfig::default()
-        };
-        let edits = self
-            .session
-            .apply_with(&[Action::new(0, Operation::Add, config)], Steps::One)
-            .map_err(|e| e.to_string())?;
-        if let Some(assist_core::Edit::Add { imported }) = edits.first() {
-            let id = imported.node.id;
-            self.session.select(Some(id)).map_err(|e| e.to_string())?;
-            self.log.push(format!("added object {id} from {name}"));
-        }
-        Ok((true, true))
-    }
-
-    fn swap_with(&mut self, name: &str, node: InstanceId) -> Result<(bool, bool), String> {
-        let path = self.others.resolve(name)?;
-        let config = ActionConfig {
-            scene: Some(path.display().to_string()),
-            with: Some(assist_core::NodeRef::Id(node)),
-            ..ActionConfig::default()
-        };
-        self.on_selected(Operation::Swap, config)
-    }
-
-    fn camera(&self) -> Result<Camera, String> {
-        self.view
-            .as_ref()
-            .ok_or_else(|| "no view yet: send a view message first".to_string())?
-            .camera()
-    }
-
-    fn click(&mut self, x: f64, y: f64) -> Result<(bool, bool), String> {
-        let cam = self.camera()?;
-        let hidden: Vec<InstanceId> = self.hidden.iter().copied().collect();
-        let id = if hidden.is_empty() {
-            self.session.pick(&cam, x, y)
-        } else {
-            self.session.without(&hidden).pick(&cam, x, y)
-        }
-        .map_err(|e| e.to_string())?;
-        self.session.select(id).map_err(|e| e.to_string())?;
-        Ok((true, true))
-    }
-
-    fn selected(&self) -> Result<InstanceId, String> {
-        self.session
-            .description()
-            .selected
-            .ok_or_else(|| "no object selected: click one first".to_string())
-    }
-
-    fn on_selected(&mut self, op: Operation, config: ActionConfig) -> Result<(bool, bool), String> {
-        let id = self.selected()?;
-        let action = Action::new(id, op, config);
-        self.session
-            .apply_with(&[action], Steps::One)
-            .map_err(|e| e.to_string())?;
-        if op == Operation::Delete {
-            self.session.select(None).map_err(|e| e.to_string())?;
-        }
-        self.log.push(format!("{} object {id}", op_name(op)));
-        Ok((true, true))
-    }
-
-    /// A drag: each move undoes the previous preview and applies the new amount; commit
-    /// keeps it as one undo step; cancel undoes it.
-    fn drag(
-        &mut self,
-        op: DragOp,
-        axis: &str,
-        amount: f64,
-        (dx, dy): (f64, f64),
-        phase: DragPhase,
-    ) -> Result<(bool, bool), String> {
-        let id = self.selected()?;
-        let applied = self.drag.as_ref().is_some_and(|d| d.applied);
-        if applied {
-            self.session.undo();
-        }
-        self.drag = None;
-        if phase == DragPhase::Cancel {
-            return Ok((true, true));
-        }
-        let config = self.drag_config(op, axis, amount, (dx, dy), id)?;
-        let operation = match op {
-            DragOp::Translate => Operation::Translate,
-            DragOp::Rotate => Operation::Rotate,
-            DragOp::Scale => Operation::Scale,
-        };
-        self.session
-            .apply_with(&[Action::new(id, operation, config)], Steps::One)
-            .map_err(|e| e.to_string())?;
-        if phase == DragPhase::Commit {
-            self.log.push(format!("{} object {id}", op_name(operation)));
-        } else {
-            self.drag = Some(Drag { applied: true });
-        }
-        Ok((true, phase == DragPhase::Commit))
-    }
-
-    fn drag_config(
-        &self,
-        op: DragOp,
-        axis: &str,
-        amount: f64,
-        (dx, dy): (f64, f64),
-        id: InstanceId,
-    ) -> Result<ActionConfig, String> {
-        let mut c = ActionConfig::default();
-        if !(amount.is_finite() && dx.is_finite() && dy.is_finite()) {
-            return Err("drag: expected finite amounts".into());
-        }
-        match (op, axis) {
-            (DragOp::Translate, "view") => {
-                // Pixels → world at the object's depth, in the image plane.
-                let cam = self.camera()?;
-                let node = self
-                    .session
-                    .node(id)
-                    .ok_or_else(|| format!("no node {id}"))?;
-                let centre = node.world_from_local.translation;
-                let depth = (centre - cam.pose.center())
-                    .dot(cam.pose.forward())
-                    .max(1e-3);
-                let m = cam.pose.to_matrix();
-                let right = m.x_axis.truncate();
-                let up = m.y_axis.truncate();
-                let v: DVec3 = (right * dx - up * dy) * depth / cam.intrinsics.fx;
-                c.vector = Some(v.to_array());
-                c.unit = Some("units".into());
-            }
-            (_, "x" | "y" | "z" | "-x" | "-y" | "-z") => {
-                c.axis = Some(AxisSpec::Name(axis.to_string()));
-                match op {
-                    DragOp::Translate => {
-                        c.distance = Some(amount);
-                        c.unit = Some("m".into());
-                    }
-                    DragOp::Rotate => c.degrees = Some(amount),
-                    DragOp::Scale => c.factor = Some(amount),
-                }
-            }
-            (DragOp::Scale, "all") => c.factor = Some(amount),
-            _ => {
-                return Err(format!(
-                    "drag.axis: expected x, y, z, -x, -y, -z (or view for translate, all for scale), got {axis:?}"
-                ));
-            }
-        }
-        Ok(c)
-    }
-
-    fn text(
-        &mut self,
-        text: &str,
-        dry_run: bool,
-        send: &impl Fn(Outgoing) -> bool,
-    ) -> Result<(bool, bool), String> {
-        let cam = self.camera().ok();
-        let resolved = self
-            .session
-            .resolve(text, cam.as_ref())
-            .map_err(|e| e.to_string())?;
-        let actions = resolved
-            .actions
-            .iter()
-            .map(|a| serde_json::to_value(a).unwrap_or(serde_json::Value::Null))
-            .collect();
-        if !dry_run {
-            self.session
-                .install(resolved, Steps::One, Some(text.to_string()))
-                .map_err(|e| e.to_string())?;
-            self.log.push(text.to_string());
-        }
-        send(Outgoing::Json(ServerMsg::Resolved {
-            text: text.to_string(),
-            actions,
-            applied: !dry_run,
-        }));
-        Ok((!dry_run, !dry_run))
-    }
-
-    /// The stamp of the scene on disk when the session was read (see [`disk_stamp`]).
-    pub fn with_disk_stamp(mut self, stamp: Option<u64>) -> Self {
-        self.disk = stamp;
-        self
-    }
-
-    fn save(
-        &mut self,
-        path: Option<&str>,
-        force: bool,
-        send: &impl Fn(Outgoing) -> bool,
-    ) -> Result<(bool, bool), String> {
-        let target = match path {
-            None => self.scene_path.clone(),
-            Some(p) => {
-                let ok = !p.is_empty()
-                    && !p.contains(['/', '\\'])
-                    && !p.starts_with('.')
-                    && p.ends_with(".assist");
-                if !ok {
-                    return Err(format!(
-                        "save.path: expected a NAME.assist beside the scene (no folders), got {p:?}"
-                    ));
-                }
-                self.scene_path.parent().unwrap_or(Path::new(".")).join(p)
-            }
-        };
-        // Saving over the opened scene is what "save" means; anything else needs force.
-        let over_own = target == self.scene_path;
-        let force = force || over_own;
-        // Held across the check and the write, so no other process saves in between.
-        let _lock = assist_fs::lock(&target, "assist view").map_err(|e| e.to_string())?;
-        if over_own && disk_stamp(&target) != self.disk {
-            return Err(format!(
-                "save: {} was changed by another program since this viewer opened it; save under another name (save as) to keep both",
-                target.display()
-            ));
-        }
-        self.session
-            .save(&target, force)
-            .map_err(|e| e.to_string())?;
-        if over_own {
-            self.disk = disk_stamp(&target);
-        }
-        self.log.push(format!("saved {}", target.display()));
-        send(Outgoing::Json(ServerMsg::Saved {
-            path: target.display().to_string(),
-        }));
-        Ok((false, true))
-    }
-
-    /// Writes the current view through the dataset writer into `NAME-view-K/` beside the
-    /// scene (the first K not taken).
-    fn save_view(&mut self, send: &impl Fn(Outgoing) -> bool) -> Result<(bool, bool), String> {
-        let cam = self.camera()?;
-        let frame = self
-            .session
-            .render(&cam, &RenderRequest::default())
-            .map_err(|e| e.to_string())?;
-        let parent = self.scene_path.parent().unwrap_or(Path::new("."));
-        let stem = self
-            .scene_path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "scene".into());
-        let dir = (1..10_000)
-            .map(|k| parent.join(format!("{stem}-view-{k}")))
-            .find(|d| !d.exists())
-            .ok_or("save view: no free folder name")?;
-        let cfg = self.session.writer_config(vec![
-            WriterOutput::Rgb,
-            WriterOutput::Depth,
-            WriterOutput::Panoptic,
-        ]);
-        let w = DatasetWriter::create(&dir, cfg, false).map_err(|e| e.to_string())?;
-        let view = ViewImages {
-            width: frame.width,
-            height: frame.height,
-            rgb: &frame.rgb,
-            depth: &frame.depth,
-            panoptic: &frame.panoptic,
-            ..Default::default()
-        };
-        w.write(0, "view", &cam, &view).map_err(|e| e.to_string())?;
-        w.finish().map_err(|e| e.to_string())?;
-        self.log.push(format!("view saved in {}", dir.display()));
-        send(Outgoing::Json(ServerMsg::Saved {
-            path: dir.display().to_string(),
-        }));
-        Ok((false, true))
     }
 
     pub fn state(&self) -> ServerMsg {
