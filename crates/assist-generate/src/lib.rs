@@ -14,6 +14,7 @@
 pub mod coco;
 mod merge;
 pub mod place;
+mod plan;
 mod sample;
 pub mod spec;
 pub mod surface;

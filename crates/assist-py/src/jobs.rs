@@ -1,0 +1,211 @@
+//! The long jobs from Python: `assist.generate` (samples in memory, as an iterator) and
+//! `assist.train` (events to a callback, Ctrl+C saves).
+
+use super::*;
+
+/// Samples of a generation spec, made on demand (`assist.generate`).
+#[pyclass(module = "assist")]
+pub(crate) struct Samples {
+    generator: std::sync::Arc<assist_generate::Generator>,
+    next: u64,
+    end: u64,
+}
+
+#[pymethods]
+impl Samples {
+    fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    fn __len__(&self) -> usize {
+        (self.end - self.next) as usize
+    }
+
+    /// The next sample: a dict with `index`, `actions`, `objects`, `gave_up` and `views`
+    /// (each with `name`, `camera`, `rgb` H×W×3 float32, `depth` H×W float32 metres,
+    /// `instance` and `semantic` H×W uint16, `unobserved` H×W bool, `annotations`).
+    fn __next__<'py>(&mut self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        if self.next >= self.end {
+            return Ok(None);
+        }
+        let i = self.next;
+        self.next += 1;
+        let g = self.generator.clone();
+        let s = py.detach(move || g.sample(i, true)).map_err(err)?;
+        let d = PyDict::new(py);
+        d.set_item("index", s.index)?;
+        d.set_item("actions", to_py(py, &s.actions)?)?;
+        d.set_item("objects", to_py(py, &s.record["objects"])?)?;
+        d.set_item("gave_up", to_py(py, &s.record["gave_up"])?)?;
+        let views = PyList::empty(py);
+        let mpu = s.meters_per_unit as f32;
+        let notes = s.record["views"].as_array().cloned().unwrap_or_default();
+        for (k, v) in s.views.into_iter().enumerate() {
+            let (w, h) = (v.frame.width as usize, v.frame.height as usize);
+            let vd = PyDict::new(py);
+            vd.set_item("name", &v.camera.name)?;
+            vd.set_item(
+                "camera",
+                Camera {
+                    inner: v.camera.camera,
+                    name: v.camera.name.clone(),
+                    split: None,
+                },
+            )?;
+            let assist_session::Frame {
+                rgb,
+                mut depth,
+                panoptic,
+                ..
+            } = v.frame;
+            if mpu != 1.0 {
+                depth.iter_mut().for_each(|z| *z *= mpu);
+            }
+            vd.set_item("rgb", PyArray1::from_vec(py, rgb).reshape([h, w, 3])?)?;
+            vd.set_item("depth", PyArray1::from_vec(py, depth).reshape([h, w])?)?;
+            vd.set_item(
+                "instance",
+                PyArray1::from_vec(py, panoptic).reshape([h, w])?,
+            )?;
+            vd.set_item(
+                "semantic",
+                PyArray1::from_vec(py, v.semantic).reshape([h, w])?,
+            )?;
+            let unseen: Vec<bool> = v.unobserved.iter().map(|&m| m != 0).collect();
+            vd.set_item(
+                "unobserved",
+                PyArray1::from_vec(py, unseen).reshape([h, w])?,
+            )?;
+            if let Some(note) = notes.get(k) {
+                vd.set_item("annotations", to_py(py, note)?)?;
+            }
+            views.append(vd)?;
+        }
+        d.set_item("views", views)?;
+        Ok(Some(d))
+    }
+}
+
+/// Samples of a generation spec (a TOML/JSON file, or a dict of the same fields; see
+/// `docs/generate.md`) as dicts of numpy arrays, made on demand without touching the disk;
+/// `seed` and `count` override the spec's, `start` is the first index. The same index
+/// gives the same sample as `assist generate`.
+#[pyfunction]
+#[pyo3(signature = (spec, seed=None, count=None, start=0))]
+pub(crate) fn generate(
+    py: Python<'_>,
+    spec: &Bound<'_, PyAny>,
+    seed: Option<u64>,
+    count: Option<u64>,
+    start: u64,
+) -> PyResult<Samples> {
+    let (mut spec, name) = if let Ok(p) = spec.extract::<PathBuf>() {
+        (assist_generate::Spec::load(&p).map_err(err)?, p)
+    } else {
+        let v = from_py(spec)?;
+        let s: assist_generate::Spec =
+            serde_json::from_value(v).map_err(|e| err(format!("spec: {e}")))?;
+        (s, PathBuf::from("spec"))
+    };
+    if let Some(s) = seed {
+        spec.seed = s;
+    }
+    if let Some(c) = count {
+        spec.count = c;
+    }
+    spec.check(&name).map_err(err)?;
+    let end = spec.count;
+    let g = py
+        .detach(|| assist_generate::Generator::prepare(spec, &mut ()))
+        .map_err(err)?;
+    Ok(Samples {
+        generator: std::sync::Arc::new(g),
+        next: start.min(end),
+        end,
+    })
+}
+
+/// Trains a scene on the dataset at `data` into `out` (`NAME.assist`), as `assist train`
+/// does; `options` are `assist train`'s flags with `_` for `-` (`downscale=2`, `seed=1`,
+/// `resume=True`, `force=True`, `shadows="off"`, `lambda_obj_share=0.0`, …). `callback`, if given, is called with every
+/// event as a dict (`{"event": "step", "stats": {...}, "eta_seconds": ...}`, `loading`,
+/// `saved`, …). Ctrl+C saves the scene, then raises `KeyboardInterrupt`. Returns the
+/// report: iterations, seconds, what stopped it (`stopped_by`), the last step's figures.
+#[pyfunction]
+#[pyo3(signature = (data, out, max_time=None, iters=None, callback=None, **options))]
+pub(crate) fn train<'py>(
+    py: Python<'py>,
+    data: PathBuf,
+    out: PathBuf,
+    max_time: Option<f64>,
+    iters: Option<usize>,
+    callback: Option<Py<PyAny>>,
+    options: Option<&Bound<'py, PyDict>>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let mut cfg = match options {
+        Some(o) => {
+            let v = from_py(o.as_any())?;
+            let known =
+                serde_json::to_value(assist_session::TrainConfig::default()).map_err(err)?;
+            if let (Some(given), Some(known)) = (v.as_object(), known.as_object()) {
+                for k in given.keys() {
+                    if !known.contains_key(k) || k == "data" || k == "out" {
+                        let mut names: Vec<&String> = known
+                            .keys()
+                            .filter(|n| *n != "data" && *n != "out")
+                            .collect();
+                        names.sort();
+                        return Err(err(format!(
+                            "train: unknown option {k:?} (options: {})",
+                            names
+                                .iter()
+                                .map(|n| n.as_str())
+                                .collect::<Vec<_>>()
+                                .join(", ")
+                        )));
+                    }
+                }
+            }
+            serde_json::from_value::<assist_session::TrainConfig>(v)
+                .map_err(|e| err(format!("train options: {e}")))?
+        }
+        None => assist_session::TrainConfig::default(),
+    };
+    cfg.data = data;
+    cfg.out = out;
+    if let Some(t) = max_time {
+        cfg.max_time = Some(t);
+    }
+    if let Some(n) = iters {
+        cfg.iters = n;
+    }
+    let job = assist_session::TrainJob::new(cfg);
+    job.validate().map_err(err)?;
+    let cancel = job.cancel_handle();
+    let mut interrupted: Option<PyErr> = None;
+    let mut failed: Option<PyErr> = None;
+    let outcome = py.detach(|| {
+        job.run(|e| {
+            Python::attach(|py| {
+                if interrupted.is_none()
+                    && let Err(e) = py.check_signals()
+                {
+                    cancel.store(true, std::sync::atomic::Ordering::SeqCst);
+                    interrupted = Some(e);
+                }
+                if let (Some(cb), None) = (&callback, &failed) {
+                    let r = to_py(py, e).and_then(|ev| cb.call1(py, (ev,)));
+                    if let Err(e) = r {
+                        cancel.store(true, std::sync::atomic::Ordering::SeqCst);
+                        failed = Some(e);
+                    }
+                }
+            })
+        })
+    });
+    if let Some(e) = interrupted.or(failed) {
+        return Err(e);
+    }
+    let outcome = outcome.map_err(err)?;
+    to_py(py, &outcome.report)
+}
