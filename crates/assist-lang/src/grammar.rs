@@ -7,8 +7,8 @@ use assist_core::Operation::*;
 use crate::LangError;
 use crate::tokens::Tok;
 use crate::words::{
-    CREATED, FILLER, GENERIC, GROW, PRONOUNS, SHRINK, Verb, axis_word, direction_word, unit_word,
-    verb_at, word,
+    CREATED, FILLER, GENERIC, GROW, MEANING_CHANGING, PRONOUNS, RELATIVE_PLACEMENT, SHRINK, Verb,
+    axis_word, direction_word, unit_word, verb_at, word,
 };
 pub use crate::words::{Direction, Unit};
 
@@ -23,6 +23,9 @@ pub enum ObjectRef {
     Last,
     /// "the copy", "the duplicate", "the new one".
     Created,
+    /// "everything", "all objects" (`None`: every object of the scene), "all the balls",
+    /// "every ball" (every object the words name).
+    All(Option<Vec<String>>),
 }
 
 /// Size words of a scale instruction.
@@ -67,6 +70,9 @@ pub struct RawCommand {
     pub targets: Vec<ObjectRef>,
     /// After "with" (swap).
     pub partners: Vec<ObjectRef>,
+    /// After "except", "but" (after a quantifier), "other than", "apart from", "excluding":
+    /// objects taken out of the targets.
+    pub excluded: Vec<ObjectRef>,
     pub params: RawParams,
     /// The clause's words, for error messages.
     pub text: String,
@@ -80,13 +86,20 @@ struct Refs {
     /// A generic noun ("the object") was read: it names the last object.
     generic: bool,
     in_partner: bool,
+    /// A quantifier ("all", "every", "each", "both") opened the phrase being read.
+    quantified: bool,
+    /// An exclusion word was read: what follows is taken out of the targets.
+    in_excluded: bool,
     targets: Vec<ObjectRef>,
     partners: Vec<ObjectRef>,
+    excluded: Vec<ObjectRef>,
 }
 
 impl Refs {
     fn push(&mut self, r: ObjectRef) {
-        if self.in_partner {
+        if self.in_excluded {
+            self.excluded.push(r)
+        } else if self.in_partner {
             self.partners.push(r)
         } else {
             self.targets.push(r)
@@ -94,7 +107,11 @@ impl Refs {
     }
     /// Closes the phrase being read into the current role.
     fn close(&mut self) {
-        let r = if !self.phrase.is_empty() {
+        let quantified = std::mem::take(&mut self.quantified);
+        let r = if quantified {
+            let words = std::mem::take(&mut self.phrase);
+            Some(ObjectRef::All((!words.is_empty()).then_some(words)))
+        } else if !self.phrase.is_empty() {
             Some(ObjectRef::Phrase(std::mem::take(&mut self.phrase)))
         } else if self.generic {
             Some(ObjectRef::Last)
@@ -183,6 +200,8 @@ struct Clause<'a> {
     refs: Refs,
     /// "from" was read: "the scene", "the table" after it name no object.
     after_from: bool,
+    /// The index of the token being read.
+    pos: usize,
 }
 
 impl<'a> Clause<'a> {
@@ -208,6 +227,7 @@ impl<'a> Clause<'a> {
             p,
             refs: Refs::default(),
             after_from: false,
+            pos: 0,
         }
     }
 
@@ -221,6 +241,7 @@ impl<'a> Clause<'a> {
 
     /// Reads the token at `i`; returns how many tokens it used.
     fn token(&mut self, i: usize) -> Result<usize, LangError> {
+        self.pos = i;
         Ok(match &self.toks[i] {
             Tok::Sep => 1,
             Tok::Path(path) => {
@@ -233,11 +254,14 @@ impl<'a> Clause<'a> {
                 let (w, next) = (w.as_str(), self.word_at(i + 1));
                 match self.id_word(i, w, next)? {
                     Some(k) => k,
-                    None => self
-                        .axis_word(w, next)
-                        .or_else(|| self.amount_word(w, next))
-                        .or_else(|| self.connective_word(i, w))
-                        .unwrap_or_else(|| self.object_word(i, w, next)),
+                    None => match self.quantifier_word(w, next)? {
+                        Some(k) => k,
+                        None => self
+                            .axis_word(w, next)
+                            .or_else(|| self.amount_word(w, next))
+                            .or_else(|| self.connective_word(i, w))
+                            .unwrap_or_else(|| self.object_word(i, w, next)),
+                    },
                 }
             }
         })
@@ -309,6 +333,104 @@ impl<'a> Clause<'a> {
             return Ok(Some(2));
         }
         Ok(None)
+    }
+
+    /// Quantifiers and exclusions: "everything", "all", "every", "each", "both", "only";
+    /// "except (for)", "but" after a quantifier, "other than", "apart from", "aside from",
+    /// "excluding". Words that would change which objects are meant but that this grammar
+    /// does not read (negations, "the others", "besides", relations to other objects)
+    /// are refused, naming the word, rather than dropped from the phrase.
+    fn quantifier_word(&mut self, w: &str, next: Option<&str>) -> Result<Option<usize>, LangError> {
+        let refs = &mut self.refs;
+        let exclusion = match (w, next) {
+            ("except", Some("for"))
+            | ("other", Some("than"))
+            | ("apart" | "aside", Some("from")) => Some(2),
+            ("except" | "excluding", _) => Some(1),
+            ("but", _) => {
+                refs.close();
+                let after_all = refs.in_excluded
+                    || matches!(refs.targets.last(), Some(ObjectRef::All(_)))
+                    || refs.targets.is_empty() && refs.quantified;
+                if !after_all {
+                    return Err(self.not_understood(
+                        "but",
+                        "'but' is read only after 'all' or 'everything' ('delete everything but the mug')",
+                    ));
+                }
+                Some(1)
+            }
+            _ => None,
+        };
+        if let Some(n) = exclusion {
+            refs.close();
+            if refs.targets.is_empty() {
+                return Err(self.not_understood(
+                    w,
+                    "name the objects to take something out of before it ('delete everything except the mug')",
+                ));
+            }
+            refs.in_excluded = true;
+            refs.in_partner = false;
+            return Ok(Some(n));
+        }
+        match w {
+            "everything" | "everyone" | "all" | "every" | "each" | "both" => {
+                refs.close();
+                if refs.in_excluded {
+                    return Err(self.not_understood(
+                        w,
+                        "what is excepted must be named ('everything except the mug')",
+                    ));
+                }
+                if matches!(w, "everything" | "everyone") {
+                    refs.push(ObjectRef::All(None));
+                } else {
+                    refs.quantified = true;
+                }
+                Ok(Some(1))
+            }
+            // A focus word: "delete only the mug" deletes the mug.
+            "only" | "just" => Ok(Some(1)),
+            // "put the mug on the teapot": a place relative to another object. ("rotate it
+            // on its own axis", "move it on the x axis" are not.)
+            "on" | "upon"
+                if self.op == Some(Translate)
+                    && self.toks[self.pos + 1..]
+                        .iter()
+                        .filter_map(word)
+                        .find(|w| !matches!(*w, "the" | "a" | "an" | "top" | "of"))
+                        .is_some_and(|w| {
+                            axis_word(w).is_none()
+                                && !matches!(w, "its" | "own" | "local" | "world" | "axis")
+                        }) =>
+            {
+                Err(self.not_understood(w, RELATIVE_PLACEMENT))
+            }
+            _ => {
+                if let Some(why) = MEANING_CHANGING
+                    .iter()
+                    .find(|(words, _)| words.contains(&w))
+                    .map(|(_, why)| *why)
+                    // "no 3" is object 3; "next" is refused only in "next to".
+                    .filter(|_| {
+                        !(w == "no" && matches!(self.toks.get(self.pos + 1), Some(Tok::Num(_))))
+                    })
+                    .filter(|_| w != "next" || next == Some("to"))
+                {
+                    return Err(self.not_understood(w, why));
+                }
+                Ok(None)
+            }
+        }
+    }
+
+    fn not_understood(&self, word: &str, message: &str) -> LangError {
+        LangError::NotUnderstood {
+            word: word.to_string(),
+            clause: self.text.clone(),
+            message: message.to_string(),
+        }
     }
 
     /// Axes and their frame: "its own x axis", "negative z", "up".
@@ -467,6 +589,8 @@ impl<'a> Clause<'a> {
     fn object_word(&mut self, i: usize, w: &str, next: Option<&str>) -> usize {
         let refs = &mut self.refs;
         if PRONOUNS.contains(&w) && !(w == "that" || w == "this") {
+            // "all of them" are the objects named before.
+            refs.quantified = false;
             refs.close();
             refs.push(ObjectRef::Last);
         } else if (w == "that" || w == "this")
@@ -521,6 +645,7 @@ impl<'a> Clause<'a> {
         let Refs {
             mut targets,
             partners,
+            excluded,
             ..
         } = refs;
         let Some(mut op) = op else {
@@ -533,7 +658,9 @@ impl<'a> Clause<'a> {
                 || p.turn.is_some()
                 || p.position.is_some();
             if !has_params && !targets.is_empty() {
-                out.last_mut().expect("prev").targets.extend(targets);
+                let last = out.last_mut().expect("prev");
+                last.targets.extend(targets);
+                last.excluded.extend(excluded);
                 return Ok(());
             }
             if !has_params {
@@ -547,6 +674,7 @@ impl<'a> Clause<'a> {
                     targets
                 },
                 partners,
+                excluded,
                 params: p,
                 text,
             });
@@ -570,6 +698,7 @@ impl<'a> Clause<'a> {
             op,
             targets,
             partners,
+            excluded,
             params: p,
             text,
         });

@@ -48,6 +48,14 @@ pub enum LangError {
         "{phrase:?} could mean several objects: {candidates}; say which (by a colour, another word of its label, or 'object N')"
     )]
     Ambiguous { phrase: String, candidates: String },
+    /// A word that would change which objects are meant, which the grammar does not
+    /// read: refused rather than guessed.
+    #[error("in {clause:?}: {word:?} is not understood here: {message}")]
+    NotUnderstood {
+        word: String,
+        clause: String,
+        message: String,
+    },
     #[error("in {clause:?}: 'it'/'the copy' does not refer to any object yet")]
     NoAntecedent { clause: String },
     #[error("in {clause:?}: {what}: {message}")]

@@ -108,7 +108,27 @@ pub fn tokenize(text: &str) -> Vec<Tok> {
         let mut piece = String::new();
         let chars: Vec<char> = lower.chars().collect();
         let mut pieces: Vec<Option<String>> = Vec::new(); // None = separator
+        let mut skip = false;
         for (i, &c) in chars.iter().enumerate() {
+            if std::mem::take(&mut skip) {
+                continue;
+            }
+            // A negation is kept as a word of its own: "don't" → "do not", "can't" → "can
+            // not", "won't" → "will not" (the grammar refuses it, naming "not").
+            if c == '\'' && chars.get(i + 1) == Some(&'t') && piece.ends_with('n') {
+                let base = match piece.as_str() {
+                    "can" => "can".to_string(),
+                    "won" => "will".to_string(),
+                    p => p[..p.len() - 1].to_string(),
+                };
+                piece.clear();
+                if !base.is_empty() {
+                    pieces.push(Some(base));
+                }
+                pieces.push(Some("not".into()));
+                skip = true;
+                continue;
+            }
             let next_digit = chars.get(i + 1).is_some_and(|d| d.is_ascii_digit());
             let prev_digit = i > 0 && chars[i - 1].is_ascii_digit();
             match c {

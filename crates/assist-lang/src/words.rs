@@ -340,3 +340,52 @@ pub const PRONOUNS: &[&str] = &[
     "it", "them", "this", "that", "these", "those", "itself", "him", "her",
 ];
 pub const CREATED: &[&str] = &["copy", "duplicate", "clone", "replica", "new"];
+
+/// Words that would change which objects an instruction means but that the grammar does
+/// not read, with what to say instead. An instruction with one of them is refused, naming
+/// it, rather than read without it ("remove everything but the mug" must never delete
+/// the mug).
+pub const MEANING_CHANGING: &[(&[&str], &str)] = &[
+    (
+        &[
+            "not", "no", "don't", "dont", "never", "nor", "neither", "none", "nothing", "unless",
+            "without",
+        ],
+        "negations are not understood; name the objects to act on",
+    ),
+    (
+        &[
+            "others",
+            "rest",
+            "remaining",
+            "any",
+            "anything",
+            "besides",
+            "except",
+        ],
+        "say which objects: 'everything except the mug', or name them",
+    ),
+    (
+        &["other"],
+        "'other' is read only as 'other than' ('every object other than the mug')",
+    ),
+    (
+        &[
+            "next",
+            "front",
+            "behind",
+            "beside",
+            "between",
+            "onto",
+            "atop",
+            "underneath",
+            "beneath",
+            "near",
+            "inside",
+        ],
+        RELATIVE_PLACEMENT,
+    ),
+];
+
+/// Why a place relative to another object is refused.
+pub const RELATIVE_PLACEMENT: &str = "placing an object relative to another is not supported yet: give a distance and a direction ('10 cm left') or a position ('at 0.1, 0.2, 0.8')";

@@ -51,6 +51,42 @@ fn dry_run_prints_resolved_actions_and_writes_nothing() {
     assert!(snapshot(tmp.path()) == before, "a dry run must not write");
 }
 
+/// Issue 47: "remove everything except the mug" deleted the mug, with exit 0. It deletes
+/// everything else; what the grammar does not read is refused by name, exit 1.
+#[test]
+fn except_keeps_the_object_it_names() {
+    let tmp = assist_testkit::TempDir::new("cli-except");
+    let scene = tmp.path().join("a.assist");
+    write_scene(&scene);
+    for text in [
+        "remove everything except the mug",
+        "delete everything but the mug",
+        "remove all objects except the mug",
+    ] {
+        let (ok, out, err) = assist(&["edit", s(&scene), "--do", text, "--dry-run", "--json"]);
+        assert!(ok, "{text}: {err}");
+        let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+        let deleted: Vec<u64> = v
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|a| {
+                assert_eq!(a["operation"], "delete", "{text}: {v}");
+                a["instance_id"].as_u64().unwrap()
+            })
+            .collect();
+        assert_eq!(deleted, vec![1], "{text}: the duck goes, the mug (3) stays");
+    }
+    let (ok, _, err) = assist(&[
+        "edit",
+        s(&scene),
+        "--do",
+        "delete the mug but not the duck",
+        "--dry-run",
+    ]);
+    assert!(!ok && err.contains("\"but\""), "{err}");
+}
+
 #[test]
 fn script_applies_and_undo_restores_the_scene_file() {
     let tmp = assist_testkit::TempDir::new("cli-undo");

@@ -23,14 +23,21 @@ pub fn resolve(
     let mut out = Resolved::default();
     for cmd in cmds {
         let mut named: Vec<InstanceId> = Vec::new();
+        let quantified = cmd.targets.iter().any(|r| matches!(r, ObjectRef::All(_)));
+        if matches!(cmd.op, Operation::Add | Operation::Swap)
+            && (quantified || !cmd.excluded.is_empty())
+        {
+            return Err(clause_err(
+                cmd,
+                "objects",
+                format!("{} takes named objects, not 'all' or 'except'", cmd.op),
+            ));
+        }
         let actions = match cmd.op {
             Operation::Add => add_actions(cmd, sources, opts)?,
             Operation::Swap => vec![swap_action(cmd, &st, sources, opts, &mut named)?],
             op => {
-                let mut ids = Vec::new();
-                for r in &cmd.targets {
-                    ids.extend(st.objects(r, cmd, opts.embedder)?);
-                }
+                let ids = st.targets(cmd, opts.embedder)?;
                 if !cmd.partners.is_empty() {
                     return Err(clause_err(
                         cmd,

@@ -147,7 +147,88 @@ impl State {
                 let said = described(cmd, words);
                 phrase_said(words, &said, &self.scene, embedder)
             }
+            ObjectRef::All(None) => {
+                let ids: Vec<InstanceId> = self
+                    .scene
+                    .nodes
+                    .iter()
+                    .filter(|n| !n.is_background())
+                    .map(|n| n.id)
+                    .collect();
+                if ids.is_empty() {
+                    return Err(clause_err(cmd, "objects", "the scene has no objects"));
+                }
+                Ok(ids)
+            }
+            // "every ball", "all the mugs": every node the words name, one or many.
+            ObjectRef::All(Some(words)) => match find(words, &words.join(" "), &self.scene, None) {
+                Ok(Found::One(id)) => Ok(vec![id]),
+                Ok(Found::Many(ids)) | Err(NotFound::Ambiguous(ids)) => Ok(ids),
+                Err(_) => phrase_said(words, &words.join(" "), &self.scene, embedder),
+            },
         }
+    }
+
+    /// The objects an exclusion names. Its words are read among the targets first ("the
+    /// boxes except the red one": the red box, though a red mug is in the scene too).
+    fn excluded(
+        &self,
+        r: &ObjectRef,
+        targets: &[InstanceId],
+        cmd: &RawCommand,
+        embedder: Option<&dyn TextEmbedder>,
+    ) -> Result<Vec<InstanceId>, LangError> {
+        if let ObjectRef::Phrase(words) = r
+            && let Err(NotFound::Ambiguous(ids)) = find(words, &words.join(" "), &self.scene, None)
+        {
+            let inside: Vec<InstanceId> = ids
+                .iter()
+                .copied()
+                .filter(|i| targets.contains(i))
+                .collect();
+            if inside.len() == 1 {
+                return Ok(inside);
+            }
+        }
+        self.objects(r, cmd, embedder)
+    }
+
+    /// The targets of `cmd` less the objects it excludes ("everything except the mug");
+    /// each excluded object must be among the targets, and something must be left.
+    fn targets(
+        &self,
+        cmd: &RawCommand,
+        embedder: Option<&dyn TextEmbedder>,
+    ) -> Result<Vec<InstanceId>, LangError> {
+        let mut ids = Vec::new();
+        for r in &cmd.targets {
+            for id in self.objects(r, cmd, embedder)? {
+                if !ids.contains(&id) {
+                    ids.push(id);
+                }
+            }
+        }
+        for r in &cmd.excluded {
+            for id in self.excluded(r, &ids, cmd, embedder)? {
+                let Some(k) = ids.iter().position(|x| *x == id) else {
+                    let label = self.scene.node(id).map_or("?", |n| n.label.as_str());
+                    return Err(clause_err(
+                        cmd,
+                        "except",
+                        format!("object {id} {label:?} is not among the objects named before it"),
+                    ));
+                };
+                ids.remove(k);
+            }
+        }
+        if !cmd.excluded.is_empty() && ids.is_empty() {
+            return Err(clause_err(
+                cmd,
+                "except",
+                "nothing is left once the excepted objects are taken out",
+            ));
+        }
+        Ok(ids)
     }
 }
 
