@@ -4,9 +4,13 @@
 //! versioned JSON messages of [`protocol`]. Frames come back as JPEG: a low-resolution
 //! preview at once, the full frame when the view rests.
 //!
-//! Security: the server binds 127.0.0.1 unless told otherwise; any other address needs a
-//! token (given, or generated and printed), checked when the socket opens. Only the
-//! embedded files are served; saves go only beside the opened scene.
+//! Security: the server binds 127.0.0.1 unless told otherwise. Every client needs the
+//! viewer's token (given, or generated and put in the URL it prints and opens), checked
+//! when the socket opens, loopback included: a page of another site in the same browser
+//! must not drive it. Every request's `Host` must be an address the viewer serves, and a
+//! browser's `Origin` must be that host (no cross-site page, no DNS rebinding). Only the
+//! embedded files are served; saves go only beside the opened scene, and "save as" never
+//! replaces anything.
 
 #![forbid(unsafe_code)]
 
@@ -22,7 +26,7 @@ use std::time::{Duration, Instant};
 use axum::Router;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{Query, State};
-use axum::http::{StatusCode, header};
+use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use serde::Deserialize;
@@ -65,7 +69,7 @@ pub struct ViewerOptions {
     pub host: IpAddr,
     /// 0 = any free port.
     pub port: u16,
-    /// Required on a non-loopback host; generated when not given.
+    /// What clients must present (`?token=`); generated when not given.
     pub token: Option<String>,
     /// Other scenes clients may take nodes from (by file name).
     pub others: Vec<PathBuf>,
@@ -77,6 +81,8 @@ struct App {
     scene: PathBuf,
     others: worker::OtherScenes,
     token: Option<String>,
+    /// The `Host` values requests may carry (`None`: listening on every address, any).
+    hosts: Option<Vec<String>>,
     hello: ServerMsg,
 }
 
@@ -98,9 +104,17 @@ impl Running {
     }
 }
 
-/// A token of 128 random bits (from the OS's hash seed and the clock; enough to keep
-/// other users of a shared network out, not a cryptographic secret).
+/// A token of 128 random bits from the OS (`/dev/urandom`; elsewhere the OS-seeded hash
+/// keys and the clock).
 fn new_token() -> String {
+    use std::io::Read;
+    let mut bytes = [0u8; 16];
+    if std::fs::File::open("/dev/urandom")
+        .and_then(|mut f| f.read_exact(&mut bytes))
+        .is_ok()
+    {
+        return bytes.iter().map(|b| format!("{b:02x}")).collect();
+    }
     use std::hash::{BuildHasher, Hasher};
     let mut s = String::new();
     for i in 0..2u64 {
@@ -118,16 +132,58 @@ fn new_token() -> String {
     s
 }
 
+/// The `Host` header values of the viewer's own address (`localhost` too on loopback);
+/// `None` when it listens on every address.
+fn served_hosts(addr: SocketAddr) -> Option<Vec<String>> {
+    if addr.ip().is_unspecified() {
+        return None;
+    }
+    let port = addr.port();
+    let mut hosts = vec![addr.to_string()];
+    if addr.ip().is_loopback() {
+        hosts.push(format!("localhost:{port}"));
+        hosts.push(format!("127.0.0.1:{port}"));
+        hosts.push(format!("[::1]:{port}"));
+    }
+    Some(hosts)
+}
+
+/// Refuses a request whose `Host` is not the viewer's or whose `Origin` (sent by
+/// browsers) is another site.
+fn check_origin(headers: &HeaderMap, app: &App) -> Result<(), String> {
+    let refuse = |why: String| Err(why);
+    let host = headers
+        .get(header::HOST)
+        .and_then(|h| h.to_str().ok())
+        .unwrap_or("");
+    if let Some(hosts) = &app.hosts
+        && !hosts.iter().any(|h| h.eq_ignore_ascii_case(host))
+    {
+        return refuse(format!(
+            "Host {host:?} is not this viewer's address ({})",
+            hosts.join(", ")
+        ));
+    }
+    if let Some(origin) = headers.get(header::ORIGIN) {
+        let origin = origin.to_str().unwrap_or("");
+        let same = ["http://", "https://"]
+            .iter()
+            .any(|scheme| origin.eq_ignore_ascii_case(&format!("{scheme}{host}")));
+        if !same {
+            return refuse(format!(
+                "cross-origin request from {origin:?} refused: open the viewer's own URL"
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Loads the scene (to check it and list its cameras), binds, and starts serving.
 pub async fn start(opts: ViewerOptions) -> Result<Running, ViewerError> {
     let session = Session::open(&opts.scene)?;
     let description = session.description().clone();
     let cameras = CameraSource::train_or_orbit(opts.data.as_deref()).cameras(&description)?;
-    let token = if opts.host.is_loopback() {
-        opts.token.clone()
-    } else {
-        Some(opts.token.clone().unwrap_or_else(new_token))
-    };
+    let token = Some(opts.token.clone().unwrap_or_else(new_token));
     if token.as_deref().is_some_and(|t| t.len() < 8) {
         return Err(ViewerError::Options {
             what: "token",
@@ -173,21 +229,22 @@ pub async fn start(opts: ViewerOptions) -> Result<Running, ViewerError> {
             .collect(),
         max_message_bytes: MAX_MESSAGE_BYTES,
     };
+    let addr = SocketAddr::new(opts.host, opts.port);
+    let listener = tokio::net::TcpListener::bind(addr)
+        .await
+        .map_err(|source| ViewerError::Bind { addr, source })?;
+    let addr = listener.local_addr()?;
     let app = Arc::new(App {
         scene: opts.scene.clone(),
         others,
         token: token.clone(),
+        hosts: served_hosts(addr),
         hello,
     });
     let router = Router::new()
         .route("/", get(index))
         .route("/ws", get(ws))
         .with_state(app);
-    let addr = SocketAddr::new(opts.host, opts.port);
-    let listener = tokio::net::TcpListener::bind(addr)
-        .await
-        .map_err(|source| ViewerError::Bind { addr, source })?;
-    let addr = listener.local_addr()?;
     let url = match &token {
         Some(t) => format!("http://{addr}/?token={t}"),
         None => format!("http://{addr}/"),
@@ -207,7 +264,10 @@ fn scene_name(p: &Path) -> String {
         .unwrap_or_else(|| p.display().to_string())
 }
 
-async fn index() -> Response {
+async fn index(headers: HeaderMap, State(app): State<Arc<App>>) -> Response {
+    if let Err(why) = check_origin(&headers, &app) {
+        return (StatusCode::FORBIDDEN, why).into_response();
+    }
     (
         [
             (header::CONTENT_TYPE, "text/html; charset=utf-8"),
@@ -225,9 +285,13 @@ struct WsQuery {
 
 async fn ws(
     upgrade: WebSocketUpgrade,
+    headers: HeaderMap,
     Query(q): Query<WsQuery>,
     State(app): State<Arc<App>>,
 ) -> Response {
+    if let Err(why) = check_origin(&headers, &app) {
+        return (StatusCode::FORBIDDEN, why).into_response();
+    }
     if let Some(t) = &app.token
         && q.token.as_deref() != Some(t.as_str())
     {

@@ -142,7 +142,9 @@ pub enum ClientMsg {
     /// Write the current view at full size (RGB, depth, instance ids) as a one-view
     /// dataset in a new folder beside the scene.
     SaveView,
-    /// Save to the scene's own path or to `path` (a name beside it); `force` to replace.
+    /// Save to the scene's own path, or as `path` (a name beside it, `.assist` added when
+    /// missing), which must not exist: save as never replaces anything. `force` is
+    /// accepted and ignored.
     Save {
         #[serde(default)]
         path: Option<String>,
@@ -225,6 +227,9 @@ pub enum ServerMsg {
     },
 }
 
+/// The client messages that carry nothing but their type.
+const NO_FIELDS: &[&str] = &["delete", "replicate", "undo", "redo", "save_view"];
+
 /// Reads one client message: size, JSON, known type and fields, then values.
 pub fn parse_client(text: &str) -> Result<ClientMsg, String> {
     if text.len() > MAX_MESSAGE_BYTES {
@@ -233,7 +238,20 @@ pub fn parse_client(text: &str) -> Result<ClientMsg, String> {
             text.len()
         ));
     }
-    let msg: ClientMsg = serde_json::from_str(text).map_err(|e| format!("bad message: {e}"))?;
+    let value: serde_json::Value =
+        serde_json::from_str(text).map_err(|e| format!("bad message: {e}"))?;
+    // Messages without fields take none: serde lets a unit variant of a tagged enum carry
+    // any keys, and a field a message does not have must never be ignored.
+    if let Some(obj) = value.as_object()
+        && let Some(kind) = obj.get("type").and_then(|t| t.as_str())
+        && NO_FIELDS.contains(&kind)
+        && let Some(extra) = obj.keys().find(|k| *k != "type")
+    {
+        return Err(format!(
+            "bad message: unknown field `{extra}`: a {kind:?} message takes no fields"
+        ));
+    }
+    let msg: ClientMsg = serde_json::from_value(value).map_err(|e| format!("bad message: {e}"))?;
     if let ClientMsg::View { view } = &msg {
         view.camera()?;
     }

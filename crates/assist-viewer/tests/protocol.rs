@@ -97,13 +97,16 @@ async fn a_client_renders_selects_edits_undoes_and_saves() {
     })
     .await
     .unwrap();
-    assert!(running.token.is_none());
+    // Loopback too needs the token (issue 47: any web page could drive the viewer).
+    let token = running.token.clone().expect("a token on loopback too");
+    assert!(running.url.contains(&token));
     // The page itself is served.
     let page = tokio::net::TcpStream::connect(running.addr).await.unwrap();
     drop(page);
-    let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{}/ws", running.addr))
-        .await
-        .unwrap();
+    let (mut ws, _) =
+        tokio_tungstenite::connect_async(format!("ws://{}/ws?token={token}", running.addr))
+            .await
+            .unwrap();
     let hello = next(&mut ws).await;
     assert_eq!(hello["type"], "hello");
     assert_eq!(hello["version"], 1);
@@ -376,4 +379,130 @@ async fn a_non_loopback_viewer_needs_its_token() {
             .await
             .unwrap();
     assert_eq!(next(&mut ws).await["type"], "hello");
+}
+
+/// A raw HTTP request to the viewer; returns the status code.
+async fn status_of(addr: std::net::SocketAddr, request: &str) -> u16 {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut c = tokio::net::TcpStream::connect(addr).await.unwrap();
+    c.write_all(request.as_bytes()).await.unwrap();
+    let mut buf = vec![0u8; 256];
+    let n = c.read(&mut buf).await.unwrap();
+    let head = String::from_utf8_lossy(&buf[..n]);
+    head.split_whitespace()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(0)
+}
+
+/// Issue 47, the adversarial probe: a page of another site connects to the viewer on
+/// loopback and saves over a scene beside the opened one. Now a foreign `Origin`, a
+/// foreign `Host` and a missing token are refused; save-as never replaces a scene whatever
+/// the message says; messages without fields refuse unknown ones; a link in the scenes
+/// folder cannot reach a scene outside it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_attacker_cannot_drive_the_viewer() {
+    let dir = TempDir::new("viewer-attack");
+    let path = scene_on_disk(&dir);
+    let victim = scene_at(&dir.join("B.assist"));
+    let victim_json = std::fs::read(victim.join("scene.json")).unwrap();
+    std::fs::create_dir_all(dir.join("library")).unwrap();
+    let outside = TempDir::new("viewer-attack-outside");
+    scene_at(&outside.join("secret.assist"));
+    #[cfg(unix)]
+    std::os::unix::fs::symlink(
+        outside.join("secret.assist"),
+        dir.join("library/link.assist"),
+    )
+    .unwrap();
+    let running = start(ViewerOptions {
+        scene: path,
+        data: None,
+        host: IpAddr::V4(Ipv4Addr::LOCALHOST),
+        port: 0,
+        token: None,
+        others: Vec::new(),
+        scenes: Some(dir.join("library")),
+    })
+    .await
+    .unwrap();
+    let addr = running.addr;
+    let token = running.token.clone().unwrap();
+    // No token, a wrong one: refused.
+    for q in ["", "?token=wrong"] {
+        let r = tokio_tungstenite::connect_async(format!("ws://{addr}/ws{q}")).await;
+        assert!(r.is_err(), "refused without the token ({q:?})");
+    }
+    // A foreign Origin (a page of another site), even with the token: refused.
+    let upgrade = |origin: &str, host: &str| {
+        format!(
+            "GET /ws?token={token} HTTP/1.1\r\nHost: {host}\r\nOrigin: {origin}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\r\n"
+        )
+    };
+    let host = addr.to_string();
+    assert_eq!(
+        status_of(addr, &upgrade("http://evil.example", &host)).await,
+        403
+    );
+    // DNS rebinding: the attacker's name for our address, its own origin.
+    let rebound = format!("evil.example:{}", addr.port());
+    assert_eq!(
+        status_of(addr, &upgrade(&format!("http://{rebound}"), &rebound)).await,
+        403
+    );
+    // The page from another origin is refused too; from its own, served.
+    let page = |origin: &str| {
+        format!("GET / HTTP/1.1\r\nHost: {host}\r\nOrigin: {origin}\r\nConnection: close\r\n\r\n")
+    };
+    assert_eq!(status_of(addr, &page("http://evil.example")).await, 403);
+    assert_eq!(status_of(addr, &page(&format!("http://{host}"))).await, 200);
+    // The viewer's own page: its origin is its host; the socket opens.
+    assert_eq!(
+        status_of(addr, &upgrade(&format!("http://{host}"), &host)).await,
+        101
+    );
+
+    let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{addr}/ws?token={token}"))
+        .await
+        .unwrap();
+    until(&mut ws, "state").await;
+    // Save as over another scene: refused whatever the message says.
+    send(
+        &mut ws,
+        json!({"type": "save", "path": "B.assist", "force": true}),
+    )
+    .await;
+    let e = until(&mut ws, "error").await;
+    assert!(
+        e["message"].as_str().unwrap().contains("never replaces"),
+        "{e}"
+    );
+    assert_eq!(
+        std::fs::read(victim.join("scene.json")).unwrap(),
+        victim_json
+    );
+    // A name without .assist is a scene name.
+    send(&mut ws, json!({"type": "save", "path": "C"})).await;
+    let saved = until(&mut ws, "saved").await;
+    assert!(
+        saved["path"].as_str().unwrap().ends_with("C.assist"),
+        "{saved}"
+    );
+    // Unknown fields on messages that take none: refused, nothing written.
+    for t in ["undo", "redo", "delete", "replicate", "save_view"] {
+        send(&mut ws, json!({"type": t, "path": "/etc"})).await;
+        let e = until(&mut ws, "error").await;
+        assert!(
+            e["message"].as_str().unwrap().contains("unknown field"),
+            "{t}: {e}"
+        );
+    }
+    assert!(!dir.join("scene-view-1").exists());
+    // A link inside the scenes folder to a scene outside it.
+    #[cfg(unix)]
+    {
+        send(&mut ws, json!({"type": "open", "scene": "link.assist"})).await;
+        let e = until(&mut ws, "error").await;
+        assert!(e["message"].as_str().unwrap().contains("outside"), "{e}");
+    }
 }

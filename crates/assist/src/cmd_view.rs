@@ -21,10 +21,11 @@ pub struct ViewArgs {
     /// Port to listen on (0: any free port).
     #[arg(long, default_value_t = 7007)]
     pub port: u16,
-    /// Address to listen on. Anything but a loopback address needs a token.
+    /// Address to listen on.
     #[arg(long, default_value = "127.0.0.1")]
     pub host: IpAddr,
-    /// Token clients must present (generated and printed when the host is not loopback).
+    /// Token clients must present, on every address, loopback included (generated when
+    /// not given; the URL printed and opened carries it).
     #[arg(long)]
     pub token: Option<String>,
     /// Open the page in the desktop's browser (xdg-open) once listening.

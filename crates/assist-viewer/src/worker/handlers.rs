@@ -201,7 +201,7 @@ impl Worker {
             _ => {
                 return Err(format!(
                     "drag.axis: expected x, y, z, -x, -y, -z (or view for translate, all for scale), got {axis:?}"
-                ).into());
+                ));
             }
         }
         Ok(c)
@@ -258,19 +258,36 @@ impl Worker {
                 let ok = !p.is_empty()
                     && !p.contains(['/', '\\'])
                     && !p.starts_with('.')
-                    && p.ends_with(".assist");
+                    && p.chars().all(|c| !c.is_control());
                 if !ok {
                     return Err(format!(
-                        "save.path: expected a NAME.assist beside the scene (no folders), got {p:?}"
+                        "save.path: expected a NAME (or NAME.assist) beside the scene (no folders), got {p:?}"
                     )
                     .into());
                 }
-                self.scene_path.parent().unwrap_or(Path::new(".")).join(p)
+                let name = if p.ends_with(".assist") {
+                    p.to_string()
+                } else {
+                    format!("{p}.assist")
+                };
+                self.scene_path
+                    .parent()
+                    .unwrap_or(Path::new("."))
+                    .join(name)
             }
         };
-        // Saving over the opened scene is what "save" means; anything else needs force.
+        // Saving over the opened scene is what "save" means; "save as" never replaces
+        // anything, whatever the message asks (`force` is read only for the former).
         let over_own = target == self.scene_path;
-        let force = force || over_own;
+        let _ = force;
+        let force = over_own;
+        if !over_own && std::fs::symlink_metadata(&target).is_ok() {
+            return Err(format!(
+                "save as: {} already exists; save as never replaces a scene (choose another name)",
+                target.display()
+            )
+            .into());
+        }
         // Held across the check and the write, so no other process saves in between.
         let _lock = assist_fs::lock(&target, "assist view").map_err(Refused::from)?;
         if over_own && disk_stamp(&target) != self.disk {

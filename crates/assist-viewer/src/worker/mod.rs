@@ -133,6 +133,21 @@ impl OtherScenes {
         if !p.join("scene.json").is_file() {
             return Err(format!("scene {name:?}: no scene.json in {}", p.display()));
         }
+        // A link inside the folder may point anywhere: the scene it names must lie inside.
+        let inside = match (
+            dir.canonicalize(),
+            p.canonicalize(),
+            p.join("scene.json").canonicalize(),
+        ) {
+            (Ok(d), Ok(q), Ok(f)) => q.starts_with(&d) && f.starts_with(&d),
+            _ => false,
+        };
+        if !inside {
+            return Err(format!(
+                "scene {name:?}: it lies outside the scenes folder {} (through a link)",
+                dir.display()
+            ));
+        }
         Ok(p)
     }
 
