@@ -288,7 +288,7 @@ impl DatasetWriter {
     /// is replaced only with `force`, and only when assist wrote it.
     pub fn create(dir: &Path, cfg: WriterConfig, force: bool) -> Result<Self> {
         check_config(dir, &cfg)?;
-        assist_fs::check_replaceable(dir, force)?;
+        assist_fs::check_replaceable_as(dir, force, assist_fs::Kind::Dataset)?;
         let staging = assist_fs::Staging::begin(dir, "writing a dataset")?;
         let root = staging.dir().to_path_buf();
         Self::open(dir, root, Some(staging), cfg)

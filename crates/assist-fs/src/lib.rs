@@ -48,6 +48,22 @@ pub enum FsError {
         "{path} exists and was not written by assist (no {MARKER} marker in it); --force replaces only folders assist wrote: move it away or choose another output"
     )]
     NotOurs { path: PathBuf },
+    #[error(
+        "{path} holds {found}, not {expected}: --force replaces only an earlier output of the same kind; choose another output"
+    )]
+    OtherKind {
+        path: PathBuf,
+        found: Kind,
+        expected: Kind,
+    },
+    #[error(
+        "{path} is, or holds, this command's input {input}: --force never replaces what a command reads; choose another output"
+    )]
+    IsInput { path: PathBuf, input: PathBuf },
+    #[error(
+        "{path} holds files assist did not write there ({files}); --force would delete them: move them away or choose another output"
+    )]
+    Foreign { path: PathBuf, files: String },
     #[error("{path} is a file; expected a folder (or a name that does not exist yet)")]
     NotAFolder { path: PathBuf },
     #[error("{path}: expected a folder name (not a root or '..')")]
@@ -144,6 +160,121 @@ pub fn check_replaceable(target: &Path, force: bool) -> Result<()> {
         });
     }
     Ok(())
+}
+
+/// What an output folder of assist holds, read from the file that defines it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    /// A scene (`scene.json`): `train`, `edit`, `embed`, `scene light`.
+    Scene,
+    /// A dataset (`transforms.json` and the like): `render`, `synth`, a capture.
+    Dataset,
+    /// Meshes and models (`export.json`): `export`.
+    Export,
+    /// Generated samples (`generate.json`): `generate`.
+    Generated,
+    /// The demo's folder.
+    Demo,
+}
+
+impl std::fmt::Display for Kind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Kind::Scene => "a scene",
+            Kind::Dataset => "a dataset",
+            Kind::Export => "an export",
+            Kind::Generated => "generated samples",
+            Kind::Demo => "the demo",
+        })
+    }
+}
+
+impl Kind {
+    /// The kind of `dir`, from the files that define each kind; `None` for anything else.
+    pub fn of(dir: &Path) -> Option<Kind> {
+        let has = |f: &str| std::fs::symlink_metadata(dir.join(f)).is_ok();
+        if has(".assist-demo") {
+            Some(Kind::Demo)
+        } else if has("scene.json") {
+            Some(Kind::Scene)
+        } else if has("generate.json") {
+            Some(Kind::Generated)
+        } else if has("export.json") {
+            Some(Kind::Export)
+        } else if [
+            "transforms.json",
+            "transforms_train.json",
+            "poses_bounds.npy",
+            "sparse",
+        ]
+        .iter()
+        .any(|f| has(f))
+        {
+            Some(Kind::Dataset)
+        } else {
+            None
+        }
+    }
+}
+
+/// [`check_replaceable`], and an existing output must be of the `kind` the command writes:
+/// `--force` never turns a scene into a render, or a dataset into a scene.
+pub fn check_replaceable_as(target: &Path, force: bool, kind: Kind) -> Result<()> {
+    check_replaceable(target, force)?;
+    check_kind(target, kind)
+}
+
+/// An existing `target` must be of `kind` (or of none assist knows): for commands that
+/// continue their own earlier output, checked before any work.
+pub fn check_kind(target: &Path, kind: Kind) -> Result<()> {
+    if let Some(found) = Kind::of(target).filter(|k| *k != kind) {
+        return Err(FsError::OtherKind {
+            path: target.to_path_buf(),
+            found,
+            expected: kind,
+        });
+    }
+    Ok(())
+}
+
+/// Refuses an output that is one of the command's `inputs` or holds one (replacing it
+/// would delete what the command reads).
+pub fn check_not_input(target: &Path, inputs: &[&Path]) -> Result<()> {
+    let Ok(out) = std::fs::canonicalize(target) else {
+        return Ok(());
+    };
+    for input in inputs {
+        if let Ok(i) = std::fs::canonicalize(input)
+            && i.starts_with(&out)
+        {
+            return Err(FsError::IsInput {
+                path: target.to_path_buf(),
+                input: input.to_path_buf(),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Refuses to replace `target` when it holds entries other than `ours` (the names the
+/// command writes at its top level; the marker, locks and temporaries count as ours).
+pub fn check_only_ours(target: &Path, ours: &[&str]) -> Result<()> {
+    let Ok(entries) = std::fs::read_dir(target) else {
+        return Ok(());
+    };
+    let mut foreign: Vec<String> = entries
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n != MARKER && !n.starts_with(".index.json.tmp") && !ours.contains(&n.as_str()))
+        .collect();
+    if foreign.is_empty() {
+        return Ok(());
+    }
+    foreign.sort();
+    Err(FsError::Foreign {
+        path: target.to_path_buf(),
+        files: foreign.join(", "),
+    })
 }
 
 struct Held {

@@ -155,10 +155,12 @@ impl Generator {
                     ),
                 });
             }
-            assist_fs::check_replaceable(out, true)?;
+            assist_fs::check_replaceable_as(out, true, assist_fs::Kind::Generated)?;
+            assist_fs::check_only_ours(out, GENERATED)?;
             std::fs::remove_dir_all(out).map_err(|e| io(out, e))?;
         } else {
-            assist_fs::check_replaceable(out, force)?;
+            assist_fs::check_replaceable_as(out, force, assist_fs::Kind::Generated)?;
+            assist_fs::check_only_ours(out, GENERATED)?;
             if out.is_dir() {
                 std::fs::remove_dir_all(out).map_err(|e| io(out, e))?;
             }
@@ -172,6 +174,16 @@ impl Generator {
         Ok(())
     }
 }
+
+/// What `generate` writes at the top of its folder: anything else there is the user's,
+/// and `--force` refuses to delete it.
+pub const GENERATED: &[&str] = &[
+    "samples",
+    "annotations",
+    "generate.json",
+    "index.json",
+    "plans",
+];
 
 /// What a merge wrote.
 #[derive(Debug, Clone, Serialize)]

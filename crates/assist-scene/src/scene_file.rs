@@ -91,7 +91,7 @@ pub fn save_with_history(
     check_scenes(&dir.join("scene.json"), Some(&scene.scene), history)?;
     // Replace only what assist wrote, claim the name against other processes, and write a
     // complete folder beside it before swapping it in.
-    assist_fs::check_replaceable(dir, force)?;
+    assist_fs::check_replaceable_as(dir, force, assist_fs::Kind::Scene)?;
     let staging = assist_fs::Staging::begin(dir, "saving a scene")?;
     let tmp = staging.dir().to_path_buf();
     let io = |p: &Path| {

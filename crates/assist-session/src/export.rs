@@ -179,7 +179,8 @@ impl Session {
             ));
         }
         let ids = self.export_ids(&job.nodes)?;
-        assist_fs::check_replaceable(&job.out, job.force).map_err(SessionError::Output)?;
+        assist_fs::check_replaceable_as(&job.out, job.force, assist_fs::Kind::Export)
+            .map_err(SessionError::Output)?;
         let staging = assist_fs::Staging::begin(&job.out, "exporting meshes")
             .map_err(SessionError::Output)?;
         let frame = job.frame.unwrap_or(if job.sim.is_some() {

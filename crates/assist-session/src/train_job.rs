@@ -183,7 +183,10 @@ impl TrainJob {
         // Before any work: replace only what assist wrote, claim the output against a
         // second process (this also proves its folder writable) for the whole run.
         if !c.resume {
-            assist_fs::check_replaceable(&c.out, c.force).map_err(SessionError::Output)?;
+            assist_fs::check_replaceable_as(&c.out, c.force, assist_fs::Kind::Scene)
+                .map_err(SessionError::Output)?;
+            assist_fs::check_not_input(&c.out, &[c.data.as_path()])
+                .map_err(SessionError::Output)?;
         }
         let _lock = assist_fs::lock(&c.out, &format!("assist train {}", c.data.display()))
             .map_err(SessionError::Output)?;

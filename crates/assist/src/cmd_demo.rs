@@ -93,7 +93,7 @@ fn instruction(scene: &Scene, other: &Scene, other_path: &str) -> anyhow::Result
 pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     let out = &a.out;
     // A previous demo's folder is rewritten; a folder assist did not write never is.
-    assist_fs::check_replaceable(out, true)?;
+    assist_fs::check_replaceable_as(out, true, assist_fs::Kind::Demo)?;
     let _lock = assist_fs::lock(out, "assist demo")?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     std::fs::write(out.join(assist_fs::MARKER), "written by assist demo\n")

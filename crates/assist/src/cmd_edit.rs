@@ -425,7 +425,7 @@ pub fn run(a: EditArgs) -> anyhow::Result<()> {
     if !a.dry_run {
         _locks.push(assist_fs::lock(&a.scene, "assist edit")?);
         if let Some(out) = &a.out {
-            assist_fs::check_replaceable(out, a.force)?;
+            assist_fs::check_replaceable_as(out, a.force, assist_fs::Kind::Scene)?;
             _locks.push(assist_fs::lock(out, "assist edit")?);
         }
     }

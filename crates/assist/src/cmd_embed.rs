@@ -88,7 +88,7 @@ pub fn embed_session(
 
 pub fn run(a: EmbedArgs) -> anyhow::Result<()> {
     if let Some(out) = &a.out {
-        assist_fs::check_replaceable(out, a.force)?;
+        assist_fs::check_replaceable_as(out, a.force, assist_fs::Kind::Scene)?;
     }
     let clip = load_clip(a.clip.as_deref())?;
     let mut session =

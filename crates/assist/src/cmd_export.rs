@@ -128,7 +128,8 @@ pub fn job(a: &ExportArgs) -> ExportJob {
 }
 
 pub fn run(a: ExportArgs) -> anyhow::Result<()> {
-    assist_fs::check_replaceable(&a.out, a.force)?;
+    assist_fs::check_replaceable_as(&a.out, a.force, assist_fs::Kind::Export)?;
+    assist_fs::check_not_input(&a.out, &[a.scene.as_path()])?;
     let mut session =
         Session::open(&a.scene).with_context(|| format!("loading scene {}", a.scene.display()))?;
     let bar = crate::progress::bar(std::io::stderr().is_terminal(), "export");

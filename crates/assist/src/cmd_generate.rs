@@ -99,6 +99,12 @@ pub fn run(a: GenerateArgs) -> anyhow::Result<()> {
     let Some(out) = a.out.clone() else {
         bail!("--out: expected the output folder");
     };
+    // Before any work: the output is generated samples or nothing yet, never a scene or
+    // a dataset (the run's own scenes included).
+    assist_fs::check_kind(&out, assist_fs::Kind::Generated)?;
+    if a.force {
+        assist_fs::check_only_ours(&out, assist_generate::GENERATED)?;
+    }
     let mut spec = match (&a.spec, &a.scene) {
         (Some(p), _) => Spec::load(p)?,
         (None, Some(s)) => Spec::for_scene(s),

@@ -136,7 +136,11 @@ fn job(a: &RenderArgs, select: Option<u16>) -> anyhow::Result<RenderJob> {
 pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     // Before anything is loaded: --force replaces only what assist wrote (the new dataset
     // is swapped in whole, never mixed with the old one's files).
-    assist_fs::check_replaceable(&a.out, a.force)?;
+    assist_fs::check_replaceable_as(&a.out, a.force, assist_fs::Kind::Dataset)?;
+    let inputs: Vec<&std::path::Path> = std::iter::once(a.scene.as_path())
+        .chain((a.cameras != "orbit").then(|| std::path::Path::new(a.cameras.as_str())))
+        .collect();
+    assist_fs::check_not_input(&a.out, &inputs)?;
     let mut session =
         Session::open(&a.scene).with_context(|| format!("loading scene {}", a.scene.display()))?;
     let select = match &a.select {

@@ -71,6 +71,114 @@ fn force_never_replaces_a_folder_assist_did_not_write() {
     common::assert_no_leftovers(tmp.path());
 }
 
+/// Every file under `dir`, with its bytes.
+fn tree(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                out.push((p.clone(), std::fs::read(&p).unwrap()));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// Issue 47, item 12: `--force` replaced a command's own input (`export S --out S`,
+/// `generate --scene D --out D`, `train DATA --out DATA`) and a folder of another kind
+/// (`render … --out T.assist` over a scene), and `generate --force` deleted the user's
+/// files inside a folder it once wrote. Each is refused now, exit 1, nothing touched.
+#[test]
+fn force_never_replaces_an_input_or_another_kind_of_folder() {
+    let tmp = TempDir::new("force-kinds");
+    let (data, sc) = scene(&tmp);
+    let (scene_before, data_before) = (tree(&sc), tree(&data));
+    let cases: Vec<(Vec<&str>, &[&str])> = vec![
+        (
+            vec!["export", s(&sc), "--out", s(&sc), "--force"],
+            &["holds a scene, not an export"],
+        ),
+        (
+            vec![
+                "generate",
+                "--scene",
+                s(&sc),
+                "--out",
+                s(&sc),
+                "--count",
+                "1",
+                "--force",
+            ],
+            &["holds a scene, not generated samples"],
+        ),
+        (
+            vec![
+                "train",
+                s(&data),
+                "--out",
+                s(&data),
+                "--iters",
+                "1",
+                "--force",
+            ],
+            &["holds a dataset, not a scene"],
+        ),
+        (
+            vec!["render", s(&sc), "--out", s(&sc), "--force"],
+            &["holds a scene, not a dataset"],
+        ),
+        (
+            vec![
+                "render",
+                s(&sc),
+                "--cameras",
+                s(&data),
+                "--out",
+                s(&data),
+                "--force",
+            ],
+            &["this command's input"],
+        ),
+        (
+            vec!["synth", "--out", s(&sc), "--views", "6", "--force"],
+            &["holds a scene, not a dataset"],
+        ),
+    ];
+    for (args, needles) in &cases {
+        refused(&assist(args), needles);
+        assert!(tree(&sc) == scene_before, "{args:?} changed the scene");
+        assert!(tree(&data) == data_before, "{args:?} changed the dataset");
+    }
+    // A generate folder assist wrote, with a file of the user's added: not deleted.
+    let g = tmp.join("g");
+    std::fs::create_dir_all(g.join("samples")).unwrap();
+    std::fs::write(g.join(assist_fs::MARKER), "written by assist generate\n").unwrap();
+    std::fs::write(g.join("generate.json"), "{}").unwrap();
+    std::fs::write(g.join("notes.txt"), "mine").unwrap();
+    refused(
+        &assist(&[
+            "generate",
+            "--scene",
+            s(&sc),
+            "--out",
+            s(&g),
+            "--count",
+            "1",
+            "--force",
+        ]),
+        &["notes.txt", "assist did not write"],
+    );
+    assert_eq!(
+        std::fs::read_to_string(g.join("notes.txt")).unwrap(),
+        "mine"
+    );
+}
+
 #[test]
 fn render_force_writes_a_fresh_folder_never_a_mix() {
     let tmp = TempDir::new("render-fresh");

@@ -214,7 +214,7 @@ pub fn generate(
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<SynthSummary> {
     cfg.validate()?;
-    assist_fs::check_replaceable(out, force)?;
+    assist_fs::check_replaceable_as(out, force, assist_fs::Kind::Dataset)?;
     let mut rng = Rng::new(cfg.seed);
     let scene = build_scene(&mut rng, cfg.objects);
     let cams = cameras(&mut rng, cfg.views, cfg.width, cfg.height);
