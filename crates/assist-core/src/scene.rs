@@ -117,6 +117,9 @@ impl SceneNode {
 /// Largest coordinate a node may be placed at (world units): far beyond any capture, and
 /// far below where f64 arithmetic on poses breaks down.
 pub const MAX_COORDINATE: f64 = 1e9;
+
+/// Longest node label, in characters.
+pub const MAX_LABEL_CHARS: usize = 200;
 /// Scale factors a node may have (relative to its trained size).
 pub const SCALE_RANGE: (f64, f64) = (1e-6, 1e6);
 
@@ -127,11 +130,24 @@ impl SceneNode {
     /// [`ShadowCast`]'s pose, whose strengths lie in `[0, 1]`. Returns the field and the
     /// message.
     pub fn check(&self) -> Result<(), (&'static str, String)> {
+        let n = self.label.chars().count();
+        if self.label.trim().is_empty() || n > MAX_LABEL_CHARS {
+            return Err((
+                "label",
+                format!("expected 1 to {MAX_LABEL_CHARS} characters, got {n}"),
+            ));
+        }
+        if self.label.chars().any(char::is_control) {
+            return Err(("label", "control characters are not allowed".into()));
+        }
         let hs = self.half_size.to_array();
-        if !hs.iter().all(|v| v.is_finite() && *v > 0.0) {
+        if !hs
+            .iter()
+            .all(|v| v.is_finite() && *v > 0.0 && *v <= MAX_COORDINATE)
+        {
             return Err((
                 "half_size",
-                format!("expected 3 positive numbers, got {hs:?}"),
+                format!("expected 3 positive numbers up to {MAX_COORDINATE:e}, got {hs:?}"),
             ));
         }
         check_pose(

@@ -155,6 +155,10 @@ pub fn composite_batch(
     out.share.resize(n * nn, 0.0);
     out.distortion.clear();
     out.distortion.resize(n, 0.0);
+    if nn == 0 {
+        // No node (a scene whose every node is hidden): every ray sees nothing.
+        return;
+    }
     let n_blocks = n.div_ceil(BLOCK);
     // Split every node's arrays at block boundaries (ray-major storage makes each block's
     // samples contiguous), then regroup per block.

@@ -28,8 +28,7 @@ pub enum EditError {
     Label { id: u16, message: String },
 }
 
-/// Longest label a node may have, in characters.
-pub const MAX_LABEL_CHARS: usize = 200;
+pub use assist_core::scene::MAX_LABEL_CHARS;
 
 /// Other scenes read from disk (`scene.json` only; weights are loaded when a node is added),
 /// each read once, and the fields imported from them, each loaded once (clones share both,

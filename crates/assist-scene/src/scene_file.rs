@@ -322,6 +322,18 @@ fn scene_json_from_text(
             ));
         }
     }
+    if let Some(obj) = raw.as_object()
+        && let Some(k) = obj.keys().find(|k| !SCENE_KEYS.contains(&k.as_str()))
+    {
+        return Err(invalid(
+            &file,
+            k.as_str(),
+            format!(
+                "unknown key (a scene file has {}); it would be lost on the next save",
+                SCENE_KEYS.join(", ")
+            ),
+        ));
+    }
     let json: SceneJson = serde_json::from_value(raw).map_err(|e| {
         invalid(
             &file,
@@ -330,27 +342,65 @@ fn scene_json_from_text(
         )
     })?;
     let scene = json.scene;
+    check_structure(&file, "", &scene)?;
+    check_scene_values(&file, "", &scene)?;
+    Ok((scene, json.info))
+}
+
+/// The top-level keys of `scene.json`.
+const SCENE_KEYS: &[&str] = &[
+    "format",
+    "version",
+    "info",
+    "nodes",
+    "up",
+    "meters_per_unit",
+    "background_color",
+    "backdrop",
+    "selected",
+    "near",
+    "classes",
+    "light",
+];
+
+/// Everything a scene (the file's, or a history snapshot) must hold to load and render:
+/// one background node (id 0) whose field no other node shares, unique ids, field keys
+/// that are file names, each node's values, and the scene-wide values.
+fn check_structure(file: &Path, prefix: &str, scene: &Scene) -> Result<(), SceneFileError> {
+    let nodes = format!("{prefix}nodes");
+    let Some(bg) = scene.nodes.iter().find(|n| n.is_background()) else {
+        return Err(invalid(
+            file,
+            nodes,
+            "expected a background node (id 0); the scene has none",
+        ));
+    };
     let mut seen = std::collections::HashSet::new();
     for (i, n) in scene.nodes.iter().enumerate() {
-        let f = |x: &str| format!("nodes[{i}].{x}");
+        let f = |x: &str| format!("{prefix}nodes[{i}].{x}");
         if !seen.insert(n.id) {
-            return Err(invalid(
-                &file,
-                f("id"),
-                format!("id {} is used twice", n.id),
-            ));
+            return Err(invalid(file, f("id"), format!("id {} is used twice", n.id)));
         }
         if !valid_key(&n.field) {
             return Err(invalid(
-                &file,
+                file,
                 f("field"),
                 "expected letters, digits, '_' or '-'",
             ));
         }
-        check_node(&file, &f, n)?;
+        if !n.is_background() && n.field == bg.field {
+            return Err(invalid(
+                file,
+                f("field"),
+                format!(
+                    "node {} shares the background's field {:?}; an object needs its own",
+                    n.id, n.field
+                ),
+            ));
+        }
+        check_node(file, &f, n)?;
     }
-    check_scene_values(&file, "", &scene)?;
-    Ok((scene, json.info))
+    check_scene_values(file, prefix, scene)
 }
 
 /// The scene-wide values: units, up, near plane, background colour, and a selection that
@@ -379,11 +429,14 @@ fn check_scene_values(file: &Path, prefix: &str, s: &Scene) -> Result<(), SceneF
             format!("expected 0 to 1e9 world units, got {}", s.near),
         ));
     }
-    if s.background_color.iter().any(|c| !c.is_finite()) {
+    if s.background_color.iter().any(|c| !(0.0..=1.0).contains(c)) {
         return Err(invalid(
             file,
             f("background_color"),
-            format!("expected finite numbers, got {:?}", s.background_color),
+            format!(
+                "expected 3 numbers from 0 to 1, got {:?}",
+                s.background_color
+            ),
         ));
     }
     if let Some(l) = &s.light {
@@ -440,12 +493,7 @@ fn check_scenes(
     scene: Option<&Scene>,
     history: &History,
 ) -> Result<(), SceneFileError> {
-    let check = |prefix: String, s: &Scene| -> Result<(), SceneFileError> {
-        for (i, n) in s.nodes.iter().enumerate() {
-            check_node(file, &|x: &str| format!("{prefix}nodes[{i}].{x}"), n)?;
-        }
-        check_scene_values(file, &prefix, s)
-    };
+    let check = |prefix: String, s: &Scene| check_structure(file, &prefix, s);
     if let Some(s) = scene {
         check(String::new(), s)?;
     }

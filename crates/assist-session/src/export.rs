@@ -92,6 +92,38 @@ pub struct ExportSummary {
     pub model: Option<String>,
 }
 
+impl ExportJob {
+    /// Checks the job's values before anything is read or written.
+    fn check(&self) -> Result<()> {
+        let job = self;
+        job.extract
+            .validate()
+            .map_err(|e| request("export", e.to_string()))?;
+        if job.sim.is_some() && job.format != Format::Obj {
+            return Err(request(
+                "format",
+                "a simulator model references OBJ meshes (MuJoCo and URDF loaders read them): use the obj format".into(),
+            ));
+        }
+        if !(job.material_density.is_finite() && job.material_density > 0.0) {
+            return Err(request(
+                "material density",
+                format!(
+                    "{} is not a positive density in kg/m³",
+                    job.material_density
+                ),
+            ));
+        }
+        if job.format == Format::Points && !(1..=100_000_000).contains(&job.points) {
+            return Err(request(
+                "points",
+                format!("{} is outside 1..=100000000", job.points),
+            ));
+        }
+        Ok(())
+    }
+}
+
 impl Session {
     /// The node named `name`: an id, `background`, or a label or description found as an
     /// instruction finds objects (candidates listed when it is unclear).
@@ -154,30 +186,7 @@ impl Session {
         job: &ExportJob,
         mut on_node: impl FnMut(usize, usize, &ExportedNode),
     ) -> Result<ExportSummary> {
-        job.extract
-            .validate()
-            .map_err(|e| request("export", e.to_string()))?;
-        if job.sim.is_some() && job.format != Format::Obj {
-            return Err(request(
-                "format",
-                "a simulator model references OBJ meshes (MuJoCo and URDF loaders read them): use the obj format".into(),
-            ));
-        }
-        if !(job.material_density.is_finite() && job.material_density > 0.0) {
-            return Err(request(
-                "material density",
-                format!(
-                    "{} is not a positive density in kg/m³",
-                    job.material_density
-                ),
-            ));
-        }
-        if job.format == Format::Points && !(1..=100_000_000).contains(&job.points) {
-            return Err(request(
-                "points",
-                format!("{} is outside 1..=100000000", job.points),
-            ));
-        }
+        job.check()?;
         let ids = self.export_ids(&job.nodes)?;
         assist_fs::check_replaceable_as(&job.out, job.force, assist_fs::Kind::Export)
             .map_err(SessionError::Output)?;

@@ -182,12 +182,7 @@ impl TrainJob {
         let c = &self.config;
         // Before any work: replace only what assist wrote, claim the output against a
         // second process (this also proves its folder writable) for the whole run.
-        if !c.resume {
-            assist_fs::check_replaceable_as(&c.out, c.force, assist_fs::Kind::Scene)
-                .map_err(SessionError::Output)?;
-            assist_fs::check_not_input(&c.out, &[c.data.as_path()])
-                .map_err(SessionError::Output)?;
-        }
+        self.check_output()?;
         let _lock = assist_fs::lock(&c.out, &format!("assist train {}", c.data.display()))
             .map_err(SessionError::Output)?;
         let user_boxes = match &c.boxes {
@@ -397,6 +392,19 @@ impl TrainJob {
             ]),
             ..Default::default()
         }
+    }
+
+    /// The output may be written: a new run replaces only a scene assist wrote (with
+    /// `force`), never the dataset it reads.
+    fn check_output(&self) -> Result<()> {
+        let c = &self.config;
+        if !c.resume {
+            assist_fs::check_replaceable_as(&c.out, c.force, assist_fs::Kind::Scene)
+                .map_err(SessionError::Output)?;
+            assist_fs::check_not_input(&c.out, &[c.data.as_path()])
+                .map_err(SessionError::Output)?;
+        }
+        Ok(())
     }
 
     /// Where a resumed run starts, and the run's time budget (a resumed run's counts from

@@ -559,3 +559,133 @@ fn an_object_pushed_into_its_support_is_warned_about() {
     );
     assert!(!e.exists());
 }
+
+/// Issue 47, items 13, 16 and 18: scene files that loaded though they could not be used
+/// (a 1e308 box, no background, an object sharing the background's field, an unknown key
+/// that the next save would drop, no nodes at all — which made `render` panic —, a colour
+/// out of range, empty or control-character labels), and an undo snapshot with two nodes
+/// of one id, which `--undo` installed and every later command then failed on. Each is
+/// refused on load naming `scene.json` (or `history.json`) and the field, exit 1.
+#[test]
+fn corrupted_scene_files_are_refused_naming_the_field() {
+    let tmp = assist_testkit::TempDir::new("cli-corrupt");
+    let good = tmp.path().join("good.assist");
+    write_scene(&good);
+    let text = std::fs::read_to_string(good.join("scene.json")).unwrap();
+    let base: serde_json::Value = serde_json::from_str(&text).unwrap();
+    type Corrupt = fn(&mut serde_json::Value);
+    let cases: &[(&str, Corrupt, &str)] = &[
+        (
+            "huge box",
+            |v| v["nodes"][1]["half_size"] = serde_json::json!([1e308, 0.05, 0.05]),
+            "nodes[1].half_size",
+        ),
+        (
+            "no background",
+            |v| {
+                v["nodes"].as_array_mut().unwrap().remove(0);
+            },
+            "background node",
+        ),
+        (
+            "shared background field",
+            |v| v["nodes"][2]["field"] = v["nodes"][0]["field"].clone(),
+            "shares the background's field",
+        ),
+        (
+            "unknown key",
+            |v| v["colour"] = serde_json::json!(1),
+            "colour: unknown key",
+        ),
+        (
+            "no nodes",
+            |v| v["nodes"] = serde_json::json!([]),
+            "background node",
+        ),
+        (
+            "colour out of range",
+            |v| v["background_color"] = serde_json::json!([2.0, -1.0, 0.5]),
+            "background_color",
+        ),
+        (
+            "empty label",
+            |v| v["nodes"][1]["label"] = serde_json::json!(""),
+            "nodes[1].label",
+        ),
+        (
+            "control characters",
+            |v| v["nodes"][1]["label"] = serde_json::json!("duck\u{7}"),
+            "nodes[1].label",
+        ),
+    ];
+    for (what, corrupt, field) in cases {
+        let dir = tmp.path().join(what.replace(' ', "_") + ".assist");
+        copy_dir(&good, &dir);
+        let mut v = base.clone();
+        corrupt(&mut v);
+        std::fs::write(dir.join("scene.json"), serde_json::to_vec(&v).unwrap()).unwrap();
+        for args in [
+            vec!["scene", "info", s(&dir)],
+            vec![
+                "render",
+                s(&dir),
+                "--out",
+                "unused",
+                "--frames",
+                "1",
+                "--size",
+                "8x8",
+            ],
+        ] {
+            let (ok, _, err) = assist(&args);
+            assert!(!ok, "{what}: {args:?} accepted the scene");
+            assert!(
+                err.contains("scene.json") && err.contains(field) && !err.contains("panicked"),
+                "{what}: {args:?}: {err}"
+            );
+        }
+    }
+    // An undo snapshot with two nodes of one id: refused, the scene kept as it was.
+    let scene = tmp.path().join("b.assist");
+    let (ok, _, err) = assist(&[
+        "edit",
+        s(&good),
+        "--do",
+        "move the mug 1 cm left",
+        "--out",
+        s(&scene),
+    ]);
+    assert!(ok, "{err}");
+    let hist = scene.join("history.json");
+    let mut h: serde_json::Value = serde_json::from_slice(&std::fs::read(&hist).unwrap()).unwrap();
+    h["undo"][0]["scene"]["nodes"][2]["id"] = h["undo"][0]["scene"]["nodes"][1]["id"].clone();
+    std::fs::write(&hist, serde_json::to_vec(&h).unwrap()).unwrap();
+    let before = snapshot(&scene);
+    let (ok, _, err) = assist(&[
+        "edit",
+        s(&scene),
+        "--undo",
+        "1",
+        "--out",
+        s(&scene),
+        "--force",
+    ]);
+    assert!(!ok, "undo installed a snapshot with a repeated id");
+    assert!(
+        err.contains("history.json") && err.contains("undo[0].scene.nodes[2].id"),
+        "{err}"
+    );
+    assert_eq!(snapshot(&scene), before);
+}
+
+fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap().flatten() {
+        let p = e.path();
+        if p.is_dir() {
+            copy_dir(&p, &to.join(e.file_name()));
+        } else {
+            std::fs::copy(&p, to.join(e.file_name())).unwrap();
+        }
+    }
+}
