@@ -1,24 +1,18 @@
 //! The instruction table: plain-language instructions with the actions they must give, and
 //! instructions that must be refused with a clear error.
 
-use assist_core::{DMat3, DQuat, DVec3, Obb, Scene, SceneNode, SceneSource};
+use assist_core::{DMat3, DQuat, DVec3, Scene, SceneSource};
 use assist_lang::{LangError, ParseOptions, TextEmbedder, parse};
 use serde_json::{Value, json};
 
-fn node(id: u16, label: &str, at: [f64; 3]) -> SceneNode {
-    SceneNode::from_obb(
-        id,
-        label,
-        &format!("f{id}"),
-        &Obb::new(DVec3::from_array(at), DVec3::splat(0.05), DMat3::IDENTITY),
-    )
-}
+mod common;
+use common::node;
 
 fn scene() -> Scene {
     let mut bg = node(0, "background", [0.0, 0.0, 1.0]);
     bg.half_size = DVec3::splat(2.0);
-    Scene {
-        nodes: vec![
+    Scene::with_nodes(
+        vec![
             bg,
             node(1, "yellow rubber duck", [-0.5, 0.0, 0.8]),
             node(2, "spot the cow figurine (textured)", [-0.3, 0.0, 0.8]),
@@ -35,15 +29,8 @@ fn scene() -> Scene {
             node(9, "lego", [-0.1, 0.4, 0.8]),
             node(10, "chair", [0.1, 0.4, 0.5]),
         ],
-        up: DVec3::Z,
-        meters_per_unit: 1.0,
-        background_color: [0.0; 3],
-        backdrop: Default::default(),
-        selected: None,
-        near: 0.0,
-        classes: Vec::new(),
-        light: None,
-    }
+        DVec3::Z,
+    )
 }
 
 struct Other;

@@ -23,21 +23,14 @@ fn scene() -> Scene {
             ),
         )
     };
-    Scene {
-        nodes: vec![
+    Scene::with_nodes(
+        vec![
             n(0, "background"),
             n(1, "yellow rubber duck"),
             n(3, "red ceramic mug"),
         ],
-        up: DVec3::Z,
-        meters_per_unit: 1.0,
-        background_color: [0.0; 3],
-        backdrop: Default::default(),
-        selected: None,
-        near: 0.0,
-        classes: Vec::new(),
-        light: None,
-    }
+        DVec3::Z,
+    )
 }
 
 /// Serves one request with `status` and a chat-completions body whose message content is

@@ -2,24 +2,18 @@
 //! mug. Each instruction resolves to exactly the objects it means, or is refused naming
 //! the word or phrase the grammar does not read.
 
-use assist_core::{DMat3, DVec3, Obb, Scene, SceneNode, SceneSource};
+use assist_core::{DVec3, Scene, SceneSource};
 use assist_lang::{ParseOptions, parse};
 
-fn node(id: u16, label: &str, at: [f64; 3]) -> SceneNode {
-    SceneNode::from_obb(
-        id,
-        label,
-        &format!("f{id}"),
-        &Obb::new(DVec3::from_array(at), DVec3::splat(0.05), DMat3::IDENTITY),
-    )
-}
+mod common;
+use common::node;
 
 /// A duck (1), a cow (2), a mug (3), a teapot (4), a red box (5) and a blue striped box (6).
 fn scene() -> Scene {
     let mut bg = node(0, "background", [0.0, 0.0, 1.0]);
     bg.half_size = DVec3::splat(2.0);
-    Scene {
-        nodes: vec![
+    Scene::with_nodes(
+        vec![
             bg,
             node(1, "yellow rubber duck", [-0.5, 0.0, 0.8]),
             node(2, "spot the cow figurine", [-0.3, 0.0, 0.8]),
@@ -28,15 +22,8 @@ fn scene() -> Scene {
             node(5, "red box", [0.3, 0.0, 0.8]),
             node(6, "blue striped box", [0.5, 0.0, 0.8]),
         ],
-        up: DVec3::Z,
-        meters_per_unit: 1.0,
-        background_color: [0.0; 3],
-        backdrop: Default::default(),
-        selected: None,
-        near: 0.0,
-        classes: Vec::new(),
-        light: None,
-    }
+        DVec3::Z,
+    )
 }
 
 struct NoScenes;

@@ -38,17 +38,7 @@ pub fn scene_of(nodes: Vec<SceneNode>, fields: Vec<Field>) -> NeuralScene {
         map.insert(n.field.clone(), Arc::new(nf));
     }
     NeuralScene {
-        scene: Scene {
-            nodes,
-            up: DVec3::Z,
-            meters_per_unit: 1.0,
-            background_color: [0.0; 3],
-            backdrop: Default::default(),
-            selected: None,
-            near: 0.0,
-            classes: Vec::new(),
-            light: None,
-        },
+        scene: Scene::with_nodes(nodes, DVec3::Z),
         fields: map,
     }
 }

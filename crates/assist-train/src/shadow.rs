@@ -463,17 +463,7 @@ mod tests {
             fields.insert(n.field.clone(), Arc::new(nf));
         }
         let scene = NeuralScene {
-            scene: Scene {
-                nodes,
-                up: DVec3::Z,
-                meters_per_unit: 1.0,
-                background_color: [0.0; 3],
-                backdrop: Default::default(),
-                selected: None,
-                near: 0.0,
-                classes: Vec::new(),
-                light: None,
-            },
+            scene: Scene::with_nodes(nodes, DVec3::Z),
             fields,
         };
         let camera = Camera {

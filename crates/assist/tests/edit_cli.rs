@@ -240,18 +240,7 @@ fn a_history_snapshot_that_cannot_load_is_an_error_naming_it() {
     let tmp = assist_testkit::TempDir::new("cli-bad-history");
     let a = tmp.path().join("a.assist");
     write_scene(&a);
-    let scene = tmp.path().join("b.assist");
-    let (ok, _, err) = assist(&[
-        "edit",
-        s(&a),
-        "--do",
-        "move the mug 1 cm left",
-        "--out",
-        s(&scene),
-    ]);
-    assert!(ok, "{err}");
-    let hist = scene.join("history.json");
-    let mut h: serde_json::Value = serde_json::from_slice(&std::fs::read(&hist).unwrap()).unwrap();
+    let (scene, hist, mut h) = edited_once(&a, &tmp.path().join("b.assist"));
     h["undo"][0]["scene"]["nodes"][1]["world_from_local"]["scale"] =
         serde_json::json!([1e300, 1.0, 1.0]);
     std::fs::write(&hist, serde_json::to_vec(&h).unwrap()).unwrap();
@@ -509,17 +498,7 @@ fn an_object_pushed_into_its_support_is_warned_about() {
         );
     }
     let ns = NeuralScene {
-        scene: Scene {
-            nodes: vec![table, mug],
-            up: DVec3::Z,
-            meters_per_unit: 1.0,
-            background_color: [0.0; 3],
-            backdrop: Default::default(),
-            selected: None,
-            near: 0.0,
-            classes: Vec::new(),
-            light: None,
-        },
+        scene: Scene::with_nodes(vec![table, mug], DVec3::Z),
         fields,
     };
     assist_scene::scene_file::save(&scene, &ns, serde_json::Value::Null, false).unwrap();
@@ -646,18 +625,7 @@ fn corrupted_scene_files_are_refused_naming_the_field() {
         }
     }
     // An undo snapshot with two nodes of one id: refused, the scene kept as it was.
-    let scene = tmp.path().join("b.assist");
-    let (ok, _, err) = assist(&[
-        "edit",
-        s(&good),
-        "--do",
-        "move the mug 1 cm left",
-        "--out",
-        s(&scene),
-    ]);
-    assert!(ok, "{err}");
-    let hist = scene.join("history.json");
-    let mut h: serde_json::Value = serde_json::from_slice(&std::fs::read(&hist).unwrap()).unwrap();
+    let (scene, hist, mut h) = edited_once(&good, &tmp.path().join("b.assist"));
     h["undo"][0]["scene"]["nodes"][2]["id"] = h["undo"][0]["scene"]["nodes"][1]["id"].clone();
     std::fs::write(&hist, serde_json::to_vec(&h).unwrap()).unwrap();
     let before = snapshot(&scene);
@@ -688,4 +656,24 @@ fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
             std::fs::copy(&p, to.join(e.file_name())).unwrap();
         }
     }
+}
+
+/// `from` edited once ("move the mug 1 cm left") into `out`: the scene, its history file
+/// and that file's JSON.
+fn edited_once(
+    from: &std::path::Path,
+    out: &std::path::Path,
+) -> (std::path::PathBuf, std::path::PathBuf, serde_json::Value) {
+    let (ok, _, err) = assist(&[
+        "edit",
+        s(from),
+        "--do",
+        "move the mug 1 cm left",
+        "--out",
+        s(out),
+    ]);
+    assert!(ok, "{err}");
+    let hist = out.join("history.json");
+    let h = serde_json::from_slice(&std::fs::read(&hist).unwrap()).unwrap();
+    (out.to_path_buf(), hist, h)
 }

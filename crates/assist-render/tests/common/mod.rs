@@ -37,15 +37,8 @@ pub fn scene(nodes: Vec<SceneNode>, fields: Vec<(&str, Field)>, cone: f32) -> Ne
     }
     NeuralScene {
         scene: Scene {
-            nodes,
-            up: DVec3::Z,
-            meters_per_unit: 1.0,
             background_color: [0.0, 0.0, 1.0],
-            backdrop: Default::default(),
-            selected: None,
-            near: 0.0,
-            classes: Vec::new(),
-            light: None,
+            ..Scene::with_nodes(nodes, DVec3::Z)
         },
         fields: map,
     }

@@ -46,17 +46,7 @@ pub fn write_scene(dir: &Path) {
         );
     }
     let s = NeuralScene {
-        scene: Scene {
-            nodes,
-            up: DVec3::Z,
-            meters_per_unit: 1.0,
-            background_color: [0.0; 3],
-            backdrop: Default::default(),
-            selected: None,
-            near: 0.0,
-            classes: Vec::new(),
-            light: None,
-        },
+        scene: Scene::with_nodes(nodes, DVec3::Z),
         fields,
     };
     assist_scene::scene_file::save(dir, &s, serde_json::Value::Null, false).unwrap();
