@@ -222,9 +222,15 @@ fn other_scene(dir: &Path) {
         Similarity3::from_translation(DVec3::new(2.0, 2.0, 2.0)),
     );
     mic.label = "mic".into();
+    // Every scene has a background node; this one is empty.
+    let mut bg = node(0, "room", 4.0, Similarity3::IDENTITY);
+    bg.label = "background".into();
     let mut s = scene(
-        vec![mic],
-        vec![("mic", constant_field(200.0, [0.1, 0.2, 0.9], false, 9))],
+        vec![bg, mic],
+        vec![
+            ("room", constant_field(0.01, [0.5; 3], false, 8)),
+            ("mic", constant_field(200.0, [0.1, 0.2, 0.9], false, 9)),
+        ],
         0.0,
     );
     s.scene.meters_per_unit = 0.5;

@@ -55,8 +55,8 @@ pub use render_job::{
     DatasetOutput, Highlight, RenderJob, RenderSummary, ViewDone, frame_layers, view_images,
 };
 pub use train_config::{
-    Appearance, DEFAULT_EVAL_VIEWS, LambdaOverrides, MAX_BATCH_SAMPLES, MIN_BATCH_SAMPLES, OnOff,
-    Shadows, TrainConfig, lambda_key, lambdas,
+    Appearance, DEFAULT_EVAL_VIEWS, Every, LambdaOverrides, MAX_BATCH_SAMPLES, MIN_BATCH_SAMPLES,
+    OnOff, Shadows, TrainConfig, lambda_key, lambdas,
 };
 pub use train_job::{HeldOut, TrainEvent, TrainJob, TrainOutcome, preview_path};
 

@@ -68,6 +68,84 @@ impl<'de> Deserialize<'de> for OnOff {
     }
 }
 
+/// How often something happens during a run: every N iterations ("300"), or every S
+/// seconds of training ("60s").
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Every {
+    Steps(usize),
+    Seconds(f64),
+}
+
+impl std::str::FromStr for Every {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Every, String> {
+        let t = s.trim();
+        let bad = || format!("expected N iterations (300) or S seconds (60s), got {s:?}");
+        if let Some(secs) = t.strip_suffix('s') {
+            let v: f64 = secs.trim().parse().map_err(|_| bad())?;
+            return if v.is_finite() && v > 0.0 {
+                Ok(Every::Seconds(v))
+            } else {
+                Err(bad())
+            };
+        }
+        match t.parse::<usize>() {
+            Ok(n) if n > 0 => Ok(Every::Steps(n)),
+            _ => Err(bad()),
+        }
+    }
+}
+
+impl std::fmt::Display for Every {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Every::Steps(n) => write!(f, "{n}"),
+            Every::Seconds(s) => write!(f, "{s}s"),
+        }
+    }
+}
+
+impl Every {
+    /// Whether it is due at this step; `last` is when it last happened (training
+    /// seconds), updated when it is. A time schedule is due at the first step and then
+    /// once its interval has passed.
+    pub fn due(&self, iteration: usize, elapsed: f64, last: &mut Option<f64>) -> bool {
+        let due = match self {
+            Every::Steps(n) => iteration % n == 0,
+            Every::Seconds(t) => last.is_none_or(|l| elapsed - l >= *t),
+        };
+        if due {
+            *last = Some(elapsed);
+        }
+        due
+    }
+}
+
+impl Serialize for Every {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            Every::Steps(n) => s.serialize_u64(*n as u64),
+            Every::Seconds(_) => s.serialize_str(&self.to_string()),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for Every {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged)]
+        enum Raw {
+            Steps(u64),
+            Text(String),
+        }
+        let text = match Raw::deserialize(d)? {
+            Raw::Steps(n) => n.to_string(),
+            Raw::Text(t) => t,
+        };
+        text.parse().map_err(serde::de::Error::custom)
+    }
+}
+
 /// Fewest samples a training step may take.
 pub const MIN_BATCH_SAMPLES: usize = 1 << 10;
 /// Most samples a training step may take (2²⁴: about 2 GB of activations).
@@ -183,11 +261,12 @@ pub struct TrainConfig {
     #[arg(long, help_heading = MODEL, value_name = "T",
           default_value_t = TrainOptions::default().hidden_stop)]
     pub hidden_stop: f32,
-    /// Measure held-out views (the dataset's test split, else val) every N iterations:
-    /// their PSNR and SSIM go to the log, and the first view beside its render to
+    /// Measure held-out views (the dataset's test split, else val) every N iterations
+    /// ("300") or every S seconds ("60s"), and at the end: their PSNR and SSIM go to the
+    /// log and the progress line, and the first view beside its render to
     /// NAME.preview.png beside --out. The time counts in the run's.
-    #[arg(long, help_heading = HELD_OUT, value_name = "N")]
-    pub eval_every: Option<usize>,
+    #[arg(long, help_heading = HELD_OUT, value_name = "N|Ss")]
+    pub eval_every: Option<Every>,
     /// Held-out views measured, evenly spread over the split, during the run and at its
     /// end (0 = none).
     #[arg(long, help_heading = HELD_OUT, value_name = "N", default_value_t = DEFAULT_EVAL_VIEWS)]

@@ -57,7 +57,7 @@ pub enum TrainEvent {
         /// Share of each node's occupancy grid that is occupied (sent every few seconds).
         occupancy: Option<Vec<(String, f64)>>,
     },
-    /// Held-out views measured (every `eval_every` iterations).
+    /// Held-out views measured (on the `eval_every` schedule, and at the end).
     HeldOut(HeldOut),
     /// The key light was looked for in the learned shadows
     /// ([`assist_train::estimate_light`]); moved objects' shadows are re-cast under it when
@@ -124,12 +124,6 @@ impl TrainJob {
             return Err(request(
                 "max_time",
                 format!("expected a positive number of seconds, got {t}"),
-            ));
-        }
-        if c.eval_every == Some(0) {
-            return Err(request(
-                "eval_every",
-                "expected at least 1 iteration between evaluations".into(),
             ));
         }
         if c.eval_every.is_some() && c.eval_views == 0 {
@@ -278,9 +272,10 @@ impl TrainJob {
             trainer.resume_from(r);
         }
         let mut last_occupancy = std::time::Instant::now();
+        let mut last_eval = None;
         let report = trainer.run(|s, t| {
             if let (Some(every), Some(h)) = (c.eval_every, &held)
-                && s.iteration % every == 0
+                && every.due(s.iteration, s.elapsed, &mut last_eval)
                 && eval_error.is_none()
             {
                 match h.measure(&t.scene, s.iteration, s.elapsed, Some(&preview)) {
@@ -313,9 +308,13 @@ impl TrainJob {
             return Err(e);
         }
         let held_out = match &held {
-            Some(h) if !report.cancelled => {
-                Some(h.measure(&trainer.scene, report.iterations, report.seconds, None)?)
-            }
+            // With periodic checks, the preview shows the final scene too.
+            Some(h) if !report.cancelled => Some(h.measure(
+                &trainer.scene,
+                report.iterations,
+                report.seconds,
+                c.eval_every.map(|_| preview.as_path()),
+            )?),
             _ => None,
         };
         Ok(TrainOutcome {

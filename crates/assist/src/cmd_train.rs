@@ -4,7 +4,7 @@ use std::io::IsTerminal;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use assist_session::{TrainConfig, TrainEvent, TrainJob};
+use assist_session::{Every, TrainConfig, TrainEvent, TrainJob};
 use assist_train::StopReason;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
@@ -39,9 +39,14 @@ pub struct TrainArgs {
     /// (or --resume, which appends).
     #[arg(long, value_name = "FILE")]
     pub log: Option<PathBuf>,
-    /// Iterations between the log's "step" lines.
-    #[arg(long, value_name = "N", default_value_t = 50, value_parser = clap::value_parser!(u64).range(1..))]
-    pub log_every: u64,
+    /// How often the log gets a "step" line: every N iterations ("50") or every S seconds
+    /// ("1s"); the last step is always logged.
+    #[arg(long, value_name = "N|Ss", default_value = "1s")]
+    pub log_every: Every,
+    /// Print each step's phases, loss terms and occupancy (about every 10 s) instead of a
+    /// short progress line.
+    #[arg(long)]
+    pub verbose: bool,
     /// Read flags from a TOML file (keys are the long flag names; flags on the command
     /// line win).
     #[arg(long, value_name = "FILE")]
@@ -206,11 +211,16 @@ fn embed_after_training(
 /// What `assist train` shows and logs while the job runs.
 struct Reporter {
     log: Option<Log>,
-    log_every: u64,
+    log_every: Every,
+    /// Training seconds of the last logged step, and its iteration.
+    last_log: Option<f64>,
+    logged: Option<usize>,
+    /// The latest held-out PSNR, for the progress line.
+    held: Option<f64>,
     bar: ProgressBar,
     /// A progress bar on a terminal.
     show: bool,
-    /// Step lines on stderr (no terminal, no --json).
+    /// Detailed step lines on stderr (--verbose).
     verbose: bool,
     /// Text on stderr (no --json).
     text: bool,
@@ -231,12 +241,15 @@ impl Reporter {
             .expect("valid template")
             .progress_chars("=> "),
         );
-        let verbose = !a.json && !show;
+        let verbose = !a.json && a.verbose;
         let text = !a.json;
         let data = a.dataset().display().to_string();
         Reporter {
             log,
             log_every: a.log_every,
+            last_log: None,
+            logged: None,
+            held: None,
             bar,
             show,
             verbose,
@@ -309,6 +322,7 @@ impl Reporter {
                 eprintln!("nodes: {}", n.join(", "));
             }
             TrainEvent::HeldOut(h) => {
+                self.held = Some(h.psnr);
                 if let Some(l) = self.log.as_mut() {
                     let mut v = serde_json::to_value(h).unwrap_or_default();
                     v["kind"] = "held_out".into();
@@ -334,18 +348,36 @@ impl Reporter {
             TrainEvent::Step {
                 stats: s,
                 occupancy,
-                ..
+                eta_seconds,
             } => {
                 if let Some(l) = self.log.as_mut()
-                    && (s.iteration as u64).is_multiple_of(self.log_every)
+                    && self
+                        .log_every
+                        .due(s.iteration, s.elapsed, &mut self.last_log)
                 {
                     l.line(step_line(s));
+                    self.logged = Some(s.iteration);
                 }
+                let held = self
+                    .held
+                    .map(|p| format!(" held-out {p:.2} dB"))
+                    .unwrap_or_default();
                 self.bar.set_position((s.progress * 1000.0) as u64);
                 self.bar.set_message(format!(
-                    "it {} loss {:.5} psnr {:.2} rays {}",
-                    s.iteration, s.loss, s.psnr, s.rays
+                    "it {} loss {:.5} psnr {:.2}{held}",
+                    s.iteration, s.loss, s.psnr
                 ));
+                // Without a terminal: a short line every ~10 s (the phases and terms with
+                // --verbose).
+                if occupancy.is_some() && self.text && !self.show && !self.verbose {
+                    let eta = eta_seconds
+                        .map(|e| format!("  ETA {e:.0} s"))
+                        .unwrap_or_default();
+                    eprintln!(
+                        "it {:>6}  {:>6.1} s{eta}  loss {:.5}  psnr {:.2}{held}",
+                        s.iteration, s.elapsed, s.loss, s.psnr
+                    );
+                }
                 if let Some(occupancy) = occupancy.as_ref().filter(|_| self.verbose) {
                     let ms: Vec<String> = s.phase.named()[..6]
                         .iter()
@@ -467,6 +499,16 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
     let outcome = outcome.map_err(flag_error)?;
     let report = &outcome.report;
     if let Some(mut l) = r.log.take() {
+        // The last step, and the held-out views measured at the end, as rows of their own.
+        let last = &outcome.report.final_stats;
+        if outcome.report.iterations > 0 && r.logged != Some(last.iteration) {
+            l.line(step_line(last));
+        }
+        if let Some(h) = &outcome.held_out {
+            let mut v = serde_json::to_value(h).unwrap_or_default();
+            v["kind"] = "held_out".into();
+            l.line(v);
+        }
         l.line(serde_json::json!({
             "kind": "end",
             "iteration": report.iterations,

@@ -95,7 +95,8 @@ fn the_log_file_plots_and_held_out_views_are_measured() {
     assert!(h["views"].as_u64().unwrap() >= 1, "{report}");
     assert!(h["psnr"].as_f64().unwrap().is_finite() && h["ssim"].as_f64().unwrap() > -1.0);
 
-    // The log: steps every 2 iterations, held-out views every 3, one end line.
+    // The log: steps every 2 iterations and the last one, held-out views every 3 and at
+    // the end (issue 47: the final figure was only in the end line), one end line.
     let text = std::fs::read_to_string(&log).unwrap();
     let lines: Vec<serde_json::Value> = text
         .lines()
@@ -108,8 +109,8 @@ fn the_log_file_plots_and_held_out_views_are_measured() {
             .map(|l| l["iteration"].as_u64().unwrap())
             .collect()
     };
-    assert_eq!(its("step"), [0, 2, 4], "{text}");
-    assert_eq!(its("held_out"), [0, 3], "{text}");
+    assert_eq!(its("step"), [0, 2, 4, 5], "{text}");
+    assert_eq!(its("held_out"), [0, 3, 6], "{text}");
     assert_eq!(its("end"), [6], "{text}");
     let step = lines.iter().find(|l| l["kind"] == "step").unwrap();
     for k in [
@@ -134,7 +135,7 @@ fn the_log_file_plots_and_held_out_views_are_measured() {
     // pandas reads the log as it is (in the CI venv).
     if let Ok(py) = std::env::var("ASSIST_PYTHON") {
         let code = format!(
-            "import pandas as pd\nd = pd.read_json({:?}, lines=True)\nassert list(d[d.kind == 'step'].iteration) == [0, 2, 4]\nassert d[d.kind == 'held_out'].psnr.notna().all()\nprint(d.shape)",
+            "import pandas as pd\nd = pd.read_json({:?}, lines=True)\nassert list(d[d.kind == 'step'].iteration) == [0, 2, 4, 5]\nassert d[d.kind == 'held_out'].psnr.notna().all()\nprint(d.shape)",
             log.display().to_string()
         );
         let o = std::process::Command::new(py)
@@ -174,4 +175,49 @@ fn the_log_file_plots_and_held_out_views_are_measured() {
     let o = run(&["train", s(&data), "--out", s(&b), "--eval-every", "0"]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains("--eval-every"), "{err}");
+
+    // Schedules in seconds (issue 47: a 120 s run with --eval-every 300 measured nothing
+    // until its end): due at the first step, then once the interval has passed; the
+    // preview shows the final scene.
+    let timed = tmp.join("timed.jsonl");
+    let c = tmp.join("c.assist");
+    ok(&run(&[
+        "train",
+        s(&data),
+        "--out",
+        s(&c),
+        "--iters",
+        "6",
+        "--batch-samples",
+        "4096",
+        "--log",
+        s(&timed),
+        "--eval-every",
+        "1000s",
+        "--log-every",
+        "1000s",
+    ]));
+    let text = std::fs::read_to_string(&timed).unwrap();
+    let kinds: Vec<(String, u64)> = text
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .map(|l| {
+            (
+                l["kind"].as_str().unwrap().to_string(),
+                l["iteration"].as_u64().unwrap(),
+            )
+        })
+        .collect();
+    let want: Vec<(String, u64)> = [
+        ("held_out", 0),
+        ("step", 0),
+        ("step", 5),
+        ("held_out", 6),
+        ("end", 6),
+    ]
+    .iter()
+    .map(|(k, i)| (k.to_string(), *i))
+    .collect();
+    assert_eq!(kinds, want, "{text}");
+    assert!(tmp.join("c.preview.png").is_file());
 }
