@@ -111,7 +111,7 @@ impl Every {
     /// once its interval has passed.
     pub fn due(&self, iteration: usize, elapsed: f64, last: &mut Option<f64>) -> bool {
         let due = match self {
-            Every::Steps(n) => iteration % n == 0,
+            Every::Steps(n) => iteration.is_multiple_of(*n),
             Every::Seconds(t) => last.is_none_or(|l| elapsed - l >= *t),
         };
         if due {
