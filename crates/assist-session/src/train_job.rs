@@ -295,15 +295,7 @@ impl TrainJob {
                 occupancy,
             });
         })?;
-        if assist_render::casts_shadows(&trainer.scene) {
-            on_event(&TrainEvent::Light(assist_train::estimate_light(
-                &mut trainer.scene,
-            )));
-        }
-        assist_scene::scene_file::save(&c.out, &trainer.scene, trainer.info(report.seconds), true)?;
-        on_event(&TrainEvent::Saved {
-            path: c.out.clone(),
-        });
+        self.save(&mut trainer, report.seconds, &mut on_event)?;
         if let Some(e) = eval_error {
             return Err(e);
         }
@@ -322,6 +314,24 @@ impl TrainJob {
             out: c.out.clone(),
             held_out,
         })
+    }
+
+    /// Ends a run: the key light looked for in the learned shadows, then the scene saved.
+    fn save(
+        &self,
+        trainer: &mut Trainer,
+        seconds: f64,
+        on_event: &mut impl FnMut(&TrainEvent),
+    ) -> Result<()> {
+        if assist_render::casts_shadows(&trainer.scene) {
+            on_event(&TrainEvent::Light(assist_train::estimate_light(
+                &mut trainer.scene,
+            )));
+        }
+        let out = &self.config.out;
+        assist_scene::scene_file::save(out, &trainer.scene, trainer.info(seconds), true)?;
+        on_event(&TrainEvent::Saved { path: out.clone() });
+        Ok(())
     }
 
     /// Gives the objects their shadow grids (as configured), makes the background prior

@@ -148,7 +148,6 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     );
 
     eprintln!("5/6 editing with plain language");
-    let backdrop = before.description().background_color;
     let mut session = Session::open(&scene_a)?;
     let other = Session::describe(&scene_b)?;
     let text = instruction(&session.scene().scene, &other, &scene_b.to_string_lossy())?;
@@ -166,6 +165,42 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     session.save(&edited, true)?;
 
     eprintln!("6/6 rendering test views before and after");
+    let sheet = contact_sheet_of(&ds, &r, &before, &session, out)?;
+    println!("Done in {:.0} s. Look at:", t0.elapsed().as_secs_f64());
+    println!(
+        "  {}   (each row: ground truth | render, depth, panoptic | the same after the edit)",
+        sheet.display()
+    );
+    println!(
+        "  {}/   (before/ and after/: images, depth, panoptic of two test views)",
+        out.join("render").display()
+    );
+    println!(
+        "  {}   (the resolved actions; replay with assist edit --actions)",
+        out.join("edits.jsonl").display()
+    );
+    println!(
+        "  {} and {}   (trained and edited scenes)",
+        scene_a.display(),
+        edited.display()
+    );
+    println!(
+        "Try: assist edit {} --do \"swap the ... and the ...\" --out swapped.assist",
+        edited.display()
+    );
+    Ok(())
+}
+
+/// Renders two test views before and after the edit into `out/render/` and writes the
+/// contact sheet: per view the photograph, then render (with its PSNR in `r`), depth and
+/// panoptic ids before the edit and after it.
+fn contact_sheet_of(
+    ds: &assist_data::Dataset,
+    r: &assist_session::EvalReport,
+    before: &Session,
+    session: &Session,
+    out: &std::path::Path,
+) -> anyhow::Result<std::path::PathBuf> {
     let test: Vec<usize> = (0..ds.frames.len())
         .filter(|&i| ds.frames[i].split == Split::Test)
         .collect();
@@ -182,7 +217,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     let mut tiles: Vec<Vec<(ImageF32, String)>> = Vec::new();
     for &i in &picks_at {
         let f = &ds.frames[i];
-        let v = assist_session::photograph(f, backdrop)?;
+        let v = assist_session::photograph(f, before.description().background_color)?;
         let psnr = r
             .per_image
             .iter()
@@ -234,27 +269,5 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         .collect();
     let sheet = out.join("contact_sheet.png");
     write_rgb_png(&sheet, &contact_sheet(&tiles, 7))?;
-    println!("Done in {:.0} s. Look at:", t0.elapsed().as_secs_f64());
-    println!(
-        "  {}   (each row: ground truth | render, depth, panoptic | the same after the edit)",
-        sheet.display()
-    );
-    println!(
-        "  {}/   (before/ and after/: images, depth, panoptic of two test views)",
-        out.join("render").display()
-    );
-    println!(
-        "  {}   (the resolved actions; replay with assist edit --actions)",
-        out.join("edits.jsonl").display()
-    );
-    println!(
-        "  {} and {}   (trained and edited scenes)",
-        scene_a.display(),
-        edited.display()
-    );
-    println!(
-        "Try: assist edit {} --do \"swap the ... and the ...\" --out swapped.assist",
-        edited.display()
-    );
-    Ok(())
+    Ok(sheet)
 }

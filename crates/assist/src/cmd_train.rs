@@ -346,75 +346,84 @@ impl Reporter {
                 }
             }
             TrainEvent::Step {
-                stats: s,
+                stats,
                 occupancy,
                 eta_seconds,
-            } => {
-                if let Some(l) = self.log.as_mut()
-                    && self
-                        .log_every
-                        .due(s.iteration, s.elapsed, &mut self.last_log)
-                {
-                    l.line(step_line(s));
-                    self.logged = Some(s.iteration);
-                }
-                let held = self
-                    .held
-                    .map(|p| format!(" held-out {p:.2} dB"))
-                    .unwrap_or_default();
-                self.bar.set_position((s.progress * 1000.0) as u64);
-                self.bar.set_message(format!(
-                    "it {} loss {:.5} psnr {:.2}{held}",
-                    s.iteration, s.loss, s.psnr
-                ));
-                // Without a terminal: a short line every ~10 s (the phases and terms with
-                // --verbose).
-                if occupancy.is_some() && self.text && !self.show && !self.verbose {
-                    let eta = eta_seconds
-                        .map(|e| format!("  ETA {e:.0} s"))
-                        .unwrap_or_default();
-                    eprintln!(
-                        "it {:>6}  {:>6.1} s{eta}  loss {:.5}  psnr {:.2}{held}",
-                        s.iteration, s.elapsed, s.loss, s.psnr
-                    );
-                }
-                if let Some(occupancy) = occupancy.as_ref().filter(|_| self.verbose) {
-                    let ms: Vec<String> = s.phase.named()[..6]
-                        .iter()
-                        .map(|(n, t)| format!("{n} {:.0}", t * 1e3))
-                        .collect();
-                    eprintln!(
-                        "it {:>6}  {:>5.1}s  loss {:.5}  psnr {:.2}  rays {}  samples {}  lr {:.2e}  ms per phase: {}",
-                        s.iteration,
-                        s.elapsed,
-                        s.loss,
-                        s.psnr,
-                        s.rays,
-                        s.samples,
-                        s.lr,
-                        ms.join(", ")
-                    );
-                    let occ: Vec<String> = occupancy
-                        .iter()
-                        .map(|(k, f)| format!("{k} {:.1}%", f * 100.0))
-                        .collect();
-                    let terms: Vec<String> = s
-                        .terms
-                        .named()
-                        .iter()
-                        .map(|(n, v)| format!("{n} {v:.5}"))
-                        .collect();
-                    eprintln!(
-                        "         pruned {} of {} samples; samples/ray {:.1?} terms: {}; occupied: {}",
-                        s.pruned,
-                        s.candidates,
-                        s.samples_per_ray,
-                        terms.join(" "),
-                        occ.join(", ")
-                    );
-                }
-            }
+            } => self.step(stats, occupancy.as_deref(), *eta_seconds),
             _ => {}
+        }
+    }
+
+    /// A training step: the log's step line when due, the progress line, and every ~10 s
+    /// a line on stderr without a terminal (phases, terms and occupancy with --verbose).
+    fn step(
+        &mut self,
+        s: &assist_train::StepStats,
+        occupancy: Option<&[(String, f64)]>,
+        eta_seconds: Option<f64>,
+    ) {
+        if let Some(l) = self.log.as_mut()
+            && self
+                .log_every
+                .due(s.iteration, s.elapsed, &mut self.last_log)
+        {
+            l.line(step_line(s));
+            self.logged = Some(s.iteration);
+        }
+        let held = self
+            .held
+            .map(|p| format!(" held-out {p:.2} dB"))
+            .unwrap_or_default();
+        self.bar.set_position((s.progress * 1000.0) as u64);
+        self.bar.set_message(format!(
+            "it {} loss {:.5} psnr {:.2}{held}",
+            s.iteration, s.loss, s.psnr
+        ));
+        // Without a terminal: a short line every ~10 s (the phases and terms with
+        // --verbose).
+        if occupancy.is_some() && self.text && !self.show && !self.verbose {
+            let eta = eta_seconds
+                .map(|e| format!("  ETA {e:.0} s"))
+                .unwrap_or_default();
+            eprintln!(
+                "it {:>6}  {:>6.1} s{eta}  loss {:.5}  psnr {:.2}{held}",
+                s.iteration, s.elapsed, s.loss, s.psnr
+            );
+        }
+        if let Some(occupancy) = occupancy.as_ref().filter(|_| self.verbose) {
+            let ms: Vec<String> = s.phase.named()[..6]
+                .iter()
+                .map(|(n, t)| format!("{n} {:.0}", t * 1e3))
+                .collect();
+            eprintln!(
+                "it {:>6}  {:>5.1}s  loss {:.5}  psnr {:.2}  rays {}  samples {}  lr {:.2e}  ms per phase: {}",
+                s.iteration,
+                s.elapsed,
+                s.loss,
+                s.psnr,
+                s.rays,
+                s.samples,
+                s.lr,
+                ms.join(", ")
+            );
+            let occ: Vec<String> = occupancy
+                .iter()
+                .map(|(k, f)| format!("{k} {:.1}%", f * 100.0))
+                .collect();
+            let terms: Vec<String> = s
+                .terms
+                .named()
+                .iter()
+                .map(|(n, v)| format!("{n} {v:.5}"))
+                .collect();
+            eprintln!(
+                "         pruned {} of {} samples; samples/ray {:.1?} terms: {}; occupied: {}",
+                s.pruned,
+                s.candidates,
+                s.samples_per_ray,
+                terms.join(" "),
+                occ.join(", ")
+            );
         }
     }
 }

@@ -16,7 +16,6 @@ const SHRINK_ONLY: &[(&str, &str, usize)] = &[
         "estimate_light_from",
         158,
     ),
-    ("crates/assist/src/cmd_demo.rs", "run", 168),
     ("crates/assist-generate/src/lib.rs", "prepare", 171),
     ("crates/assist-mesh/src/decimate.rs", "decimate", 171),
     (
@@ -31,7 +30,6 @@ const SHRINK_ONLY: &[(&str, &str, usize)] = &[
     ("crates/assist-field/src/field/backward.rs", "backward", 201),
     ("crates/assist-session/src/embed.rs", "embed", 203),
     ("crates/assist-render/src/batch.rs", "composite_ray", 230),
-    ("crates/assist-fuzz/src/targets.rs", "all", 239),
 ];
 
 /// The source with comments, string and character literals blanked out (line breaks
