@@ -186,22 +186,20 @@ impl Generator {
             let session = Session::open(&b.path)?;
             let data = match &b.data {
                 Some(d) => d.clone(),
-                None => match session.info().get("dataset").and_then(|v| v.as_str()) {
-                    Some(d) if Path::new(d).exists() => PathBuf::from(d),
-                    Some(d) => {
-                        return Err(GenError::Spec {
-                            path: b.path.clone(),
-                            field: format!("scenes[{k}].data"),
-                            message: format!(
-                                "the scene was trained from {d}, which is not there; give the dataset as data = \"…\""
-                            ),
-                        });
-                    }
-                    None => {
+                None => match assist_session::recorded_dataset(&b.path, session.info()) {
+                    Ok(Some(d)) => d,
+                    Ok(None) => {
                         return Err(GenError::Spec {
                             path: b.path.clone(),
                             field: format!("scenes[{k}].data"),
                             message: "the scene does not record its training dataset; give it as data = \"…\" (its cameras and views are needed)".into(),
+                        });
+                    }
+                    Err(e) => {
+                        return Err(GenError::Spec {
+                            path: b.path.clone(),
+                            field: format!("scenes[{k}].data"),
+                            message: e.to_string(),
                         });
                     }
                 },
@@ -395,7 +393,7 @@ impl Survey {
     /// objects then keep their whole occupancy).
     fn of(path: &Path) -> Option<Survey> {
         let session = Session::open(path).ok()?;
-        let data = PathBuf::from(session.info().get("dataset")?.as_str()?);
+        let data = assist_session::recorded_dataset(path, session.info()).ok()??;
         let train = assist_session::dataset_cameras(&data, SplitChoice::Train, 1).ok()?;
         let views = surface::small_views(&train, 96, 48);
         let (_, points) = surface::survey(session.scene(), &views);

@@ -139,3 +139,61 @@ pub fn photograph(frame: &Frame, backdrop: [f32; 3]) -> Result<Photograph> {
         rgb: v.rgb,
     })
 }
+
+/// The dataset a scene was trained on, from its file's `info`. A relative path (scenes
+/// trained before paths were recorded whole) is read against the folder that holds the
+/// scene, never the working directory; the dataset found there must have the fingerprint
+/// recorded at training. `Ok(None)` when the scene records no dataset.
+pub fn recorded_dataset(
+    scene: &std::path::Path,
+    info: &serde_json::Value,
+) -> Result<Option<PathBuf>> {
+    let Some(d) = info.get("dataset").and_then(|v| v.as_str()) else {
+        return Ok(None);
+    };
+    let recorded = PathBuf::from(d);
+    let path = if recorded.is_absolute() {
+        recorded
+    } else {
+        let dir = if scene.is_dir() {
+            scene
+        } else {
+            scene.parent().unwrap_or(std::path::Path::new("."))
+        };
+        dir.parent()
+            .unwrap_or(std::path::Path::new("."))
+            .join(recorded)
+    };
+    let missing = || {
+        crate::request(
+            "dataset",
+            format!(
+                "{} was trained on {d} ({}), which is not there; give the dataset (--data)",
+                scene.display(),
+                path.display()
+            ),
+        )
+    };
+    if !path.exists() {
+        return Err(missing());
+    }
+    if let Some(want) = info.get("dataset_fingerprint").and_then(|v| v.as_str()) {
+        let opts = LoadOptions {
+            downscale: trained_downscale(info),
+            ..Default::default()
+        };
+        let ds = assist_data::load(&path, &opts).map_err(SessionError::Data)?;
+        let got = ds.fingerprint();
+        if got != want {
+            return Err(crate::request(
+                "dataset",
+                format!(
+                    "{} is not the dataset {} was trained on (fingerprint {got}, recorded {want}: other frames or poses); give the dataset (--data)",
+                    path.display(),
+                    scene.display()
+                ),
+            ));
+        }
+    }
+    Ok(Some(path))
+}

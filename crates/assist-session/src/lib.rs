@@ -49,7 +49,7 @@ pub use export::{
 };
 pub use jobs::{
     EvalJob, EvalReport, LIGHT_MIN_EXPLAINED, LightEstimate, LightJob, Photograph, photograph,
-    trained_downscale,
+    recorded_dataset, trained_downscale,
 };
 pub use render_job::{
     DatasetOutput, Highlight, RenderJob, RenderSummary, ViewDone, frame_layers, view_images,

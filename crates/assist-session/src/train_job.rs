@@ -395,7 +395,16 @@ impl TrainJob {
             poison_at: c.poison_at,
             cancel: Some(self.cancel.clone()),
             provenance: serde_json::Map::from_iter([
-                ("dataset".to_string(), c.data.display().to_string().into()),
+                // Recorded whole: a relative path would be read against whatever
+                // folder a later command runs in.
+                (
+                    "dataset".to_string(),
+                    std::path::absolute(&c.data)
+                        .unwrap_or_else(|_| c.data.clone())
+                        .display()
+                        .to_string()
+                        .into(),
+                ),
                 ("dataset_fingerprint".to_string(), fingerprint.into()),
                 ("train_config".to_string(), c.record()),
             ]),

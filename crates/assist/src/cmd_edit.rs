@@ -305,12 +305,9 @@ fn check_region(
         }
     };
     // The training cameras, when the scene names a dataset that is still there.
-    let cams: Vec<assist_core::Camera> = session
-        .info()
-        .get("dataset")
-        .and_then(|d| d.as_str())
-        .map(std::path::PathBuf::from)
-        .filter(|d| d.exists())
+    let cams: Vec<assist_core::Camera> = assist_session::recorded_dataset(&a.scene, session.info())
+        .ok()
+        .flatten()
         .and_then(|d| {
             assist_session::dataset_cameras(&d, assist_session::SplitChoice::Train, 1).ok()
         })

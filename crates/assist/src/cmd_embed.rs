@@ -95,17 +95,12 @@ pub fn run(a: EmbedArgs) -> anyhow::Result<()> {
         Session::open(&a.scene).with_context(|| format!("loading scene {}", a.scene.display()))?;
     let data = match &a.data {
         Some(d) => d.clone(),
-        None => session
-            .info()
-            .get("dataset")
-            .and_then(|v| v.as_str())
-            .map(PathBuf::from)
-            .ok_or_else(|| {
-                anyhow::anyhow!(
-                    "{}: the scene does not record its dataset; pass --data",
-                    a.scene.display()
-                )
-            })?,
+        None => assist_session::recorded_dataset(&a.scene, session.info())?.ok_or_else(|| {
+            anyhow::anyhow!(
+                "{}: the scene does not record its dataset; pass --data",
+                a.scene.display()
+            )
+        })?,
     };
     let downscale = a.downscale.unwrap_or_else(|| {
         session

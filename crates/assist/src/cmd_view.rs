@@ -15,7 +15,8 @@ pub struct ViewArgs {
     /// A folder of scenes the page may take nodes from too (by relative path).
     #[arg(long)]
     pub scenes: Option<PathBuf>,
-    /// Dataset whose training cameras the page lists (default: an orbit around the scene).
+    /// Dataset whose training cameras the page lists (default: the one the scene was
+    /// trained on, when it is still there; else an orbit around the scene).
     #[arg(long)]
     pub data: Option<PathBuf>,
     /// Port to listen on (0: any free port).
@@ -42,10 +43,18 @@ pub fn run(a: ViewArgs) -> anyhow::Result<()> {
         .enable_all()
         .build()
         .context("starting the server runtime")?;
+    // Without --data, the scene's own capture (as `generate` finds it), if it is there.
+    let data = match &a.data {
+        Some(d) => Some(d.clone()),
+        None => assist_session::scene_file::load_scene_json(&a.scene)
+            .ok()
+            .and_then(|(_, info)| assist_session::recorded_dataset(&a.scene, &info).ok())
+            .flatten(),
+    };
     rt.block_on(async move {
         let running = assist_viewer::start(assist_viewer::ViewerOptions {
             scene: a.scene.clone(),
-            data: a.data.clone(),
+            data,
             host: a.host,
             port: a.port,
             token: a.token.clone(),
