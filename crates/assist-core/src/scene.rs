@@ -118,6 +118,10 @@ impl SceneNode {
 /// far below where f64 arithmetic on poses breaks down.
 pub const MAX_COORDINATE: f64 = 1e9;
 
+/// The most nodes a scene may hold (the background included): replicating or adding
+/// past it is refused, and a scene file with more does not load.
+pub const MAX_NODES: usize = 1000;
+
 /// Longest node label, in characters.
 pub const MAX_LABEL_CHARS: usize = 200;
 /// Scale factors a node may have (relative to its trained size).

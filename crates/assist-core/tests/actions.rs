@@ -432,3 +432,42 @@ fn sinking_depth_measures_how_far_a_base_is_below_the_support() {
     let d = depth(&m).unwrap();
     assert!((d - 0.02).abs() <= 0.0026, "{d}");
 }
+
+/// Issue 47, item 14: replication had no bound (66,000 actions did not finish). A scene
+/// holds at most `MAX_NODES` nodes: one more replicate or add is refused, naming the
+/// count; an error listing the nodes of a huge scene names the first few only.
+#[test]
+fn a_scene_holds_a_bounded_number_of_nodes() {
+    let mut s = scene();
+    let proto = s.node(1).unwrap().clone();
+    let mut id = 100u16;
+    while s.nodes.len() < assist_core::scene::MAX_NODES {
+        let mut n = proto.clone();
+        n.id = id;
+        s.nodes.push(n);
+        id += 1;
+    }
+    let e = validate(
+        &s,
+        r#"{"instance_id": 1, "operation": "replicate", "config": {}}"#,
+    )
+    .unwrap_err();
+    assert!(e.contains("the most a scene may hold"), "{e}");
+    let e = validate(
+        &s,
+        r#"{"instance_id": 7, "operation": "delete", "config": {}}"#,
+    )
+    .unwrap_err();
+    assert!(
+        e.contains("more)") && e.len() < 2000,
+        "{} bytes: {e}",
+        e.len()
+    );
+    // One fewer: replication goes through.
+    s.nodes.pop();
+    validate(
+        &s,
+        r#"{"instance_id": 1, "operation": "replicate", "config": {}}"#,
+    )
+    .unwrap();
+}

@@ -368,6 +368,17 @@ const SCENE_KEYS: &[&str] = &[
 /// that are file names, each node's values, and the scene-wide values.
 fn check_structure(file: &Path, prefix: &str, scene: &Scene) -> Result<(), SceneFileError> {
     let nodes = format!("{prefix}nodes");
+    if scene.nodes.len() > assist_core::scene::MAX_NODES {
+        return Err(invalid(
+            file,
+            nodes,
+            format!(
+                "{} nodes; a scene holds at most {}",
+                scene.nodes.len(),
+                assist_core::scene::MAX_NODES
+            ),
+        ));
+    }
     let Some(bg) = scene.nodes.iter().find(|n| n.is_background()) else {
         return Err(invalid(
             file,

@@ -148,11 +148,21 @@ pub fn objects_box(scene: &Scene) -> (DVec3, DVec3) {
 }
 
 /// `o.frames` cameras on a circle around the objects, looking at their centre.
+/// The most cameras one orbit may hold (a million frames of cameras alone is gigabytes;
+/// a dataset of more views is made in several runs).
+pub const MAX_ORBIT_FRAMES: usize = 100_000;
+
 pub fn orbit(scene: &Scene, o: &Orbit) -> Result<Vec<NamedCamera>> {
     let bad = |m: String| Err(request("orbit", m));
-    if o.frames == 0 || o.width == 0 || o.height == 0 || o.width > 16384 || o.height > 16384 {
+    if o.frames == 0
+        || o.frames > MAX_ORBIT_FRAMES
+        || o.width == 0
+        || o.height == 0
+        || o.width > 16384
+        || o.height > 16384
+    {
         return bad(format!(
-            "expected at least one frame and 1 to 16384 pixels each way, got {} frames of {}×{}",
+            "expected 1 to {MAX_ORBIT_FRAMES} frames and 1 to 16384 pixels each way, got {} frames of {}×{}",
             o.frames, o.width, o.height
         ));
     }

@@ -39,7 +39,8 @@ pub use assist_render::{DragCache, RenderOptions, render_camera};
 pub use assist_scene::scene_file;
 pub use assist_scene::{NeuralScene, NodeField};
 pub use cameras::{
-    CameraSource, NamedCamera, Orbit, SplitChoice, dataset_cameras, objects_box, orbit,
+    CameraSource, MAX_ORBIT_FRAMES, NamedCamera, Orbit, SplitChoice, dataset_cameras, objects_box,
+    orbit,
 };
 pub use embed::{
     CONTEXT as EMBED_CONTEXT, DEFAULT_EMBED_VIEWS, EmbedEvent, EmbedJob, EmbedSummary, EmbeddedNode,

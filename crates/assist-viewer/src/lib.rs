@@ -38,6 +38,10 @@ pub use worker::{Outgoing, PREVIEW_DIVISOR, encode_jpeg};
 /// The page, embedded at build time.
 const INDEX_HTML: &str = include_str!("../page/index.html");
 
+/// Clients served at once (each holds a session and a worker thread, ~100 MB on desk);
+/// more are refused until one leaves.
+pub const MAX_CLIENTS: usize = 8;
+
 /// Messages a client may send per second; more are answered with an error and dropped.
 pub const MAX_MESSAGES_PER_SECOND: u32 = 240;
 
@@ -83,6 +87,8 @@ struct App {
     token: Option<String>,
     /// The `Host` values requests may carry (`None`: listening on every address, any).
     hosts: Option<Vec<String>>,
+    /// Clients connected now.
+    clients: std::sync::atomic::AtomicUsize,
     hello: ServerMsg,
 }
 
@@ -239,6 +245,7 @@ pub async fn start(opts: ViewerOptions) -> Result<Running, ViewerError> {
         others,
         token: token.clone(),
         hosts: served_hosts(addr),
+        clients: std::sync::atomic::AtomicUsize::new(0),
         hello,
     });
     let router = Router::new()
@@ -301,10 +308,46 @@ async fn ws(
         )
             .into_response();
     }
+    let seat = match Seat::take(&app) {
+        Some(s) => s,
+        None => {
+            return (
+                StatusCode::SERVICE_UNAVAILABLE,
+                format!("this viewer serves at most {MAX_CLIENTS} clients at once; close one"),
+            )
+                .into_response();
+        }
+    };
     upgrade
         .max_message_size(MAX_FRAME_BYTES)
         .max_frame_size(MAX_FRAME_BYTES)
-        .on_upgrade(move |socket| client(socket, app))
+        .on_upgrade(move |socket| async move {
+            client(socket, app).await;
+            drop(seat);
+        })
+}
+
+/// One of the [`MAX_CLIENTS`] places, given back when dropped.
+struct Seat(Arc<App>);
+
+impl Seat {
+    fn take(app: &Arc<App>) -> Option<Seat> {
+        use std::sync::atomic::Ordering;
+        let before = app.clients.fetch_add(1, Ordering::SeqCst);
+        if before >= MAX_CLIENTS {
+            app.clients.fetch_sub(1, Ordering::SeqCst);
+            return None;
+        }
+        Some(Seat(app.clone()))
+    }
+}
+
+impl Drop for Seat {
+    fn drop(&mut self) {
+        self.0
+            .clients
+            .fetch_sub(1, std::sync::atomic::Ordering::SeqCst);
+    }
 }
 
 async fn send_json(socket: &mut WebSocket, m: &ServerMsg) -> bool {

@@ -506,3 +506,49 @@ async fn an_attacker_cannot_drive_the_viewer() {
         assert!(e["message"].as_str().unwrap().contains("outside"), "{e}");
     }
 }
+
+/// Issue 47, item 14: 20 clients took 2.7 GB. The viewer serves `MAX_CLIENTS` at once and
+/// refuses the next one (503) until one leaves.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_viewer_serves_a_bounded_number_of_clients() {
+    let dir = TempDir::new("viewer-clients");
+    let path = scene_on_disk(&dir);
+    let running = start(ViewerOptions {
+        scene: path,
+        data: None,
+        host: IpAddr::V4(Ipv4Addr::LOCALHOST),
+        port: 0,
+        token: None,
+        others: Vec::new(),
+        scenes: None,
+    })
+    .await
+    .unwrap();
+    let url = format!(
+        "ws://{}/ws?token={}",
+        running.addr,
+        running.token.clone().unwrap()
+    );
+    let mut open = Vec::new();
+    for _ in 0..assist_viewer::MAX_CLIENTS {
+        let (mut ws, _) = tokio_tungstenite::connect_async(&url).await.unwrap();
+        assert_eq!(next(&mut ws).await["type"], "hello");
+        open.push(ws);
+    }
+    let refused = tokio_tungstenite::connect_async(&url).await;
+    assert!(refused.is_err(), "a client past the limit was served");
+    let mut first = open.remove(0);
+    first.close(None).await.unwrap();
+    drop(first);
+    // The seat comes back once the server sees the socket close.
+    let mut again = None;
+    for _ in 0..50 {
+        if let Ok((ws, _)) = tokio_tungstenite::connect_async(&url).await {
+            again = Some(ws);
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let mut ws = again.expect("a seat after a client left");
+    assert_eq!(next(&mut ws).await["type"], "hello");
+}

@@ -190,3 +190,28 @@ fn reader_errors_name_the_file_the_frame_and_the_byte() {
         &["transforms_train.json", "line 2, byte 36", "not UTF-8"],
     );
 }
+
+/// Issue 47, item 14: `render --frames 1000000000` grew to 2.5 GB before anything was
+/// said. An orbit holds at most `MAX_ORBIT_FRAMES` cameras; more is refused at once,
+/// naming the count, and nothing is written.
+#[test]
+fn an_absurd_number_of_frames_is_refused_before_any_work() {
+    let tmp = TempDir::new("rel-frames");
+    let scene = tmp.join("s.assist");
+    common::write_scene(&scene);
+    let out = tmp.join("r");
+    let t0 = std::time::Instant::now();
+    let o = assist(&[
+        "render",
+        s(&scene),
+        "--out",
+        s(&out),
+        "--frames",
+        "1000000000",
+        "--size",
+        "8x8",
+    ]);
+    refused(&o, &["1000000000 frames", "100000"]);
+    assert!(t0.elapsed().as_secs() < 20, "took {:?}", t0.elapsed());
+    assert!(!out.exists());
+}

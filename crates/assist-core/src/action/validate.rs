@@ -117,6 +117,18 @@ impl Action {
         let c = &self.config;
         let id = self.instance_id;
         self.check_fields()?;
+        if matches!(op, Operation::Add | Operation::Replicate)
+            && scene.nodes.len() >= crate::scene::MAX_NODES
+        {
+            return Err(not_allowed(
+                op,
+                id,
+                &format!(
+                    "the scene has {} nodes, the most a scene may hold",
+                    scene.nodes.len()
+                ),
+            ));
+        }
         if op == Operation::Add {
             // The new node's id: `instance_id` when not 0, else a fresh one.
             let new_id = fresh_or_given(op, scene, (id != 0).then_some(id))?;
@@ -490,13 +502,19 @@ fn fresh_or_given(
 
 /// One line per node: `id "label"`.
 pub fn describe_nodes(scene: &Scene) -> String {
+    // At most this many are named: an error about a huge scene stays a line.
+    const LISTED: usize = 24;
     let v: Vec<String> = scene
         .nodes
         .iter()
+        .take(LISTED)
         .map(|n| format!("{} {:?}", n.id, n.label))
         .collect();
+    let more = scene.nodes.len().saturating_sub(LISTED);
     if v.is_empty() {
         "no nodes".into()
+    } else if more > 0 {
+        format!("{}, … and {more} more", v.join(", "))
     } else {
         v.join(", ")
     }
