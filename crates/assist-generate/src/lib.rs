@@ -12,6 +12,7 @@
 #![forbid(unsafe_code)]
 
 pub mod coco;
+pub mod integrity;
 mod merge;
 pub mod place;
 mod plan;

@@ -7,6 +7,7 @@ use std::time::Instant;
 use serde::Serialize;
 use serde_json::{Value, json};
 
+use crate::integrity;
 use crate::sample::{SampleReport, io, pretty};
 use crate::{GenError, Generator, Result, Shard};
 
@@ -68,10 +69,16 @@ impl Generator {
             .filter(|&i| opts.shard.owns(i))
             .collect();
         let dir_of = |i: u64| out.join(kind).join(format!("{i:06}"));
+        // A sample is done when its manifest holds (this run's, every file there at its
+        // size); a damaged or foreign one is made again.
+        let run = integrity::run_identity(&self.manifest());
         let todo: Vec<u64> = owned
             .iter()
             .copied()
-            .filter(|&i| !dir_of(i).join(assist_fs::MARKER).is_file())
+            .filter(|&i| {
+                let d = dir_of(i);
+                !d.join(assist_fs::MARKER).is_file() || integrity::check(&d, &run, false).is_err()
+            })
             .collect();
         let skipped = owned.len() as u64 - todo.len() as u64;
         on(&RunEvent::Start {
@@ -84,6 +91,7 @@ impl Generator {
             let target = dir_of(i);
             let staging = assist_fs::Staging::begin(&target, &format!("generating sample {i}"))?;
             let report = self.make(i, staging.dir(), opts.dry_run)?;
+            integrity::write_manifest(staging.dir(), &run)?;
             staging.commit()?;
             draws += report.draws as u64;
             rejected += report.rejected as u64;
@@ -212,6 +220,10 @@ pub fn merge(out: &Path, partial: bool) -> Result<MergeSummary> {
             message: format!("not valid JSON: {e}"),
         })?;
     let count = manifest["spec"]["count"].as_u64().unwrap_or(0);
+    let run = integrity::run_identity(&manifest);
+    // What a killed merge left behind.
+    integrity::clean_stale(out);
+    integrity::clean_stale(&out.join("annotations"));
     let classes: Vec<String> = manifest["classes"]
         .as_array()
         .map(|a| {
@@ -230,6 +242,9 @@ pub fn merge(out: &Path, partial: bool) -> Result<MergeSummary> {
         if !dir.join(assist_fs::MARKER).is_file() {
             missing.push(i);
             continue;
+        }
+        if let Err(why) = integrity::check(&dir, &run, true) {
+            return Err(integrity::damaged(out, i, why));
         }
         let sf = dir.join("sample.json");
         let s: Value =
