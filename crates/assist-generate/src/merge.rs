@@ -253,61 +253,7 @@ pub fn merge(out: &Path, partial: bool) -> Result<MergeSummary> {
                 message: format!("not valid JSON: {e}"),
             })?;
         let rel = format!("samples/{i:06}");
-        for v in s["views"].as_array().into_iter().flatten() {
-            let name = v["name"].as_str().unwrap_or("");
-            let image_id = images.len() as u64 + 1;
-            let (w, h) = (
-                v["width"].as_u64().unwrap_or(0),
-                v["height"].as_u64().unwrap_or(0),
-            );
-            images.push(json!({
-                "id": image_id,
-                "file_name": format!("{rel}/views/images/{name}.png"),
-                "width": w,
-                "height": h,
-                "sample": i,
-                "view": name,
-            }));
-            let mut segments = Vec::new();
-            for o in v["objects"].as_array().into_iter().flatten() {
-                let Some(rle) = o["rle"].as_str() else {
-                    continue;
-                };
-                anns.push(json!({
-                    "id": anns.len() as u64 + 1,
-                    "image_id": image_id,
-                    "category_id": o["class"],
-                    "segmentation": {"size": [h, w], "counts": rle},
-                    "area": o["visible_pixels"],
-                    "bbox": o["bbox_visible"],
-                    "iscrowd": 0,
-                    "instance_id": o["id"],
-                    "bbox_amodal": o["bbox_amodal"],
-                    "visibility": o["visibility"],
-                }));
-                segments.push(json!({
-                    "id": o["id"],
-                    "category_id": o["class"],
-                    "area": o["visible_pixels"],
-                    "bbox": o["bbox_visible"],
-                    "iscrowd": 0,
-                }));
-            }
-            if v["background_pixels"].as_u64().unwrap_or(0) > 0 {
-                segments.push(json!({
-                    "id": 1 << 16,
-                    "category_id": 0,
-                    "area": v["background_pixels"],
-                    "bbox": v["background_bbox"],
-                    "iscrowd": 0,
-                }));
-            }
-            pan.push(json!({
-                "image_id": image_id,
-                "file_name": format!("{rel}/views/panoptic_coco/{name}.png"),
-                "segments_info": segments,
-            }));
-        }
+        add_views(&s, i, &mut images, &mut anns, &mut pan);
         index.push(json!({
             "index": i,
             "dir": rel,
@@ -393,4 +339,71 @@ pub fn merge(out: &Path, partial: bool) -> Result<MergeSummary> {
         annotations: anns.len() as u64,
         missing,
     })
+}
+
+/// Sample `i`'s views (its `sample.json` `s`) as COCO images, instance annotations and
+/// panoptic segments, with ids following those already in the lists.
+fn add_views(
+    s: &Value,
+    i: u64,
+    images: &mut Vec<Value>,
+    anns: &mut Vec<Value>,
+    pan: &mut Vec<Value>,
+) {
+    let rel = format!("samples/{i:06}");
+    for v in s["views"].as_array().into_iter().flatten() {
+        let name = v["name"].as_str().unwrap_or("");
+        let image_id = images.len() as u64 + 1;
+        let (w, h) = (
+            v["width"].as_u64().unwrap_or(0),
+            v["height"].as_u64().unwrap_or(0),
+        );
+        images.push(json!({
+            "id": image_id,
+            "file_name": format!("{rel}/views/images/{name}.png"),
+            "width": w,
+            "height": h,
+            "sample": i,
+            "view": name,
+        }));
+        let mut segments = Vec::new();
+        for o in v["objects"].as_array().into_iter().flatten() {
+            let Some(rle) = o["rle"].as_str() else {
+                continue;
+            };
+            anns.push(json!({
+                "id": anns.len() as u64 + 1,
+                "image_id": image_id,
+                "category_id": o["class"],
+                "segmentation": {"size": [h, w], "counts": rle},
+                "area": o["visible_pixels"],
+                "bbox": o["bbox_visible"],
+                "iscrowd": 0,
+                "instance_id": o["id"],
+                "bbox_amodal": o["bbox_amodal"],
+                "visibility": o["visibility"],
+            }));
+            segments.push(json!({
+                "id": o["id"],
+                "category_id": o["class"],
+                "area": o["visible_pixels"],
+                "bbox": o["bbox_visible"],
+                "iscrowd": 0,
+            }));
+        }
+        if v["background_pixels"].as_u64().unwrap_or(0) > 0 {
+            segments.push(json!({
+                "id": 1 << 16,
+                "category_id": 0,
+                "area": v["background_pixels"],
+                "bbox": v["background_bbox"],
+                "iscrowd": 0,
+            }));
+        }
+        pan.push(json!({
+            "image_id": image_id,
+            "file_name": format!("{rel}/views/panoptic_coco/{name}.png"),
+            "segments_info": segments,
+        }));
+    }
 }
