@@ -364,8 +364,8 @@ const SCENE_KEYS: &[&str] = &[
 ];
 
 /// Everything a scene (the file's, or a history snapshot) must hold to load and render:
-/// one background node (id 0) whose field no other node shares, unique ids, field keys
-/// that are file names, each node's values, and the scene-wide values.
+/// at least one node, a background node's field shared by no object, unique ids, field
+/// keys that are file names, each node's values, and the scene-wide values.
 fn check_structure(file: &Path, prefix: &str, scene: &Scene) -> Result<(), SceneFileError> {
     let nodes = format!("{prefix}nodes");
     if scene.nodes.len() > assist_core::scene::MAX_NODES {
@@ -379,13 +379,15 @@ fn check_structure(file: &Path, prefix: &str, scene: &Scene) -> Result<(), Scene
             ),
         ));
     }
-    let Some(bg) = scene.nodes.iter().find(|n| n.is_background()) else {
+    if scene.nodes.is_empty() {
         return Err(invalid(
             file,
             nodes,
-            "expected a background node (id 0); the scene has none",
+            "expected at least one node (a background, id 0, or an object); the list is empty",
         ));
-    };
+    }
+    // A scene of objects alone (a Blender capture on a plain backdrop) has no background.
+    let bg = scene.nodes.iter().find(|n| n.is_background());
     let mut seen = std::collections::HashSet::new();
     for (i, n) in scene.nodes.iter().enumerate() {
         let f = |x: &str| format!("{prefix}nodes[{i}].{x}");
@@ -399,7 +401,10 @@ fn check_structure(file: &Path, prefix: &str, scene: &Scene) -> Result<(), Scene
                 "expected letters, digits, '_' or '-'",
             ));
         }
-        if !n.is_background() && n.field == bg.field {
+        if let Some(bg) = bg
+            && !n.is_background()
+            && n.field == bg.field
+        {
             return Err(invalid(
                 file,
                 f("field"),

@@ -540,11 +540,13 @@ fn an_object_pushed_into_its_support_is_warned_about() {
 }
 
 /// Issue 47, items 13, 16 and 18: scene files that loaded though they could not be used
-/// (a 1e308 box, no background, an object sharing the background's field, an unknown key
+/// (a 1e308 box, an object sharing the background's field, an unknown key
 /// that the next save would drop, no nodes at all — which made `render` panic —, a colour
 /// out of range, empty or control-character labels), and an undo snapshot with two nodes
 /// of one id, which `--undo` installed and every later command then failed on. Each is
-/// refused on load naming `scene.json` (or `history.json`) and the field, exit 1.
+/// refused on load naming `scene.json` (or `history.json`) and the field, exit 1. (A scene
+/// without a background node is legitimate: a Blender capture's objects on a plain
+/// backdrop.)
 #[test]
 fn corrupted_scene_files_are_refused_naming_the_field() {
     let tmp = assist_testkit::TempDir::new("cli-corrupt");
@@ -560,13 +562,6 @@ fn corrupted_scene_files_are_refused_naming_the_field() {
             "nodes[1].half_size",
         ),
         (
-            "no background",
-            |v| {
-                v["nodes"].as_array_mut().unwrap().remove(0);
-            },
-            "background node",
-        ),
-        (
             "shared background field",
             |v| v["nodes"][2]["field"] = v["nodes"][0]["field"].clone(),
             "shares the background's field",
@@ -579,7 +574,7 @@ fn corrupted_scene_files_are_refused_naming_the_field() {
         (
             "no nodes",
             |v| v["nodes"] = serde_json::json!([]),
-            "background node",
+            "at least one node",
         ),
         (
             "colour out of range",
@@ -624,6 +619,18 @@ fn corrupted_scene_files_are_refused_naming_the_field() {
             );
         }
     }
+    // Objects without a background (a Blender capture's scene) load as they are.
+    let objects_only = tmp.path().join("objects_only.assist");
+    copy_dir(&good, &objects_only);
+    let mut v = base.clone();
+    v["nodes"].as_array_mut().unwrap().remove(0);
+    std::fs::write(
+        objects_only.join("scene.json"),
+        serde_json::to_vec(&v).unwrap(),
+    )
+    .unwrap();
+    let (ok, _, err) = assist(&["scene", "info", s(&objects_only)]);
+    assert!(ok, "a scene of objects alone must load: {err}");
     // An undo snapshot with two nodes of one id: refused, the scene kept as it was.
     let (scene, hist, mut h) = edited_once(&good, &tmp.path().join("b.assist"));
     h["undo"][0]["scene"]["nodes"][2]["id"] = h["undo"][0]["scene"]["nodes"][1]["id"].clone();
