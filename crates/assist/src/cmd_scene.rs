@@ -185,8 +185,16 @@ fn info(a: InfoArgs) -> anyhow::Result<()> {
         ),
         None => println!("key light: none (moved objects keep their shadows as learned)"),
     }
+    // Labels are shown whole (issue 47: they were cut at 32 characters); the column is as
+    // wide as the longest.
+    let lw = nodes
+        .iter()
+        .map(|n| n["label"].as_str().unwrap_or("").chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(5);
     println!(
-        "{:>4}  {:<32} {:<10} {:>22}  {:>24}  {:>7}  field",
+        "{:>4}  {:<lw$} {:<10} {:>22}  {:>24}  {:>7}  field",
         "id", "label", "kind", "size (m)", "position (m)", "yaw °"
     );
     let f3 = |v: &Value| {
@@ -208,9 +216,9 @@ fn info(a: InfoArgs) -> anyhow::Result<()> {
             ""
         };
         println!(
-            "{:>4}  {:<32} {:<10} {:>22}  {:>24}  {:>7.1}  {} ({bytes}){selected}",
+            "{:>4}  {:<lw$} {:<10} {:>22}  {:>24}  {:>7.1}  {} ({bytes}){selected}",
             n["id"].as_u64().unwrap_or(0),
-            label.chars().take(32).collect::<String>(),
+            label,
             n["kind"].as_str().unwrap_or(""),
             f3(&n["size_m"]),
             f3(&n["position_m"]),

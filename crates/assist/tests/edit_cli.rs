@@ -684,3 +684,19 @@ fn edited_once(
     let h = serde_json::from_slice(&std::fs::read(&hist).unwrap()).unwrap();
     (out.to_path_buf(), hist, h)
 }
+
+/// Issue 47, item 10: `scene info` cut labels at 32 characters.
+#[test]
+fn scene_info_shows_whole_labels() {
+    let tmp = assist_testkit::TempDir::new("cli-info-labels");
+    let scene = tmp.path().join("a.assist");
+    write_scene(&scene);
+    let long = "green toy building brick (2x2 Duplo-style), the one by the mug";
+    let mut v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(scene.join("scene.json")).unwrap()).unwrap();
+    v["nodes"][1]["label"] = long.into();
+    std::fs::write(scene.join("scene.json"), serde_json::to_vec(&v).unwrap()).unwrap();
+    let (ok, out, err) = assist(&["scene", "info", s(&scene)]);
+    assert!(ok, "{err}");
+    assert!(out.contains(long), "{out}");
+}
