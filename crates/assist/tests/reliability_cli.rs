@@ -215,3 +215,19 @@ fn an_absurd_number_of_frames_is_refused_before_any_work() {
     assert!(t0.elapsed().as_secs() < 20, "took {:?}", t0.elapsed());
     assert!(!out.exists());
 }
+
+/// Issue 47, item 10: an error chain printed the same cause twice ("… No such file or
+/// directory (os error 2)" then "No such file or directory (os error 2)").
+#[test]
+fn an_error_chain_says_each_cause_once() {
+    let tmp = TempDir::new("rel-chain");
+    let o = assist(&[
+        "eval",
+        s(&tmp.join("nowhere.assist")),
+        "--data",
+        s(&tmp.join("nodata")),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
+}
