@@ -355,17 +355,7 @@ async fn a_client_renders_selects_edits_undoes_and_saves() {
 async fn a_non_loopback_viewer_needs_its_token() {
     let dir = TempDir::new("viewer-token");
     let path = scene_on_disk(&dir);
-    let running = start(ViewerOptions {
-        scene: path,
-        data: None,
-        host: IpAddr::V4(Ipv4Addr::UNSPECIFIED),
-        port: 0,
-        token: None,
-        others: Vec::new(),
-        scenes: None,
-    })
-    .await
-    .unwrap();
+    let running = start_plain(path, Ipv4Addr::UNSPECIFIED).await;
     let token = running.token.clone().expect("a generated token");
     assert!(token.len() >= 16);
     assert!(running.url.contains(&token));
@@ -513,17 +503,7 @@ async fn an_attacker_cannot_drive_the_viewer() {
 async fn the_viewer_serves_a_bounded_number_of_clients() {
     let dir = TempDir::new("viewer-clients");
     let path = scene_on_disk(&dir);
-    let running = start(ViewerOptions {
-        scene: path,
-        data: None,
-        host: IpAddr::V4(Ipv4Addr::LOCALHOST),
-        port: 0,
-        token: None,
-        others: Vec::new(),
-        scenes: None,
-    })
-    .await
-    .unwrap();
+    let running = start_plain(path, Ipv4Addr::LOCALHOST).await;
     let url = format!(
         "ws://{}/ws?token={}",
         running.addr,
@@ -551,4 +531,19 @@ async fn the_viewer_serves_a_bounded_number_of_clients() {
     }
     let mut ws = again.expect("a seat after a client left");
     assert_eq!(next(&mut ws).await["type"], "hello");
+}
+
+/// A viewer of the scene at `path` on `host`, any port, no other scenes.
+async fn start_plain(path: std::path::PathBuf, host: Ipv4Addr) -> assist_viewer::Running {
+    start(ViewerOptions {
+        scene: path,
+        data: None,
+        host: IpAddr::V4(host),
+        port: 0,
+        token: None,
+        others: Vec::new(),
+        scenes: None,
+    })
+    .await
+    .unwrap()
 }
