@@ -37,3 +37,20 @@ pub use similarity::Similarity3;
 
 /// Instance identifier of a scene node; 0 is the background.
 pub type InstanceId = u16;
+
+/// A number as messages print it: the shortest form that reads back, in exponent form
+/// when very large or very small (`1e300`, not three hundred digits).
+pub fn fmt_num(v: f64) -> String {
+    let a = v.abs();
+    if v.is_finite() && a != 0.0 && !(1e-4..1e9).contains(&a) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
+/// A vector as messages print it, each component as [`fmt_num`] does.
+pub fn fmt_vec(v: &[f64]) -> String {
+    let parts: Vec<String> = v.iter().map(|&x| fmt_num(x)).collect();
+    format!("[{}]", parts.join(", "))
+}

@@ -202,8 +202,8 @@ fn check_pose(p: &Similarity3, fields: [&'static str; 4]) -> Result<(), (&'stati
         return Err((
             fields[1],
             format!(
-                "expected every factor from {lo:e} to {hi:e}, got {:?}",
-                p.scale.to_array()
+                "expected every factor from {lo:e} to {hi:e}, got {}",
+                crate::fmt_vec(&p.scale.to_array())
             ),
         ));
     }
@@ -211,8 +211,8 @@ fn check_pose(p: &Similarity3, fields: [&'static str; 4]) -> Result<(), (&'stati
         return Err((
             fields[2],
             format!(
-                "expected coordinates within ±{MAX_COORDINATE:e}, got {:?}",
-                p.translation.to_array()
+                "expected coordinates within ±{MAX_COORDINATE:e}, got {}",
+                crate::fmt_vec(&p.translation.to_array())
             ),
         ));
     }

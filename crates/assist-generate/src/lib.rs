@@ -170,6 +170,61 @@ pub trait Progress {
 
 impl Progress for () {}
 
+/// Each base scene's own class list (its stable ids), then the library's classes.
+fn class_list(bases: &[Base]) -> Vec<String> {
+    let mut classes = vec!["background".to_string()];
+    for b in bases {
+        for c in b.session.description().class_names().into_iter().skip(1) {
+            if !classes.contains(&c) {
+                classes.push(c);
+            }
+        }
+    }
+    if let Some(b) = bases.first() {
+        for l in &b.library {
+            let c = l.node.class_name().to_string();
+            if !classes.contains(&c) {
+                classes.push(c);
+            }
+        }
+    }
+    classes
+}
+
+/// `cameras.look_at` must name an object some sample can have: a node of a base scene or
+/// a library object's label (a sample that deleted it aims as if none were named).
+fn check_look_at(spec: &Spec, bases: &[Base]) -> Result<()> {
+    let Some(r) = &spec.cameras.look_at else {
+        return Ok(());
+    };
+    let names = |n: &assist_core::SceneNode| match r {
+        NodeRef::Id(i) => n.id == *i,
+        NodeRef::Label(l) => n.label == *l,
+    };
+    let found = bases.iter().any(|b| {
+        b.session
+            .description()
+            .nodes
+            .iter()
+            .any(|n| !n.is_background() && names(n))
+            || (matches!(r, NodeRef::Label(_)) && b.library.iter().any(|l| names(&l.node)))
+    });
+    if found {
+        return Ok(());
+    }
+    Err(GenError::Spec {
+        path: "spec".into(),
+        field: "cameras.look_at".into(),
+        message: format!(
+            "expected an object of a base scene or the library, got {}",
+            match r {
+                NodeRef::Id(i) => format!("id {i}"),
+                NodeRef::Label(l) => format!("{l:?}"),
+            }
+        ),
+    })
+}
+
 impl Generator {
     /// Loads the base scenes and library, and surveys each base scene's training views
     /// (support surfaces, what was seen).
@@ -318,23 +373,8 @@ impl Generator {
                 library,
             });
         }
-        // Each base scene's own class list (its stable ids), then the library's classes.
-        let mut classes = vec!["background".to_string()];
-        for b in &bases {
-            for c in b.session.description().class_names().into_iter().skip(1) {
-                if !classes.contains(&c) {
-                    classes.push(c);
-                }
-            }
-        }
-        if let Some(b) = bases.first() {
-            for l in &b.library {
-                let c = l.node.class_name().to_string();
-                if !classes.contains(&c) {
-                    classes.push(c);
-                }
-            }
-        }
+        check_look_at(&spec, &bases)?;
+        let classes = class_list(&bases);
         Ok(Generator {
             spec,
             bases,

@@ -250,10 +250,13 @@ impl Generator {
     }
 }
 
-/// The rearrangement as actions, in world units: deletions (sorted), then per placed
+/// The rearrangement as actions, lengths in metres: deletions (sorted), then per placed
 /// object its import, turn, scale and move.
 fn plan_actions(plan: &mut Plan, base: &Base) -> Vec<Action> {
     let scene = base.session.description();
+    // Lengths are written in metres, as a reader of actions.jsonl expects; the sample
+    // applies these very actions, so a replay stays bit for bit.
+    let mpu = scene.meters_per_unit;
     let mut actions = Vec::new();
     plan.deleted.sort();
     for &id in &plan.deleted {
@@ -268,8 +271,8 @@ fn plan_actions(plan: &mut Plan, base: &Base) -> Vec<Action> {
                 ActionConfig {
                     scene: Some(lib.scene.clone()),
                     node: Some(NodeRef::Id(lib.id)),
-                    position: Some(pl.centre.to_array()),
-                    unit: Some("units".into()),
+                    position: Some((pl.centre * mpu).to_array()),
+                    unit: Some("m".into()),
                     ..Default::default()
                 },
             ));
@@ -303,8 +306,8 @@ fn plan_actions(plan: &mut Plan, base: &Base) -> Vec<Action> {
                 pl.id,
                 Operation::Translate,
                 ActionConfig {
-                    vector: Some((pl.centre - now).to_array()),
-                    unit: Some("units".into()),
+                    vector: Some(((pl.centre - now) * mpu).to_array()),
+                    unit: Some("m".into()),
                     ..Default::default()
                 },
             ));

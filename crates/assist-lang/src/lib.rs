@@ -83,35 +83,6 @@ pub fn parse(
     Ok(resolve::resolve(&raw, scene, opts, sources, &Default::default())?.actions)
 }
 
-/// Words after which a number is a quantity, not part of a name ("the ball 2 cm left").
-const UNIT_WORDS: &[&str] = &[
-    "m",
-    "cm",
-    "mm",
-    "meter",
-    "meters",
-    "metre",
-    "metres",
-    "centimeter",
-    "centimeters",
-    "centimetre",
-    "centimetres",
-    "millimeter",
-    "millimeters",
-    "deg",
-    "degree",
-    "degrees",
-    "rad",
-    "radians",
-    "times",
-    "x",
-    "%",
-    "percent",
-    "units",
-    "unit",
-    "inch",
-    "inches",
-];
 
 /// Replicas are named "mug 2", "mug 3": a mention of such a name (its last words with the
 /// number, "mug 2" or "the red mug 2") becomes "object N" before parsing, so the number is
@@ -161,7 +132,7 @@ fn replace_name(text: &str, phrase: &str, id: assist_core::InstanceId) -> Option
         }
         let next = lower[b..].split_whitespace().next().unwrap_or("");
         let next = next.trim_matches(|c: char| !c.is_alphanumeric() && c != '%');
-        if UNIT_WORDS.contains(&next) {
+        if next == "%" || words::unit_word(next).is_some() {
             continue;
         }
         let a = if lower[..a].ends_with("the ") {

@@ -204,9 +204,16 @@ pub fn length_unit(w: &str) -> Option<f64> {
         "mm" | "millimeter" | "millimeters" | "millimetre" | "millimetres" => 0.001,
         "in" | "inch" | "inches" => 0.0254,
         "ft" | "foot" | "feet" => 0.3048,
+        "km" | "kilometer" | "kilometers" | "kilometre" | "kilometres" => 1000.0,
+        "yd" | "yard" | "yards" => 0.9144,
+        "mi" | "mile" | "miles" => 1609.344,
         _ => return None,
     })
 }
+
+/// The units the grammar reads, for messages.
+pub const UNITS_KNOWN: &str =
+    "m, cm, mm, km, in, ft, yd, mi, degrees, radians, %, times";
 
 pub fn unit_word(w: &str) -> Option<Unit> {
     if let Some(m) = length_unit(w) {

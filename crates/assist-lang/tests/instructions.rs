@@ -149,7 +149,7 @@ const TABLE: &[(&str, &str)] = &[
     ),
     (
         "move the mug to 0.5 0.5 0.8",
-        r#"3 translate {"vector":[0.6,0.5,0],"unit":"units"}"#,
+        r#"3 translate {"vector":[0.6,0.5,0],"unit":"m"}"#,
     ),
     (
         "translate the teapot 2 inches along its own x axis",

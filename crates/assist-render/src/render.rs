@@ -24,6 +24,17 @@ pub struct RenderOptions {
     /// dropped after a density-only pass (0 = keep all, the default: see [`crate::prune_occluded`]
     /// for when it pays).
     pub prune_eps: f32,
+    /// When set (from another thread), a whole-camera render stops after the batch in
+    /// hand; the caller that set it discards the partial image.
+    pub cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
+}
+
+impl RenderOptions {
+    pub(crate) fn cancelled(&self) -> bool {
+        self.cancel
+            .as_ref()
+            .is_some_and(|c| c.load(std::sync::atomic::Ordering::Relaxed))
+    }
 }
 
 impl Default for RenderOptions {
@@ -35,6 +46,7 @@ impl Default for RenderOptions {
             layers: false,
             precision: Precision::fastest(),
             prune_eps: 0.0,
+            cancel: None,
         }
     }
 }
@@ -228,6 +240,9 @@ pub fn render_camera(
     let mut p = 0usize;
     while let Some(end) = camera_batch(camera, image, p, opts, &mut sc.rays, &mut pixels, &mut cos)
     {
+        if opts.cancelled() {
+            break;
+        }
         render_rays(scene, opts, &mut sc);
         img.write_batch(scene, &sc.out, &pixels, &cos);
         p = end;

@@ -18,7 +18,7 @@ use assist_mesh::{ExtractOptions, MeshFrame, NodeMesh, extract_node, node_pose};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 
-use crate::{Result, Session, SessionError, request};
+use crate::{NeuralScene, Result, Session, SessionError, request};
 
 /// A simulator model to write beside the meshes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -105,12 +105,13 @@ impl ExportJob {
                 "a simulator model references OBJ meshes (MuJoCo and URDF loaders read them): use the obj format".into(),
             ));
         }
-        if !(job.material_density.is_finite() && job.material_density > 0.0) {
+        // From aerogel to osmium, with room on both sides: what a simulator can step.
+        if !(0.1..=100_000.0).contains(&job.material_density) {
             return Err(request(
                 "material density",
                 format!(
-                    "{} is not a positive density in kg/m³",
-                    job.material_density
+                    "expected a density from 0.1 to 100000 kg/m³ (water 1000, steel 7850), got {}",
+                    assist_core::fmt_num(job.material_density)
                 ),
             ));
         }
@@ -203,91 +204,9 @@ impl Session {
         let mut bodies = Vec::new();
         let mut records = Vec::new();
         for (k, &id) in ids.iter().enumerate() {
-            let t0 = Instant::now();
-            let index = scene
-                .scene
-                .nodes
-                .iter()
-                .position(|n| n.id == id)
-                .unwrap_or(0);
-            let node = &scene.scene.nodes[index];
-            let mesh = extract_node(scene, index, &job.extract)
-                .map_err(|e| request("export", e.to_string()))?;
-            let pose = node_pose(scene, id).unwrap_or_default();
-            let mesh = match frame {
-                MeshFrame::World => mesh.to_world(&pose),
-                MeshFrame::Node => mesh,
-            };
-            let name = obj_name(&node.label, id);
-            let file = format!("{name}.{}", job.format.extension());
-            let bytes = match job.format {
-                Format::Ply => write::mesh_ply(&mesh),
-                Format::Obj => write::mesh_obj(&mesh),
-                Format::Glb => write::mesh_glb(&mesh),
-                Format::Points => write::points_ply(
-                    &mesh.sample_points(job.points, u64::from(id)),
-                    &format!("assist node {id} {} (points)", node.label),
-                ),
-            };
-            write::write_file(&staging.dir().join(&file), &bytes)
-                .map_err(|e| request("export", e.to_string()))?;
-            let closed = mesh.is_closed() && !mesh.triangles.is_empty();
-            // Mass properties in the node frame, in metres.
-            let mass = closed.then(|| {
-                let in_node = match frame {
-                    MeshFrame::Node => mesh.positions.clone(),
-                    MeshFrame::World => {
-                        let inv = pose.inverse().unwrap_or_default();
-                        mesh.positions
-                            .iter()
-                            .map(|p| inv.transform_point(DVec3::from_array(*p)).to_array())
-                            .collect()
-                    }
-                };
-                let metres: Vec<[f64; 3]> = in_node.iter().map(|p| p.map(|v| v * mpu)).collect();
-                assist_mesh::mass_properties(&metres, &mesh.triangles, job.material_density)
-            });
-            let done = ExportedNode {
-                id,
-                label: node.label.clone(),
-                file: file.clone(),
-                vertices: mesh.positions.len(),
-                triangles: mesh.triangles.len(),
-                closed,
-                volume_m3: mass.map(|m| m.volume),
-                seconds: t0.elapsed().as_secs_f64(),
-            };
-            records.push(json!({
-                "id": id,
-                "label": node.label,
-                "class": node.class_name(),
-                "file": file,
-                "frame": frame,
-                "position_m": (pose.translation * mpu).to_array(),
-                "rotation_xyzw": pose.rotation.to_array(),
-                "vertices": done.vertices,
-                "triangles": done.triangles,
-                "closed": closed,
-                "mass_properties": mass,
-                "bounds": mesh.bounds(),
-            }));
-            bodies.push(Body {
-                name,
-                mesh_file: file,
-                translation: if frame == MeshFrame::Node {
-                    pose.translation
-                } else {
-                    DVec3::ZERO
-                },
-                rotation: if frame == MeshFrame::Node {
-                    pose.rotation
-                } else {
-                    Default::default()
-                },
-                mass,
-                rgb: mean_color(&mesh),
-                fixed: node.is_background(),
-            });
+            let (done, record, body) = export_node(scene, job, frame, staging.dir(), id)?;
+            records.push(record);
+            bodies.push(body);
             on_node(k, ids.len(), &done);
             nodes.push(done);
         }
@@ -344,6 +263,116 @@ impl Session {
             model,
         })
     }
+}
+
+/// One node's file, its `export.json` record and its simulator body.
+fn export_node(
+    scene: &NeuralScene,
+    job: &ExportJob,
+    frame: MeshFrame,
+    dir: &std::path::Path,
+    id: InstanceId,
+) -> Result<(ExportedNode, serde_json::Value, Body)> {
+    let mpu = scene.scene.meters_per_unit;
+    let t0 = Instant::now();
+    let index = scene
+        .scene
+        .nodes
+        .iter()
+        .position(|n| n.id == id)
+        .unwrap_or(0);
+    let node = &scene.scene.nodes[index];
+    let mesh = extract_node(scene, index, &job.extract)
+        .map_err(|e| request("export", e.to_string()))?;
+    // An empty surface is no export: MuJoCo refuses a mesh under 4 vertices, and a file
+    // with nothing in it would pass for a result.
+    if mesh.positions.len() < 4 || mesh.triangles.is_empty() {
+        return Err(request(
+            "export",
+            format!(
+                "node {id} {:?} has no surface at density level {} ({} vertices): the field is nearly empty there; train it longer or lower --density",
+                node.label,
+                job.extract.density,
+                mesh.positions.len()
+            ),
+        ));
+    }
+    let pose = node_pose(scene, id).unwrap_or_default();
+    let mesh = match frame {
+        MeshFrame::World => mesh.to_world(&pose),
+        MeshFrame::Node => mesh,
+    };
+    let name = obj_name(&node.label, id);
+    let file = format!("{name}.{}", job.format.extension());
+    let bytes = match job.format {
+        Format::Ply => write::mesh_ply(&mesh),
+        Format::Obj => write::mesh_obj(&mesh),
+        Format::Glb => write::mesh_glb(&mesh),
+        Format::Points => write::points_ply(
+            &mesh.sample_points(job.points, u64::from(id)),
+            &format!("assist node {id} {} (points)", node.label),
+        ),
+    };
+    write::write_file(&dir.join(&file), &bytes)
+        .map_err(|e| request("export", e.to_string()))?;
+    let closed = mesh.is_closed() && !mesh.triangles.is_empty();
+    // Mass properties in the node frame, in metres.
+    let mass = closed.then(|| {
+        let in_node = match frame {
+            MeshFrame::Node => mesh.positions.clone(),
+            MeshFrame::World => {
+                let inv = pose.inverse().unwrap_or_default();
+                mesh.positions
+                    .iter()
+                    .map(|p| inv.transform_point(DVec3::from_array(*p)).to_array())
+                    .collect()
+            }
+        };
+        let metres: Vec<[f64; 3]> = in_node.iter().map(|p| p.map(|v| v * mpu)).collect();
+        assist_mesh::mass_properties(&metres, &mesh.triangles, job.material_density)
+    });
+    let done = ExportedNode {
+        id,
+        label: node.label.clone(),
+        file: file.clone(),
+        vertices: mesh.positions.len(),
+        triangles: mesh.triangles.len(),
+        closed,
+        volume_m3: mass.map(|m| m.volume),
+        seconds: t0.elapsed().as_secs_f64(),
+    };
+    let record = json!({
+        "id": id,
+        "label": node.label,
+        "class": node.class_name(),
+        "file": file,
+        "frame": frame,
+        "position_m": (pose.translation * mpu).to_array(),
+        "rotation_xyzw": pose.rotation.to_array(),
+        "vertices": done.vertices,
+        "triangles": done.triangles,
+        "closed": closed,
+        "mass_properties": mass,
+        "bounds": mesh.bounds(),
+    });
+    let body = Body {
+        name,
+        mesh_file: file,
+        translation: if frame == MeshFrame::Node {
+            pose.translation
+        } else {
+            DVec3::ZERO
+        },
+        rotation: if frame == MeshFrame::Node {
+            pose.rotation
+        } else {
+            Default::default()
+        },
+        mass,
+        rgb: mean_color(&mesh),
+        fixed: node.is_background(),
+    };
+    Ok((done, record, body))
 }
 
 fn write_text(staging: &assist_fs::Staging, name: &str, text: &str) -> Result<()> {

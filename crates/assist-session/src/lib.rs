@@ -12,6 +12,7 @@
 
 mod cameras;
 mod embed;
+mod frames;
 mod export;
 mod held_out;
 mod jobs;
@@ -22,8 +23,7 @@ mod train_job;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 
-use assist_core::{Action, Camera, DVec3, Edit, InstanceId, Scene, SceneNode};
-use assist_render::{HIGHLIGHT, RenderScratch, render_camera_moving, render_rays};
+use assist_core::{Action, Camera, Edit, InstanceId, Scene, SceneNode};
 use assist_scene::{EditError, Editor, SceneFileError};
 
 pub use assist_clip as clip;
@@ -45,6 +45,7 @@ pub use cameras::{
 pub use embed::{
     CONTEXT as EMBED_CONTEXT, DEFAULT_EMBED_VIEWS, EmbedEvent, EmbedJob, EmbedSummary, EmbeddedNode,
 };
+pub use frames::{MAX_CAMERA_RADII, RenderRequest};
 pub use export::{
     DEFAULT_MATERIAL_DENSITY, DEFAULT_POINTS, ExportJob, ExportSummary, ExportedNode, SimModel,
 };
@@ -82,6 +83,9 @@ pub enum SessionError {
     /// A request that cannot be served (a size, a pixel, an id).
     #[error("{what}: {message}")]
     Request { what: String, message: String },
+    /// A render stopped by its cancel flag.
+    #[error("cancelled")]
+    Cancelled,
 }
 
 pub type Result<T> = std::result::Result<T, SessionError>;
@@ -91,19 +95,6 @@ pub(crate) fn request(what: &str, message: String) -> SessionError {
         what: what.into(),
         message,
     }
-}
-
-/// What to render besides colour, depth, opacity and instance ids.
-#[derive(Debug, Clone, Default)]
-pub struct RenderRequest {
-    /// Output size (the camera's intrinsics are scaled to it); `None` = the camera's.
-    pub size: Option<(u32, u32)>,
-    /// Each node's own colour and opacity too.
-    pub layers: bool,
-    /// Highlight the selected node.
-    pub highlight: bool,
-    /// Appearance code of a training image; `None` = the average.
-    pub image: Option<u32>,
 }
 
 /// How many undo steps an application of several actions makes.
@@ -443,125 +434,6 @@ impl Session {
             .map(|n| format!("{} {:?}", n.id, n.label))
             .collect();
         ids.join(", ")
-    }
-
-    fn options(&self, req: &RenderRequest) -> RenderOptions {
-        RenderOptions {
-            layers: req.layers,
-            highlight: if req.highlight {
-                self.editor.scene.scene.selected.map(|id| (id, HIGHLIGHT))
-            } else {
-                None
-            },
-            ..RenderOptions::default()
-        }
-    }
-
-    /// `camera` with its intrinsics scaled to `size`.
-    pub fn sized(camera: &Camera, size: Option<(u32, u32)>) -> Result<Camera> {
-        let Some((w, h)) = size else {
-            return Ok(*camera);
-        };
-        if w == 0 || h == 0 || w > 1 << 14 || h > 1 << 14 {
-            return Err(request(
-                "size",
-                format!("expected 1 to 16384 pixels each way, got {w}×{h}"),
-            ));
-        }
-        let factor = camera.width() as f64 / w as f64;
-        let mut c = *camera;
-        c.intrinsics = camera.intrinsics.downscaled(factor, w, h);
-        c.intrinsics.fy = camera.intrinsics.fy * h as f64 / camera.height() as f64;
-        c.intrinsics.cy = camera.intrinsics.cy * h as f64 / camera.height() as f64;
-        Ok(c)
-    }
-
-    /// Renders the scene as it is now: colour, z-depth, opacity, instance ids and, on
-    /// request, per-node layers.
-    pub fn render(&self, camera: &Camera, req: &RenderRequest) -> Result<Frame> {
-        let camera = Self::sized(camera, req.size)?;
-        Ok(render_camera(
-            &self.editor.scene,
-            &camera,
-            req.image.unwrap_or(u32::MAX),
-            &self.options(req),
-        ))
-    }
-
-    /// Renders like [`Session::render`], keeping in `cache` what does not change while node
-    /// `moving` alone is edited under the same camera (a drag): then only that node is
-    /// sampled and queried again. The image is the same as `render`'s.
-    pub fn render_moving(
-        &self,
-        camera: &Camera,
-        req: &RenderRequest,
-        moving: InstanceId,
-        cache: &mut DragCache,
-    ) -> Result<Frame> {
-        let camera = Self::sized(camera, req.size)?;
-        Ok(render_camera_moving(
-            &self.editor.scene,
-            &camera,
-            req.image.unwrap_or(u32::MAX),
-            &self.options(req),
-            moving,
-            cache,
-        ))
-    }
-
-    /// Renders the ray of pixel `(x, y)` alone: the ray and its composited outputs
-    /// (`None` when the pixel has no ray); `what` names the request in errors.
-    fn trace_pixel(
-        &self,
-        what: &str,
-        camera: &Camera,
-        x: f64,
-        y: f64,
-    ) -> Result<Option<(assist_core::Ray, RenderScratch)>> {
-        let (w, h) = (camera.width() as f64, camera.height() as f64);
-        if !(0.0..w).contains(&x) || !(0.0..h).contains(&y) {
-            return Err(request(
-                what,
-                format!("pixel ({x}, {y}) is outside the {w}×{h} image"),
-            ));
-        }
-        let Some(ray) = camera.ray(x, y) else {
-            return Ok(None);
-        };
-        let scene = &self.editor.scene;
-        let mut sc = RenderScratch::default();
-        sc.rays.near = scene.scene.near as f32;
-        sc.rays.push(&ray, u32::MAX);
-        render_rays(scene, &self.options(&RenderRequest::default()), &mut sc);
-        Ok(Some((ray, sc)))
-    }
-
-    /// The node seen at pixel `(x, y)` of `camera` (the one with the largest share of
-    /// the composited weight, as in the instance output); `None` for the background or
-    /// nothing.
-    pub fn pick(&self, camera: &Camera, x: f64, y: f64) -> Result<Option<InstanceId>> {
-        let Some((_, sc)) = self.trace_pixel("pick", camera, x, y)? else {
-            return Ok(None);
-        };
-        let nodes = &self.editor.scene.scene.nodes;
-        Ok(sc.out.winner(0).and_then(|k| {
-            let n = &nodes[k];
-            (!n.is_background()).then_some(n.id)
-        }))
-    }
-
-    /// The world point of the surface seen at pixel `(x, y)` of `camera` (the expected
-    /// depth of the composited weight along the pixel's ray); `None` where the ray meets
-    /// nearly nothing.
-    pub fn surface(&self, camera: &Camera, x: f64, y: f64) -> Result<Option<DVec3>> {
-        let Some((ray, sc)) = self.trace_pixel("surface", camera, x, y)? else {
-            return Ok(None);
-        };
-        let c = sc.out.rays[0];
-        if c.opacity < 0.5 {
-            return Ok(None);
-        }
-        Ok(Some(ray.origin + ray.dir * (c.depth / c.opacity) as f64))
     }
 
     /// Another scene's description (nodes, units; no weights), for cross-scene edits.

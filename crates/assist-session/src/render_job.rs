@@ -130,6 +130,10 @@ impl Session {
             layers: layers || writer.wants(Output::Objects),
             ..Default::default()
         };
+        for c in cameras {
+            self.check_camera(&c.camera)
+                .map_err(|e| request("camera", format!("{}: {e}", c.name)))?;
+        }
         let total = cameras.len();
         for (k, c) in cameras.iter().enumerate() {
             let img = render_camera(scene, &c.camera, u32::MAX, &opts);

@@ -137,3 +137,38 @@ fn bad_requests_are_errors_naming_what_was_asked() {
     s.select(Some(2)).unwrap();
     assert_eq!(s.description().selected, Some(2));
 }
+
+/// Issue 47 item 18: a camera at 1e100 made a 64×48 frame take seconds (a 2048² frame
+/// about 45 minutes), and a render could not be stopped. Far cameras are refused before
+/// any ray is traced, and a render stops when its cancel flag is set.
+#[test]
+fn far_cameras_are_refused_and_renders_can_be_cancelled() {
+    use std::sync::Arc;
+    use std::sync::atomic::AtomicBool;
+    let s = Session::new(table_scene());
+    for far in [1e100, 1e7, 1e150] {
+        let mut cam = camera();
+        cam.pose = Pose::look_at(DVec3::new(far, -far, far), DVec3::ZERO, DVec3::Z).unwrap();
+        let t = std::time::Instant::now();
+        let e = s.render(&cam, &RenderRequest::default()).unwrap_err();
+        assert!(
+            e.to_string().contains("scene radii") && e.to_string().len() < 300,
+            "{e}"
+        );
+        assert!(t.elapsed().as_secs_f64() < 1.0);
+        assert!(s.pick(&cam, 3.0, 3.0).is_err());
+    }
+    // A camera just outside the room renders.
+    let mut near = camera();
+    near.pose = Pose::look_at(DVec3::new(0.0, -4.0, 1.0), DVec3::ZERO, DVec3::Z).unwrap();
+    assert!(s.render(&near, &RenderRequest::default()).is_ok());
+    let flag = Arc::new(AtomicBool::new(true));
+    let req = RenderRequest {
+        cancel: Some(flag),
+        ..RenderRequest::default()
+    };
+    assert!(matches!(
+        s.render(&camera(), &req),
+        Err(SessionError::Cancelled)
+    ));
+}

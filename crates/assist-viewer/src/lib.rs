@@ -385,11 +385,14 @@ async fn client(mut socket: WebSocket, app: Arc<App>) {
     let (out_tx, mut out_rx) = tokio::sync::mpsc::unbounded_channel::<Outgoing>();
     let scene = app.scene.clone();
     let others = app.others.clone();
+    let gone = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let worker_gone = gone.clone();
     let worker = std::thread::Builder::new()
         .name("assist-view-client".into())
         .spawn(move || {
             worker::Worker::new(session, &scene, others)
                 .with_disk_stamp(stamp)
+                .with_gone_flag(worker_gone)
                 .run(in_rx, |o| out_tx.send(o).is_ok())
         });
     if worker.is_err() {
@@ -447,5 +450,6 @@ async fn client(mut socket: WebSocket, app: Arc<App>) {
             }
         }
     }
-    // Dropping `in_tx` ends the worker.
+    // Dropping `in_tx` ends the worker; the flag stops a frame it is rendering.
+    gone.store(true, std::sync::atomic::Ordering::Relaxed);
 }

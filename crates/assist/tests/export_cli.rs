@@ -132,6 +132,25 @@ fn export_meshes_points_and_models_read_back() {
         &run(&["export", s(&scene), "--out", s(&bad), "--resolution", "1"]),
         &["resolution"],
     );
+    // Issue 47 item 17: a density of 1e308 kg/m³ wrote a mass of 5e304 into the MJCF; an
+    // empty surface exported "0 vertices" with exit 0.
+    refused(
+        &run(&[
+            "export",
+            s(&scene),
+            "--out",
+            s(&bad),
+            "--sim",
+            "mjcf",
+            "--material-density",
+            "1e308",
+        ]),
+        &["material density", "1e308"],
+    );
+    refused(
+        &run(&["export", s(&scene), "--out", s(&bad), "--density", "1e7"]),
+        &["no surface", "--density"],
+    );
     assert!(!bad.exists());
     // An existing folder is kept without --force; a user's own folder even with it.
     let before = std::fs::read(obj.join("export.json")).unwrap();

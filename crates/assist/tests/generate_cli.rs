@@ -355,6 +355,12 @@ fn generate_shards_replays_and_annotations() {
         ),
         &["library[0]", "giraffe", "no such node"],
     );
+    // Issue 47 item 17: a camera aimed at no object was accepted silently.
+    bad(
+        "look_at.toml",
+        &format!("{head}[cameras]\nlook_at = \"giraffe\"\n"),
+        &["cameras.look_at", "giraffe"],
+    );
     // An impossible placement is a per-sample reason, not an error.
     let huge = root.join("huge.toml");
     std::fs::write(

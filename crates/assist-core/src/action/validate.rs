@@ -52,7 +52,7 @@ fn finite(op: Operation, field: &'static str, v: f64) -> Result<f64, ActionError
         Err(cfg_err(
             op,
             field,
-            format!("expected a finite number, got {v}"),
+            format!("expected a finite number, got {}", crate::fmt_num(v)),
         ))
     }
 }
@@ -479,7 +479,10 @@ fn check_factor(op: Operation, field: &'static str, f: f64) -> Result<(), Action
         return Err(cfg_err(
             op,
             field,
-            format!("expected a scale factor between 0.001 and 1000, got {f}"),
+            format!(
+                "expected a scale factor between 0.001 and 1000, got {}",
+                crate::fmt_num(f)
+            ),
         ));
     }
     Ok(())

@@ -38,7 +38,7 @@ impl Clause<'_> {
                 return Err(LangError::BadValue {
                     what: "object id".into(),
                     clause: self.text.clone(),
-                    message: format!("expected a whole number, got {n}"),
+                    message: format!("expected a whole number, got {}", assist_core::fmt_num(*n)),
                 });
             }
             self.refs.push(ObjectRef::Id(*n as u16));
@@ -302,7 +302,29 @@ impl Clause<'_> {
 
     /// Words that name objects: pronouns, "the copy", generic nouns, fillers, and the
     /// content words of a phrase.
-    pub(super) fn object_word(&mut self, i: usize, w: &str, next: Option<&str>) -> usize {
+    /// A content word right after a bare number, once the clause has named its object
+    /// ("move the mug 3 furlongs left"), is an unknown unit: refused by name, never read
+    /// as an object.
+    pub(super) fn object_word(
+        &mut self,
+        i: usize,
+        w: &str,
+        next: Option<&str>,
+    ) -> Result<usize, LangError> {
+        let after_bare_number = i > 0
+            && matches!(self.toks[i - 1], Tok::Num(_))
+            && matches!(self.p.quantities.last(), Some((_, None)));
+        let content = !(PRONOUNS.contains(&w)
+            || CREATED.contains(&w)
+            || GENERIC.contains(&w)
+            || FILLER.contains(&w));
+        if after_bare_number && content && !self.refs.targets.is_empty() {
+            return Err(LangError::NotUnderstood {
+                word: w.to_string(),
+                clause: self.text.clone(),
+                message: format!("expected a unit after the number ({UNITS_KNOWN})"),
+            });
+        }
         let refs = &mut self.refs;
         if PRONOUNS.contains(&w) && !(w == "that" || w == "this") {
             // "all of them" are the objects named before.
@@ -318,7 +340,7 @@ impl Clause<'_> {
             refs.close();
             refs.push(ObjectRef::Last);
             if next == Some("one") {
-                return 2;
+                return Ok(2);
             }
         } else if CREATED.contains(&w)
             && (i == 0
@@ -333,7 +355,7 @@ impl Clause<'_> {
             refs.close();
             refs.push(ObjectRef::Created);
             if w == "new" && next.is_some() {
-                return 2;
+                return Ok(2);
             }
         } else if GENERIC.contains(&w) {
             refs.generic = true;
@@ -349,6 +371,6 @@ impl Clause<'_> {
         } else {
             refs.phrase.push(w.to_string());
         }
-        1
+        Ok(1)
     }
 }

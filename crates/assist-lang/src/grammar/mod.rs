@@ -7,7 +7,8 @@ use assist_core::Operation::*;
 use crate::LangError;
 use crate::tokens::Tok;
 use crate::words::{
-    CREATED, FILLER, GENERIC, GROW, MEANING_CHANGING, PRONOUNS, RELATIVE_PLACEMENT, SHRINK, Verb,
+    CREATED, FILLER, GENERIC, GROW, MEANING_CHANGING, PRONOUNS, RELATIVE_PLACEMENT, SHRINK, UNITS_KNOWN,
+    Verb,
     axis_word, direction_word, unit_word, verb_at, word,
 };
 pub use crate::words::{Direction, Unit};
@@ -170,7 +171,7 @@ fn render(toks: &[Tok]) -> String {
     toks.iter()
         .map(|t| match t {
             Tok::Word(w) => w.clone(),
-            Tok::Num(n) => format!("{n}"),
+            Tok::Num(n) => assist_core::fmt_num(*n),
             Tok::Path(p) => p.clone(),
             Tok::Sep => ",".into(),
         })
@@ -258,11 +259,14 @@ impl<'a> Clause<'a> {
                     Some(k) => k,
                     None => match self.quantifier_word(w, next)? {
                         Some(k) => k,
-                        None => self
+                        None => match self
                             .axis_word(w, next)
                             .or_else(|| self.amount_word(w, next))
                             .or_else(|| self.connective_word(i, w))
-                            .unwrap_or_else(|| self.object_word(i, w, next)),
+                        {
+                            Some(k) => k,
+                            None => self.object_word(i, w, next)?,
+                        },
                     },
                 }
             }

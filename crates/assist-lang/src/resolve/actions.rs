@@ -189,10 +189,11 @@ fn object_actions(
                 let m = unit_metres(u);
                 let node = st.scene.node(id).expect("resolved");
                 let target = DVec3::from_array(pos) * m / st.scene.meters_per_unit;
-                let v = target - node.world_from_local.translation;
+                // Written in metres, as every other length of a resolved instruction.
+                let v = (target - node.world_from_local.translation) * st.scene.meters_per_unit;
                 ActionConfig {
                     vector: Some(v.to_array()),
-                    unit: Some("units".into()),
+                    unit: Some("m".into()),
                     ..Default::default()
                 }
             }

@@ -246,6 +246,12 @@ impl Worker {
         self
     }
 
+    /// A flag the socket sets when the client goes: a frame in progress stops.
+    pub fn with_gone_flag(mut self, gone: std::sync::Arc<std::sync::atomic::AtomicBool>) -> Self {
+        self.gone = Some(gone);
+        self
+    }
+
     pub(super) fn save(
         &mut self,
         path: Option<&str>,

@@ -176,6 +176,8 @@ pub struct Worker {
     /// The opened scene's `scene.json` as this worker last read or wrote it: a save over
     /// the scene is refused when another process changed it since.
     disk: Option<u64>,
+    /// Set when the client's socket closes: a frame in progress stops.
+    gone: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
 }
 
 /// A digest of a scene's `scene.json` (`None` when it cannot be read).
@@ -201,6 +203,7 @@ impl Worker {
             log: Vec::new(),
             hidden: Default::default(),
             disk: None,
+            gone: None,
         }
     }
 
@@ -398,6 +401,7 @@ impl Worker {
             size,
             highlight: alone.is_none(),
             layers: alone.is_some(),
+            cancel: self.gone.clone(),
             ..RenderRequest::default()
         };
         let hidden: Vec<InstanceId> = self.hidden.iter().copied().collect();
