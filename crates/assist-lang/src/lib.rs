@@ -83,7 +83,6 @@ pub fn parse(
     Ok(resolve::resolve(&raw, scene, opts, sources, &Default::default())?.actions)
 }
 
-
 /// Replicas are named "mug 2", "mug 3": a mention of such a name (its last words with the
 /// number, "mug 2" or "the red mug 2") becomes "object N" before parsing, so the number is
 /// not read as a quantity — unless a unit follows it ("the mug 2 cm left").

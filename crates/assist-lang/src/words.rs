@@ -212,8 +212,7 @@ pub fn length_unit(w: &str) -> Option<f64> {
 }
 
 /// The units the grammar reads, for messages.
-pub const UNITS_KNOWN: &str =
-    "m, cm, mm, km, in, ft, yd, mi, degrees, radians, %, times";
+pub const UNITS_KNOWN: &str = "m, cm, mm, km, in, ft, yd, mi, degrees, radians, %, times";
 
 pub fn unit_word(w: &str) -> Option<Unit> {
     if let Some(m) = length_unit(w) {

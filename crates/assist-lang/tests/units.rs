@@ -30,8 +30,8 @@ impl SceneSource for NoScenes {
 
 /// The length of the first action's offset, in metres.
 fn metres(text: &str) -> Result<f64, String> {
-    let actions =
-        parse(text, &scene(), &ParseOptions::default(), &mut NoScenes).map_err(|e| e.to_string())?;
+    let actions = parse(text, &scene(), &ParseOptions::default(), &mut NoScenes)
+        .map_err(|e| e.to_string())?;
     let c = &actions[0].config;
     let scale = match c.unit.as_deref() {
         Some("m") | None => 1.0,

@@ -91,18 +91,21 @@ impl Samples {
 /// `seed` and `count` override the spec's, `start` is the first index. The same index
 /// gives the same sample as `assist generate`.
 #[pyfunction]
-#[pyo3(signature = (spec, seed=None, count=None, start=0))]
+#[pyo3(signature = (spec, seed=None, count=None, start=Whole::of(0)))]
 pub(crate) fn generate(
     py: Python<'_>,
     spec: &Bound<'_, PyAny>,
-    seed: Option<u64>,
-    count: Option<u64>,
-    start: u64,
+    seed: Option<Whole>,
+    count: Option<Whole>,
+    start: Whole,
 ) -> PyResult<Samples> {
+    let seed: Option<u64> = whole_opt("seed", seed)?;
+    let count: Option<u64> = whole_opt("count", count)?;
+    let start: u64 = start.get("start")?;
     let (mut spec, name) = if let Ok(p) = spec.extract::<PathBuf>() {
         (assist_generate::Spec::load(&p).map_err(err)?, p)
     } else {
-        let v = from_py(spec)?;
+        let v = from_py(spec, "spec")?;
         let s: assist_generate::Spec =
             serde_json::from_value(v).map_err(|e| err(format!("spec: {e}")))?;
         (s, PathBuf::from("spec"))
@@ -138,13 +141,13 @@ pub(crate) fn train<'py>(
     data: PathBuf,
     out: PathBuf,
     max_time: Option<f64>,
-    iters: Option<usize>,
+    iters: Option<Whole>,
     callback: Option<Py<PyAny>>,
     options: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyAny>> {
     let mut cfg = match options {
         Some(o) => {
-            let v = from_py(o.as_any())?;
+            let v = from_py(o.as_any(), "options")?;
             let known =
                 serde_json::to_value(assist_session::TrainConfig::default()).map_err(err)?;
             if let (Some(given), Some(known)) = (v.as_object(), known.as_object()) {
@@ -176,7 +179,7 @@ pub(crate) fn train<'py>(
     if let Some(t) = max_time {
         cfg.max_time = Some(t);
     }
-    if let Some(n) = iters {
+    if let Some(n) = whole_opt::<usize>("iters", iters)? {
         cfg.iters = n;
     }
     let job = assist_session::TrainJob::new(cfg);

@@ -16,10 +16,12 @@ use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
+mod args;
 mod clip;
 mod jobs;
 mod scene;
 
+use args::{Whole, whole_opt};
 use clip::Clip;
 use jobs::{Samples, generate, train};
 use scene::Scene;
@@ -41,14 +43,9 @@ fn to_py<'py>(py: Python<'py>, v: &impl serde::Serialize) -> PyResult<Bound<'py,
     py.import("json")?.call_method1("loads", (s,))
 }
 
-/// Python objects → a JSON value (through `json.dumps`).
-fn from_py(obj: &Bound<'_, PyAny>) -> PyResult<serde_json::Value> {
-    let s: String = obj
-        .py()
-        .import("json")?
-        .call_method1("dumps", (obj,))?
-        .extract()?;
-    serde_json::from_str(&s).map_err(err)
+/// Python objects → a JSON value; `what` names the argument in errors (see [`args::to_json`]).
+fn from_py(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<serde_json::Value> {
+    args::to_json(obj, what)
 }
 
 /// A camera: pinhole intrinsics and a pose (4×4 world-from-camera, OpenGL convention: the
@@ -75,10 +72,11 @@ impl Camera {
         fy: f64,
         cx: f64,
         cy: f64,
-        width: u32,
-        height: u32,
+        width: Whole,
+        height: Whole,
         name: String,
     ) -> PyResult<Self> {
+        let (width, height) = (width.get("width")?, height.get("height")?);
         let a = pose.as_array();
         if a.shape() != [4, 4] {
             return Err(err(format!(
@@ -187,25 +185,26 @@ impl Dataset {
 
 /// `frames` cameras on a circle around `scene`'s objects, looking at their centre.
 #[pyfunction]
-#[pyo3(signature = (scene, frames=24, width=480, height=360, fov=50.0, elevation=30.0, radius=None))]
+#[pyo3(signature = (scene, frames=Whole::of(24), width=Whole::of(480), height=Whole::of(360), fov=50.0, elevation=30.0, radius=None))]
 fn orbit(
+    py: Python<'_>,
     scene: &Scene,
-    frames: usize,
-    width: u32,
-    height: u32,
+    frames: Whole,
+    width: Whole,
+    height: Whole,
     fov: f64,
     elevation: f64,
     radius: Option<f64>,
 ) -> PyResult<Vec<Camera>> {
     let o = Orbit {
-        frames,
-        width,
-        height,
+        frames: frames.get("frames")?,
+        width: width.get("width")?,
+        height: height.get("height")?,
         fov_deg: fov,
         elevation_deg: elevation,
         radius,
     };
-    let cams = assist_session::orbit(scene.session.description(), &o).map_err(err)?;
+    let cams = assist_session::orbit(scene.lock(py)?.description(), &o).map_err(err)?;
     Ok(cams
         .into_iter()
         .map(|c| Camera {

@@ -5,11 +5,73 @@ use super::*;
 use assist_core::action::NodeRef;
 use assist_core::{Action, ActionConfig, Operation};
 use assist_session::{RenderRequest, Session};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::RecvTimeoutError;
+use std::sync::{Arc, Mutex, MutexGuard, TryLockError};
+use std::time::Duration;
 
-/// A trained scene in memory: nodes, edits with undo and redo, rendering.
-#[pyclass(module = "assist")]
+/// A trained scene in memory: nodes, edits with undo and redo, rendering. Threads share
+/// it: a call waits (the GIL released) while another thread's call runs.
+#[pyclass(module = "assist", frozen)]
 pub(crate) struct Scene {
-    pub(crate) session: Session,
+    session: Arc<Mutex<Session>>,
+}
+
+impl Scene {
+    /// The session, once no other thread holds it; Ctrl+C while waiting raises.
+    pub(crate) fn lock(&self, py: Python<'_>) -> PyResult<MutexGuard<'_, Session>> {
+        loop {
+            match self.session.try_lock() {
+                Ok(g) => return Ok(g),
+                // A call that panicked left the session as its last whole edit.
+                Err(TryLockError::Poisoned(p)) => return Ok(p.into_inner()),
+                Err(TryLockError::WouldBlock) => {
+                    py.detach(|| std::thread::sleep(Duration::from_millis(2)));
+                    py.check_signals()?;
+                }
+            }
+        }
+    }
+
+    /// Runs `work` on the session in a worker thread while this thread answers Ctrl+C:
+    /// on an interrupt `cancel` is set (a render stops at its next batch of rays) and
+    /// `KeyboardInterrupt` is raised at once; work that cannot stop finishes unseen.
+    fn interruptible<T: Send + 'static>(
+        &self,
+        py: Python<'_>,
+        cancel: Option<Arc<AtomicBool>>,
+        work: impl FnOnce(&mut Session) -> T + Send + 'static,
+    ) -> PyResult<T> {
+        let session = self.session.clone();
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::Builder::new()
+            .name("assist-scene".into())
+            .spawn(move || {
+                let mut s = session.lock().unwrap_or_else(|p| p.into_inner());
+                let _ = tx.send(work(&mut s));
+            })
+            .map_err(|e| err(format!("cannot start a worker thread: {e}")))?;
+        let mut rx = rx;
+        loop {
+            // The receiver travels into the GIL-free wait and back (it is not Sync).
+            let (got, back) = py.detach(move || (rx.recv_timeout(Duration::from_millis(50)), rx));
+            rx = back;
+            match got {
+                Ok(v) => return Ok(v),
+                Err(RecvTimeoutError::Disconnected) => {
+                    return Err(err("the scene's worker thread failed (a panic)"));
+                }
+                Err(RecvTimeoutError::Timeout) => {
+                    if let Err(e) = py.check_signals() {
+                        if let Some(c) = &cancel {
+                            c.store(true, Ordering::Relaxed);
+                        }
+                        return Err(e);
+                    }
+                }
+            }
+        }
+    }
 }
 
 pub(crate) fn node_ref(obj: &Bound<'_, PyAny>) -> PyResult<NodeRef> {
@@ -24,7 +86,7 @@ pub(crate) fn node_ref(obj: &Bound<'_, PyAny>) -> PyResult<NodeRef> {
 
 /// One action (a dict) or a list of them.
 pub(crate) fn actions_from(what: &Bound<'_, PyAny>) -> PyResult<Vec<Action>> {
-    let v = from_py(what)?;
+    let v = from_py(what, "actions")?;
     match v {
         serde_json::Value::Array(_) => serde_json::from_value(v),
         other => serde_json::from_value(other).map(|a| vec![a]),
@@ -32,11 +94,9 @@ pub(crate) fn actions_from(what: &Bound<'_, PyAny>) -> PyResult<Vec<Action>> {
     .map_err(|e| err(format!("actions: {e}")))
 }
 
-impl Scene {
-    fn actions_of(&self, edits: &[assist_core::Edit]) -> Vec<Action> {
-        let mpu = self.session.description().meters_per_unit;
-        edits.iter().map(|e| e.to_action(mpu)).collect()
-    }
+fn actions_of(session: &Session, edits: &[assist_core::Edit]) -> Vec<Action> {
+    let mpu = session.description().meters_per_unit;
+    edits.iter().map(|e| e.to_action(mpu)).collect()
 }
 
 #[pymethods]
@@ -45,7 +105,9 @@ impl Scene {
     #[staticmethod]
     fn load(py: Python<'_>, path: PathBuf) -> PyResult<Scene> {
         let session = py.detach(|| Session::open(&path)).map_err(err)?;
-        Ok(Scene { session })
+        Ok(Scene {
+            session: Arc::new(Mutex::new(session)),
+        })
     }
 
     /// The nodes: dicts with `id`, `label`, `class` (its semantic class: the label, or for
@@ -55,7 +117,7 @@ impl Scene {
     #[getter]
     fn nodes<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
         let out = PyList::empty(py);
-        for n in self.session.nodes() {
+        for n in self.lock(py)?.nodes() {
             let d = PyDict::new(py);
             d.set_item("id", n.id)?;
             d.set_item("label", &n.label)?;
@@ -79,83 +141,95 @@ impl Scene {
 
     /// Metres per scene unit.
     #[getter]
-    fn meters_per_unit(&self) -> f64 {
-        self.session.description().meters_per_unit
+    fn meters_per_unit(&self, py: Python<'_>) -> PyResult<f64> {
+        Ok(self.lock(py)?.description().meters_per_unit)
     }
 
     /// Applies an instruction in words (`"move the mug 10 cm left"`) or a list of actions
     /// (`[{"instance_id": 3, "operation": "delete", "config": {}}]`) as one undo step;
     /// returns the resolved actions as dicts (world units). Raises `AssistError` naming the
     /// unknown object, the ambiguous candidates or the bad field.
-    fn apply<'py>(
-        &mut self,
-        py: Python<'py>,
-        what: &Bound<'py, PyAny>,
-    ) -> PyResult<Bound<'py, PyAny>> {
-        let edits = if let Ok(text) = what.extract::<String>() {
-            self.session.apply_text(&text, None).map_err(err)?
-        } else {
-            let actions = actions_from(what)?;
-            self.session.apply(&actions).map_err(err)?
+    fn apply<'py>(&self, py: Python<'py>, what: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
+        let text = what.extract::<String>().ok();
+        let actions = match text {
+            Some(_) => Vec::new(),
+            None => actions_from(what)?,
         };
-        to_py(py, &self.actions_of(&edits))
+        let mut s = self.lock(py)?;
+        let s = &mut *s;
+        let actions = py
+            .detach(|| {
+                let edits = match &text {
+                    Some(t) => s.apply_text(t, None)?,
+                    None => s.apply(&actions)?,
+                };
+                Ok::<_, assist_session::SessionError>(actions_of(s, &edits))
+            })
+            .map_err(err)?;
+        to_py(py, &actions)
     }
 
     /// What an instruction or actions would do, without applying them.
-    fn plan<'py>(
-        &mut self,
-        py: Python<'py>,
-        what: &Bound<'py, PyAny>,
-    ) -> PyResult<Bound<'py, PyAny>> {
-        let edits = if let Ok(text) = what.extract::<String>() {
-            self.session.resolve(&text, None).map_err(err)?.edits
-        } else {
-            let actions = actions_from(what)?;
-            self.session.plan(&actions).map_err(err)?
+    /// Ctrl+C raises at once.
+    fn plan<'py>(&self, py: Python<'py>, what: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
+        let text = what.extract::<String>().ok();
+        let actions = match text {
+            Some(_) => Vec::new(),
+            None => actions_from(what)?,
         };
-        to_py(py, &self.actions_of(&edits))
+        let planned = self.interruptible(py, None, move |s| {
+            let edits = match &text {
+                Some(t) => s.resolve(t, None).map(|r| r.edits)?,
+                None => s.plan(&actions)?,
+            };
+            Ok::<_, assist_session::SessionError>(actions_of(s, &edits))
+        })?;
+        to_py(py, &planned.map_err(err)?)
     }
 
     /// Gives node `id` a new label as one undo step (its semantic class stays); a taken,
     /// empty or overlong label raises `AssistError`.
-    fn rename(&mut self, id: u16, label: &str) -> PyResult<()> {
-        self.session.rename(id, label).map_err(err)
+    fn rename(&self, py: Python<'_>, id: Whole, label: &str) -> PyResult<()> {
+        let id = id.get("id")?;
+        self.lock(py)?.rename(id, label).map_err(err)
     }
 
     /// Undoes the last `apply`; False when there is nothing to undo.
-    fn undo(&mut self) -> bool {
-        self.session.undo()
+    fn undo(&self, py: Python<'_>) -> PyResult<bool> {
+        Ok(self.lock(py)?.undo())
     }
 
     /// Redoes the last undone `apply`; False when there is nothing to redo.
-    fn redo(&mut self) -> bool {
-        self.session.redo()
+    fn redo(&self, py: Python<'_>) -> PyResult<bool> {
+        Ok(self.lock(py)?.redo())
     }
 
     /// Selects (highlights) node `id`, or clears the selection with None.
     #[pyo3(signature = (id=None))]
-    fn select(&mut self, id: Option<u16>) -> PyResult<()> {
-        self.session.select(id).map_err(err)
+    fn select(&self, py: Python<'_>, id: Option<Whole>) -> PyResult<()> {
+        let id = whole_opt("id", id)?;
+        self.lock(py)?.select(id).map_err(err)
     }
 
     /// The object seen at pixel `(x, y)` of `camera`, or None for the background.
     fn pick(&self, py: Python<'_>, camera: &Camera, x: f64, y: f64) -> PyResult<Option<u16>> {
         let c = camera.inner;
-        let s = &self.session;
-        py.detach(|| s.pick(&c, x, y)).map_err(err)
+        self.interruptible(py, None, move |s| s.pick(&c, x, y))?
+            .map_err(err)
     }
 
     /// Adds node `node` (id or label) of the scene at `scene_path`, its box centred at
     /// `position` (world units) or where it stands there; returns the resolved actions.
     #[pyo3(signature = (scene_path, node, position=None))]
     fn add_from<'py>(
-        &mut self,
+        &self,
         py: Python<'py>,
         scene_path: PathBuf,
         node: &Bound<'py, PyAny>,
         position: Option<[f64; 3]>,
     ) -> PyResult<Bound<'py, PyAny>> {
-        let id = self.session.description().fresh_id();
+        let mut s = self.lock(py)?;
+        let id = s.description().fresh_id();
         let a = Action {
             instance_id: id,
             operation: Operation::Add,
@@ -167,15 +241,16 @@ impl Scene {
                 ..Default::default()
             },
         };
-        let edits = self.session.apply(&[a]).map_err(err)?;
-        to_py(py, &self.actions_of(&edits))
+        let edits = s.apply(&[a]).map_err(err)?;
+        to_py(py, &actions_of(&s, &edits))
     }
 
     /// Saves scene, weights and history atomically (`force` to replace a scene assist
     /// wrote).
     #[pyo3(signature = (path, force=false))]
     fn save(&self, py: Python<'_>, path: PathBuf, force: bool) -> PyResult<()> {
-        let s = &self.session;
+        let s = self.lock(py)?;
+        let s = &*s;
         py.detach(|| s.save(&path, force)).map_err(err)
     }
 
@@ -185,20 +260,20 @@ impl Scene {
     /// world, node with `sim`); `sim` "mjcf" or "urdf" for a simulator model. Returns the
     /// summary: `out`, `model` and per node `id`, `label`, `file`, `vertices`,
     /// `triangles`, `closed`, `volume_m3`, `seconds`.
-    #[pyo3(signature = (out, nodes=vec!["all".to_string()], format="obj", frame=None, resolution=assist_session::DEFAULT_RESOLUTION, density=assist_session::DEFAULT_DENSITY, smooth=assist_session::DEFAULT_SMOOTH, triangles=assist_session::DEFAULT_MAX_TRIANGLES, min_part=assist_session::DEFAULT_MIN_PART, points=assist_session::DEFAULT_POINTS, sim=None, material_density=assist_session::DEFAULT_MATERIAL_DENSITY, force=false))]
+    #[pyo3(signature = (out, nodes=vec!["all".to_string()], format="obj", frame=None, resolution=Whole::of(assist_session::DEFAULT_RESOLUTION as i64), density=assist_session::DEFAULT_DENSITY, smooth=assist_session::DEFAULT_SMOOTH, triangles=Whole::of(assist_session::DEFAULT_MAX_TRIANGLES as i64), min_part=assist_session::DEFAULT_MIN_PART, points=Whole::of(assist_session::DEFAULT_POINTS as i64), sim=None, material_density=assist_session::DEFAULT_MATERIAL_DENSITY, force=false))]
     fn export<'py>(
-        &mut self,
+        &self,
         py: Python<'py>,
         out: PathBuf,
         nodes: Vec<String>,
         format: &str,
         frame: Option<&str>,
-        resolution: u32,
+        resolution: Whole,
         density: f32,
         smooth: f32,
-        triangles: usize,
+        triangles: Whole,
         min_part: f64,
-        points: usize,
+        points: Whole,
         sim: Option<&str>,
         material_density: f64,
         force: bool,
@@ -219,18 +294,19 @@ impl Scene {
                 .transpose()?,
             sim: sim.map(|m| pick("sim (mjcf or urdf)", m)).transpose()?,
             extract: assist_session::ExtractOptions {
-                resolution,
+                resolution: resolution.get("resolution")?,
                 density,
                 min_part,
                 smooth,
-                max_triangles: triangles,
+                max_triangles: triangles.get("triangles")?,
             },
-            points,
+            points: points.get("points")?,
             material_density,
             out,
             force,
         };
-        let s = &mut self.session;
+        let mut s = self.lock(py)?;
+        let s = &mut *s;
         let done = py.detach(|| s.export(&job, |_, _, _| {})).map_err(err)?;
         to_py(py, &done)
     }
@@ -245,9 +321,11 @@ impl Scene {
         py: Python<'py>,
         camera: &Camera,
         outputs: Vec<String>,
-        width: Option<u32>,
-        height: Option<u32>,
+        width: Option<Whole>,
+        height: Option<Whole>,
     ) -> PyResult<Bound<'py, PyDict>> {
+        let width: Option<u32> = whole_opt("width", width)?;
+        let height: Option<u32> = whole_opt("height", height)?;
         for o in &outputs {
             if !["rgb", "depth", "instance", "opacity"].contains(&o.as_str()) {
                 return Err(err(format!(
@@ -269,15 +347,18 @@ impl Scene {
                 Some((w.max(1), h))
             }
         };
+        let cancel = Arc::new(AtomicBool::new(false));
         let req = RenderRequest {
             size,
             highlight: true,
+            cancel: Some(cancel.clone()),
             ..Default::default()
         };
         let c = camera.inner;
-        let s = &self.session;
-        let frame = py.detach(|| s.render(&c, &req)).map_err(err)?;
-        let mpu = self.session.description().meters_per_unit as f32;
+        let (frame, mpu) = self.interruptible(py, Some(cancel), move |s| {
+            (s.render(&c, &req), s.description().meters_per_unit as f32)
+        })?;
+        let frame = frame.map_err(err)?;
         let (w, h) = (frame.width as usize, frame.height as usize);
         // The frame's buffers become the arrays (no copy).
         let assist_session::Frame {
@@ -323,7 +404,7 @@ impl Scene {
         Ok(d)
     }
 
-    fn __repr__(&self) -> String {
-        format!("Scene({} nodes)", self.session.nodes().len())
+    fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
+        Ok(format!("Scene({} nodes)", self.lock(py)?.nodes().len()))
     }
 }

@@ -282,8 +282,8 @@ fn export_node(
         .position(|n| n.id == id)
         .unwrap_or(0);
     let node = &scene.scene.nodes[index];
-    let mesh = extract_node(scene, index, &job.extract)
-        .map_err(|e| request("export", e.to_string()))?;
+    let mesh =
+        extract_node(scene, index, &job.extract).map_err(|e| request("export", e.to_string()))?;
     // An empty surface is no export: MuJoCo refuses a mesh under 4 vertices, and a file
     // with nothing in it would pass for a result.
     if mesh.positions.len() < 4 || mesh.triangles.is_empty() {
@@ -313,8 +313,7 @@ fn export_node(
             &format!("assist node {id} {} (points)", node.label),
         ),
     };
-    write::write_file(&dir.join(&file), &bytes)
-        .map_err(|e| request("export", e.to_string()))?;
+    write::write_file(&dir.join(&file), &bytes).map_err(|e| request("export", e.to_string()))?;
     let closed = mesh.is_closed() && !mesh.triangles.is_empty();
     // Mass properties in the node frame, in metres.
     let mass = closed.then(|| {

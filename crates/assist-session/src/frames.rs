@@ -85,10 +85,15 @@ impl Session {
     /// centre that is not finite.
     pub fn check_camera(&self, camera: &Camera) -> Result<()> {
         let eye = camera.pose.center();
-        let (lo, hi) = self.description().nodes.iter().flat_map(|n| n.world_corners()).fold(
-            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
-            |(lo, hi), c| (lo.min(c), hi.max(c)),
-        );
+        let (lo, hi) = self
+            .description()
+            .nodes
+            .iter()
+            .flat_map(|n| n.world_corners())
+            .fold(
+                (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+                |(lo, hi), c| (lo.min(c), hi.max(c)),
+            );
         if !lo.is_finite() || !hi.is_finite() {
             return Ok(());
         }

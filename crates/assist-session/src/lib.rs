@@ -12,8 +12,8 @@
 
 mod cameras;
 mod embed;
-mod frames;
 mod export;
+mod frames;
 mod held_out;
 mod jobs;
 mod render_job;
@@ -45,10 +45,10 @@ pub use cameras::{
 pub use embed::{
     CONTEXT as EMBED_CONTEXT, DEFAULT_EMBED_VIEWS, EmbedEvent, EmbedJob, EmbedSummary, EmbeddedNode,
 };
-pub use frames::{MAX_CAMERA_RADII, RenderRequest};
 pub use export::{
     DEFAULT_MATERIAL_DENSITY, DEFAULT_POINTS, ExportJob, ExportSummary, ExportedNode, SimModel,
 };
+pub use frames::{MAX_CAMERA_RADII, RenderRequest};
 pub use jobs::{
     EvalJob, EvalReport, LIGHT_MIN_EXPLAINED, LightEstimate, LightJob, Photograph, photograph,
     recorded_dataset, trained_downscale,

@@ -7,9 +7,8 @@ use assist_core::Operation::*;
 use crate::LangError;
 use crate::tokens::Tok;
 use crate::words::{
-    CREATED, FILLER, GENERIC, GROW, MEANING_CHANGING, PRONOUNS, RELATIVE_PLACEMENT, SHRINK, UNITS_KNOWN,
-    Verb,
-    axis_word, direction_word, unit_word, verb_at, word,
+    CREATED, FILLER, GENERIC, GROW, MEANING_CHANGING, PRONOUNS, RELATIVE_PLACEMENT, SHRINK,
+    UNITS_KNOWN, Verb, axis_word, direction_word, unit_word, verb_at, word,
 };
 pub use crate::words::{Direction, Unit};
 
