@@ -37,6 +37,11 @@ pub struct FieldConfig {
 pub const MAX_IMAGES: usize = 1 << 20;
 
 impl FieldConfig {
+    /// Parameters of a field of this configuration (without making one).
+    pub fn param_count(&self) -> usize {
+        crate::ParamLayout::new(self).total
+    }
+
     /// Nerfacto's field: 16 levels × 2 features, T = 2^19, resolutions 16 → 2048, 64-wide
     /// nets, geometry feature 15, SH degree 4, appearance embedding 32.
     pub fn nerfacto(num_images: usize) -> Self {

@@ -31,6 +31,13 @@ pub enum SceneFileError {
     },
     #[error("{path} already exists (pass --force to replace it)")]
     Exists { path: PathBuf },
+    /// Writing the new folder failed (a full disk): what was at `path` is as it was.
+    #[error("{}: saving failed while writing {file}, and what was there is unchanged: {source}", .path.display())]
+    Save {
+        path: PathBuf,
+        file: String,
+        source: std::io::Error,
+    },
     #[error(transparent)]
     Field(#[from] assist_field::FieldError),
     #[error(transparent)]
@@ -94,11 +101,35 @@ pub fn save_with_history(
     assist_fs::check_replaceable_as(dir, force, assist_fs::Kind::Scene)?;
     let staging = assist_fs::Staging::begin(dir, "saving a scene")?;
     let tmp = staging.dir().to_path_buf();
+    // An error names the folder being saved, not the temporary that is removed.
+    write_staged(&tmp, dir, scene, history, info).map_err(|e| match e {
+        SceneFileError::Io { path, source } if path.starts_with(&tmp) => SceneFileError::Save {
+            path: dir.to_path_buf(),
+            file: path
+                .strip_prefix(&tmp)
+                .map(|p| p.display().to_string())
+                .unwrap_or_default(),
+            source,
+        },
+        e => e,
+    })?;
+    staging.commit()?;
+    Ok(())
+}
+
+/// Writes the scene's files into the staging folder `tmp` (errors name `dir`'s fields).
+fn write_staged(
+    tmp: &Path,
+    dir: &Path,
+    scene: &NeuralScene,
+    history: &History,
+    info: serde_json::Value,
+) -> Result<(), SceneFileError> {
     let io = |p: &Path| {
         let p = p.to_path_buf();
         move |e| SceneFileError::Io { path: p, source: e }
     };
-    std::fs::create_dir_all(tmp.join("fields")).map_err(io(&tmp))?;
+    std::fs::create_dir_all(tmp.join("fields")).map_err(io(tmp))?;
     for node in &scene.scene.nodes {
         if !valid_key(&node.field) {
             return Err(invalid(
@@ -121,7 +152,7 @@ pub fn save_with_history(
                 format!("no weights loaded for field key {key:?}"),
             )
         })?;
-        write_field(&field_path(&tmp, key), nf)?;
+        write_field(&field_path(tmp, key), nf)?;
     }
     if !history.is_empty() {
         let text = serde_json::to_string(history)
@@ -138,9 +169,7 @@ pub fn save_with_history(
     let text = serde_json::to_string_pretty(&json)
         .map_err(|e| invalid(dir, "scene.json", format!("cannot serialise: {e}")))?;
     let p = tmp.join("scene.json");
-    std::fs::write(&p, text).map_err(io(&p))?;
-    staging.commit()?;
-    Ok(())
+    std::fs::write(&p, text).map_err(io(&p))
 }
 
 /// Writes a node's weights to `dest`, or hard-links the file they were read from when it

@@ -83,6 +83,9 @@ pub enum SessionError {
     /// A request that cannot be served (a size, a pixel, an id).
     #[error("{what}: {message}")]
     Request { what: String, message: String },
+    /// A save that failed (a full disk), with what stands in the output and how to go on.
+    #[error("{0}")]
+    SaveFailed(String),
     /// A render stopped by its cancel flag.
     #[error("cancelled")]
     Cancelled,

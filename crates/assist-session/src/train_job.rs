@@ -200,6 +200,13 @@ impl TrainJob {
         // the images are read).
         let fingerprint = ds.fingerprint();
         let (resume, max_time) = self.resume_point(&fingerprint)?;
+        // Free space from the dataset's metadata, before any image is read; again below
+        // with the scene's real size.
+        self.check_space(assist_train::scene_param_estimate(
+            &ds,
+            n_train,
+            self.appearance(&ds),
+        ))?;
         on_event(&TrainEvent::Loading {
             images: n_train,
             data: c.data.clone(),
@@ -221,14 +228,7 @@ impl TrainJob {
             });
         }
         let mut scene = self.scene(&ds, &views, user_boxes)?;
-        // Room for a checkpoint beside the previous one (the swap holds both for a moment).
-        let bytes: usize = scene
-            .fields
-            .values()
-            .map(|f| 4 * f.field.param_count())
-            .sum();
-        assist_fs::check_space(&c.out, 2 * bytes as u64 + (64 << 20))
-            .map_err(SessionError::Output)?;
+        self.check_space(scene.fields.values().map(|f| f.field.param_count()).sum())?;
         let carved = assist_train::carve_scene(&mut scene, &views);
         if !carved.is_empty() {
             on_event(&TrainEvent::Carved { nodes: carved });
@@ -273,29 +273,32 @@ impl TrainJob {
         }
         let mut last_occupancy = std::time::Instant::now();
         let mut last_eval = None;
-        let report = trainer.run(|s, t| {
-            if let (Some(every), Some(h)) = (c.eval_every, &held)
-                && every.due(s.iteration, s.elapsed, &mut last_eval)
-                && eval_error.is_none()
-            {
-                match h.measure(&t.scene, s.iteration, s.elapsed, Some(&preview)) {
-                    Ok(m) => on_event(&TrainEvent::HeldOut(m)),
-                    Err(e) => eval_error = Some(e),
+        let report = trainer
+            .run(|s, t| {
+                if let (Some(every), Some(h)) = (c.eval_every, &held)
+                    && every.due(s.iteration, s.elapsed, &mut last_eval)
+                    && eval_error.is_none()
+                {
+                    match h.measure(&t.scene, s.iteration, s.elapsed, Some(&preview)) {
+                        Ok(m) => on_event(&TrainEvent::HeldOut(m)),
+                        Err(e) => eval_error = Some(e),
+                    }
                 }
-            }
-            let occupancy = (last_occupancy.elapsed().as_secs_f64() > 10.0).then(|| {
-                last_occupancy = std::time::Instant::now();
-                t.occupancy()
-            });
-            let eta_seconds =
-                (s.progress > 1e-6).then(|| (s.elapsed * (1.0 - s.progress) / s.progress).max(0.0));
-            on_event(&TrainEvent::Step {
-                stats: Box::new(*s),
-                eta_seconds,
-                occupancy,
-            });
-        })?;
-        self.save(&mut trainer, report.seconds, &mut on_event)?;
+                let occupancy = (last_occupancy.elapsed().as_secs_f64() > 10.0).then(|| {
+                    last_occupancy = std::time::Instant::now();
+                    t.occupancy()
+                });
+                let eta_seconds = (s.progress > 1e-6)
+                    .then(|| (s.elapsed * (1.0 - s.progress) / s.progress).max(0.0));
+                on_event(&TrainEvent::Step {
+                    stats: Box::new(*s),
+                    eta_seconds,
+                    occupancy,
+                });
+            })
+            .map_err(|e| self.save_failed(e.into()))?;
+        self.save(&mut trainer, report.seconds, &mut on_event)
+            .map_err(|e| self.save_failed(e))?;
         if let Some(e) = eval_error {
             return Err(e);
         }
@@ -332,6 +335,33 @@ impl TrainJob {
         assist_scene::scene_file::save(out, &trainer.scene, trainer.info(seconds), true)?;
         on_event(&TrainEvent::Saved { path: out.clone() });
         Ok(())
+    }
+
+    /// A failed save (a full disk) says what stands in `--out` and how to go on from it.
+    fn save_failed(&self, e: SessionError) -> SessionError {
+        use assist_scene::SceneFileError::Save;
+        let is_save = matches!(
+            &e,
+            SessionError::File(Save { .. })
+                | SessionError::Train(assist_train::TrainError::Scene(Save { .. }))
+        );
+        if !is_save {
+            return e;
+        }
+        let c = &self.config;
+        let kept = assist_scene::scene_file::load_scene_json(&c.out)
+            .ok()
+            .and_then(|(_, info)| info.get("iteration").and_then(|i| i.as_u64()));
+        let hint = match kept {
+            Some(i) => format!(
+                "the checkpoint in {} (iteration {i}) is intact: free some space, then continue it with `assist train {} --out {} --resume`",
+                c.out.display(),
+                c.data.display(),
+                c.out.display()
+            ),
+            None => "no checkpoint was saved: free some space and train again".into(),
+        };
+        SessionError::SaveFailed(format!("{e}; {hint}"))
     }
 
     /// Gives the objects their shadow grids (as configured), makes the background prior
@@ -469,6 +499,30 @@ impl TrainJob {
     }
 
     /// A new scene for the dataset, or the one being resumed.
+    /// Whether the fields get per-image appearance codes (`auto`: for the formats of
+    /// real photographs).
+    fn appearance(&self, ds: &Dataset) -> bool {
+        match self.config.appearance {
+            Appearance::On => true,
+            Appearance::Off => false,
+            Appearance::Auto => matches!(
+                ds.format,
+                assist_data::Format::ColmapBinary
+                    | assist_data::Format::ColmapText
+                    | assist_data::Format::Llff
+            ),
+        }
+    }
+
+    /// Fails unless the checkpoints of `params` field parameters fit in `--out`: the swap
+    /// holds a new checkpoint beside the previous one for a moment, so a new output needs
+    /// room for two and one that exists (a resumed run, `--force`) for one more.
+    fn check_space(&self, params: usize) -> Result<()> {
+        let copies = if self.config.out.exists() { 1 } else { 2 };
+        assist_fs::check_space(&self.config.out, copies * 4 * params as u64 + (64 << 20))
+            .map_err(SessionError::Output)
+    }
+
     fn scene(
         &self,
         ds: &Dataset,
@@ -479,18 +533,8 @@ impl TrainJob {
         if c.resume {
             return Ok(assist_scene::scene_file::load(&c.out)?.0);
         }
-        let appearance = match c.appearance {
-            Appearance::On => true,
-            Appearance::Off => false,
-            Appearance::Auto => matches!(
-                ds.format,
-                assist_data::Format::ColmapBinary
-                    | assist_data::Format::ColmapText
-                    | assist_data::Format::Llff
-            ),
-        };
         let so = SetupOptions {
-            appearance,
+            appearance: self.appearance(ds),
             seed: c.seed,
             boxes,
             background_space: c.background,

@@ -31,7 +31,7 @@ pub use multiview::MultiViewStats;
 pub use optimizer::{CpuOptimizer, NodeOptimizer};
 pub use setup::{
     BackgroundSpace, BoxSource, NodeBox, SetupOptions, background_color, build_scene,
-    is_object_capture, near_plane, node_boxes, scene_region,
+    is_object_capture, near_plane, node_boxes, scene_param_estimate, scene_region,
 };
 pub use shadow::{
     ShadowEstimate, ShadowPriorStats, add_shadow_grids, estimate_shadows, shadow_free_priors,

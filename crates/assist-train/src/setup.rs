@@ -101,6 +101,24 @@ pub fn background_color(ds: &Dataset) -> [f32; 3] {
     }
 }
 
+/// About how many field parameters [`build_scene`] makes for `ds` with `n_images`
+/// training views, from its metadata alone (for a free-space check before any image is
+/// read): a background and one field per listed instance (at least one).
+pub fn scene_param_estimate(ds: &Dataset, n_images: usize, appearance: bool) -> usize {
+    let app = |mut c: FieldConfig| {
+        if !appearance {
+            c.appearance_dim = 0;
+        }
+        c.param_count()
+    };
+    let background = if is_object_capture(ds) {
+        0
+    } else {
+        app(FieldConfig::nerfacto(n_images))
+    };
+    background + ds.instances.len().max(1) * app(FieldConfig::object(n_images))
+}
+
 /// Builds the untrained scene for `ds` from its training `views`.
 pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<NeuralScene> {
     let n_images = views.len();
