@@ -326,6 +326,13 @@ impl Scene {
     ) -> PyResult<Bound<'py, PyDict>> {
         let width: Option<u32> = whole_opt("width", width)?;
         let height: Option<u32> = whole_opt("height", height)?;
+        for (what, v) in [("width", width), ("height", height)] {
+            if let Some(v) = v
+                && !(1..=1 << 14).contains(&v)
+            {
+                return Err(err(format!("{what}: expected 1 to 16384 pixels, got {v}")));
+            }
+        }
         for o in &outputs {
             if !["rgb", "depth", "instance", "opacity"].contains(&o.as_str()) {
                 return Err(err(format!(

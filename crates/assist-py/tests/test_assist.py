@@ -312,6 +312,7 @@ def test_bad_numbers_raise_assist_error_naming_the_argument(trained):
     cam = assist.orbit(scene, frames=1)[0]
     for call, name in [
         (lambda: scene.render(cam, width=-1), "width"),
+        (lambda: scene.render(cam, width=0), "width: expected 1 to 16384 pixels, got 0"),
         (lambda: scene.render(cam, height=10**30), "height"),
         (lambda: assist.orbit(scene, frames=-3), "frames"),
         (lambda: scene.select(-1), "id"),

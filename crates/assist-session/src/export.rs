@@ -130,6 +130,12 @@ impl Session {
     /// instruction finds objects (candidates listed when it is unclear).
     pub fn node_named(&mut self, name: &str) -> Result<InstanceId> {
         let t = name.trim();
+        if t.is_empty() {
+            return Err(request(
+                "node",
+                "expected an id, a label, `all` or `background`, got an empty name".into(),
+            ));
+        }
         if let Ok(id) = t.parse::<InstanceId>() {
             return self.node(id).map(|n| n.id).ok_or_else(|| {
                 request(

@@ -409,7 +409,18 @@ async fn client(mut socket: WebSocket, app: Arc<App>) {
     loop {
         tokio::select! {
             incoming = socket.recv() => {
-                let Some(Ok(msg)) = incoming else { break };
+                let msg = match incoming {
+                    Some(Ok(m)) => m,
+                    Some(Err(e)) => {
+                        // An oversized frame ends the socket: say why before it closes.
+                        let e = ServerMsg::Error {
+                            message: format!("closing the connection: {e} (a message is at most {MAX_MESSAGE_BYTES} bytes)"),
+                        };
+                        send_json(&mut socket, &e).await;
+                        break;
+                    }
+                    None => break,
+                };
                 let text = match msg {
                     Message::Text(t) => t.to_string(),
                     Message::Binary(_) => {

@@ -533,6 +533,28 @@ async fn the_viewer_serves_a_bounded_number_of_clients() {
     assert_eq!(next(&mut ws).await["type"], "hello");
 }
 
+/// Issue 47, item 18: a message over 1 MiB dropped the connection without a word. The
+/// client is told why before the socket closes, and the viewer serves the next one.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_oversized_message_is_answered_before_the_socket_closes() {
+    let dir = TempDir::new("viewer-oversized");
+    let path = scene_on_disk(&dir);
+    let running = start_plain(path, Ipv4Addr::LOCALHOST).await;
+    let url = format!(
+        "ws://{}/ws?token={}",
+        running.addr,
+        running.token.clone().unwrap()
+    );
+    let (mut ws, _) = tokio_tungstenite::connect_async(&url).await.unwrap();
+    assert_eq!(next(&mut ws).await["type"], "hello");
+    let huge = json!({"type": "text", "text": "x".repeat(2 << 20)});
+    let _ = ws.send(Message::Text(huge.to_string().into())).await;
+    let e = until(&mut ws, "error").await;
+    assert!(e["message"].as_str().unwrap().contains("at most"), "{e}");
+    let (mut ws2, _) = tokio_tungstenite::connect_async(&url).await.unwrap();
+    assert_eq!(next(&mut ws2).await["type"], "hello");
+}
+
 /// A viewer of the scene at `path` on `host`, any port, no other scenes.
 async fn start_plain(path: std::path::PathBuf, host: Ipv4Addr) -> assist_viewer::Running {
     start(ViewerOptions {

@@ -87,6 +87,10 @@ pub fn embed_session(
 }
 
 pub fn run(a: EmbedArgs) -> anyhow::Result<()> {
+    // The request's own values first: a bad flag is not a missing model.
+    if a.views == 0 {
+        anyhow::bail!("--views: expected at least 1 view per node");
+    }
     if let Some(out) = &a.out {
         assist_fs::check_replaceable_as(out, a.force, assist_fs::Kind::Scene)?;
     }

@@ -248,6 +248,14 @@ fn train_embed_edit_and_resolve_by_meaning() {
         .output()
         .unwrap();
     refused(&o, &["no CLIP weights", "--clip", "ASSIST_CLIP"]);
+    // A bad flag is named before the model is looked for (issue 47 item 18).
+    let o = bin()
+        .args(["embed", s(&plain), "--views", "0"])
+        .env_remove("ASSIST_CLIP")
+        .output()
+        .unwrap();
+    let e = refused(&o, &["--views"]);
+    assert!(!e.contains("CLIP"), "{e}");
     refused(
         &run(&["embed", s(&plain), "--clip", s(&broken)]),
         &["open_clip_model.safetensors", "truncated"],

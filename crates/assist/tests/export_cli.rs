@@ -115,6 +115,12 @@ fn export_meshes_points_and_models_read_back() {
         &run(&["export", s(&scene), "--out", s(&bad), "--node", "77"]),
         &["77"],
     );
+    // An empty name is named as such, not blamed on "'it'/'the copy'" (issue 47 item 18).
+    let e = refused(
+        &run(&["export", s(&scene), "--out", s(&bad), "--node", ""]),
+        &["empty name"],
+    );
+    assert!(!e.contains("the copy"), "{e}");
     refused(
         &run(&[
             "export",
