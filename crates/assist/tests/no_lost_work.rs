@@ -527,7 +527,7 @@ fn a_full_disk_names_the_intact_checkpoint_and_how_to_resume() {
         return;
     };
     let out = disk.0.join("s.assist");
-    let mut child = bin()
+    let child = bin()
         .args(["train", s(&data), "--out", s(&out), "--max-time", "30"])
         .args(["--checkpoint-every", "2", "--batch-samples", "4096"])
         .stdout(Stdio::null())
