@@ -28,6 +28,7 @@ use assist_core::{Action, ActionConfig, Operation};
 use assist_data::Output;
 use assist_session::{NamedCamera, Session, SessionError, SplitChoice};
 
+pub use coco::CocoMasks;
 pub use merge::{GENERATED, MergeSummary, RunEvent, RunOptions, RunSummary, merge};
 pub use sample::{GaveUp, Sample, SampleReport, View};
 pub use spec::Spec;

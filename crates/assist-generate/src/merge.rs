@@ -7,6 +7,7 @@ use std::time::Instant;
 use serde::Serialize;
 use serde_json::{Value, json};
 
+use crate::coco::CocoMasks;
 use crate::integrity;
 use crate::sample::{SampleReport, io, pretty};
 use crate::{GenError, Generator, Result, Shard};
@@ -21,6 +22,8 @@ pub struct RunOptions {
     pub dry_run: bool,
     /// Replace an `OUT` that assist wrote for another spec.
     pub force: bool,
+    /// Masks of the merged COCO instances (a whole run merges at its end).
+    pub coco_masks: CocoMasks,
 }
 
 /// What a run reports as it goes.
@@ -105,7 +108,7 @@ impl Generator {
         }
         let seconds = t0.elapsed().as_secs_f64();
         let merged = if opts.shard.count == 1 && !opts.dry_run {
-            Some(merge(out, false)?)
+            Some(merge(out, false, opts.coco_masks)?)
         } else {
             None
         };
@@ -206,7 +209,7 @@ pub struct MergeSummary {
 /// masks), `annotations/panoptic.json` (COCO panoptic; its PNGs are the samples'
 /// `views/panoptic_coco/`, paths relative to `out`) and `index.json`. Missing samples are
 /// an error unless `partial`.
-pub fn merge(out: &Path, partial: bool) -> Result<MergeSummary> {
+pub fn merge(out: &Path, partial: bool, masks: CocoMasks) -> Result<MergeSummary> {
     let file = out.join("generate.json");
     if !file.is_file() {
         return Err(GenError::Folder {
@@ -253,7 +256,7 @@ pub fn merge(out: &Path, partial: bool) -> Result<MergeSummary> {
                 message: format!("not valid JSON: {e}"),
             })?;
         let rel = format!("samples/{i:06}");
-        add_views(&s, i, &mut images, &mut anns, &mut pan);
+        add_views(&s, i, masks, &mut images, &mut anns, &mut pan);
         index.push(json!({
             "index": i,
             "dir": rel,
@@ -282,7 +285,7 @@ pub fn merge(out: &Path, partial: bool) -> Result<MergeSummary> {
         .skip(1)
         .map(|(k, c)| json!({"id": k, "name": c, "supercategory": "object"}))
         .collect();
-    let info = json!({"description": "assist generate", "version": "1"});
+    let info = json!({"description": "assist generate", "version": "1", "masks": masks});
     let instances = json!({
         "info": info,
         "images": images,
@@ -346,6 +349,7 @@ pub fn merge(out: &Path, partial: bool) -> Result<MergeSummary> {
 fn add_views(
     s: &Value,
     i: u64,
+    masks: CocoMasks,
     images: &mut Vec<Value>,
     anns: &mut Vec<Value>,
     pan: &mut Vec<Value>,
@@ -371,11 +375,19 @@ fn add_views(
             let Some(rle) = o["rle"].as_str() else {
                 continue;
             };
+            let segmentation = match masks {
+                CocoMasks::Rle => json!({"size": [h, w], "counts": rle}),
+                // A sample written before polygons were kept: its exact RLE.
+                CocoMasks::Polygon if o["polygons"].is_null() => {
+                    json!({"size": [h, w], "counts": rle})
+                }
+                CocoMasks::Polygon => o["polygons"].clone(),
+            };
             anns.push(json!({
                 "id": anns.len() as u64 + 1,
                 "image_id": image_id,
                 "category_id": o["class"],
-                "segmentation": {"size": [h, w], "counts": rle},
+                "segmentation": segmentation,
                 "area": o["visible_pixels"],
                 "bbox": o["bbox_visible"],
                 "iscrowd": 0,

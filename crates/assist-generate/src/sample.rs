@@ -447,6 +447,7 @@ impl Generator {
                 bbox_visible: coco::bbox(w, h, vis),
                 bbox_amodal: coco::bbox(w, h, amo),
                 rle: (visible > 0).then(|| coco::rle_string(&coco::rle_counts(w, h, vis))),
+                polygons: coco::polygons(w, h, vis),
             });
         }
         // COCO panoptic: segment id = instance id, background = 65536.

@@ -38,25 +38,31 @@ fn merge_refuses_samples_that_do_not_hold() {
     let dir = out.join("samples/000000");
     // As made: merged, and a killed merge's temporary is removed.
     std::fs::write(out.join(".index.json.tmp-4000000"), "half").unwrap();
-    assert_eq!(merge(&out, false).unwrap().samples, 1);
+    assert_eq!(merge(&out, false, Default::default()).unwrap().samples, 1);
     assert!(!out.join(".index.json.tmp-4000000").exists());
     assert!(check(&dir, &run, true).is_ok());
 
     // An image emptied, then deleted: refused, naming the sample and the file.
     let img = dir.join("views/images/a.png");
     std::fs::write(&img, b"").unwrap();
-    let e = merge(&out, false).unwrap_err().to_string();
+    let e = merge(&out, false, Default::default())
+        .unwrap_err()
+        .to_string();
     assert!(
         e.contains("sample 000000") && e.contains("views/images/a.png"),
         "{e}"
     );
     assert!(check(&dir, &run, false).is_err(), "a rerun must remake it");
     std::fs::remove_file(&img).unwrap();
-    let e = merge(&out, false).unwrap_err().to_string();
+    let e = merge(&out, false, Default::default())
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("is missing"), "{e}");
     // Same size, other bytes: found by the hash.
     std::fs::write(&img, b"not really a pnG").unwrap();
-    let e = merge(&out, false).unwrap_err().to_string();
+    let e = merge(&out, false, Default::default())
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("changed since it was made"), "{e}");
 
     // A sample copied in from a run with another seed.
@@ -64,10 +70,14 @@ fn merge_refuses_samples_that_do_not_hold() {
     run_folder(&other, 99);
     std::fs::remove_dir_all(&dir).unwrap();
     std::fs::rename(other.join("samples/000000"), &dir).unwrap();
-    let e = merge(&out, false).unwrap_err().to_string();
+    let e = merge(&out, false, Default::default())
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("another run"), "{e}");
     // Without a manifest (an older assist, or not finished): refused too.
     std::fs::remove_file(dir.join(MANIFEST)).unwrap();
-    let e = merge(&out, false).unwrap_err().to_string();
+    let e = merge(&out, false, Default::default())
+        .unwrap_err()
+        .to_string();
     assert!(e.contains(MANIFEST), "{e}");
 }

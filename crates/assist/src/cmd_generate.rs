@@ -6,7 +6,7 @@ use std::io::IsTerminal;
 use std::path::PathBuf;
 
 use anyhow::{Context, bail};
-use assist_generate::{Generator, RunEvent, RunOptions, Shard, Spec};
+use assist_generate::{CocoMasks, Generator, RunEvent, RunOptions, Shard, Spec};
 use clap::{Args, Subcommand};
 
 #[derive(Args, Debug)]
@@ -48,6 +48,26 @@ pub struct GenerateArgs {
     /// Print a JSON summary on stdout (progress stays on stderr).
     #[arg(long)]
     pub json: bool,
+    /// Masks of the COCO instances a whole run merges: polygons (outer outlines, holes
+    /// filled: what torchvision's and detectron2's loaders read by default) or exact RLE.
+    #[arg(long, value_enum, default_value_t = CocoMasksArg::Polygon)]
+    pub coco_masks: CocoMasksArg,
+}
+
+/// `--coco-masks`.
+#[derive(clap::ValueEnum, Debug, Clone, Copy)]
+pub enum CocoMasksArg {
+    Polygon,
+    Rle,
+}
+
+impl From<CocoMasksArg> for CocoMasks {
+    fn from(a: CocoMasksArg) -> Self {
+        match a {
+            CocoMasksArg::Polygon => CocoMasks::Polygon,
+            CocoMasksArg::Rle => CocoMasks::Rle,
+        }
+    }
 }
 
 #[derive(Subcommand, Debug)]
@@ -63,6 +83,9 @@ pub enum GenerateCommand {
         /// Print a JSON summary of the merged files on stdout.
         #[arg(long)]
         json: bool,
+        /// Masks of the COCO instances: polygon or rle.
+        #[arg(long, value_enum, default_value_t = CocoMasksArg::Polygon)]
+        coco_masks: CocoMasksArg,
     },
 }
 
@@ -77,8 +100,14 @@ impl assist_generate::Progress for Prep {
 }
 
 pub fn run(a: GenerateArgs) -> anyhow::Result<()> {
-    if let Some(GenerateCommand::Merge { dir, partial, json }) = a.command {
-        let m = assist_generate::merge(&dir, partial)?;
+    if let Some(GenerateCommand::Merge {
+        dir,
+        partial,
+        json,
+        coco_masks,
+    }) = a.command
+    {
+        let m = assist_generate::merge(&dir, partial, coco_masks.into())?;
         if json {
             println!("{}", serde_json::to_string_pretty(&m)?);
         }
@@ -131,6 +160,7 @@ pub fn run(a: GenerateArgs) -> anyhow::Result<()> {
         shard,
         dry_run: a.dry_run,
         force: a.force,
+        coco_masks: a.coco_masks.into(),
     };
     let summary = generator.run(&opts, |e| match e {
         RunEvent::Start { owned, done } => {

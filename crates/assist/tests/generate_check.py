@@ -3,8 +3,9 @@
     python generate_check.py OUT TABLE_TOP_Z [TOLERANCE_M]
 
 - pycocotools loads annotations/instances.json, and every annotation's decoded mask equals
-  the pixels of that instance in the sample's instance PNG (views/panoptic/NAME.png); every
-  instance with visible pixels has an annotation;
+  the pixels of that instance in the sample's instance PNG (views/panoptic/NAME.png), with
+  holes filled when the masks are polygons (`info.masks`, and every segmentation is of that
+  kind); every instance with visible pixels has an annotation;
 - the COCO panoptic PNGs decode to the same segments as the instance PNGs;
 - every placed (moved or added) object's lowest occupied point is within TOLERANCE_M
   (default 0.01 m) of the table top TABLE_TOP_Z, the ground truth of the capture (not the
@@ -27,6 +28,24 @@ from pycocotools.coco import COCO
 def fail(msg):
     print(f"FAIL: {msg}", file=sys.stderr)
     sys.exit(1)
+
+
+def holes_filled(m):
+    """`m` with every background pixel that the border's background does not reach
+    (8-connected) set: what a polygon of the outer outlines covers."""
+    h, w = m.shape
+    outside = np.zeros_like(m, dtype=bool)
+    stack = [(y, x) for y in range(h) for x in range(w) if not m[y, x] and (x in (0, w - 1) or y in (0, h - 1))]
+    while stack:
+        y, x = stack.pop()
+        if outside[y, x] or m[y, x]:
+            continue
+        outside[y, x] = True
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                if 0 <= y + dy < h and 0 <= x + dx < w:
+                    stack.append((y + dy, x + dx))
+    return (~outside).astype(np.uint8)
 
 
 def obb_overlap(a, b, eps=1e-6):
@@ -57,6 +76,9 @@ def main():
     table = float(sys.argv[2])
     tol = float(sys.argv[3]) if len(sys.argv) > 3 else 0.01
     coco = COCO(str(out / "annotations" / "instances.json"))
+    masks = coco.dataset["info"]["masks"]
+    if masks not in ("polygon", "rle"):
+        fail(f"info.masks is {masks!r}")
     images = coco.loadImgs(coco.getImgIds())
     if not images:
         fail("no images in instances.json")
@@ -72,7 +94,12 @@ def main():
         for ann in anns:
             m = coco.annToMask(ann)
             want = (ids == ann["instance_id"]).astype(np.uint8)
-            if not np.array_equal(m, want):
+            poly = isinstance(ann["segmentation"], list)
+            if poly != (masks == "polygon"):
+                fail(f"annotation {ann['id']}: a {'polygon' if poly else 'RLE'} segmentation in a file of {masks} masks")
+            if poly and not np.array_equal(m, holes_filled(want)):
+                fail(f"{img['file_name']}: annotation {ann['id']} (instance {ann['instance_id']}): its polygons cover other pixels than the instance PNG's outlines, in {int((m != holes_filled(want)).sum())} pixels")
+            if not poly and not np.array_equal(m, want):
                 fail(f"{img['file_name']}: annotation {ann['id']} (instance {ann['instance_id']}) differs from the instance PNG in {int((m != want).sum())} pixels")
             if ann["area"] != int(want.sum()):
                 fail(f"annotation {ann['id']}: area {ann['area']} != {int(want.sum())}")
@@ -82,7 +109,7 @@ def main():
                 fail(f"annotation {ann['id']}: bbox {ann['bbox']} is not the mask's")
             # The compressed string decodes as pycocotools encodes it.
             enc = mask_utils.encode(np.asfortranarray(want))
-            if enc["counts"].decode() != ann["segmentation"]["counts"]:
+            if not poly and enc["counts"].decode() != ann["segmentation"]["counts"]:
                 fail(f"annotation {ann['id']}: RLE string differs from pycocotools' encoding")
             seen.add(ann["instance_id"])
             n_masks += 1
@@ -122,8 +149,9 @@ def main():
     if placed == 0:
         fail("no object was placed")
     print(json.dumps({
+        "masks": masks,
         "images": len(images),
-        "masks": n_masks,
+        "annotations": n_masks,
         "placed": placed,
         "worst_bottom_error_mm": round(worst * 1000, 2),
         "pairs_checked": pairs,

@@ -476,6 +476,25 @@ fn generate_shards_replays_and_annotations() {
         t["table_top_z"].as_f64().unwrap_or(0.75)
     };
     pycoco_check(&full, table);
+    // Issue 47 item 8: polygons by default (above); exact RLE on request.
+    let coco = |dir: &Path| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(dir.join("annotations/instances.json")).unwrap())
+            .unwrap()
+    };
+    let c = coco(&full);
+    assert_eq!(c["info"]["masks"], "polygon");
+    assert!(c["annotations"][0]["segmentation"].is_array());
+    ok(&run(&[
+        "generate",
+        "merge",
+        s(&full),
+        "--coco-masks",
+        "rle",
+    ]));
+    let c = coco(&full);
+    assert_eq!(c["info"]["masks"], "rle");
+    assert!(c["annotations"][0]["segmentation"]["counts"].is_string());
+    pycoco_check(&full, table);
 }
 
 /// Desk (the shared capture), trained briefly at a quarter of its size: 100 samples whose
