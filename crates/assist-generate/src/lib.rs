@@ -11,6 +11,7 @@
 
 #![forbid(unsafe_code)]
 
+mod bop;
 pub mod coco;
 pub mod integrity;
 mod merge;

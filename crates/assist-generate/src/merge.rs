@@ -88,6 +88,10 @@ impl Generator {
             owned: owned.len() as u64,
             done: skipped,
         });
+        // The object models, once per run (by the first shard; a rerun keeps them).
+        if opts.shard.index == 0 && !opts.dry_run {
+            self.write_models(out)?;
+        }
         let t0 = Instant::now();
         let (mut draws, mut rejected, mut gave_up) = (0u64, 0u64, 0u64);
         for (k, &i) in todo.iter().enumerate() {

@@ -404,6 +404,7 @@ impl Generator {
                 }
             }
             writer.finish()?;
+            crate::bop::write_sample(dir, &s)?;
         }
         write(&dir.join("sample.json"), &pretty(&s.record))?;
         Ok(s.report)

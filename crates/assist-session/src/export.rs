@@ -126,6 +126,23 @@ impl ExportJob {
 }
 
 impl Session {
+    /// The surface of node `id` in its own frame (box centre, box axes, world units).
+    pub fn node_mesh(&self, id: InstanceId, opts: &ExtractOptions) -> Result<NodeMesh> {
+        let scene = self.scene();
+        let index = scene
+            .scene
+            .nodes
+            .iter()
+            .position(|n| n.id == id)
+            .ok_or_else(|| {
+                request(
+                    "node",
+                    format!("no node {id} (the scene has {})", self.ids()),
+                )
+            })?;
+        extract_node(scene, index, opts).map_err(|e| request("export", e.to_string()))
+    }
+
     /// The node named `name`: an id, `background`, or a label or description found as an
     /// instruction finds objects (candidates listed when it is unclear).
     pub fn node_named(&mut self, name: &str) -> Result<InstanceId> {

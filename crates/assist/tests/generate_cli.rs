@@ -38,22 +38,20 @@ fn tree(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
 fn pycoco_check(out: &Path, table: f64) {
     match std::env::var("ASSIST_PYTHON") {
         Ok(py) => {
-            let o = Command::new(py)
-                .arg(concat!(
-                    env!("CARGO_MANIFEST_DIR"),
-                    "/tests/generate_check.py"
-                ))
-                .arg(out)
-                .arg(table.to_string())
-                .output()
-                .unwrap();
-            let err = String::from_utf8_lossy(&o.stderr);
-            assert!(
-                o.status.success(),
-                "generate_check.py on {}: {err}",
-                out.display()
-            );
-            eprintln!("generate_check.py: {}", String::from_utf8_lossy(&o.stdout));
+            for (script, args) in [
+                ("generate_check.py", vec![table.to_string()]),
+                ("bop_check.py", vec![]),
+            ] {
+                let o = Command::new(&py)
+                    .arg(format!("{}/tests/{script}", env!("CARGO_MANIFEST_DIR")))
+                    .arg(out)
+                    .args(&args)
+                    .output()
+                    .unwrap();
+                let err = String::from_utf8_lossy(&o.stderr);
+                assert!(o.status.success(), "{script} on {}: {err}", out.display());
+                eprintln!("{script}: {}", String::from_utf8_lossy(&o.stdout));
+            }
         }
         Err(_) if std::env::var("ASSIST_REQUIRE_PYTHON").is_ok() => {
             panic!(
