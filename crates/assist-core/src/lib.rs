@@ -17,6 +17,7 @@ pub mod distortion;
 pub mod edit;
 pub mod error;
 pub mod geometry;
+pub mod placement;
 pub mod rng;
 pub mod scene;
 pub mod similarity;

@@ -433,6 +433,74 @@ fn sinking_depth_measures_how_far_a_base_is_below_the_support() {
     assert!((d - 0.02).abs() <= 0.0026, "{d}");
 }
 
+/// Issue 47, item 6: an edit that pushed one object into another or left it floating
+/// said nothing. Each is found against the scene before the edit: the overlap by the
+/// boxes' depth of interpenetration, the gap down to the table (a shell at z = 0.75 with a
+/// hole where the object hid it) or to the top of an object under it.
+#[test]
+fn placement_problems_find_overlaps_and_floating_objects() {
+    use assist_core::placement::{Problem, penetration, placement_problems};
+    let before = scene(); // 0.5 m per unit; node 1 rests at z = 0.75, node 2 beside it
+    let mut table = |pts: &[DVec3]| {
+        pts.iter()
+            .map(|p| {
+                let shell = (0.74..0.75).contains(&p.z);
+                let hole = p.x.abs() < 0.06 && p.y.abs() < 0.06;
+                if shell && !hole { 3000.0f32 } else { 0.0 }
+            })
+            .collect::<Vec<_>>()
+    };
+    let moved = |id: u16, by: [f64; 3]| {
+        let mut s = before.clone();
+        s.node_mut(id).unwrap().world_from_local.translation += DVec3::from_array(by);
+        s
+    };
+    // Apart, then 0.05 units (2.5 cm) into node 2 along x.
+    let (a, b) = (before.node(1).unwrap(), before.node(2).unwrap());
+    assert_eq!(penetration(a, b), 0.0);
+    let mut c = b.clone();
+    c.world_from_local.translation = a.world_from_local.translation + DVec3::new(0.1, 0.0, 0.0);
+    // Along x, node 1 (turned 0.3 rad) reaches 0.05 (cos 0.3 + sin 0.3) = 0.0626 from its
+    // centre and c 0.05, 0.1 apart: 0.0126 deep, the least of the 15 axes.
+    let want = 0.05 * (0.3f64.cos() + 0.3f64.sin()) + 0.05 - 0.1;
+    assert!(
+        (penetration(a, &c) - want).abs() < 1e-9,
+        "{}",
+        penetration(a, &c)
+    );
+    // Nothing moved, or moved along the table: no problem.
+    assert!(placement_problems(&before, &before, &mut table).is_empty());
+    assert!(placement_problems(&before, &moved(1, [0.0, -0.3, 0.0]), &mut table).is_empty());
+    // Into node 2 (it stands at x = 0.5): an overlap of about 0.1 units = 5 cm.
+    let p = placement_problems(&before, &moved(1, [0.45, 0.0, 0.05]), &mut table);
+    assert!(
+        matches!(p.as_slice(), [q] if matches!(q.problem, Problem::Overlap { other: 2, depth_m, .. } if depth_m > 0.03)),
+        "{p:?}"
+    );
+    // 0.24 units (12 cm) up: floating about 12 cm above the table.
+    let p = placement_problems(&before, &moved(1, [0.0, 0.0, 0.24]), &mut table);
+    match p.as_slice() {
+        [q] => match q.problem {
+            Problem::Floating {
+                gap_m,
+                support: None,
+            } => assert!((gap_m - 0.12).abs() < 0.01, "{gap_m}"),
+            _ => panic!("{q:?}"),
+        },
+        _ => panic!("{p:?}"),
+    }
+    // On top of node 2 (its top at z = 1.05): carried by it; 0.2 units above it: floating
+    // above node 2.
+    let top = 1.05 + 0.05 - 0.8;
+    let p = placement_problems(&before, &moved(1, [0.5, 0.0, top]), &mut table);
+    assert!(p.is_empty(), "{p:?}");
+    let p = placement_problems(&before, &moved(1, [0.5, 0.0, top + 0.2]), &mut table);
+    assert!(
+        matches!(p.as_slice(), [q] if q.problem == Problem::Floating { gap_m: 0.1, support: Some(2) } || matches!(q.problem, Problem::Floating { support: Some(2), gap_m } if (gap_m - 0.1).abs() < 1e-6)),
+        "{p:?}"
+    );
+}
+
 /// Issue 47, item 14: replication had no bound (66,000 actions did not finish). A scene
 /// holds at most `MAX_NODES` nodes: one more replicate or add is refused, naming the
 /// count; an error listing the nodes of a huge scene names the first few only.

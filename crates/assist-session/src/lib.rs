@@ -27,6 +27,7 @@ use assist_core::{Action, Camera, Edit, InstanceId, Scene, SceneNode};
 use assist_scene::{EditError, Editor, SceneFileError};
 
 pub use assist_clip as clip;
+pub use assist_core::placement::{Placement, Problem};
 pub use assist_data::Output;
 pub use assist_lang::Resolved;
 pub use assist_mesh::write::{Format as MeshFormat, mesh_ply};
@@ -437,6 +438,20 @@ impl Session {
             .map(|n| format!("{} {:?}", n.id, n.label))
             .collect();
         ids.join(", ")
+    }
+
+    /// What `after` (this scene edited) does wrong that `before` did not: objects inside
+    /// one another or floating above what carries them (see
+    /// [`assist_core::placement::placement_problems`]; the background's trained surface
+    /// is what carries them).
+    pub fn placement_problems(&self, before: &Scene, after: &Scene) -> Vec<Placement> {
+        let weights = self.scene();
+        let bg = weights.scene.nodes.iter().position(|n| n.is_background());
+        let mut density = |pts: &[assist_core::DVec3]| match bg {
+            Some(k) => weights.density_at_world(k, pts),
+            None => vec![0.0; pts.len()],
+        };
+        assist_core::placement::placement_problems(before, after, &mut density)
     }
 
     /// Another scene's description (nodes, units; no weights), for cross-scene edits.

@@ -317,6 +317,21 @@ async fn a_client_renders_selects_edits_undoes_and_saves() {
     let r = until(&mut ws, "resolved").await;
     assert_eq!(r["applied"], true);
     assert_eq!(r["actions"][0]["operation"], "translate");
+    // Into the green box: applied, with a warning in the log (issue 47 item 6).
+    send(
+        &mut ws,
+        json!({"type": "text", "text": "move the red box 25 cm right"}),
+    )
+    .await;
+    until(&mut ws, "resolved").await;
+    let st = until(&mut ws, "state").await;
+    let log = st["log"].to_string();
+    assert!(
+        log.contains("warning") && log.contains("would reach") && log.contains("green box"),
+        "{st}"
+    );
+    send(&mut ws, json!({"type": "undo"})).await;
+    until(&mut ws, "state").await;
     send(
         &mut ws,
         json!({"type": "text", "text": "move the purple box up"}),

@@ -58,9 +58,17 @@ pub struct EditArgs {
     #[arg(long, value_name = "NAME")]
     pub frame: Option<String>,
     /// Refuse an edit that takes an object out of the captured region (the background's
-    /// box) or sinks it 3 cm or more into the surface under it, instead of warning.
+    /// box), sinks it 3 cm or more into the surface under it, pushes it into another
+    /// object or leaves it floating, instead of warning.
     #[arg(long)]
     pub strict: bool,
+    /// Accept objects inside one another or floating without a warning.
+    #[arg(long)]
+    pub allow_overlap: bool,
+    /// Lower an object the edit leaves floating onto what is under it (the table, or the
+    /// top of another object), as part of the same edit.
+    #[arg(long)]
+    pub settle: bool,
     /// What a scale in words keeps in place: base (the object's resting point, so it
     /// stays on its support) or center (its box centre).
     #[arg(long, default_value = "base", value_parser = ["base", "center"])]
@@ -285,14 +293,15 @@ fn sinking(weights: &assist_scene::NeuralScene, before: &Scene, after: &Scene) -
     warnings
 }
 
-/// Objects leaving the captured region: a warning on stderr, or under `--strict` a
-/// refusal before anything changes.
+/// Objects leaving the captured region, sinking, inside one another or floating: a
+/// warning on stderr, or under `--strict` a refusal before anything changes. Returns the
+/// moves `--settle` adds (one per floating object, lowering it onto its support).
 fn check_region(
     a: &EditArgs,
     session: &mut Session,
     resolved: Option<&Resolved>,
     actions: &[Action],
-) -> anyhow::Result<()> {
+) -> anyhow::Result<Vec<Action>> {
     let before = session.description().clone();
     let after = match resolved {
         Some(r) => r.scenes.last().cloned(),
@@ -313,10 +322,24 @@ fn check_region(
         })
         .map(|v| v.into_iter().map(|n| n.camera).collect())
         .unwrap_or_default();
+    let mut settle = Vec::new();
     let warnings = after
         .map(|after| {
             let mut w = leaving_capture(&before, &after, &cams);
             w.extend(sinking(session.scene(), &before, &after));
+            if !a.allow_overlap {
+                for p in session.placement_problems(&before, &after) {
+                    match (&p.problem, a.settle) {
+                        (assist_session::Problem::Floating { gap_m, .. }, true) => {
+                            settle.push(settle_action(p.id, *gap_m, &after));
+                        }
+                        (assist_session::Problem::Floating { .. }, false) => w.push(format!(
+                            "{p} (--settle lowers it onto its support; --allow-overlap accepts it)"
+                        )),
+                        _ => w.push(format!("{p} (--allow-overlap accepts it)")),
+                    }
+                }
+            }
             w
         })
         .unwrap_or_default();
@@ -326,7 +349,39 @@ fn check_region(
     for w in &warnings {
         eprintln!("warning: {w}");
     }
-    Ok(())
+    Ok(settle)
+}
+
+/// A move of node `id` down by `gap_m` metres along the scene's up.
+fn settle_action(id: assist_core::InstanceId, gap_m: f64, scene: &Scene) -> Action {
+    let down = -scene.up.normalize() * gap_m;
+    Action::new(
+        id,
+        assist_core::Operation::Translate,
+        assist_core::ActionConfig {
+            vector: Some(down.to_array()),
+            unit: Some("m".into()),
+            ..Default::default()
+        },
+    )
+}
+
+/// The edit with `--settle`'s moves appended (an instruction becomes its resolved actions,
+/// so that the whole is one undo step).
+fn with_settle(
+    resolved: Option<Resolved>,
+    mut actions: Vec<Action>,
+    settle: Vec<Action>,
+    mpu: f64,
+) -> (Option<Resolved>, Vec<Action>) {
+    if settle.is_empty() {
+        return (resolved, actions);
+    }
+    if let Some(r) = resolved {
+        actions = r.edits.iter().map(|e| e.to_action(mpu)).collect();
+    }
+    actions.extend(settle);
+    (None, actions)
 }
 
 /// `--history`: the steps to undo (oldest first) and to redo (the next redo first).
@@ -466,7 +521,8 @@ pub fn run(a: EditArgs) -> anyhow::Result<()> {
         return preview_steps(&session, undo, n, a.json);
     }
     if a.dry_run {
-        check_region(&a, &mut session, resolved.as_ref(), &actions)?;
+        let settle = check_region(&a, &mut session, resolved.as_ref(), &actions)?;
+        let (resolved, actions) = with_settle(resolved, actions, settle, mpu);
         let edits = match resolved {
             Some(r) => r.edits,
             None => session.plan(&actions)?,
@@ -499,7 +555,8 @@ pub fn run(a: EditArgs) -> anyhow::Result<()> {
             }
         }
     } else {
-        check_region(&a, &mut session, resolved.as_ref(), &actions)?;
+        let settle = check_region(&a, &mut session, resolved.as_ref(), &actions)?;
+        let (resolved, actions) = with_settle(resolved, actions, settle, mpu);
         // One instruction (or one edit script) is one undo step.
         let edits = match resolved {
             Some(r) => session.install(r, Steps::One, note)?,

@@ -24,7 +24,6 @@ const SHRINK_ONLY: &[(&str, &str, usize)] = &[
         176,
     ),
     ("crates/assist-generate/src/sample.rs", "sample", 176),
-    ("crates/assist-session/src/export.rs", "export", 163),
     ("crates/assist-train/src/trainer/mod.rs", "step", 200),
     ("crates/assist-field/src/field/backward.rs", "backward", 201),
     ("crates/assist-session/src/embed.rs", "embed", 203),

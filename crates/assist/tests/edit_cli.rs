@@ -457,18 +457,14 @@ fn edits_share_weights_on_disk_and_survive_the_original() {
     assert!(ok, "the edited scene no longer loads: {err}");
 }
 
-/// A mug resting on a table (the background: a dense slab whose top is at z = 0.75) moved
-/// 5 cm down sinks into it: a warning, or under `--strict` a refusal that writes nothing;
-/// moved up or sideways, nothing is said.
-#[test]
-fn an_object_pushed_into_its_support_is_warned_about() {
+/// A scene at `scene` on a table (the background: a dense slab whose top is at z = 0.75)
+/// with `objects` (id, label, centre, size) of constant dense fields.
+fn table_scene(scene: &std::path::Path, objects: &[(u16, &str, [f64; 3], f64)]) {
     use std::sync::Arc;
 
     use assist_core::{DMat3, DVec3, Obb, Scene, SceneNode};
     use assist_field::{Field, OccupancyGrid};
     use assist_scene::{NeuralScene, NodeField};
-    let tmp = assist_testkit::TempDir::new("cli-sink");
-    let scene = tmp.path().join("a.assist");
     let table = SceneNode::from_obb(
         0,
         "background",
@@ -479,18 +475,17 @@ fn an_object_pushed_into_its_support_is_warned_about() {
             DMat3::IDENTITY,
         ),
     );
-    let mug = SceneNode::from_obb(
-        1,
-        "mug",
-        "mug",
-        &Obb::new(
-            DVec3::new(0.0, 0.0, 0.8),
-            DVec3::splat(0.1),
-            DMat3::IDENTITY,
-        ),
-    );
+    let mut nodes = vec![table];
+    for (id, label, at, size) in objects {
+        nodes.push(SceneNode::from_obb(
+            *id,
+            label,
+            label,
+            &Obb::new(DVec3::from_array(*at), DVec3::splat(*size), DMat3::IDENTITY),
+        ));
+    }
     let mut fields = BTreeMap::new();
-    for n in [&table, &mug] {
+    for n in &nodes {
         let f = Field::constant(1000.0, [0.5; 3], false, 1).unwrap();
         fields.insert(
             n.field.clone(),
@@ -498,10 +493,19 @@ fn an_object_pushed_into_its_support_is_warned_about() {
         );
     }
     let ns = NeuralScene {
-        scene: Scene::with_nodes(vec![table, mug], DVec3::Z),
+        scene: Scene::with_nodes(nodes, DVec3::Z),
         fields,
     };
-    assist_scene::scene_file::save(&scene, &ns, serde_json::Value::Null, false).unwrap();
+    assist_scene::scene_file::save(scene, &ns, serde_json::Value::Null, false).unwrap();
+}
+
+/// A mug resting on a table moved 5 cm down sinks into it: a warning, or under `--strict`
+/// a refusal that writes nothing; moved sideways, nothing is said.
+#[test]
+fn an_object_pushed_into_its_support_is_warned_about() {
+    let tmp = assist_testkit::TempDir::new("cli-sink");
+    let scene = tmp.path().join("a.assist");
+    table_scene(&scene, &[(1, "mug", [0.0, 0.0, 0.8], 0.1)]);
     let (ok, _, err) = assist(&[
         "edit",
         s(&scene),
@@ -537,6 +541,70 @@ fn an_object_pushed_into_its_support_is_warned_about() {
         "{err}"
     );
     assert!(!e.exists());
+}
+
+/// Issue 47, item 6: "move the mug 25 cm left" put it inside the duck and "move the
+/// brick 12 cm up" left it floating, without a word. Each is a warning naming both
+/// objects or the gap, `--strict` refuses it, `--allow-overlap` accepts it silently, and
+/// `--settle` lowers a floating object onto the table in the same edit.
+#[test]
+fn edits_that_interpenetrate_or_float_are_warned_about() {
+    let tmp = assist_testkit::TempDir::new("cli-overlap");
+    let scene = tmp.path().join("a.assist");
+    table_scene(
+        &scene,
+        &[
+            (1, "mug", [0.0, 0.0, 0.8], 0.1),
+            (2, "duck", [-0.25, 0.0, 0.8], 0.1),
+        ],
+    );
+    let edit = |text: &str, extra: &[&str]| {
+        let mut args = vec!["edit", s(&scene), "--do", text, "--dry-run", "--json"];
+        args.extend_from_slice(extra);
+        assist(&args)
+    };
+    let (ok, _, err) = edit("move the mug 22 cm left", &[]);
+    assert!(ok, "{err}");
+    assert!(
+        err.contains("warning") && err.contains("\"mug\" would reach") && err.contains("\"duck\""),
+        "{err}"
+    );
+    let (ok, _, err) = edit("move the mug 12 cm up", &[]);
+    assert!(
+        ok && err.contains("would float 12 cm") && err.contains("--settle"),
+        "{err}"
+    );
+    for (text, extra) in [
+        ("move the mug 22 cm left", vec!["--strict"]),
+        ("move the mug 12 cm up", vec!["--strict"]),
+    ] {
+        let (ok, _, err) = edit(text, &extra);
+        assert!(!ok && err.contains("--strict"), "{text}: {err}");
+    }
+    for (text, extra) in [
+        ("move the mug 22 cm left", vec!["--allow-overlap"]),
+        ("move the mug 12 cm up", vec!["--allow-overlap"]),
+        ("move the mug 10 cm right", vec![]),
+        ("move the mug 1 cm up", vec![]),
+    ] {
+        let (ok, _, err) = edit(text, &extra);
+        assert!(ok && !err.contains("warning"), "{text}: {err}");
+    }
+    // --settle: the move up, then a move down onto the table, in one step.
+    let (ok, out, err) = edit("move the mug 12 cm up", &["--settle"]);
+    assert!(ok && !err.contains("warning"), "{err}");
+    let actions: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let z: Vec<f64> = actions
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a["config"]["vector"][2].as_f64().unwrap())
+        .collect();
+    assert_eq!(z.len(), 2, "{out}");
+    assert!(
+        (z[0] - 0.12).abs() < 1e-9 && (z[0] + z[1]).abs() < 0.005,
+        "{z:?}"
+    );
 }
 
 /// Issue 47, items 13, 16 and 18: scene files that loaded though they could not be used

@@ -106,6 +106,7 @@ impl Worker {
     ) -> Result<Changed, Refused> {
         let id = self.selected()?;
         let action = Action::new(id, op, config);
+        let before = self.session.description().clone();
         self.session
             .apply_with(&[action], Steps::One)
             .map_err(Refused::from)?;
@@ -113,7 +114,17 @@ impl Worker {
             self.session.select(None).map_err(Refused::from)?;
         }
         self.log.push(format!("{} object {id}", op_name(op)));
+        self.note_placement(&before);
         Ok(Changed::ALL)
+    }
+
+    /// Objects the last edit left inside one another or floating, as warnings in the log
+    /// (as `assist edit` warns).
+    pub(super) fn note_placement(&mut self, before: &assist_core::Scene) {
+        let after = self.session.description().clone();
+        for p in self.session.placement_problems(before, &after) {
+            self.log.push(format!("warning: {p}"));
+        }
     }
 
     /// A drag: each move undoes the previous preview and applies the new amount; commit
@@ -136,6 +147,7 @@ impl Worker {
             return Ok(Changed::ALL);
         }
         let config = self.drag_config(op, axis, amount, (dx, dy), id)?;
+        let before = self.session.description().clone();
         let operation = match op {
             DragOp::Translate => Operation::Translate,
             DragOp::Rotate => Operation::Rotate,
@@ -146,6 +158,7 @@ impl Worker {
             .map_err(Refused::from)?;
         if phase == DragPhase::Commit {
             self.log.push(format!("{} object {id}", op_name(operation)));
+            self.note_placement(&before);
         } else {
             self.drag = Some(Drag { applied: true });
         }
@@ -224,10 +237,12 @@ impl Worker {
             .map(|a| serde_json::to_value(a).unwrap_or(serde_json::Value::Null))
             .collect();
         if !dry_run {
+            let before = self.session.description().clone();
             self.session
                 .install(resolved, Steps::One, Some(text.to_string()))
                 .map_err(Refused::from)?;
             self.log.push(text.to_string());
+            self.note_placement(&before);
         }
         send(Outgoing::Json(ServerMsg::Resolved {
             text: text.to_string(),
