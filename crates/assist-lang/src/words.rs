@@ -376,22 +376,32 @@ pub const MEANING_CHANGING: &[(&[&str], &str)] = &[
         "'other' is read only as 'other than' ('every object other than the mug')",
     ),
     (
-        &[
-            "next",
-            "front",
-            "behind",
-            "beside",
-            "between",
-            "onto",
-            "atop",
-            "underneath",
-            "beneath",
-            "near",
-            "inside",
-        ],
-        RELATIVE_PLACEMENT,
+        &["underneath", "beneath", "under", "below", "inside"],
+        "placing an object under or inside another is not supported: say 'next to', 'on', 'in front of', 'behind' or 'between', or give a distance and a direction ('10 cm left')",
     ),
 ];
 
-/// Why a place relative to another object is refused.
-pub const RELATIVE_PLACEMENT: &str = "placing an object relative to another is not supported yet: give a distance and a direction ('10 cm left') or a position ('at 0.1, 0.2, 0.8')";
+/// Why a place relative to another object is refused where it is not a move.
+pub const RELATIVE_PLACEMENT: &str = "a place relative to another object is read for a move ('put the mug next to the duck'); give a distance and a direction ('10 cm left') or a position ('at 0.1, 0.2, 0.8') otherwise";
+
+/// Words that can follow "a little" as an amount: directions, size words, "more", "to".
+pub fn is_amount_word(w: &str) -> bool {
+    direction_word(w).is_some()
+        || matches!(
+            w,
+            "more"
+                | "less"
+                | "to"
+                | "bigger"
+                | "smaller"
+                | "larger"
+                | "taller"
+                | "shorter"
+                | "wider"
+                | "narrower"
+                | "higher"
+                | "lower"
+                | "further"
+                | "closer"
+        )
+}

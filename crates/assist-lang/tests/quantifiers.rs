@@ -163,29 +163,124 @@ fn what_is_not_understood_is_refused_by_name() {
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
-/// Places relative to another object: not supported yet, so each is refused naming the
-/// word of the relation (never read as a move of both objects, or as an object called
-/// "front").
-const RELATIONS: &[(&str, &str)] = &[
-    ("put the duck next to the teapot", "\"next\""),
-    ("move the duck onto the teapot", "\"onto\""),
-    ("put the mug on the teapot", "\"on\""),
-    ("put the mug on top of the cow", "\"on\""),
-    ("put the mug in front of the cow", "\"front\""),
-    ("move the duck behind the mug", "\"behind\""),
-    ("put the cow beside the teapot", "\"beside\""),
-    ("put the mug between the duck and the cow", "\"between\""),
-    ("move the mug near the duck", "\"near\""),
+/// The actions an instruction resolves to: (operation, id, vector or factor).
+fn resolved(text: &str) -> Result<Vec<(String, u16, Vec<f64>)>, String> {
+    parse(text, &scene(), &ParseOptions::default(), &mut NoScenes)
+        .map(|a| {
+            a.iter()
+                .map(|a| {
+                    let c = &a.config;
+                    let v = c
+                        .vector
+                        .map(|v| v.to_vec())
+                        .or(c.factor.map(|f| vec![f]))
+                        .unwrap_or_default();
+                    (a.operation.to_string(), a.instance_id, v)
+                })
+                .collect()
+        })
+        .map_err(|e| e.to_string())
+}
+
+/// Places relative to other objects, each resolved to one move (metres): every object
+/// here is a cube of edge `e` standing at z = 0.8, in a row along x (duck −0.5, cow −0.3,
+/// mug −0.1, teapot 0.1); "in front of" is towards the viewer, the world's −y without a
+/// camera; the gap is 2 cm unless given.
+#[test]
+fn relative_places_resolve_to_moves() {
+    let s = scene();
+    let e = {
+        let c = s.node(3).unwrap().world_corners();
+        c.iter().map(|p| p.x).fold(f64::MIN, f64::max)
+            - c.iter().map(|p| p.x).fold(f64::MAX, f64::min)
+    };
+    let g = 0.02;
+    let table: Vec<(&str, u16, [f64; 3])> = vec![
+        ("put the mug next to the teapot", 3, [0.2 - e - g, 0.0, 0.0]),
+        ("put the cow beside the teapot", 2, [0.4 - e - g, 0.0, 0.0]),
+        ("move the mug near the duck", 3, [-0.4 + e + g, 0.0, 0.0]),
+        ("move the mug onto the teapot", 3, [0.2, 0.0, e]),
+        ("put the mug on top of the teapot", 3, [0.2, 0.0, e]),
+        ("put the mug on the teapot", 3, [0.2, 0.0, e]),
+        ("put the mug in front of the cow", 3, [-0.2, -(e + g), 0.0]),
+        ("move the duck behind the mug", 1, [0.4, e + g, 0.0]),
+        ("put the mug 5 cm behind the cow", 3, [-0.2, e + 0.05, 0.0]),
+        (
+            "put the mug between the duck and the cow",
+            3,
+            [-0.3, 0.0, 0.0],
+        ),
+    ];
+    let mut failures = Vec::new();
+    for (text, id, want) in &table {
+        match resolved(text) {
+            Ok(got) => {
+                let ok = matches!(got.as_slice(), [(op, i, v)] if op == "translate" && i == id
+                    && v.iter().zip(want).all(|(a, b)| (a - b).abs() < 1e-9));
+                if !ok {
+                    failures.push(format!("{text:?}: {got:?}, expected {id} by {want:?}"));
+                }
+            }
+            Err(e) => failures.push(format!("{text:?}: {e}")),
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// Amounts left unsaid get the documented defaults; counts of copies are read.
+#[test]
+fn unsaid_amounts_get_their_defaults() {
+    let one = |text: &str| resolved(text).unwrap_or_else(|e| panic!("{text}: {e}"));
+    assert_eq!(one("make the duck smaller")[0].2, vec![0.8]);
+    assert!((one("make the duck a bit smaller")[0].2[0] - 1.0 / 1.1).abs() < 1e-12);
+    assert_eq!(one("make the duck bigger")[0].2, vec![1.25]);
+    assert_eq!(
+        one("move the cow a bit to the right")[0].2,
+        vec![0.05, 0.0, 0.0]
+    );
+    assert_eq!(
+        one("move the cow slightly left")[0].2,
+        vec![-0.05, 0.0, 0.0]
+    );
+    assert_eq!(one("move the cow to the right")[0].2, vec![0.1, 0.0, 0.0]);
+    for (text, n) in [
+        ("duplicate the duck 3 times", 3),
+        ("duplicate the duck twice", 2),
+        ("make 4 copies of the duck", 4),
+    ] {
+        let got = one(text);
+        assert!(
+            got.len() == n && got.iter().all(|(op, id, _)| op == "replicate" && *id == 1),
+            "{text}: {got:?}"
+        );
+    }
+}
+
+/// What cannot be placed is refused naming the words.
+const RELATIONS_REFUSED: &[(&str, &str)] = &[
+    ("put the mug next to", "\"next to\" needs 1 other object"),
+    (
+        "put the mug between the duck",
+        "\"between\" needs 2 other objects",
+    ),
+    ("put the mug next to the mug", "relative to itself"),
+    ("delete the mug next to the teapot", "\"next to\""),
+    ("put the mug under the teapot", "\"under\""),
+    ("put the mug inside the teapot", "\"inside\""),
+    (
+        "put the mug and the duck next to the cow",
+        "one object at a time",
+    ),
 ];
 
 #[test]
-fn relative_places_are_refused_naming_the_relation() {
+fn relations_that_cannot_be_placed_are_refused_by_name() {
     let mut failures = Vec::new();
-    for (text, want) in RELATIONS {
-        match ops(text) {
+    for (text, want) in RELATIONS_REFUSED {
+        match resolved(text) {
             Ok(got) => failures.push(format!("{text:?}: accepted as {got:?}")),
-            Err(e) if !(e.contains(want) && e.contains("relative to another")) => {
-                failures.push(format!("{text:?}: error {e:?} does not name {want}"))
+            Err(e) if !e.contains(want) => {
+                failures.push(format!("{text:?}: {e:?} does not say {want}"))
             }
             Err(_) => {}
         }

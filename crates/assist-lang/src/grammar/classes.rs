@@ -110,19 +110,36 @@ impl Clause<'_> {
             "only" | "just" => Ok(Some(1)),
             // "put the mug on the teapot": a place relative to another object. ("rotate it
             // on its own axis", "move it on the x axis" are not.)
-            "on" | "upon"
-                if self.op == Some(Translate)
-                    && self.toks[self.pos + 1..]
-                        .iter()
-                        .filter_map(word)
-                        .find(|w| !matches!(*w, "the" | "a" | "an" | "top" | "of"))
-                        .is_some_and(|w| {
-                            axis_word(w).is_none()
-                                && !matches!(w, "its" | "own" | "local" | "world" | "axis")
-                        }) =>
+            "on" | "upon" | "onto" | "atop"
+                if self.toks[self.pos + 1..]
+                    .iter()
+                    .filter_map(word)
+                    .find(|w| !matches!(*w, "the" | "a" | "an" | "top" | "of"))
+                    .is_some_and(|w| {
+                        axis_word(w).is_none()
+                            && !matches!(w, "its" | "own" | "local" | "world" | "axis")
+                    }) =>
             {
-                Err(self.not_understood(w, RELATIVE_PLACEMENT))
+                let mut k = 1;
+                while matches!(
+                    self.toks.get(self.pos + k).and_then(word),
+                    Some("top" | "of")
+                ) {
+                    k += 1;
+                }
+                self.relation(w, Relation::On).map(|()| Some(k))
             }
+            "next" if next == Some("to") => {
+                self.relation("next to", Relation::NextTo).map(|()| Some(2))
+            }
+            "beside" | "near" | "alongside" => self.relation(w, Relation::NextTo).map(|()| Some(1)),
+            "front" => {
+                let k = if next == Some("of") { 2 } else { 1 };
+                self.relation("in front of", Relation::InFront)
+                    .map(|()| Some(k))
+            }
+            "behind" => self.relation(w, Relation::Behind).map(|()| Some(1)),
+            "between" => self.relation(w, Relation::Between).map(|()| Some(1)),
             _ => {
                 if let Some(why) = MEANING_CHANGING
                     .iter()
@@ -139,6 +156,18 @@ impl Clause<'_> {
                 Ok(None)
             }
         }
+    }
+
+    /// A place relative to the objects named next (they become the partners): read for a
+    /// move, refused naming the words for anything else.
+    fn relation(&mut self, words: &str, r: Relation) -> Result<(), LangError> {
+        if self.op != Some(Translate) || self.p.relation.is_some() {
+            return Err(self.not_understood(words, RELATIVE_PLACEMENT));
+        }
+        self.refs.close();
+        self.refs.in_partner = true;
+        self.p.relation = Some((r, words.to_string()));
+        Ok(())
     }
 
     pub(super) fn not_understood(&self, word: &str, message: &str) -> LangError {
@@ -215,6 +244,11 @@ impl Clause<'_> {
         } else if matches!(w, "full" | "complete" | "whole") && turn_word {
             p.turn = Some(360.0);
             return Some(2);
+        } else if matches!(w, "slightly" | "bit" | "tad")
+            || (w == "little" && !next.is_some_and(|n| !is_amount_word(n)))
+        {
+            // "a bit", "slightly", "a little": the smaller default amount.
+            p.slight = true;
         } else if w == "clockwise" {
             p.clockwise = Some(true);
         } else if w == "counterclockwise" {

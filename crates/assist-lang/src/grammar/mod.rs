@@ -8,7 +8,7 @@ use crate::LangError;
 use crate::tokens::Tok;
 use crate::words::{
     CREATED, FILLER, GENERIC, GROW, MEANING_CHANGING, PRONOUNS, RELATIVE_PLACEMENT, SHRINK,
-    UNITS_KNOWN, Verb, axis_word, direction_word, unit_word, verb_at, word,
+    UNITS_KNOWN, Verb, axis_word, direction_word, is_amount_word, unit_word, verb_at, word,
 };
 pub use crate::words::{Direction, Unit};
 
@@ -28,6 +28,17 @@ pub enum ObjectRef {
     /// "everything", "all objects" (`None`: every object of the scene), "all the balls",
     /// "every ball" (every object the words name).
     All(Option<Vec<String>>),
+}
+
+/// A place relative to other objects (the partners of the command): "next to", "beside",
+/// "near"; "on", "onto", "on top of"; "in front of"; "behind"; "between".
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Relation {
+    NextTo,
+    On,
+    InFront,
+    Behind,
+    Between,
 }
 
 /// Size words of a scale instruction.
@@ -64,6 +75,10 @@ pub struct RawParams {
     pub position: Option<([f64; 3], Option<Unit>)>,
     /// "another", "one more", "a second".
     pub another: bool,
+    /// "a bit", "slightly", "a little": a smaller default amount.
+    pub slight: bool,
+    /// A place relative to the partners, with the words that said it.
+    pub relation: Option<(Relation, String)>,
 }
 
 #[derive(Debug, Clone, PartialEq)]

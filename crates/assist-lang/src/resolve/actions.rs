@@ -36,6 +36,21 @@ pub fn resolve(
         let actions = match cmd.op {
             Operation::Add => add_actions(cmd, sources, opts)?,
             Operation::Swap => vec![swap_action(cmd, &st, sources, opts, &mut named)?],
+            op if cmd.params.relation.is_some() => {
+                let ids = st.targets(cmd, opts.embedder)?;
+                let [id] = ids.as_slice() else {
+                    return Err(clause_err(
+                        cmd,
+                        "objects",
+                        format!(
+                            "place one object at a time relative to another ({} named)",
+                            ids.len()
+                        ),
+                    ));
+                };
+                named = vec![*id];
+                vec![Action::new(*id, op, relations::place(*id, cmd, &st, opts)?)]
+            }
             op => {
                 let ids = st.targets(cmd, opts.embedder)?;
                 if !cmd.partners.is_empty() {
@@ -242,17 +257,20 @@ fn replicate_actions(
 ) -> Result<Vec<Action>, LangError> {
     let p = &cmd.params;
     let op = Operation::Replicate;
-    let bare_count =
-        matches!(p.quantities.as_slice(), [(_, None)]) && p.direction.is_none() && p.axis.is_none();
+    // "make 3 copies of the mug", "duplicate the duck 3 times", "twice": a bare count.
+    let bare_count = matches!(p.quantities.as_slice(), [(_, None | Some(Unit::Times))])
+        && p.direction.is_none()
+        && p.axis.is_none();
     let placed = if bare_count {
         None
     } else {
         offset(cmd, st, opts)?
     };
-    // "make 3 copies of the mug": a bare count.
     let count = match (&placed, p.quantities.as_slice()) {
-        (None, [(n, None)]) if n.fract() == 0.0 && *n >= 1.0 && *n <= 100.0 => *n as usize,
-        (None, [(n, None)]) => {
+        (None, [(n, None | Some(Unit::Times))]) if n.fract() == 0.0 && *n >= 1.0 && *n <= 100.0 => {
+            *n as usize
+        }
+        (None, [(n, _)]) => {
             return Err(clause_err(
                 cmd,
                 "count",

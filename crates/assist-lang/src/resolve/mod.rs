@@ -13,7 +13,15 @@ use crate::grammar::{Direction, ObjectRef, RawCommand, SizeWord, Unit};
 use crate::names::{Found, NotFound, TextEmbedder, find};
 
 mod actions;
+mod relations;
 pub use actions::resolve;
+
+/// Amounts an instruction leaves unsaid: a move "to the right" goes 10 cm ("a bit",
+/// "slightly", "a little": 5 cm), a turn 90° (15°), "bigger" is ×1.25 and "smaller" its
+/// inverse, ×0.8 (×1.1 and ×1/1.1).
+pub const DEFAULT_DISTANCE_M: [f64; 2] = [0.10, 0.05];
+pub const DEFAULT_ANGLE_DEG: [f64; 2] = [90.0, 15.0];
+pub const DEFAULT_GROW: [f64; 2] = [1.25, 1.1];
 
 /// What the parser may know besides the text.
 #[derive(Default)]
@@ -426,6 +434,15 @@ fn offset(
             "direction",
             "which way? give an axis (x, y, z) or a direction (left, right, up, down, forward, back)",
         )),
+        (None, Some(dir), None) if p.quantities.is_empty() => {
+            let d = DEFAULT_DISTANCE_M[usize::from(p.slight)];
+            let v = direction_vector(dir, st.scene.up, opts.camera) * d;
+            Ok(Some(ActionConfig {
+                vector: Some(v.to_array()),
+                unit: Some("m".into()),
+                ..Default::default()
+            }))
+        }
         (None, _, _) => Err(clause_err(
             cmd,
             "distance",
@@ -453,13 +470,9 @@ fn angle(cmd: &RawCommand) -> Result<f64, LangError> {
             }
         }),
     };
-    let a = a.or(p.turn).ok_or_else(|| {
-        clause_err(
-            cmd,
-            "angle",
-            "by how much? give an angle such as 90 degrees",
-        )
-    })?;
+    let a = a
+        .or(p.turn)
+        .unwrap_or(DEFAULT_ANGLE_DEG[usize::from(p.slight)]);
     Ok(if p.clockwise == Some(true) { -a } else { a })
 }
 
@@ -489,13 +502,17 @@ fn factor(cmd: &RawCommand) -> Result<f64, LangError> {
             Some(SizeWord::Bigger) if !p.as_ && !p.to => 1.0 + f,
             _ => f,
         },
-        (None, None) => {
-            return Err(clause_err(
-                cmd,
-                "factor",
-                "by how much? give a factor such as 2, 'twice as big' or 50%",
-            ));
-        }
+        (None, None) => match p.size {
+            Some(SizeWord::Bigger) => DEFAULT_GROW[usize::from(p.slight)],
+            Some(SizeWord::Smaller) => 1.0 / DEFAULT_GROW[usize::from(p.slight)],
+            None => {
+                return Err(clause_err(
+                    cmd,
+                    "factor",
+                    "by how much? give a factor such as 2, 'twice as big' or 50%",
+                ));
+            }
+        },
     };
     Ok(f)
 }
