@@ -245,7 +245,7 @@ impl Clause<'_> {
             p.turn = Some(360.0);
             return Some(2);
         } else if matches!(w, "slightly" | "bit" | "tad")
-            || (w == "little" && !next.is_some_and(|n| !is_amount_word(n)))
+            || (w == "little" && next.is_none_or(is_amount_word))
         {
             // "a bit", "slightly", "a little": the smaller default amount.
             p.slight = true;
