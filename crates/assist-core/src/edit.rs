@@ -100,11 +100,21 @@ pub fn apply(scene: &mut Scene, edit: &Edit) -> Result<(), ActionError> {
     scene.register_classes();
     // An edit may not leave a node the scene file cannot hold (a 1e308 m move twice is
     // infinite): the scene is restored and the edit refused.
+    // Nodes keep their order, so the node at the same index is looked at first (a scan
+    // per node would make a thousand copies quadratic).
+    let was = |i: usize, n: &SceneNode| {
+        before
+            .nodes
+            .get(i)
+            .filter(|b| b.id == n.id)
+            .or_else(|| before.node(n.id))
+    };
     let bad = scene
         .nodes
         .iter()
-        .filter(|n| before.node(n.id) != Some(*n))
-        .find_map(|n| n.check().err().map(|e| (n.id, e)));
+        .enumerate()
+        .filter(|(i, n)| was(*i, n) != Some(*n))
+        .find_map(|(_, n)| n.check().err().map(|e| (n.id, e)));
     if let Some((id, (field, message))) = bad {
         *scene = before;
         return Err(ActionError::NotAllowed {

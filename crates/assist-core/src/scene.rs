@@ -323,10 +323,16 @@ impl Scene {
     /// A label for a new copy of a node of class `class`: "mug 2", "mug 3", … (the first
     /// number no node's label uses).
     pub fn replica_label(&self, class: &str) -> String {
-        (2..)
-            .map(|k| format!("{class} {k}"))
-            .find(|l| !self.nodes.iter().any(|n| n.label == *l))
-            .expect("a free number")
+        // One pass over the labels (numbers already taken), not one per number tried:
+        // a thousand copies stay cheap.
+        let prefix = format!("{class} ");
+        let taken: std::collections::BTreeSet<usize> = self
+            .nodes
+            .iter()
+            .filter_map(|n| n.label.strip_prefix(&prefix)?.parse().ok())
+            .collect();
+        let k = (2..).find(|k| !taken.contains(k)).expect("a free number");
+        format!("{class} {k}")
     }
     pub fn node(&self, id: InstanceId) -> Option<&SceneNode> {
         self.nodes.iter().find(|n| n.id == id)

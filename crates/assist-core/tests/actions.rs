@@ -469,16 +469,24 @@ fn placement_problems_find_overlaps_and_floating_objects() {
         penetration(a, &c)
     );
     // Nothing moved, or moved along the table: no problem.
-    assert!(placement_problems(&before, &before, &mut table).is_empty());
-    assert!(placement_problems(&before, &moved(1, [0.0, -0.3, 0.0]), &mut table).is_empty());
+    assert!(
+        placement_problems(&before, &before, &mut table)
+            .0
+            .is_empty()
+    );
+    assert!(
+        placement_problems(&before, &moved(1, [0.0, -0.3, 0.0]), &mut table)
+            .0
+            .is_empty()
+    );
     // Into node 2 (it stands at x = 0.5): an overlap of about 0.1 units = 5 cm.
-    let p = placement_problems(&before, &moved(1, [0.45, 0.0, 0.05]), &mut table);
+    let p = placement_problems(&before, &moved(1, [0.45, 0.0, 0.05]), &mut table).0;
     assert!(
         matches!(p.as_slice(), [q] if matches!(q.problem, Problem::Overlap { other: 2, depth_m, .. } if depth_m > 0.03)),
         "{p:?}"
     );
     // 0.24 units (12 cm) up: floating about 12 cm above the table.
-    let p = placement_problems(&before, &moved(1, [0.0, 0.0, 0.24]), &mut table);
+    let p = placement_problems(&before, &moved(1, [0.0, 0.0, 0.24]), &mut table).0;
     match p.as_slice() {
         [q] => match q.problem {
             Problem::Floating {
@@ -492,9 +500,9 @@ fn placement_problems_find_overlaps_and_floating_objects() {
     // On top of node 2 (its top at z = 1.05): carried by it; 0.2 units above it: floating
     // above node 2.
     let top = 1.05 + 0.05 - 0.8;
-    let p = placement_problems(&before, &moved(1, [0.5, 0.0, top]), &mut table);
+    let p = placement_problems(&before, &moved(1, [0.5, 0.0, top]), &mut table).0;
     assert!(p.is_empty(), "{p:?}");
-    let p = placement_problems(&before, &moved(1, [0.5, 0.0, top + 0.2]), &mut table);
+    let p = placement_problems(&before, &moved(1, [0.5, 0.0, top + 0.2]), &mut table).0;
     assert!(
         matches!(p.as_slice(), [q] if q.problem == Problem::Floating { gap_m: 0.1, support: Some(2) } || matches!(q.problem, Problem::Floating { support: Some(2), gap_m } if (gap_m - 0.1).abs() < 1e-6)),
         "{p:?}"

@@ -104,14 +104,17 @@ impl Editor {
     /// Validates `actions` in order against the evolving scene without touching weights or
     /// history: the edits that `apply_all` would make.
     pub fn plan(&mut self, actions: &[Action]) -> Result<Vec<Edit>, EditError> {
-        Ok(self.plan_scenes(actions)?.0)
+        Ok(self.plan_scenes(actions, false)?.0)
     }
 
-    /// [`plan`](Self::plan), with the scene after each edit: every action is validated
-    /// and applied once, here; applying the plan only installs its results.
+    /// [`plan`](Self::plan), with the scene after each edit (`every`) or after the last
+    /// only (one undo step needs no more, and a copy per edit would make a long script
+    /// quadratic): every action is validated and applied once, here; applying the plan
+    /// only installs its results.
     pub fn plan_scenes(
         &mut self,
         actions: &[Action],
+        every: bool,
     ) -> Result<(Vec<Edit>, Vec<Scene>), EditError> {
         let mut scene = self.scene.scene.clone();
         let mut taken = self.taken();
@@ -130,7 +133,12 @@ impl Editor {
                 taken.insert(im.node.field.clone());
             }
             edits.push(e);
-            after.push(scene.clone());
+            if every {
+                after.push(scene.clone());
+            }
+        }
+        if !every && !edits.is_empty() {
+            after.push(scene);
         }
         Ok((edits, after))
     }
@@ -185,18 +193,19 @@ impl Editor {
     /// Validates and applies `actions` in order, one undo step per edit; all or nothing
     /// (on error the scene and history are as before).
     pub fn apply_all(&mut self, actions: &[Action]) -> Result<Vec<Edit>, EditError> {
-        let (edits, after) = self.plan_scenes(actions)?;
+        let (edits, after) = self.plan_scenes(actions, true)?;
         self.install(edits, after, false, None)
     }
 
     /// Like [`apply_all`](Self::apply_all), as one undo step (one instruction).
     pub fn apply_as_one(&mut self, actions: &[Action]) -> Result<Vec<Edit>, EditError> {
-        let (edits, after) = self.plan_scenes(actions)?;
+        let (edits, after) = self.plan_scenes(actions, false)?;
         self.install(edits, after, true, None)
     }
 
     /// Installs edits validated against the current scene (by [`plan`](Self::plan) or
-    /// the language resolver), given with the scene after each: imports the fields of
+    /// the language resolver), given with the scene after each (or, with `one_step`,
+    /// after the last only): imports the fields of
     /// added nodes, then records one undo step per edit or, with `one_step`, one in all;
     /// each step keeps `text` (the instruction, or where the actions came from) and its
     /// resolved actions.
@@ -207,7 +216,10 @@ impl Editor {
         one_step: bool,
         text: Option<String>,
     ) -> Result<Vec<Edit>, EditError> {
-        assert_eq!(edits.len(), after.len(), "one scene after each edit");
+        assert!(
+            edits.len() == after.len() || (one_step && after.len() == 1),
+            "one scene after each edit, or the last for one step"
+        );
         self.import_fields(&edits)?;
         let mpu = self.scene.scene.meters_per_unit;
         if one_step {

@@ -273,7 +273,9 @@ impl Session {
         steps: Steps,
         text: Option<String>,
     ) -> Result<Vec<Edit>> {
-        let (edits, after) = self.editor.plan_scenes(actions)?;
+        let (edits, after) = self
+            .editor
+            .plan_scenes(actions, steps == Steps::PerAction)?;
         Ok(self
             .editor
             .install(edits, after, steps == Steps::One, text)?)
@@ -443,8 +445,8 @@ impl Session {
     /// What `after` (this scene edited) does wrong that `before` did not: objects inside
     /// one another or floating above what carries them (see
     /// [`assist_core::placement::placement_problems`]; the background's trained surface
-    /// is what carries them).
-    pub fn placement_problems(&self, before: &Scene, after: &Scene) -> Vec<Placement> {
+    /// is what carries them), and how many changed objects were left unchecked.
+    pub fn placement_problems(&self, before: &Scene, after: &Scene) -> (Vec<Placement>, usize) {
         let weights = self.scene();
         let bg = weights.scene.nodes.iter().position(|n| n.is_background());
         let mut density = |pts: &[assist_core::DVec3]| match bg {

@@ -328,7 +328,14 @@ fn check_region(
             let mut w = leaving_capture(&before, &after, &cams);
             w.extend(sinking(session.scene(), &before, &after));
             if !a.allow_overlap {
-                for p in session.placement_problems(&before, &after) {
+                let (problems, unchecked) = session.placement_problems(&before, &after);
+                if unchecked > 0 {
+                    w.push(format!(
+                        "{unchecked} more changed objects were not checked for overlaps or floating (the first {} were)",
+                        assist_core::placement::MAX_CHECKED
+                    ));
+                }
+                for p in problems {
                     match (&p.problem, a.settle) {
                         (assist_session::Problem::Floating { gap_m, .. }, true) => {
                             settle.push(settle_action(p.id, *gap_m, &after));
@@ -343,11 +350,20 @@ fn check_region(
             w
         })
         .unwrap_or_default();
+    // A few of many (a thousand copies in one spot would print half a million lines).
+    const SHOWN: usize = 10;
+    let more = warnings.len().saturating_sub(SHOWN);
+    let tail = (more > 0).then(|| format!("… and {more} more"));
     if a.strict && !warnings.is_empty() {
-        bail!("--strict: {}", warnings.join("; "));
+        let mut w: Vec<&str> = warnings.iter().take(SHOWN).map(String::as_str).collect();
+        w.extend(tail.as_deref());
+        bail!("--strict: {}", w.join("; "));
     }
-    for w in &warnings {
+    for w in warnings.iter().take(SHOWN) {
         eprintln!("warning: {w}");
+    }
+    if let Some(t) = tail {
+        eprintln!("warning: {t}");
     }
     Ok(settle)
 }

@@ -122,8 +122,13 @@ impl Worker {
     /// (as `assist edit` warns).
     pub(super) fn note_placement(&mut self, before: &assist_core::Scene) {
         let after = self.session.description().clone();
-        for p in self.session.placement_problems(before, &after) {
+        let (problems, _) = self.session.placement_problems(before, &after);
+        for p in problems.iter().take(5) {
             self.log.push(format!("warning: {p}"));
+        }
+        if problems.len() > 5 {
+            self.log
+                .push(format!("warning: … and {} more", problems.len() - 5));
         }
     }
 
