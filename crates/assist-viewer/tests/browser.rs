@@ -94,6 +94,40 @@ fn the_viewer_works_in_a_real_browser() {
             scenes: None,
         }))
         .unwrap();
+    // Issue 47 item 9: a plain `chromium --headless --screenshot` of the address `view`
+    // prints showed an empty black stage. The page says what it is doing before the first
+    // frame arrives (and the frame itself once it has).
+    let plain = work.join("plain-screenshot.png");
+    let o = Command::new(&chromium)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--hide-scrollbars",
+            "--window-size=1000,700",
+        ])
+        .arg(format!("--screenshot={}", plain.display()))
+        .arg(&running.url)
+        .output()
+        .expect("chromium runs");
+    assert!(
+        plain.is_file(),
+        "no screenshot: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let (img, _) = assist_data::image_io::read_rgb(&plain, [0.0; 3]).unwrap();
+    let stage_w = (img.width as usize).saturating_sub(310);
+    let lit = (0..img.height as usize)
+        .flat_map(|y| (0..stage_w).map(move |x| (x, y)))
+        .filter(|&(x, y)| {
+            let i = 3 * (y * img.width as usize + x);
+            img.data[i..i + 3].iter().sum::<f32>() / 3.0 > 0.5
+        })
+        .count();
+    assert!(
+        lit > 300,
+        "the stage of a plain screenshot is empty ({lit} lit pixels)"
+    );
     // Kept after the run (CI artefacts): under the workspace's target folder.
     let shots = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../../target/viewer-browser-test")

@@ -19,8 +19,9 @@ pub struct ViewArgs {
     /// trained on, when it is still there; else an orbit around the scene).
     #[arg(long)]
     pub data: Option<PathBuf>,
-    /// Port to listen on (0: any free port).
-    #[arg(long, default_value_t = 7007)]
+    /// Port to listen on (0: any free port); not nerfstudio's 7007, so both viewers can run
+    /// side by side.
+    #[arg(long, default_value_t = 7341)]
     pub port: u16,
     /// Address to listen on.
     #[arg(long, default_value = "127.0.0.1")]
