@@ -116,6 +116,7 @@ class Scene:
         triangles: int = 50000,
         min_part: float = 0.05,
         points: int = 100000,
+        close: int = 2,
         sim: Optional[str] = None,
         material_density: float = 1000.0,
         force: bool = False,
@@ -123,7 +124,7 @@ class Scene:
         """Meshes (obj, ply, glb) or point clouds (points) of the nodes into the folder
         `out`, as `assist export`; `sim` "mjcf" or "urdf" adds a model. Returns the
         summary: out, model, nodes (id, label, file, vertices, triangles, closed,
-        volume_m3, seconds)."""
+        genus, components, volume_m3, occupancy_m3, cut_at_support_m, seconds)."""
     def render(
         self,
         camera: Camera,

@@ -198,9 +198,16 @@ pub fn support_gap(
     let up = up.normalize();
     let unit = 1.0 / meters_per_unit.max(1e-12);
     let low = base(node, up);
-    let mut best: Option<(f64, Option<InstanceId>)> =
-        support_level(node, up, meters_per_unit, density, TOLERANCE_M, 2.0, true)
-            .map(|l| (l, None));
+    let mut best: Option<(f64, Option<InstanceId>)> = support_level(
+        node,
+        up,
+        meters_per_unit,
+        density,
+        TOLERANCE_M,
+        2.0,
+        Look::Densest,
+    )
+    .map(|l| (l, None));
     let centre = node.world_from_local.translation;
     for o in others {
         let top = o
@@ -229,6 +236,26 @@ fn base(node: &SceneNode, up: DVec3) -> f64 {
         .fold(f64::INFINITY, f64::min)
 }
 
+/// The level (along `up`, world units) of the surface under `node`, looked for from 10 cm
+/// above its lowest point to 10 cm below (see [`support_level`]); `None` when no flat
+/// surface is there.
+pub fn support_height(
+    node: &SceneNode,
+    up: DVec3,
+    meters_per_unit: f64,
+    density: &mut dyn FnMut(&[DVec3]) -> Vec<f32>,
+) -> Option<f64> {
+    support_level(
+        node,
+        up.normalize(),
+        meters_per_unit,
+        density,
+        0.1,
+        0.1,
+        Look::Ring,
+    )
+}
+
 /// How far (metres) node `node`'s base lies below the surface that should carry it (see
 /// [`support_level`], searched from 10 cm above the node's lowest point to 10 cm below).
 pub fn sinking_depth(
@@ -239,8 +266,21 @@ pub fn sinking_depth(
 ) -> Option<f64> {
     let up = up.normalize();
     let low = base(node, up);
-    support_level(node, up, meters_per_unit, density, 0.1, 0.1, false)
+    support_level(node, up, meters_per_unit, density, 0.1, 0.1, Look::Median)
         .map(|level| ((level - low) * meters_per_unit).max(0.0))
+}
+
+/// Which columns decide a support level, and how.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Look {
+    /// All 41; their median, if the middle half agree within 1.5 cm.
+    Median,
+    /// All 41; the 1.5 cm band most of them meet.
+    Densest,
+    /// The 16 around the footprint only (what stands under the object may be its own
+    /// residue in the background); the lowest level of the lowest cluster four of them
+    /// meet.
+    Ring,
 }
 
 /// The level (along `up`, world units) of the surface under `node`: where a look straight
@@ -262,8 +302,9 @@ fn support_level(
     density: &mut dyn FnMut(&[DVec3]) -> Vec<f32>,
     above_m: f64,
     below_m: f64,
-    densest: bool,
+    look: Look,
 ) -> Option<f64> {
+    let densest = look != Look::Median;
     const STEP_M: f64 = 0.0025;
     let w = &node.world_from_local;
     let axis = |a: usize| w.rotation * DVec3::AXES[a];
@@ -287,6 +328,9 @@ fn support_level(
             let f = |k: usize| (k as f64 / 4.0 - 0.5) * 1.6;
             fractions.push((f(i), f(j)));
         }
+    }
+    if look == Look::Ring {
+        fractions.clear();
     }
     for k in 0..4 {
         let t = -1.5 + k as f64;
@@ -317,6 +361,23 @@ fn support_level(
         })
         .collect();
     levels.sort_by(f64::total_cmp);
+    if look == Look::Ring {
+        // The lowest cluster (levels closer than 1.5 cm in a row) that four columns meet:
+        // higher ones are neighbours or the object's own residue in the background. Its
+        // lowest level: a trained table reads a little above its true top, and a cut
+        // must only take what surely lies below the table.
+        let gap = 0.015 / meters_per_unit.max(1e-12);
+        let mut start = 0;
+        for i in 1..=levels.len() {
+            if i == levels.len() || levels[i] - levels[i - 1] > gap {
+                if i - start >= 4 {
+                    return Some(levels[start]);
+                }
+                start = i;
+            }
+        }
+        return None;
+    }
     if levels.len() * 3 < fractions.len() {
         return None;
     }

@@ -10,10 +10,12 @@
 #![forbid(unsafe_code)]
 
 pub mod chamfer;
+mod close;
 mod decimate;
 mod extract;
 mod mass;
 mod parts;
+pub use parts::Topology;
 pub mod sim;
 pub mod tetra;
 pub mod write;
@@ -22,8 +24,8 @@ use assist_core::{DVec3, InstanceId, Rng, Similarity3};
 use assist_scene::NeuralScene;
 
 pub use extract::{
-    DEFAULT_DENSITY, DEFAULT_MAX_TRIANGLES, DEFAULT_MIN_PART, DEFAULT_RESOLUTION, DEFAULT_SMOOTH,
-    ExtractOptions, MAX_RESOLUTION, MeshFrame, extract_node,
+    DEFAULT_CLOSE, DEFAULT_DENSITY, DEFAULT_MAX_TRIANGLES, DEFAULT_MIN_PART, DEFAULT_RESOLUTION,
+    DEFAULT_SMOOTH, ExtractOptions, MAX_RESOLUTION, MeshFrame, extract_node, extract_node_cut,
 };
 pub use mass::{MassProperties, mass_properties};
 

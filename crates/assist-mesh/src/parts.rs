@@ -14,7 +14,42 @@ fn find(parent: &mut [u32], mut v: u32) -> u32 {
     v
 }
 
+/// The shape of a mesh's surface: how many pieces, its Euler characteristic
+/// (vertices − edges + faces, over the vertices the triangles use) and, for a closed
+/// mesh, its genus: the number of handles (tunnels through it) of all its pieces
+/// together, `(2 × components − χ) / 2` (a ball or a box: 0; a mug: 1).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct Topology {
+    pub components: usize,
+    pub euler: i64,
+    /// `None` for a mesh that is not closed (its genus is not defined).
+    pub genus: Option<i64>,
+}
+
 impl NodeMesh {
+    /// See [`Topology`].
+    pub fn topology(&self) -> Topology {
+        let mut used = vec![false; self.positions.len()];
+        let mut edges = std::collections::HashSet::new();
+        for t in &self.triangles {
+            for e in 0..3 {
+                used[t[e] as usize] = true;
+                let (a, b) = (t[e], t[(e + 1) % 3]);
+                edges.insert((a.min(b), a.max(b)));
+            }
+        }
+        let v = used.iter().filter(|u| **u).count() as i64;
+        let euler = v - edges.len() as i64 + self.triangles.len() as i64;
+        let components = self.parts().len();
+        let genus = (self.is_closed() && !self.triangles.is_empty())
+            .then(|| (2 * components as i64 - euler) / 2);
+        Topology {
+            components,
+            euler,
+            genus,
+        }
+    }
+
     /// Parts (sets of triangles joined by shared vertices) as lists of triangle indices,
     /// with each part's signed enclosed volume (positive for an outward-wound closed part).
     pub fn parts(&self) -> Vec<(Vec<usize>, f64)> {
@@ -92,6 +127,44 @@ mod tests {
     use crate::{MeshFrame, NodeMesh};
 
     /// A shell (a ball of radius 8 with a cavity of radius 4) and a small floater.
+    #[test]
+    fn the_genus_counts_handles() {
+        use crate::tetra::{Grid, extract};
+        // A solid block, and the same block with a square hole through it (a ring).
+        let n = 12usize;
+        let field = |hole: bool| -> Vec<f32> {
+            (0..n * n * n)
+                .map(|v| {
+                    let c = [v % n, v / n % n, v / (n * n)];
+                    let inside = c.iter().all(|&x| (2..n - 2).contains(&x));
+                    let in_hole = hole && (5..7).contains(&c[0]) && (5..7).contains(&c[1]);
+                    if inside && !in_hole { 1.0 } else { -1.0 }
+                })
+                .collect()
+        };
+        for (hole, genus) in [(false, 0), (true, 1)] {
+            let values = field(hole);
+            let s = extract(
+                &Grid {
+                    dims: [n; 3],
+                    values: &values,
+                },
+                0.0,
+            );
+            let m = NodeMesh {
+                id: 1,
+                label: "block".into(),
+                frame: crate::MeshFrame::Node,
+                normals: vec![[0.0; 3]; s.positions.len()],
+                colors: vec![[0.0; 3]; s.positions.len()],
+                positions: s.positions.iter().map(|p| p.map(f64::from)).collect(),
+                triangles: s.triangles,
+            };
+            let t = m.topology();
+            assert_eq!((t.components, t.genus), (1, Some(genus)), "{t:?}");
+        }
+    }
+
     #[test]
     fn cavities_and_floaters_are_dropped_and_the_shell_kept() {
         let n = 30usize;

@@ -14,7 +14,7 @@ use std::time::Instant;
 use assist_core::{DVec3, InstanceId};
 use assist_mesh::sim::{self, Body};
 use assist_mesh::write::{self, Format, obj_name};
-use assist_mesh::{ExtractOptions, MeshFrame, NodeMesh, extract_node, node_pose};
+use assist_mesh::{ExtractOptions, MeshFrame, NodeMesh, node_pose};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 
@@ -81,8 +81,21 @@ pub struct ExportedNode {
     pub closed: bool,
     /// Enclosed volume in m³ (closed meshes only).
     pub volume_m3: Option<f64>,
+    /// Handles of the surface (tunnels through it), closed meshes only; and its pieces.
+    pub genus: Option<i64>,
+    pub components: usize,
+    /// What the node's occupancy grid holds, m³: the volume a surface of the object
+    /// should come near (a much smaller one is hollow or full of tunnels).
+    pub occupancy_m3: f64,
+    /// The level (m along up) of the support the surface was cut at, when one was found.
+    pub cut_at_support_m: Option<f64>,
+    /// What does not hold about this mesh, in words.
+    pub warnings: Vec<String>,
     pub seconds: f64,
 }
+
+/// A closed mesh enclosing less than this share of its node's occupancy is reported.
+pub const MIN_VOLUME_SHARE: f64 = 0.3;
 
 #[derive(Debug, Clone, Serialize)]
 pub struct ExportSummary {
@@ -126,7 +139,8 @@ impl ExportJob {
 }
 
 impl Session {
-    /// The surface of node `id` in its own frame (box centre, box axes, world units).
+    /// The surface of node `id` in its own frame (box centre, box axes, world units), cut
+    /// at the support it rests on.
     pub fn node_mesh(&self, id: InstanceId, opts: &ExtractOptions) -> Result<NodeMesh> {
         let scene = self.scene();
         let index = scene
@@ -140,7 +154,9 @@ impl Session {
                     format!("no node {id} (the scene has {})", self.ids()),
                 )
             })?;
-        extract_node(scene, index, opts).map_err(|e| request("export", e.to_string()))
+        let (cut, _) = support_cut(scene, index);
+        assist_mesh::extract_node_cut(scene, index, opts, cut)
+            .map_err(|e| request("export", e.to_string()))
     }
 
     /// The node named `name`: an id, `background`, or a label or description found as an
@@ -305,8 +321,9 @@ fn export_node(
         .position(|n| n.id == id)
         .unwrap_or(0);
     let node = &scene.scene.nodes[index];
-    let mesh =
-        extract_node(scene, index, &job.extract).map_err(|e| request("export", e.to_string()))?;
+    let (cut, support) = support_cut(scene, index);
+    let mesh = assist_mesh::extract_node_cut(scene, index, &job.extract, cut)
+        .map_err(|e| request("export", e.to_string()))?;
     // An empty surface is no export: MuJoCo refuses a mesh under 4 vertices, and a file
     // with nothing in it would pass for a result.
     if mesh.positions.len() < 4 || mesh.triangles.is_empty() {
@@ -353,6 +370,28 @@ fn export_node(
         let metres: Vec<[f64; 3]> = in_node.iter().map(|p| p.map(|v| v * mpu)).collect();
         assist_mesh::mass_properties(&metres, &mesh.triangles, job.material_density)
     });
+    let topology = mesh.topology();
+    let occupancy_m3 = {
+        let box_m3 = (node.half_size * node.world_from_local.scale * 2.0 * mpu).element_product();
+        scene.field_of(index).occupancy.occupied_fraction() * box_m3
+    };
+    let mut warnings = Vec::new();
+    if let Some(g) = topology.genus.filter(|g| *g > 0) {
+        warnings.push(format!(
+            "genus {g}: the surface has {g} tunnel(s) through it"
+        ));
+    }
+    if let Some(v) = mass.map(|m| m.volume)
+        && !node.is_background()
+        && v < MIN_VOLUME_SHARE * occupancy_m3
+    {
+        warnings.push(format!(
+            "it encloses {:.0} cm³, {:.0}% of the {:.0} cm³ its occupancy holds: the surface may be hollow or undertrained",
+            v * 1e6,
+            100.0 * v / occupancy_m3.max(1e-12),
+            occupancy_m3 * 1e6
+        ));
+    }
     let done = ExportedNode {
         id,
         label: node.label.clone(),
@@ -361,6 +400,11 @@ fn export_node(
         triangles: mesh.triangles.len(),
         closed,
         volume_m3: mass.map(|m| m.volume),
+        genus: topology.genus,
+        components: topology.components,
+        occupancy_m3,
+        cut_at_support_m: support.map(|l| l * mpu),
+        warnings,
         seconds: t0.elapsed().as_secs_f64(),
     };
     let record = json!({
@@ -374,6 +418,12 @@ fn export_node(
         "vertices": done.vertices,
         "triangles": done.triangles,
         "closed": closed,
+        "genus": done.genus,
+        "components": done.components,
+        "euler_characteristic": topology.euler,
+        "occupancy_m3": occupancy_m3,
+        "cut_at_support_m": done.cut_at_support_m,
+        "warnings": done.warnings,
         "mass_properties": mass,
         "bounds": mesh.bounds(),
     });
@@ -395,6 +445,44 @@ fn export_node(
         fixed: node.is_background(),
     };
     Ok((done, record, body))
+}
+
+/// The plane (node frame) an object's surface is cut at: the level of the background's
+/// surface under it (see [`assist_core::placement::support_height`]), so that its base is
+/// flat on the table rather than reaching into it; with the level (world units along
+/// up). `None` for the background, where no flat support is found, or where the level
+/// found lies too far above the box's base to be what carries it.
+fn support_cut(scene: &NeuralScene, index: usize) -> (Option<(DVec3, f64)>, Option<f64>) {
+    let node = &scene.scene.nodes[index];
+    let Some(bg) = scene.scene.nodes.iter().position(|n| n.is_background()) else {
+        return (None, None);
+    };
+    if node.is_background() {
+        return (None, None);
+    }
+    let up = scene.scene.up.normalize();
+    let mut density = |pts: &[DVec3]| scene.density_at_world(bg, pts);
+    let Some(level) =
+        assist_core::placement::support_height(node, up, scene.scene.meters_per_unit, &mut density)
+    else {
+        return (None, None);
+    };
+    // A support is under the object: it may trim its base (a mesh reaches a centimetre or
+    // so into the table), never more than 3 cm or a third of the box's height — a level
+    // higher up is something else (a neighbour's residue in the background, a shelf).
+    let heights = node.world_corners().map(|c| c.dot(up));
+    let (low, high) = heights
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &z| {
+            (l.min(z), h.max(z))
+        });
+    let reach = (0.03 / scene.scene.meters_per_unit).min((high - low) / 3.0);
+    if level > low + reach {
+        return (None, None);
+    }
+    let w = &node.world_from_local;
+    let n = w.rotation.inverse() * up;
+    (Some((n, level - up.dot(w.translation))), Some(level))
 }
 
 fn write_text(staging: &assist_fs::Staging, name: &str, text: &str) -> Result<()> {

@@ -125,6 +125,7 @@ pub fn run(a: MeshBenchArgs) -> anyhow::Result<()> {
                 min_part,
                 smooth,
                 max_triangles,
+                close: assist_session::DEFAULT_CLOSE,
             };
             let mut nodes = Vec::new();
             for (index, id, label, gt) in &truth {

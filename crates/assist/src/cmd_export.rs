@@ -74,6 +74,11 @@ pub struct ExportArgs {
     /// surface (removes noise finer than the views resolve); 0 = none.
     #[arg(long, default_value_t = DEFAULT_SMOOTH)]
     pub smooth: f32,
+    /// Fill tunnels and pinholes narrower than about twice this many cells before the
+    /// surface is taken (they are where no view constrained the density, each a handle
+    /// of the mesh); 0 = none.
+    #[arg(long, default_value_t = assist_session::DEFAULT_CLOSE)]
+    pub close: u32,
     /// Largest number of triangles per node: more are reduced by quadric-error edge
     /// collapse, keeping the shape and the mesh closed; 0 = no limit.
     #[arg(long, default_value_t = DEFAULT_MAX_TRIANGLES)]
@@ -119,6 +124,7 @@ pub fn job(a: &ExportArgs) -> ExportJob {
             min_part: a.min_part,
             smooth: a.smooth,
             max_triangles: a.triangles,
+            close: a.close,
         },
         points: a.points,
         material_density: a.material_density,
@@ -146,12 +152,16 @@ pub fn run(a: ExportArgs) -> anyhow::Result<()> {
                     node.file,
                     node.vertices,
                     node.triangles,
-                    match node.volume_m3 {
-                        Some(v) => format!("closed, {:.1} cm³, ", v * 1e6),
-                        None => "open, ".into(),
+                    match (node.volume_m3, node.genus) {
+                        (Some(v), Some(g)) => format!("closed, genus {g}, {:.1} cm³, ", v * 1e6),
+                        (Some(v), None) => format!("closed, {:.1} cm³, ", v * 1e6),
+                        _ => "open, ".into(),
                     },
                     node.seconds
-                )
+                );
+                for w in &node.warnings {
+                    eprintln!("warning: node {} {:?}: {w}", node.id, node.label);
+                }
             });
         }
     })?;

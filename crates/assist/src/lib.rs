@@ -27,6 +27,7 @@ mod cmd_synth;
 mod cmd_train;
 mod cmd_view;
 mod config;
+mod edit_checks;
 mod progress;
 
 #[derive(Parser, Debug)]

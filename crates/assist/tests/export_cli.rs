@@ -52,9 +52,36 @@ fn export_meshes_points_and_models_read_back() {
         assert_eq!(n["closed"], true, "{n}");
         assert!(n["volume_m3"].as_f64().unwrap() > 0.0, "{n}");
         assert!(obj.join(n["file"].as_str().unwrap()).is_file());
+        // Issue 47 item 3: the genus is reported, not hidden behind "closed".
+        assert!(
+            n["genus"].as_i64().is_some() && n["components"].as_u64() >= Some(1),
+            "{n}"
+        );
+        assert!(n["occupancy_m3"].as_f64().unwrap() > 0.0, "{n}");
     }
     let index: serde_json::Value =
         serde_json::from_slice(&std::fs::read(obj.join("export.json")).unwrap()).unwrap();
+    // Each object is cut at the table it stands on: its base is flat on the support, not
+    // reaching into it (a simulator would throw it out of the table).
+    let table = {
+        let t: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(cap.join("transforms.json")).unwrap()).unwrap();
+        t["table_top_z"].as_f64().unwrap_or(0.75)
+    };
+    for n in index["nodes"].as_array().unwrap() {
+        let cut = n["cut_at_support_m"]
+            .as_f64()
+            .unwrap_or_else(|| panic!("no support found: {n}"));
+        assert!(
+            (cut - table).abs() < 0.01,
+            "cut at {cut}, the table is at {table}: {n}"
+        );
+        let low = n["bounds"][0][2].as_f64().unwrap();
+        assert!(
+            low >= cut - 1e-3,
+            "the mesh reaches {low} below its support {cut}: {n}"
+        );
+    }
     assert_eq!(index["frame"], "world");
     // A small triangle budget: reduced by edge collapse, still closed.
     let small = export(
