@@ -31,6 +31,52 @@ pub struct Body {
     pub fixed: bool,
 }
 
+/// A static slab an object rests on: its top at `level` along the scene's up (world
+/// units), covering `lo`..`hi` along the two horizontal axes of [`horizontal_axes`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Support {
+    pub level: f64,
+    pub lo: [f64; 2],
+    pub hi: [f64; 2],
+}
+
+/// Two unit axes across `up` (the images of x and y under the turn that takes z to up).
+pub fn horizontal_axes(up: DVec3) -> [DVec3; 2] {
+    let q = DQuat::from_rotation_arc(DVec3::Z, up.normalize_or(DVec3::Z));
+    [q * DVec3::X, q * DVec3::Y]
+}
+
+/// The slabs objects resting at `bases` stand on: each base is a level and a footprint
+/// (world units, along [`horizontal_axes`]); bases within `tolerance` of each other share
+/// one slab, its top at the highest of them (the others start at most `tolerance` above
+/// it, never inside it), grown by `margin` around the footprints.
+pub fn supports(bases: &[Support], tolerance: f64, margin: f64) -> Vec<Support> {
+    let mut sorted: Vec<Support> = bases.to_vec();
+    sorted.sort_by(|a, b| a.level.total_cmp(&b.level));
+    let mut out: Vec<Support> = Vec::new();
+    let mut first_level = f64::NEG_INFINITY;
+    for b in sorted {
+        match out.last_mut() {
+            Some(s) if b.level - first_level <= tolerance => {
+                s.level = s.level.max(b.level);
+                for a in 0..2 {
+                    s.lo[a] = s.lo[a].min(b.lo[a] - margin);
+                    s.hi[a] = s.hi[a].max(b.hi[a] + margin);
+                }
+            }
+            _ => {
+                first_level = b.level;
+                out.push(Support {
+                    level: b.level,
+                    lo: b.lo.map(|v| v - margin),
+                    hi: b.hi.map(|v| v + margin),
+                });
+            }
+        }
+    }
+    out
+}
+
 /// A number for a model file: six decimals, trailing zeros cut; below 0.001 in scientific
 /// notation with seven significant digits (a small object's inertia is ~1e-5 kg·m²).
 fn f(v: f64) -> String {
@@ -54,7 +100,13 @@ fn xml_escape(s: &str) -> String {
 }
 
 /// A MuJoCo model of `bodies` (`up`: the scene's up, for gravity).
-pub fn mjcf(model: &str, bodies: &[Body], meters_per_unit: f64, up: DVec3) -> String {
+pub fn mjcf(
+    model: &str,
+    bodies: &[Body],
+    meters_per_unit: f64,
+    up: DVec3,
+    supports: &[Support],
+) -> String {
     let m = meters_per_unit;
     let g = -up.normalize_or(DVec3::Z) * 9.81;
     let mut s = format!(
@@ -73,6 +125,30 @@ pub fn mjcf(model: &str, bodies: &[Body], meters_per_unit: f64, up: DVec3) -> St
         );
     }
     s += "  </asset>\n  <worldbody>\n";
+    // What the objects rest on: static slabs 2 cm thick, their tops at the supports.
+    let up_n = up.normalize_or(DVec3::Z);
+    let [e1, e2] = horizontal_axes(up_n);
+    let q = DQuat::from_rotation_arc(DVec3::Z, up_n);
+    for (k, sp) in supports.iter().enumerate() {
+        let half_thick = 0.01;
+        let mid = [0, 1].map(|a| (sp.lo[a] + sp.hi[a]) / 2.0);
+        let centre = (e1 * mid[0] + e2 * mid[1] + up_n * sp.level) * m - up_n * half_thick;
+        let size = [
+            (sp.hi[0] - sp.lo[0]) * m / 2.0,
+            (sp.hi[1] - sp.lo[1]) * m / 2.0,
+            half_thick,
+        ];
+        let _ = writeln!(
+            s,
+            "    <geom name=\"support_{k}\" type=\"box\" pos=\"{}\" quat=\"{} {} {} {}\" size=\"{}\" rgba=\"0.5 0.5 0.5 0.4\"/>",
+            vec3(centre.to_array()),
+            f(q.w),
+            f(q.x),
+            f(q.y),
+            f(q.z),
+            vec3(size)
+        );
+    }
     for b in bodies {
         let pos = vec3((b.translation * m).to_array());
         let q = b.rotation;
@@ -84,9 +160,11 @@ pub fn mjcf(model: &str, bodies: &[Body], meters_per_unit: f64, up: DVec3) -> St
             f(b.rgb[2] as f64)
         );
         if b.fixed {
+            // The room is drawn, not collided with: MuJoCo would take its convex hull, with
+            // the objects inside it. The supports carry them.
             let _ = writeln!(
                 s,
-                "    <geom name=\"{n}\" type=\"mesh\" mesh=\"{n}\" pos=\"{pos}\" quat=\"{quat}\" rgba=\"{rgba}\"/>",
+                "    <geom name=\"{n}\" type=\"mesh\" mesh=\"{n}\" pos=\"{pos}\" quat=\"{quat}\" rgba=\"{rgba}\" contype=\"0\" conaffinity=\"0\"/>",
                 n = b.name
             );
             continue;
@@ -234,7 +312,7 @@ mod tests {
 
     #[test]
     fn models_scale_lengths_to_metres_and_carry_inertia() {
-        let s = mjcf("desk", &[body(false), body(true)], 0.5, DVec3::Z);
+        let s = mjcf("desk", &[body(false), body(true)], 0.5, DVec3::Z, &[]);
         assert!(s.contains("pos=\"0.5 1 0.25\""), "{s}");
         assert!(s.contains("scale=\"0.5 0.5 0.5\""));
         assert!(s.contains("<freejoint/>"));

@@ -91,6 +91,10 @@ pub struct ExportedNode {
     pub cut_at_support_m: Option<f64>,
     /// What does not hold about this mesh, in words.
     pub warnings: Vec<String>,
+    /// The lowest level of the surface along up and its footprint (world units, along
+    /// [`sim::horizontal_axes`]): where a simulator's support goes.
+    #[serde(skip)]
+    pub world_base: Option<sim::Support>,
     pub seconds: f64,
 }
 
@@ -242,8 +246,14 @@ impl Session {
         let mut nodes = Vec::new();
         let mut bodies = Vec::new();
         let mut records = Vec::new();
+        let mut bases = Vec::new();
         for (k, &id) in ids.iter().enumerate() {
             let (done, record, body) = export_node(scene, job, frame, staging.dir(), id)?;
+            if !body.fixed
+                && let Some(b) = done.world_base
+            {
+                bases.push(b);
+            }
             records.push(record);
             bodies.push(body);
             on_node(k, ids.len(), &done);
@@ -255,10 +265,13 @@ impl Session {
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "scene".into());
         let up = scene.scene.up;
+        // What the objects rest on: a slab under each group of objects whose bases lie
+        // within 2 mm, grown 2 cm around their footprints.
+        let supports = sim::supports(&bases, 0.002 / mpu, 0.02 / mpu);
         let model = match job.sim {
             None => None,
             Some(SimModel::Mjcf) => {
-                let text = sim::mjcf(&model_name, &bodies, mpu, up);
+                let text = sim::mjcf(&model_name, &bodies, mpu, up, &supports);
                 write_text(&staging, "scene.xml", &text)?;
                 Some("scene.xml".to_string())
             }
@@ -288,6 +301,10 @@ impl Session {
             "density_level": job.extract.density,
             "material_density_kg_m3": job.material_density,
             "model": model,
+            "supports_m": supports
+                .iter()
+                .map(|s| json!({"level": s.level * mpu, "lo": s.lo.map(|v| v * mpu), "hi": s.hi.map(|v| v * mpu)}))
+                .collect::<Vec<_>>(),
             "nodes": records,
         });
         write_text(
@@ -405,6 +422,7 @@ fn export_node(
         occupancy_m3,
         cut_at_support_m: support.map(|l| l * mpu),
         warnings,
+        world_base: world_base(&mesh, frame, &pose, scene.scene.up),
         seconds: t0.elapsed().as_secs_f64(),
     };
     let record = json!({
@@ -445,6 +463,36 @@ fn export_node(
         fixed: node.is_background(),
     };
     Ok((done, record, body))
+}
+
+/// The lowest level of `mesh` along `up` and its footprint, in the world (see
+/// [`ExportedNode::world_base`]).
+fn world_base(
+    mesh: &NodeMesh,
+    frame: MeshFrame,
+    pose: &assist_core::Similarity3,
+    up: DVec3,
+) -> Option<sim::Support> {
+    let up = up.normalize();
+    let [e1, e2] = sim::horizontal_axes(up);
+    let mut b = sim::Support {
+        level: f64::INFINITY,
+        lo: [f64::INFINITY; 2],
+        hi: [f64::NEG_INFINITY; 2],
+    };
+    for p in &mesh.positions {
+        let p = DVec3::from_array(*p);
+        let w = match frame {
+            MeshFrame::World => p,
+            MeshFrame::Node => pose.transform_point(p),
+        };
+        b.level = b.level.min(w.dot(up));
+        for (a, e) in [e1, e2].iter().enumerate() {
+            b.lo[a] = b.lo[a].min(w.dot(*e));
+            b.hi[a] = b.hi[a].max(w.dot(*e));
+        }
+    }
+    b.level.is_finite().then_some(b)
 }
 
 /// The plane (node frame) an object's surface is cut at: the level of the background's
