@@ -2,11 +2,11 @@
 //! mug. Each instruction resolves to exactly the objects it means, or is refused naming
 //! the word or phrase the grammar does not read.
 
-use assist_core::{DVec3, Scene, SceneSource};
+use assist_core::{DVec3, Scene};
 use assist_lang::{ParseOptions, parse};
 
 mod common;
-use common::node;
+use common::{NoScenes, node};
 
 /// A duck (1), a cow (2), a mug (3), a teapot (4), a red box (5) and a blue striped box (6).
 fn scene() -> Scene {
@@ -24,13 +24,6 @@ fn scene() -> Scene {
         ],
         DVec3::Z,
     )
-}
-
-struct NoScenes;
-impl SceneSource for NoScenes {
-    fn load_scene(&mut self, path: &str) -> Result<Scene, String> {
-        Err(format!("{path}: no such scene"))
-    }
 }
 
 /// The (operation, id) of each action.

@@ -2,11 +2,11 @@
 //! word after a number that is not a unit is refused by name, never read as an object
 //! ("move the ball 3 furlongs left" once said "no object called furlongs").
 
-use assist_core::{DVec3, Scene, SceneSource};
+use assist_core::{DVec3, Scene};
 use assist_lang::{ParseOptions, parse};
 
 mod common;
-use common::node;
+use common::{NoScenes, node};
 
 fn scene() -> Scene {
     let mut bg = node(0, "background", [0.0, 0.0, 1.0]);
@@ -19,13 +19,6 @@ fn scene() -> Scene {
         ],
         DVec3::Z,
     )
-}
-
-struct NoScenes;
-impl SceneSource for NoScenes {
-    fn load_scene(&mut self, path: &str) -> Result<Scene, String> {
-        Err(format!("{path}: no such scene"))
-    }
 }
 
 /// The length of the first action's offset, in metres.
