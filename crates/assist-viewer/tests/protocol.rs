@@ -519,11 +519,7 @@ async fn the_viewer_serves_a_bounded_number_of_clients() {
     let dir = TempDir::new("viewer-clients");
     let path = scene_on_disk(&dir);
     let running = start_plain(path, Ipv4Addr::LOCALHOST).await;
-    let url = format!(
-        "ws://{}/ws?token={}",
-        running.addr,
-        running.token.clone().unwrap()
-    );
+    let url = socket_url(&running);
     let mut open = Vec::new();
     for _ in 0..assist_viewer::MAX_CLIENTS {
         let (mut ws, _) = tokio_tungstenite::connect_async(&url).await.unwrap();
@@ -555,11 +551,7 @@ async fn an_oversized_message_is_answered_before_the_socket_closes() {
     let dir = TempDir::new("viewer-oversized");
     let path = scene_on_disk(&dir);
     let running = start_plain(path, Ipv4Addr::LOCALHOST).await;
-    let url = format!(
-        "ws://{}/ws?token={}",
-        running.addr,
-        running.token.clone().unwrap()
-    );
+    let url = socket_url(&running);
     let (mut ws, _) = tokio_tungstenite::connect_async(&url).await.unwrap();
     assert_eq!(next(&mut ws).await["type"], "hello");
     let huge = json!({"type": "text", "text": "x".repeat(2 << 20)});
@@ -568,6 +560,15 @@ async fn an_oversized_message_is_answered_before_the_socket_closes() {
     assert!(e["message"].as_str().unwrap().contains("at most"), "{e}");
     let (mut ws2, _) = tokio_tungstenite::connect_async(&url).await.unwrap();
     assert_eq!(next(&mut ws2).await["type"], "hello");
+}
+
+/// The socket address of `running`, with its token.
+fn socket_url(running: &assist_viewer::Running) -> String {
+    format!(
+        "ws://{}/ws?token={}",
+        running.addr,
+        running.token.clone().unwrap()
+    )
 }
 
 /// A viewer of the scene at `path` on `host`, any port, no other scenes.
