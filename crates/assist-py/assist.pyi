@@ -117,6 +117,7 @@ class Scene:
         min_part: float = 0.05,
         points: int = 100000,
         close: int = 2,
+        opacity: float = 0.1,
         sim: Optional[str] = None,
         material_density: float = 1000.0,
         force: bool = False,

@@ -1,8 +1,12 @@
 //! A node's surface from its field: the density is sampled on a grid over the node's box
 //! (cubic cells in world units, `resolution` along the longest side; cells the node's
-//! occupancy grid marks empty count as empty, as the renderer skips them), the level set
-//! `σ = density` of `ln σ` is extracted by marching tetrahedra with one empty layer around
-//! the box (so the surface closes where the object meets the box's faces), and each vertex
+//! occupancy grid marks empty count as empty, as the renderer skips them). An object's
+//! surface is where it is `opacity` opaque seen from outside (the least optical depth
+//! over 26 directions, [`crate::hull`]); the background's, the level set `σ = density`.
+//! Tunnels narrower than the closing radius are filled (the support under an object
+//! sealing its base), what lies under the support is cut away, and the surface is
+//! extracted by marching tetrahedra with one empty layer around the box (so it closes
+//! where the object meets the box's faces). Each vertex
 //! gets the colour the field shows when looked at head-on (along the inward normal, half
 //! a cell inside the surface, with the average appearance code).
 //!
@@ -40,6 +44,10 @@ pub const DEFAULT_MIN_PART: f64 = 0.05;
 /// the default resolution) are where no view constrained the density, not handles of
 /// the object (a mug's handle is far wider).
 pub const DEFAULT_CLOSE: u32 = 2;
+/// Default opacity of an object's surface, seen from outside along the best of 26 grid
+/// directions (see [`crate::hull`]): where the object stops a tenth of the light. Chosen
+/// with `assist bench mesh` (BENCHMARKS.md): deeper levels lie inside the seen surface.
+pub const DEFAULT_OPACITY: f32 = 0.1;
 
 /// Which frame a mesh's coordinates are in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -76,6 +84,15 @@ pub struct ExtractOptions {
     /// taken (see [`DEFAULT_CLOSE`]); 0 = none.
     #[serde(default = "default_close")]
     pub close: u32,
+    /// Objects' surfaces lie where the node is this opaque seen from outside (the least
+    /// optical depth over 26 directions, see [`DEFAULT_OPACITY`]); 0 takes the level set
+    /// of the density (`density`) instead, as the background's always is.
+    #[serde(default = "default_opacity")]
+    pub opacity: f32,
+}
+
+fn default_opacity() -> f32 {
+    DEFAULT_OPACITY
 }
 
 fn default_close() -> u32 {
@@ -103,6 +120,7 @@ impl Default for ExtractOptions {
             smooth: DEFAULT_SMOOTH,
             max_triangles: DEFAULT_MAX_TRIANGLES,
             close: DEFAULT_CLOSE,
+            opacity: DEFAULT_OPACITY,
         }
     }
 }
@@ -122,6 +140,15 @@ impl ExtractOptions {
             return Err(MeshError::Option {
                 name: "close",
                 message: format!("{} is outside 0..=8 (grid cells)", self.close),
+            });
+        }
+        if !(0.0..1.0).contains(&self.opacity) {
+            return Err(MeshError::Option {
+                name: "opacity",
+                message: format!(
+                    "{} is outside 0..1 (0 = the density's level set; 0.5 = half opaque)",
+                    self.opacity
+                ),
             });
         }
         if !(0.0..=8.0).contains(&self.smooth) {
@@ -243,36 +270,70 @@ pub fn extract_node_cut(
     if opts.smooth > 0.0 {
         gaussian_blur(&mut density, dims, opts.smooth);
     }
-    // The empty layer stays empty, whatever the blur spread into it.
-    let mut values: Vec<f32> = density
-        .iter()
-        .enumerate()
-        .map(|(v, &s)| {
-            let c = [v % dims[0], v / dims[0] % dims[1], v / (dims[0] * dims[1])];
-            let border = (0..3).any(|a| c[a] == 0 || c[a] == dims[a] - 1);
-            if border || s <= 0.0 {
-                f32::NEG_INFINITY
-            } else {
-                s.ln()
+    let border = |v: usize| {
+        let c = [v % dims[0], v / dims[0] % dims[1], v / (dims[0] * dims[1])];
+        (0..3).any(|a| c[a] == 0 || c[a] == dims[a] - 1)
+    };
+    // What lies under the support the object is cut at.
+    let scale = node.world_from_local.scale;
+    let below: Option<Vec<bool>> = cut.map(|(n, d)| {
+        (0..density.len())
+            .map(|v| {
+                let g = [v % dims[0], v / dims[0] % dims[1], v / (dims[0] * dims[1])];
+                n.dot(grid.local(g.map(|c| c as f32)) * scale) < d
+            })
+            .collect()
+    });
+    let cell = (node.half_size * scale * 2.0).max_element() / opts.resolution as f64;
+    let opacity_surface = opts.opacity > 0.0 && nf.space == NodeSpace::Box && !node.is_background();
+    // Log of the value the surface is a level set of; the empty layer stays empty,
+    // whatever the blur spread into it.
+    let (mut values, level) = if opacity_surface {
+        for (v, s) in density.iter_mut().enumerate() {
+            if border(v) {
+                *s = 0.0;
             }
-        })
-        .collect();
-    fill_and_cut(&mut values, &grid, opts, node.world_from_local.scale, cut);
+        }
+        // Optical depth of one cell along each axis: world cell / scale = local length,
+        // over the box diagonal in local units.
+        let per_cell = [0, 1, 2].map(|a| (cell / scale[a]) as f32 / nf.unit);
+        let tau = crate::hull::least_depth(&density, below.as_deref(), dims, per_cell);
+        let values = tau.iter().map(|t| t.ln()).collect::<Vec<f32>>();
+        (values, (-(1.0 - opts.opacity).ln()).ln())
+    } else {
+        let values = density
+            .iter()
+            .enumerate()
+            .map(|(v, &s)| {
+                if border(v) || s <= 0.0 {
+                    f32::NEG_INFINITY
+                } else {
+                    s.ln()
+                }
+            })
+            .collect();
+        (values, opts.density.ln())
+    };
+    close_and_cut(
+        &mut values,
+        level,
+        dims,
+        opts.close as usize,
+        below.as_deref(),
+    );
     let surface = extract(
         &Grid {
             dims,
             values: &values,
         },
-        opts.density.ln(),
+        level,
     );
-    let scale = node.world_from_local.scale;
     let positions: Vec<[f64; 3]> = surface
         .positions
         .iter()
         .map(|g| (grid.local(*g) * scale).to_array())
         .collect();
     let normals = vertex_normals(&positions, &surface.triangles);
-    let cell = (node.half_size * scale * 2.0).max_element() / opts.resolution as f64;
     let colors = colors_at(node, nf, &positions, &normals, cell * 0.5);
     let mut mesh = NodeMesh {
         id: node.id,
@@ -292,30 +353,26 @@ pub fn extract_node_cut(
     Ok(mesh)
 }
 
-/// Closes the inside region of the log-density grid `values` (cells just filled get a
-/// value a little above the level, so the surface passes around them) and empties what
-/// lies below `cut`.
-fn fill_and_cut(
+/// Closes the inside region (`values` above `level`; cells just filled get a value a
+/// little above the level, so the surface passes around them), the cells under the
+/// support sealing the base, then empties those cells.
+fn close_and_cut(
     values: &mut [f32],
-    grid: &BoxGrid,
-    opts: &ExtractOptions,
-    scale: DVec3,
-    cut: Option<(DVec3, f64)>,
+    level: f32,
+    dims: [usize; 3],
+    radius: usize,
+    below: Option<&[bool]>,
 ) {
-    let dims = grid.dims();
-    let level = opts.density.ln();
     let inside: Vec<bool> = values.iter().map(|&v| v > level).collect();
-    let closed = crate::close::close(&inside, dims, opts.close as usize);
+    let closed = crate::close::close(&inside, below, dims, radius);
     for (v, (c, i)) in closed.iter().zip(&inside).enumerate() {
         if *c && !i {
             values[v] = level + 0.25;
         }
     }
-    if let Some((n, d)) = cut {
-        for (v, x) in values.iter_mut().enumerate() {
-            let g = [v % dims[0], v / dims[0] % dims[1], v / (dims[0] * dims[1])];
-            let p = grid.local(g.map(|c| c as f32)) * scale;
-            if n.dot(p) < d {
+    if let Some(below) = below {
+        for (x, b) in values.iter_mut().zip(below) {
+            if *b {
                 *x = f32::NEG_INFINITY;
             }
         }
@@ -483,6 +540,7 @@ mod tests {
             smooth: 0.0,
             max_triangles: 0,
             close: 0,
+            opacity: 0.0,
         };
         let m = extract_node(&s, 0, &opts).unwrap();
         assert!(m.is_closed());
@@ -520,7 +578,7 @@ mod tests {
     }
 
     #[test]
-    fn empty_occupancy_cells_and_thin_densities_leave_no_surface() {
+    fn empty_cells_leave_no_surface_and_faint_matter_is_solid_by_its_opacity() {
         let half = DVec3::splat(0.5);
         // Only the lower half (z cells 0..4) occupied: the mesh stops at z = 0.
         let s = scene(half, Similarity3::IDENTITY, 1000.0, |c| c[2] < 4);
@@ -534,6 +592,7 @@ mod tests {
                 smooth: 0.0,
                 max_triangles: 0,
                 close: 0,
+                opacity: 0.0,
             },
         )
         .unwrap();
@@ -543,8 +602,30 @@ mod tests {
         assert!((lo[2] + 0.5).abs() < 1e-3);
         // A density below the level: nothing.
         let thin = scene(half, Similarity3::IDENTITY, 10.0, |_| true);
-        let m = extract_node(&thin, 0, &ExtractOptions::default()).unwrap();
+        let level_set = ExtractOptions {
+            opacity: 0.0,
+            ..Default::default()
+        };
+        let m = extract_node(&thin, 0, &level_set).unwrap();
         assert!(m.triangles.is_empty());
+        // Seen by its opacity, the same faint matter is a solid: 10 per diagonal adds
+        // 0.0451 of optical depth per cell (1/128 of a unit box, √3 its diagonal; half
+        // of that at the face, by the trapezoid from the empty layer), so depths are
+        // 0.0226, 0.0677, 0.1128 at the face and the next two vertices: 10% opacity
+        // (depth 0.1054) lies 1 + (ln 0.1054 − ln 0.0677) / (ln 0.1128 − ln 0.0677) =
+        // 1.866 cells in from each face.
+        let unsmoothed = ExtractOptions {
+            smooth: 0.0,
+            ..Default::default()
+        };
+        let m = extract_node(&thin, 0, &unsmoothed).unwrap();
+        assert!(m.is_closed());
+        let (lo, hi) = m.bounds().unwrap();
+        let inset = 0.5 - 1.866 / 128.0;
+        for a in 0..3 {
+            assert!((hi[a] - inset).abs() < 1e-4, "{hi:?}");
+            assert!((lo[a] + inset).abs() < 1e-4, "{lo:?}");
+        }
         // Options out of range are refused by name.
         let e = extract_node(
             &thin,
@@ -556,6 +637,7 @@ mod tests {
                 smooth: 0.0,
                 max_triangles: 0,
                 close: 0,
+                opacity: 0.0,
             },
         )
         .unwrap_err();

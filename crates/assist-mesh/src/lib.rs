@@ -13,6 +13,7 @@ pub mod chamfer;
 mod close;
 mod decimate;
 mod extract;
+mod hull;
 mod mass;
 mod parts;
 pub use parts::Topology;
@@ -24,8 +25,9 @@ use assist_core::{DVec3, InstanceId, Rng, Similarity3};
 use assist_scene::NeuralScene;
 
 pub use extract::{
-    DEFAULT_CLOSE, DEFAULT_DENSITY, DEFAULT_MAX_TRIANGLES, DEFAULT_MIN_PART, DEFAULT_RESOLUTION,
-    DEFAULT_SMOOTH, ExtractOptions, MAX_RESOLUTION, MeshFrame, extract_node, extract_node_cut,
+    DEFAULT_CLOSE, DEFAULT_DENSITY, DEFAULT_MAX_TRIANGLES, DEFAULT_MIN_PART, DEFAULT_OPACITY,
+    DEFAULT_RESOLUTION, DEFAULT_SMOOTH, ExtractOptions, MAX_RESOLUTION, MeshFrame, extract_node,
+    extract_node_cut,
 };
 pub use mass::{MassProperties, mass_properties};
 

@@ -260,7 +260,7 @@ impl Scene {
     /// world, node with `sim`); `sim` "mjcf" or "urdf" for a simulator model. Returns the
     /// summary: `out`, `model` and per node `id`, `label`, `file`, `vertices`,
     /// `triangles`, `closed`, `volume_m3`, `seconds`.
-    #[pyo3(signature = (out, nodes=vec!["all".to_string()], format="obj", frame=None, resolution=Whole::of(assist_session::DEFAULT_RESOLUTION as i64), density=assist_session::DEFAULT_DENSITY, smooth=assist_session::DEFAULT_SMOOTH, triangles=Whole::of(assist_session::DEFAULT_MAX_TRIANGLES as i64), min_part=assist_session::DEFAULT_MIN_PART, points=Whole::of(assist_session::DEFAULT_POINTS as i64), close=Whole::of(assist_session::DEFAULT_CLOSE as i64), sim=None, material_density=assist_session::DEFAULT_MATERIAL_DENSITY, force=false))]
+    #[pyo3(signature = (out, nodes=vec!["all".to_string()], format="obj", frame=None, resolution=Whole::of(assist_session::DEFAULT_RESOLUTION as i64), density=assist_session::DEFAULT_DENSITY, smooth=assist_session::DEFAULT_SMOOTH, triangles=Whole::of(assist_session::DEFAULT_MAX_TRIANGLES as i64), min_part=assist_session::DEFAULT_MIN_PART, points=Whole::of(assist_session::DEFAULT_POINTS as i64), close=Whole::of(assist_session::DEFAULT_CLOSE as i64), opacity=assist_session::DEFAULT_OPACITY, sim=None, material_density=assist_session::DEFAULT_MATERIAL_DENSITY, force=false))]
     fn export<'py>(
         &self,
         py: Python<'py>,
@@ -275,6 +275,7 @@ impl Scene {
         min_part: f64,
         points: Whole,
         close: Whole,
+        opacity: f32,
         sim: Option<&str>,
         material_density: f64,
         force: bool,
@@ -301,6 +302,7 @@ impl Scene {
                 smooth,
                 max_triangles: triangles.get("triangles")?,
                 close: close.get("close")?,
+                opacity,
             },
             points: points.get("points")?,
             material_density,

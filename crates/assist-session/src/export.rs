@@ -98,8 +98,13 @@ pub struct ExportedNode {
     pub seconds: f64,
 }
 
-/// A closed mesh enclosing less than this share of its node's occupancy is reported.
+/// A closed mesh enclosing less than this share of its node's occupancy is reported
+/// (hollow or undertrained).
 pub const MIN_VOLUME_SHARE: f64 = 0.3;
+/// A closed mesh enclosing more than this multiple of its node's occupancy is reported:
+/// the occupancy grid counts every cell the field draws, so a surface holding much more
+/// than that encloses matter the renderer never shows.
+pub const MAX_VOLUME_SHARE: f64 = 2.0;
 
 #[derive(Debug, Clone, Serialize)]
 pub struct ExportSummary {
@@ -344,12 +349,21 @@ fn export_node(
     // An empty surface is no export: MuJoCo refuses a mesh under 4 vertices, and a file
     // with nothing in it would pass for a result.
     if mesh.positions.len() < 4 || mesh.triangles.is_empty() {
+        let level = if job.extract.opacity > 0.0 && !node.is_background() {
+            format!("opacity {}", job.extract.opacity)
+        } else {
+            format!("density level {}", job.extract.density)
+        };
+        let flag = if job.extract.opacity > 0.0 && !node.is_background() {
+            "--opacity"
+        } else {
+            "--density"
+        };
         return Err(request(
             "export",
             format!(
-                "node {id} {:?} has no surface at density level {} ({} vertices): the field is nearly empty there; train it longer or lower --density",
+                "node {id} {:?} has no surface at {level} ({} vertices): the field is nearly empty there; train it longer or lower {flag}",
                 node.label,
-                job.extract.density,
                 mesh.positions.len()
             ),
         ));
@@ -392,23 +406,11 @@ fn export_node(
         let box_m3 = (node.half_size * node.world_from_local.scale * 2.0 * mpu).element_product();
         scene.field_of(index).occupancy.occupied_fraction() * box_m3
     };
-    let mut warnings = Vec::new();
-    if let Some(g) = topology.genus.filter(|g| *g > 0) {
-        warnings.push(format!(
-            "genus {g}: the surface has {g} tunnel(s) through it"
-        ));
-    }
-    if let Some(v) = mass.map(|m| m.volume)
-        && !node.is_background()
-        && v < MIN_VOLUME_SHARE * occupancy_m3
-    {
-        warnings.push(format!(
-            "it encloses {:.0} cm³, {:.0}% of the {:.0} cm³ its occupancy holds: the surface may be hollow or undertrained",
-            v * 1e6,
-            100.0 * v / occupancy_m3.max(1e-12),
-            occupancy_m3 * 1e6
-        ));
-    }
+    let warnings = mesh_warnings(
+        topology.genus,
+        mass.map(|m| m.volume).filter(|_| !node.is_background()),
+        occupancy_m3,
+    );
     let done = ExportedNode {
         id,
         label: node.label.clone(),
@@ -493,6 +495,34 @@ fn world_base(
         }
     }
     b.level.is_finite().then_some(b)
+}
+
+/// What does not hold about a node's mesh, in words: tunnels through it, and a volume
+/// (`None` for the background or an open mesh) far from what its occupancy holds.
+fn mesh_warnings(genus: Option<i64>, volume_m3: Option<f64>, occupancy_m3: f64) -> Vec<String> {
+    let mut warnings = Vec::new();
+    if let Some(g) = genus.filter(|g| *g > 0) {
+        warnings.push(format!(
+            "genus {g}: the surface has {g} tunnel(s) through it"
+        ));
+    }
+    if let Some(v) = volume_m3 {
+        let share = 100.0 * v / occupancy_m3.max(1e-12);
+        if v < MIN_VOLUME_SHARE * occupancy_m3 {
+            warnings.push(format!(
+                "it encloses {:.0} cm³, {share:.0}% of the {:.0} cm³ its occupancy holds: the surface may be hollow or undertrained",
+                v * 1e6,
+                occupancy_m3 * 1e6
+            ));
+        } else if v > MAX_VOLUME_SHARE * occupancy_m3 {
+            warnings.push(format!(
+                "it encloses {:.0} cm³, {share:.0}% of the {:.0} cm³ its occupancy holds: the surface holds matter the renderer does not show",
+                v * 1e6,
+                occupancy_m3 * 1e6
+            ));
+        }
+    }
+    warnings
 }
 
 /// The plane (node frame) an object's surface is cut at: the level of the background's

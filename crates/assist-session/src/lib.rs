@@ -32,8 +32,8 @@ pub use assist_data::Output;
 pub use assist_lang::Resolved;
 pub use assist_mesh::write::{Format as MeshFormat, mesh_ply};
 pub use assist_mesh::{
-    DEFAULT_CLOSE, DEFAULT_DENSITY, DEFAULT_MAX_TRIANGLES, DEFAULT_MIN_PART, DEFAULT_RESOLUTION,
-    DEFAULT_SMOOTH, ExtractOptions, MeshFrame, NodeMesh,
+    DEFAULT_CLOSE, DEFAULT_DENSITY, DEFAULT_MAX_TRIANGLES, DEFAULT_MIN_PART, DEFAULT_OPACITY,
+    DEFAULT_RESOLUTION, DEFAULT_SMOOTH, ExtractOptions, MeshFrame, NodeMesh,
 };
 pub use assist_render::RenderedImage as Frame;
 pub use assist_render::{DragCache, RenderOptions, render_camera};

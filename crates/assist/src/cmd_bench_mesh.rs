@@ -26,7 +26,10 @@ pub struct MeshBenchArgs {
     /// Grid resolutions to measure (comma-separated).
     #[arg(long, value_delimiter = ',', default_values_t = [assist_mesh::DEFAULT_RESOLUTION])]
     pub resolution: Vec<u32>,
-    /// Surface density levels to measure (comma-separated).
+    /// Surface opacities to measure (comma-separated; 0 = the density's level set).
+    #[arg(long, value_delimiter = ',', default_values_t = [assist_mesh::DEFAULT_OPACITY])]
+    pub opacity: Vec<f32>,
+    /// Surface density levels to measure with opacity 0 (comma-separated).
     #[arg(long, value_delimiter = ',', default_values_t = [assist_mesh::DEFAULT_DENSITY])]
     pub density: Vec<f32>,
     /// Shares of the largest part below which parts are dropped (comma-separated).
@@ -109,16 +112,24 @@ pub fn run(a: MeshBenchArgs) -> anyhow::Result<()> {
     let mut rows = Vec::new();
     for &resolution in &a.resolution {
         let mut grid = Vec::new();
-        for &d in &a.density {
-            for &m in &a.min_part {
-                for &s in &a.smooth {
-                    for &t in &a.triangles {
-                        grid.push((d, m, s, t));
+        for &o in &a.opacity {
+            // The density level only matters for the density's own level set.
+            let levels = if o > 0.0 {
+                &[assist_mesh::DEFAULT_DENSITY][..]
+            } else {
+                &a.density[..]
+            };
+            for &d in levels {
+                for &m in &a.min_part {
+                    for &s in &a.smooth {
+                        for &t in &a.triangles {
+                            grid.push((o, d, m, s, t));
+                        }
                     }
                 }
             }
         }
-        for (density, min_part, smooth, max_triangles) in grid {
+        for (opacity, density, min_part, smooth, max_triangles) in grid {
             let opts = ExtractOptions {
                 resolution,
                 density,
@@ -126,6 +137,7 @@ pub fn run(a: MeshBenchArgs) -> anyhow::Result<()> {
                 smooth,
                 max_triangles,
                 close: assist_session::DEFAULT_CLOSE,
+                opacity,
             };
             let mut nodes = Vec::new();
             for (index, id, label, gt) in &truth {
@@ -134,6 +146,7 @@ pub fn run(a: MeshBenchArgs) -> anyhow::Result<()> {
                     .to_world(&node_pose(&scene, *id).unwrap_or_default());
                 let seconds = t0.elapsed().as_secs_f64();
                 let closed = mesh.is_closed();
+                let genus = mesh.topology().genus;
                 let samples: Vec<DVec3> = mesh
                     .sample_points(a.points, 1)
                     .positions
@@ -151,7 +164,7 @@ pub fn run(a: MeshBenchArgs) -> anyhow::Result<()> {
                 };
                 nodes.push(json!({
                     "id": id, "label": label, "seconds": seconds,
-                    "triangles": mesh.triangles.len(), "closed": closed,
+                    "triangles": mesh.triangles.len(), "closed": closed, "genus": genus,
                     "truth_to_mesh": to_mesh, "mesh_to_truth": to_truth,
                     "truth_points": gt.len(),
                 }));
@@ -161,7 +174,7 @@ pub fn run(a: MeshBenchArgs) -> anyhow::Result<()> {
                 v.iter().sum::<f64>() / v.len().max(1) as f64
             };
             let row = json!({
-                "resolution": resolution, "density": density, "min_part": min_part, "smooth": smooth, "max_triangles": max_triangles,
+                "resolution": resolution, "opacity": opacity, "density": density, "min_part": min_part, "smooth": smooth, "max_triangles": max_triangles,
                 "truth_to_mesh_mean_mm": mean("truth_to_mesh", "mean") * 1e3,
                 "mesh_to_truth_mean_mm": mean("mesh_to_truth", "mean") * 1e3,
                 "chamfer_mm": (mean("truth_to_mesh", "mean") + mean("mesh_to_truth", "mean")) * 1e3 / 2.0,
@@ -170,7 +183,7 @@ pub fn run(a: MeshBenchArgs) -> anyhow::Result<()> {
             });
             if !a.json {
                 eprintln!(
-                    "resolution {resolution:>4}  density {density:>7.1}  min part {min_part:.2}  smooth {smooth:.1}  budget {max_triangles}  truth→mesh {:.2} mm  mesh→truth {:.2} mm  Chamfer {:.2} mm  {:.2} s/node",
+                    "resolution {resolution:>4}  opacity {opacity:.2}  density {density:>7.1}  min part {min_part:.2}  smooth {smooth:.1}  budget {max_triangles}  truth→mesh {:.2} mm  mesh→truth {:.2} mm  Chamfer {:.2} mm  {:.2} s/node",
                     row["truth_to_mesh_mean_mm"].as_f64().unwrap_or(f64::NAN),
                     row["mesh_to_truth_mean_mm"].as_f64().unwrap_or(f64::NAN),
                     row["chamfer_mm"].as_f64().unwrap_or(f64::NAN),
@@ -178,7 +191,7 @@ pub fn run(a: MeshBenchArgs) -> anyhow::Result<()> {
                 );
                 for n in row["nodes"].as_array().into_iter().flatten() {
                     eprintln!(
-                        "    {:>2} {:<42} truth→mesh mean {:.2} / median {:.2} mm ({:.0}% within {} mm), mesh→truth mean {:.2} mm, {} triangles{}",
+                        "    {:>2} {:<42} truth→mesh mean {:.2} / median {:.2} mm ({:.0}% within {} mm), mesh→truth mean {:.2} mm, {} triangles{}{}",
                         n["id"],
                         n["label"].as_str().unwrap_or(""),
                         n["truth_to_mesh"]["mean"].as_f64().unwrap_or(f64::NAN) * 1e3,
@@ -195,6 +208,10 @@ pub fn run(a: MeshBenchArgs) -> anyhow::Result<()> {
                         } else {
                             ", open"
                         },
+                        n["genus"]
+                            .as_u64()
+                            .map(|g| format!(", genus {g}"))
+                            .unwrap_or_default(),
                     );
                 }
             }

@@ -63,7 +63,8 @@ pub struct ExportArgs {
     #[arg(long, default_value_t = DEFAULT_RESOLUTION)]
     pub resolution: u32,
     /// Surface level in the field's density units (per box diagonal; the default is
-    /// where 1% of the diagonal is half opaque). Lower keeps fainter matter.
+    /// where 1% of the diagonal is half opaque), for the background and with
+    /// --opacity 0. Lower keeps fainter matter.
     #[arg(long, default_value_t = DEFAULT_DENSITY)]
     pub density: f32,
     /// Drop parts of a node's surface enclosing less than this share of its largest
@@ -74,6 +75,12 @@ pub struct ExportArgs {
     /// surface (removes noise finer than the views resolve); 0 = none.
     #[arg(long, default_value_t = DEFAULT_SMOOTH)]
     pub smooth: f32,
+    /// An object's surface lies where it is this opaque seen from outside (from the best
+    /// of 26 directions: what the renderer shows, solid where the field is a gappy shell
+    /// around fog); 0 takes the density's level set (--density) instead, as the
+    /// background always does.
+    #[arg(long, default_value_t = assist_session::DEFAULT_OPACITY)]
+    pub opacity: f32,
     /// Fill tunnels and pinholes narrower than about twice this many cells before the
     /// surface is taken (they are where no view constrained the density, each a handle
     /// of the mesh); 0 = none.
@@ -125,6 +132,7 @@ pub fn job(a: &ExportArgs) -> ExportJob {
             smooth: a.smooth,
             max_triangles: a.triangles,
             close: a.close,
+            opacity: a.opacity,
         },
         points: a.points,
         material_density: a.material_density,

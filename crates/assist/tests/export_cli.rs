@@ -6,7 +6,6 @@
 mod common;
 
 use std::path::Path;
-use std::process::Command;
 
 use common::{ok, refused, run, s};
 
@@ -181,8 +180,28 @@ fn export_meshes_points_and_models_read_back() {
         &["material density", "1e308"],
     );
     refused(
-        &run(&["export", s(&scene), "--out", s(&bad), "--density", "1e7"]),
+        &run(&[
+            "export",
+            s(&scene),
+            "--out",
+            s(&bad),
+            "--opacity",
+            "0",
+            "--density",
+            "1e7",
+        ]),
         &["no surface", "--density"],
+    );
+    refused(
+        &run(&[
+            "export",
+            s(&scene),
+            "--out",
+            s(&bad),
+            "--opacity",
+            "0.99999",
+        ]),
+        &["no surface", "--opacity"],
     );
     assert!(!bad.exists());
     // An existing folder is kept without --force; a user's own folder even with it.
@@ -199,29 +218,6 @@ fn export_meshes_points_and_models_read_back() {
     assert_eq!(std::fs::read(mine.join("notes.txt")).unwrap(), b"mine");
     export(&scene, &obj, &["--resolution", "64", "--force"]);
 
-    match std::env::var("ASSIST_PYTHON") {
-        Ok(py) => {
-            let o = Command::new(py)
-                .arg(concat!(
-                    env!("CARGO_MANIFEST_DIR"),
-                    "/tests/export_check.py"
-                ))
-                .args([&cap, &obj, &ply, &glb, &pts, &mjcf, &urdf])
-                .output()
-                .unwrap();
-            assert!(
-                o.status.success(),
-                "export_check.py: {}{}",
-                String::from_utf8_lossy(&o.stdout),
-                String::from_utf8_lossy(&o.stderr)
-            );
-            eprintln!("export_check.py: {}", String::from_utf8_lossy(&o.stdout));
-        }
-        Err(_) if std::env::var("ASSIST_REQUIRE_PYTHON").is_ok() => {
-            panic!("ASSIST_REQUIRE_PYTHON is set but ASSIST_PYTHON (trimesh, mujoco) is not")
-        }
-        Err(_) => eprintln!(
-            "SKIPPED the trimesh/MuJoCo check of exports: set ASSIST_PYTHON to a python with trimesh and mujoco"
-        ),
-    }
+    let dirs = [&cap, &obj, &ply, &glb, &pts, &mjcf, &urdf].map(|p| p.as_os_str());
+    common::python_check("export_check.py", &dirs, "trimesh and mujoco");
 }

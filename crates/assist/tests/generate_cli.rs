@@ -3,7 +3,7 @@
 //! file for file; 3 samples replayed with `assist edit` + `assist render` reproduce their
 //! images bit for bit; a restart skips what is done; bad specs are refused naming the
 //! field; the annotations are read back by pycocotools (`generate_check.py`, in the venv
-//! named by `ASSIST_PYTHON`).
+//! named by `ASSIST_PYTHON`). Desk's generation is in `desk_cli.rs`.
 
 mod common;
 
@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use common::{ok, refused, run, s};
+use common::{ok, pycoco_check, refused, run, s};
 
 /// Every file under `dir` (relative path → bytes).
 fn tree(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
@@ -31,37 +31,6 @@ fn tree(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
         }
     }
     out
-}
-
-/// `generate_check.py OUT TABLE` with the Python of `ASSIST_PYTHON` (pycocotools); skips
-/// loudly without one unless `ASSIST_REQUIRE_PYTHON` is set.
-fn pycoco_check(out: &Path, table: f64) {
-    match std::env::var("ASSIST_PYTHON") {
-        Ok(py) => {
-            for (script, args) in [
-                ("generate_check.py", vec![table.to_string()]),
-                ("bop_check.py", vec![]),
-            ] {
-                let o = Command::new(&py)
-                    .arg(format!("{}/tests/{script}", env!("CARGO_MANIFEST_DIR")))
-                    .arg(out)
-                    .args(&args)
-                    .output()
-                    .unwrap();
-                let err = String::from_utf8_lossy(&o.stderr);
-                assert!(o.status.success(), "{script} on {}: {err}", out.display());
-                eprintln!("{script}: {}", String::from_utf8_lossy(&o.stdout));
-            }
-        }
-        Err(_) if std::env::var("ASSIST_REQUIRE_PYTHON").is_ok() => {
-            panic!(
-                "ASSIST_REQUIRE_PYTHON is set but ASSIST_PYTHON (a python with pycocotools) is not"
-            )
-        }
-        Err(_) => eprintln!(
-            "SKIPPED the pycocotools check: set ASSIST_PYTHON to a python with pycocotools, numpy and pillow"
-        ),
-    }
 }
 
 fn spec(dir: &Path, scene: &Path, extra: &str) -> PathBuf {
@@ -493,47 +462,4 @@ fn generate_shards_replays_and_annotations() {
     assert_eq!(c["info"]["masks"], "rle");
     assert!(c["annotations"][0]["segmentation"]["counts"].is_string());
     pycoco_check(&full, table);
-}
-
-/// Desk (the shared capture), trained briefly at a quarter of its size: 100 samples whose
-/// COCO masks pycocotools reads back, with every placed object on desk's table top (its
-/// ground truth, `table_top_z`) and no two objects overlapping.
-#[test]
-fn generate_on_desk() {
-    let Some(desk) = assist_testkit::shared_dataset("generate_on_desk", "desk") else {
-        return;
-    };
-    let tmp = assist_testkit::TempDir::new("generate-desk");
-    let root = tmp.path().to_path_buf();
-    let scene = root.join("desk.assist");
-    ok(&run(&[
-        "train",
-        s(&desk),
-        "--out",
-        s(&scene),
-        "--downscale",
-        "4",
-        "--iters",
-        "600",
-    ]));
-    let sp = root.join("desk.toml");
-    std::fs::write(
-        &sp,
-        format!(
-            "count = 100\nseed = 3\n[[scenes]]\npath = \"{}\"\ndata = \"{}\"\n[output]\nwidth = 120\nheight = 90\n",
-            scene.display(),
-            desk.display()
-        ),
-    )
-    .unwrap();
-    let out = root.join("gen");
-    let o = run(&["generate", "--spec", s(&sp), "--out", s(&out), "--json"]);
-    ok(&o);
-    let summary: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    assert_eq!(summary["merged"]["samples"], 100, "{summary}");
-    eprintln!("desk: {summary}");
-    let t: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(desk.join("transforms.json")).unwrap()).unwrap();
-    let table = t["table_top_z"].as_f64().expect("desk's table_top_z");
-    pycoco_check(&out, table);
 }

@@ -165,3 +165,47 @@ pub fn assert_no_leftovers(dir: &Path) {
     let left = leftovers(dir);
     assert!(left.is_empty(), "{left:?}");
 }
+
+/// Runs `tests/SCRIPT ARGS…` with the Python of `ASSIST_PYTHON` and returns its output,
+/// failing the test when it fails; without one, skips loudly (`None`) unless
+/// `ASSIST_REQUIRE_PYTHON` is set. `needs` names the packages, for the messages.
+pub fn python_check(script: &str, args: &[&std::ffi::OsStr], needs: &str) -> Option<String> {
+    match std::env::var("ASSIST_PYTHON") {
+        Ok(py) => {
+            let o = Command::new(&py)
+                .arg(format!("{}/tests/{script}", env!("CARGO_MANIFEST_DIR")))
+                .args(args)
+                .output()
+                .unwrap();
+            assert!(
+                o.status.success(),
+                "{script}: {}{}",
+                String::from_utf8_lossy(&o.stdout),
+                String::from_utf8_lossy(&o.stderr)
+            );
+            let out = String::from_utf8_lossy(&o.stdout).into_owned();
+            eprintln!("{script}: {out}");
+            Some(out)
+        }
+        Err(_) if std::env::var("ASSIST_REQUIRE_PYTHON").is_ok() => {
+            panic!("ASSIST_REQUIRE_PYTHON is set but ASSIST_PYTHON (a python with {needs}) is not")
+        }
+        Err(_) => {
+            eprintln!("SKIPPED {script}: set ASSIST_PYTHON to a python with {needs}");
+            None
+        }
+    }
+}
+
+/// The generator's outputs read back: COCO by pycocotools (`generate_check.py OUT
+/// TABLE`, objects on the table top at `table`) and BOP as the bop_toolkit reads it.
+pub fn pycoco_check(out: &Path, table: f64) {
+    let needs = "pycocotools, numpy and pillow";
+    let table = table.to_string();
+    python_check(
+        "generate_check.py",
+        &[out.as_os_str(), table.as_ref()],
+        needs,
+    );
+    python_check("bop_check.py", &[out.as_os_str()], needs);
+}

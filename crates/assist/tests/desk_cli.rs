@@ -1,0 +1,179 @@
+//! Desk (the shared capture), trained briefly at a quarter of its size, as a user meets
+//! it: generated samples that pycocotools and the BOP readers load, meshes with the
+//! objects' true topology that MuJoCo keeps at rest on the table, and a moved object that
+//! leaves no stain where it stood. One training serves all three (it is the costly part).
+
+mod common;
+
+use std::path::Path;
+
+use common::{ok, pycoco_check, run, s};
+
+#[test]
+fn desk_trained_briefly() {
+    let Some(desk) = assist_testkit::shared_dataset("desk_trained_briefly", "desk") else {
+        return;
+    };
+    let tmp = assist_testkit::TempDir::new("desk");
+    let root = tmp.path().to_path_buf();
+    let scene = root.join("desk.assist");
+    ok(&run(&[
+        "train",
+        s(&desk),
+        "--out",
+        s(&scene),
+        "--downscale",
+        "4",
+        "--iters",
+        "600",
+    ]));
+    generates_on_the_table(&desk, &scene, &root);
+    meshes_are_true_and_rest_in_mujoco(&scene, &root);
+    a_moved_object_leaves_no_stain(&desk, &scene, &root);
+}
+
+/// 100 samples whose COCO masks pycocotools reads back, with every placed object on
+/// desk's table top (its ground truth, `table_top_z`) and no two objects overlapping.
+fn generates_on_the_table(desk: &Path, scene: &Path, root: &Path) {
+    let sp = root.join("desk.toml");
+    std::fs::write(
+        &sp,
+        format!(
+            "count = 100\nseed = 3\n[[scenes]]\npath = \"{}\"\ndata = \"{}\"\n[output]\nwidth = 120\nheight = 90\n",
+            scene.display(),
+            desk.display()
+        ),
+    )
+    .unwrap();
+    let out = root.join("gen");
+    let o = run(&["generate", "--spec", s(&sp), "--out", s(&out), "--json"]);
+    ok(&o);
+    let summary: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(summary["merged"]["samples"], 100, "{summary}");
+    eprintln!("desk: {summary}");
+    let t: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(desk.join("transforms.json")).unwrap()).unwrap();
+    let table = t["table_top_z"].as_f64().expect("desk's table_top_z");
+    pycoco_check(&out, table);
+}
+
+/// Issue 47 items 2 and 3: each object's mesh has its true genus (the duck, the cow: 0;
+/// the mug and the teapot: 1, their handles), encloses about what its occupancy holds,
+/// and MuJoCo keeps every object within 1 cm of its pose for 2 s on the exported
+/// supports.
+fn meshes_are_true_and_rest_in_mujoco(scene: &Path, root: &Path) {
+    let out = root.join("mjcf");
+    ok(&run(&[
+        "export",
+        s(scene),
+        "--out",
+        s(&out),
+        "--sim",
+        "mjcf",
+    ]));
+    let index: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("export.json")).unwrap()).unwrap();
+    let nodes = index["nodes"].as_array().unwrap();
+    assert_eq!(nodes.len(), 5, "{index}");
+    for n in nodes {
+        let label = n["label"].as_str().unwrap();
+        let genus = n["genus"].as_u64().unwrap_or(u64::MAX);
+        eprintln!(
+            "{label}: genus {genus}, {:.0} cm³ against {:.0} cm³ occupied, cut at {}",
+            n["mass_properties"]["volume"].as_f64().unwrap_or(f64::NAN) * 1e6,
+            n["occupancy_m3"].as_f64().unwrap() * 1e6,
+            n["cut_at_support_m"]
+        );
+        // The brick's studs still carry a few handles where floaters bridge them (1 to 4
+        // on briefly trained scenes; 16 to 18 before meshes were taken by opacity).
+        let (lo, hi) = match label {
+            l if l.contains("duck") || l.contains("cow") => (0, 0),
+            l if l.contains("mug") || l.contains("teapot") => (1, 1),
+            _ => (0, 4),
+        };
+        assert!((lo..=hi).contains(&genus), "{label}: genus {genus}");
+        assert_eq!(n["closed"], true, "{label}");
+        let share =
+            n["mass_properties"]["volume"].as_f64().unwrap() / n["occupancy_m3"].as_f64().unwrap();
+        assert!(
+            (0.6..1.5).contains(&share),
+            "{label}: volume {share} × occupancy"
+        );
+        assert!(n["cut_at_support_m"].as_f64().is_some(), "{label}: not cut");
+    }
+    common::python_check("mujoco_settle.py", &[out.as_os_str()], "mujoco");
+}
+
+/// Issue 47 item 7: where the mug stood before it was moved 15 cm, the edited scene's
+/// render is the background's own render (the held-out views, a quarter size): no red
+/// tint or residue of the mug is left there. Pixels other objects or shadows cover are
+/// compared too, so the bounds leave room for shadows, not for a stain's redness.
+fn a_moved_object_leaves_no_stain(desk: &Path, scene: &Path, root: &Path) {
+    let moved = root.join("moved.assist");
+    ok(&run(&[
+        "edit",
+        s(scene),
+        "--do",
+        "move the mug 15 cm right",
+        "--allow-overlap",
+        "--out",
+        s(&moved),
+    ]));
+    let render = |scene: &Path, out: &Path, outputs: &str| {
+        ok(&run(&[
+            "render",
+            s(scene),
+            "--cameras",
+            s(desk),
+            "--downscale",
+            "4",
+            "--outputs",
+            outputs,
+            "--out",
+            s(out),
+        ]))
+    };
+    let (before, after) = (root.join("before"), root.join("after"));
+    render(scene, &before, "panoptic");
+    render(&moved, &after, "rgb,panoptic,background");
+    let mut pixels = 0usize;
+    let (mut diff, mut redder, mut stained) = (0.0f64, 0.0f64, 0usize);
+    for entry in std::fs::read_dir(before.join("panoptic")).unwrap() {
+        let name = entry.unwrap().file_name();
+        let ids = |dir: &Path| {
+            image::open(dir.join("panoptic").join(&name))
+                .unwrap()
+                .to_luma16()
+        };
+        let rgb =
+            |dir: &Path, what: &str| image::open(dir.join(what).join(&name)).unwrap().to_rgb8();
+        let (was, now) = (ids(&before), ids(&after));
+        let (edited, bg) = (rgb(&after, "images"), rgb(&after, "background"));
+        for (x, y, p) in was.enumerate_pixels() {
+            if p[0] != 3 || now.get_pixel(x, y)[0] != 0 {
+                continue;
+            }
+            let [a, b] = [edited.get_pixel(x, y), bg.get_pixel(x, y)]
+                .map(|c| c.0.map(|v| f64::from(v) / 255.0));
+            let red = |c: [f64; 3]| c[0] - (c[1] + c[2]) / 2.0;
+            pixels += 1;
+            diff += (0..3).map(|i| (a[i] - b[i]).abs()).sum::<f64>() / 3.0;
+            redder += red(a) - red(b);
+            stained += usize::from(red(a) - red(b) > 0.1);
+        }
+    }
+    assert!(pixels > 1000, "only {pixels} pixels where the mug stood");
+    let n = pixels as f64;
+    eprintln!(
+        "where the mug stood ({pixels} pixels): mean difference {:.4}, red excess {:.4}, {:.2}% stained",
+        diff / n,
+        redder / n,
+        100.0 * stained as f64 / n
+    );
+    assert!(redder / n < 0.01, "red excess {}", redder / n);
+    assert!(
+        (stained as f64) < 0.01 * n,
+        "{stained} of {pixels} pixels redder by 0.1"
+    );
+    assert!(diff / n < 0.03, "mean difference {}", diff / n);
+}
