@@ -116,7 +116,7 @@ class Scene:
         triangles: int = 50000,
         min_part: float = 0.05,
         points: int = 100000,
-        close: int = 2,
+        close: int = 4,
         opacity: float = 0.1,
         sim: Optional[str] = None,
         material_density: float = 1000.0,

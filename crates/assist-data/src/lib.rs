@@ -28,6 +28,7 @@ mod load;
 pub mod masks;
 pub mod nerfstudio;
 pub mod npy;
+pub mod ply;
 pub mod priors;
 pub mod synth;
 pub mod validate;

@@ -271,7 +271,13 @@ pub fn load(file: &Path) -> Result<Dataset> {
         None if depth_scale_node.is_some() => Some(1.0),
         None => None,
     };
-    let (bounds, normalization) = compute_bounds(&frames, &[], &instances, None);
+    // nerfstudio's sparse points (`ns-process-data`, `assist process`), in the poses'
+    // frame: where the content is, for the background's inner region and near plane.
+    let points = match top.get("ply_file_path") {
+        Some(n) => crate::ply::read_points(&resolve_image_path(&base, n.str()?))?,
+        None => vec![],
+    };
+    let (bounds, normalization) = compute_bounds(&frames, &points, &instances, None);
     Ok(Dataset {
         format: Format::Nerfstudio,
         root: file.to_path_buf(),
@@ -279,7 +285,7 @@ pub fn load(file: &Path) -> Result<Dataset> {
         instances,
         world_up,
         meters_per_unit,
-        points: vec![],
+        points,
         depth_range: None,
         split_source,
         split_declared,

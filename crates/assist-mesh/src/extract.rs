@@ -40,10 +40,11 @@ pub const DEFAULT_SMOOTH: f32 = 1.0;
 /// Default share of the largest part's volume below which a part is dropped.
 pub const DEFAULT_MIN_PART: f64 = 0.05;
 /// Default radius, in cells, of the closing of the inside region before the surface is
-/// taken: pinholes and tunnels narrower than about twice it (1.5 mm on a 10 cm object at
-/// the default resolution) are where no view constrained the density, not handles of
-/// the object (a mug's handle is far wider).
-pub const DEFAULT_CLOSE: u32 = 2;
+/// taken: pinholes, grooves and tunnels narrower than about twice it (6 mm on a 10 cm
+/// object at the default resolution) are where no view constrained the field, not
+/// handles of the object (a mug's handle is far wider). Chosen with `assist bench mesh`
+/// (BENCHMARKS.md): the true genus of desk's five objects, and the least Chamfer.
+pub const DEFAULT_CLOSE: u32 = 4;
 /// Default opacity of an object's surface, seen from outside along the best of 26 grid
 /// directions (see [`crate::hull`]): where the object stops a tenth of the light. Chosen
 /// with `assist bench mesh` (BENCHMARKS.md): deeper levels lie inside the seen surface.

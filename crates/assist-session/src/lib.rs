@@ -35,6 +35,8 @@ pub use assist_mesh::{
     DEFAULT_CLOSE, DEFAULT_DENSITY, DEFAULT_MAX_TRIANGLES, DEFAULT_MIN_PART, DEFAULT_OPACITY,
     DEFAULT_RESOLUTION, DEFAULT_SMOOTH, ExtractOptions, MeshFrame, NodeMesh,
 };
+/// `assist process`: a video or photographs → a posed dataset (ffmpeg, COLMAP).
+pub use assist_process as process;
 pub use assist_render::RenderedImage as Frame;
 pub use assist_render::{DragCache, RenderOptions, render_camera};
 pub use assist_scene::scene_file;

@@ -24,6 +24,9 @@ pub enum BenchCommand {
     Mesh(crate::cmd_bench_mesh::MeshBenchArgs),
     /// Embedding a scene's nodes with CLIP, and resolving object phrases by meaning.
     Embed(crate::cmd_bench_embed::EmbedBenchArgs),
+    /// `assist process` on a posed dataset's photographs against its own poses:
+    /// registration, camera-centre error after a similarity, time per stage.
+    Process(crate::cmd_bench_process::ProcessBenchArgs),
 }
 
 #[derive(Args, Debug)]
@@ -64,6 +67,7 @@ pub fn run(c: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::View(a) => crate::cmd_bench_view::run(a),
         BenchCommand::Mesh(a) => crate::cmd_bench_mesh::run(a),
         BenchCommand::Embed(a) => crate::cmd_bench_embed::run(a),
+        BenchCommand::Process(a) => crate::cmd_bench_process::run(a),
     }
 }
 

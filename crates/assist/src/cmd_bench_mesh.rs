@@ -38,6 +38,9 @@ pub struct MeshBenchArgs {
     /// Density smoothing in grid cells (comma-separated).
     #[arg(long, value_delimiter = ',', default_values_t = [assist_mesh::DEFAULT_SMOOTH])]
     pub smooth: Vec<f32>,
+    /// Closing radii in grid cells (comma-separated).
+    #[arg(long, value_delimiter = ',', default_values_t = [assist_mesh::DEFAULT_CLOSE])]
+    pub close: Vec<u32>,
     /// Triangle budgets per node (comma-separated; 0 = no limit).
     #[arg(long, value_delimiter = ',', default_values_t = [assist_mesh::DEFAULT_MAX_TRIANGLES])]
     pub triangles: Vec<usize>,
@@ -122,21 +125,23 @@ pub fn run(a: MeshBenchArgs) -> anyhow::Result<()> {
             for &d in levels {
                 for &m in &a.min_part {
                     for &s in &a.smooth {
-                        for &t in &a.triangles {
-                            grid.push((o, d, m, s, t));
+                        for &c in &a.close {
+                            for &t in &a.triangles {
+                                grid.push((o, d, m, s, c, t));
+                            }
                         }
                     }
                 }
             }
         }
-        for (opacity, density, min_part, smooth, max_triangles) in grid {
+        for (opacity, density, min_part, smooth, close, max_triangles) in grid {
             let opts = ExtractOptions {
                 resolution,
                 density,
                 min_part,
                 smooth,
                 max_triangles,
-                close: assist_session::DEFAULT_CLOSE,
+                close,
                 opacity,
             };
             let mut nodes = Vec::new();
@@ -174,7 +179,7 @@ pub fn run(a: MeshBenchArgs) -> anyhow::Result<()> {
                 v.iter().sum::<f64>() / v.len().max(1) as f64
             };
             let row = json!({
-                "resolution": resolution, "opacity": opacity, "density": density, "min_part": min_part, "smooth": smooth, "max_triangles": max_triangles,
+                "resolution": resolution, "opacity": opacity, "density": density, "min_part": min_part, "smooth": smooth, "close": close, "max_triangles": max_triangles,
                 "truth_to_mesh_mean_mm": mean("truth_to_mesh", "mean") * 1e3,
                 "mesh_to_truth_mean_mm": mean("mesh_to_truth", "mean") * 1e3,
                 "chamfer_mm": (mean("truth_to_mesh", "mean") + mean("mesh_to_truth", "mean")) * 1e3 / 2.0,
@@ -183,7 +188,7 @@ pub fn run(a: MeshBenchArgs) -> anyhow::Result<()> {
             });
             if !a.json {
                 eprintln!(
-                    "resolution {resolution:>4}  opacity {opacity:.2}  density {density:>7.1}  min part {min_part:.2}  smooth {smooth:.1}  budget {max_triangles}  truth→mesh {:.2} mm  mesh→truth {:.2} mm  Chamfer {:.2} mm  {:.2} s/node",
+                    "resolution {resolution:>4}  opacity {opacity:.2}  density {density:>7.1}  min part {min_part:.2}  smooth {smooth:.1}  close {close}  budget {max_triangles}  truth→mesh {:.2} mm  mesh→truth {:.2} mm  Chamfer {:.2} mm  {:.2} s/node",
                     row["truth_to_mesh_mean_mm"].as_f64().unwrap_or(f64::NAN),
                     row["mesh_to_truth_mean_mm"].as_f64().unwrap_or(f64::NAN),
                     row["chamfer_mm"].as_f64().unwrap_or(f64::NAN),

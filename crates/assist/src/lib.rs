@@ -13,6 +13,7 @@ use clap::{Parser, Subcommand};
 mod cmd_bench;
 mod cmd_bench_embed;
 mod cmd_bench_mesh;
+mod cmd_bench_process;
 mod cmd_bench_view;
 mod cmd_dataset;
 mod cmd_demo;
@@ -21,6 +22,7 @@ mod cmd_embed;
 mod cmd_eval;
 mod cmd_export;
 mod cmd_generate;
+mod cmd_process;
 mod cmd_render;
 mod cmd_scene;
 mod cmd_synth;
@@ -53,6 +55,9 @@ pub enum Command {
     Synth(cmd_synth::SynthArgs),
     /// Run the main job on the built-in default scene (no downloads).
     Demo(cmd_demo::DemoArgs),
+    /// Turn a video or a folder of photographs into a posed dataset: frames by ffmpeg
+    /// (the sharpest), poses by COLMAP, written as nerfstudio's transforms.json.
+    Process(cmd_process::ProcessArgs),
     /// Inspect a trained scene: nodes, boxes, poses, field files, history, provenance.
     Scene {
         #[command(subcommand)]
@@ -89,6 +94,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Dataset { command } => cmd_dataset::run(command),
         Command::Synth(a) => cmd_synth::run(a),
         Command::Demo(a) => cmd_demo::run(a),
+        Command::Process(a) => cmd_process::run(a),
         Command::Scene { command } => cmd_scene::run(command),
         Command::Train(a) => cmd_train::run(*a),
         Command::Eval(a) => cmd_eval::run(a),

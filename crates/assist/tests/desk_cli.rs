@@ -84,12 +84,12 @@ fn meshes_are_true_and_rest_in_mujoco(scene: &Path, root: &Path) {
             n["occupancy_m3"].as_f64().unwrap() * 1e6,
             n["cut_at_support_m"]
         );
-        // The brick's studs still carry a few handles where floaters bridge them (1 to 4
-        // on briefly trained scenes; 16 to 18 before meshes were taken by opacity).
+        // The brick: 0 as measured (16 to 18 before meshes were taken by opacity); one
+        // groove its briefly trained field carves deeper than the closing is allowed.
         let (lo, hi) = match label {
             l if l.contains("duck") || l.contains("cow") => (0, 0),
             l if l.contains("mug") || l.contains("teapot") => (1, 1),
-            _ => (0, 4),
+            _ => (0, 1),
         };
         assert!((lo..=hi).contains(&genus), "{label}: genus {genus}");
         assert_eq!(n["closed"], true, "{label}");

@@ -1,0 +1,240 @@
+//! Poses by the real COLMAP (never reimplemented): SIFT features on the CPU, one OPENCV
+//! camera for the whole capture (a phone's lens, distortion included), sequential
+//! matching for a video's frames or exhaustive matching for a set of photographs, then
+//! the incremental mapper. Of the models the mapper writes, the one that registers the
+//! most images is kept.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use assist_data::colmap::ColmapModel;
+
+use crate::tools::{self, COLMAP};
+use crate::{ProcessError, ProcessEvent, Stage};
+
+/// How images are paired for matching.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Matcher {
+    /// Each image with its neighbours in capture order (a video).
+    Sequential,
+    /// Every pair (a few hundred photographs at most).
+    Exhaustive,
+}
+
+/// Photographs above which `auto` matches sequentially even for a folder: exhaustive
+/// matching grows with the square of the count.
+pub const MAX_EXHAUSTIVE: usize = 200;
+
+/// Runs COLMAP on the images of `images` (all one size) in the workspace `work`, logging
+/// to `work/colmap.log`; returns the largest model and the folder it was read from.
+pub fn reconstruct(
+    images: &Path,
+    work: &Path,
+    matcher: Matcher,
+    count: usize,
+    on_event: &mut dyn FnMut(&ProcessEvent),
+) -> Result<(ColmapModel, PathBuf), ProcessError> {
+    let colmap = COLMAP.find()?;
+    let log = work.join("colmap.log");
+    let db = work.join("database.db");
+    let colmap_cmd = || {
+        let mut c = Command::new(&colmap);
+        // COLMAP links Qt even for its command line; no display is needed or wanted.
+        c.env("QT_QPA_PLATFORM", "offscreen");
+        c
+    };
+    step(
+        on_event,
+        Stage::Features,
+        "SIFT features (COLMAP, CPU)",
+        "extracting features",
+        colmap_cmd()
+            .arg("feature_extractor")
+            .arg("--database_path")
+            .arg(&db)
+            .arg("--image_path")
+            .arg(images)
+            .args(["--ImageReader.single_camera", "1"])
+            .args(["--ImageReader.camera_model", "OPENCV"])
+            .args(["--SiftExtraction.use_gpu", "0"]),
+        &log,
+        count,
+    )?;
+    let (name, extra): (&str, &[&str]) = match matcher {
+        Matcher::Sequential => (
+            "sequential_matcher",
+            &["--SequentialMatching.overlap", "10"],
+        ),
+        Matcher::Exhaustive => ("exhaustive_matcher", &[]),
+    };
+    step(
+        on_event,
+        Stage::Matching,
+        &format!("{name} (COLMAP, CPU)"),
+        "matching features",
+        colmap_cmd()
+            .arg(name)
+            .arg("--database_path")
+            .arg(&db)
+            .args(["--SiftMatching.use_gpu", "0"])
+            .args(extra),
+        &log,
+        count,
+    )?;
+    let sparse = work.join("sparse");
+    std::fs::create_dir_all(&sparse).map_err(|e| ProcessError::Io {
+        path: sparse.clone(),
+        message: e.to_string(),
+    })?;
+    let mapper = |relaxed: &[&str]| {
+        let mut c = colmap_cmd();
+        c.arg("mapper")
+            .arg("--database_path")
+            .arg(&db)
+            .arg("--image_path")
+            .arg(images)
+            .arg("--output_path")
+            .arg(&sparse)
+            .args(relaxed);
+        c
+    };
+    let first = step(
+        on_event,
+        Stage::Mapping,
+        "incremental mapper (COLMAP)",
+        "mapping",
+        &mut mapper(&[]),
+        &log,
+        count,
+    );
+    match first.and_then(|_| largest_model(&sparse)) {
+        Ok(found) => Ok(found),
+        // COLMAP's defaults want 100 inlier matches for the first pair; plain, smooth
+        // surfaces and frames without a focal length in their EXIF (every video frame)
+        // may offer fewer. One retry with lower thresholds; the registration check and
+        // the poses' use decide whether the result is good enough.
+        Err(_) => {
+            step(
+                on_event,
+                Stage::Mapping,
+                "no first pair under COLMAP's defaults; mapping again with relaxed thresholds (few matches: a plain scene, or no focal length known)",
+                "mapping",
+                &mut mapper(&RELAXED),
+                &log,
+                count,
+            )?;
+            largest_model(&sparse)
+        }
+    }
+}
+
+/// The mapper's thresholds for a second try: 25 inliers (not 100) and 8° (not 16°) for
+/// the first pair, 15 inliers (not 30) to register an image.
+const RELAXED: [&str; 6] = [
+    "--Mapper.init_min_num_inliers",
+    "25",
+    "--Mapper.init_min_tri_angle",
+    "8",
+    "--Mapper.abs_pose_min_num_inliers",
+    "15",
+];
+
+/// One COLMAP command as a stage: announced, run, its log lines turned into progress.
+fn step(
+    on_event: &mut dyn FnMut(&ProcessEvent),
+    stage: Stage,
+    detail: &str,
+    what: &str,
+    cmd: &mut Command,
+    log: &Path,
+    count: usize,
+) -> Result<(), ProcessError> {
+    on_event(&ProcessEvent::Stage {
+        stage,
+        detail: detail.to_string(),
+    });
+    tools::run_logged(COLMAP, what, cmd, log, |line| {
+        if let Some((done, total)) = parse_progress(stage, line, count) {
+            on_event(&ProcessEvent::Progress { stage, done, total });
+        }
+    })
+}
+
+/// The model under `sparse/` (`0/`, `1/` …) that registers the most images.
+fn largest_model(sparse: &Path) -> Result<(ColmapModel, PathBuf), ProcessError> {
+    let mut best: Option<(ColmapModel, PathBuf)> = None;
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(sparse)
+        .map(|r| r.filter_map(|e| e.ok().map(|e| e.path())).collect())
+        .unwrap_or_default();
+    dirs.sort();
+    for dir in dirs.into_iter().filter(|d| d.join("images.bin").is_file()) {
+        let model =
+            assist_data::colmap::read_model(&dir, true).map_err(|e| ProcessError::Tool {
+                tool: COLMAP.name,
+                what: "mapping".into(),
+                message: format!("wrote a model assist cannot read: {e}"),
+            })?;
+        if best
+            .as_ref()
+            .is_none_or(|(b, _)| model.images.len() > b.images.len())
+        {
+            best = Some((model, dir));
+        }
+    }
+    best.ok_or(ProcessError::NoModel)
+}
+
+/// Progress in COLMAP's log lines: "Processed file [i/n]" (features), "Matching block
+/// [i/n, …]" or "Matching image [i/n]" (matching), "Registering image #id (k)" (mapping,
+/// `k` images registered of `count`).
+fn parse_progress(stage: Stage, line: &str, count: usize) -> Option<(usize, usize)> {
+    let bracket = |key: &str| -> Option<(usize, usize)> {
+        let rest = &line[line.find(key)? + key.len()..];
+        let inner = rest.strip_prefix('[')?;
+        let end = inner.find([']', ','])?;
+        let (a, b) = inner[..end].split_once('/')?;
+        Some((a.trim().parse().ok()?, b.trim().parse().ok()?))
+    };
+    match stage {
+        Stage::Features => bracket("Processed file "),
+        Stage::Matching => bracket("Matching block ").or_else(|| bracket("Matching image ")),
+        Stage::Mapping => {
+            let rest = &line[line.find("Registering image #")?..];
+            let k = rest[rest.find('(')? + 1..rest.find(')')?]
+                .trim()
+                .parse()
+                .ok()?;
+            Some((k, count))
+        }
+        _ => None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn colmap_log_lines_give_progress() {
+        let p = |s, l| parse_progress(s, l, 20);
+        assert_eq!(
+            p(
+                Stage::Features,
+                "I1126 18:40:01.1 feature_extraction.cc:292] Processed file [3/20]"
+            ),
+            Some((3, 20))
+        );
+        assert_eq!(
+            p(Stage::Matching, "Matching block [1/4, 2/4] in 0.5s"),
+            Some((1, 4))
+        );
+        assert_eq!(p(Stage::Matching, "Matching image [7/150]"), Some((7, 150)));
+        assert_eq!(
+            p(Stage::Mapping, "Registering image #12 (5)"),
+            Some((5, 20))
+        );
+        assert_eq!(p(Stage::Mapping, "Retriangulation"), None);
+        assert_eq!(p(Stage::Features, "Processed file [x/20]"), None);
+    }
+}
