@@ -166,6 +166,21 @@ def generate(
     """Samples of a spec (a TOML/JSON file or a dict of the same fields, docs/generate.md),
     without touching the disk; index i is the sample `assist generate` writes as i."""
 
+def process(
+    input: _Path,
+    out: _Path,
+    frames: int = 150,
+    matcher: Optional[str] = None,
+    scale_by: Optional[str] = None,
+    force: bool = False,
+    callback: Optional[Callable[[dict[str, Any]], None]] = None,
+) -> dict[str, Any]:
+    """A video or a folder of photographs → a posed dataset, as `assist process` does
+    (Debian's ffmpeg and colmap): matcher "auto", "sequential" or "exhaustive"; scale_by
+    "FRAME:x,y FRAME:x,y 0.30m" for metres. The callback sees each event as a dict
+    (kind "stage" or "progress"). Ctrl+C stops it and writes nothing. Returns the summary
+    (frames, registered, not_registered, matcher, points, meters_per_unit, seconds)."""
+
 def train(
     data: _Path,
     out: _Path,

@@ -9,7 +9,9 @@ use std::process::Command;
 
 use assist_data::colmap::ColmapModel;
 
-use crate::tools::{self, COLMAP};
+use std::sync::atomic::AtomicBool;
+
+use crate::tools::{COLMAP, Runner};
 use crate::{ProcessError, ProcessEvent, Stage};
 
 /// How images are paired for matching.
@@ -33,10 +35,14 @@ pub fn reconstruct(
     work: &Path,
     matcher: Matcher,
     count: usize,
+    cancel: &AtomicBool,
     on_event: &mut dyn FnMut(&ProcessEvent),
 ) -> Result<(ColmapModel, PathBuf), ProcessError> {
     let colmap = COLMAP.find()?;
-    let log = work.join("colmap.log");
+    let runner = Runner {
+        log: work.join("colmap.log"),
+        cancel,
+    };
     let db = work.join("database.db");
     let colmap_cmd = || {
         let mut c = Command::new(&colmap);
@@ -58,7 +64,7 @@ pub fn reconstruct(
             .args(["--ImageReader.single_camera", "1"])
             .args(["--ImageReader.camera_model", "OPENCV"])
             .args(["--SiftExtraction.use_gpu", "0"]),
-        &log,
+        &runner,
         count,
     )?;
     let (name, extra): (&str, &[&str]) = match matcher {
@@ -79,7 +85,7 @@ pub fn reconstruct(
             .arg(&db)
             .args(["--SiftMatching.use_gpu", "0"])
             .args(extra),
-        &log,
+        &runner,
         count,
     )?;
     let sparse = work.join("sparse");
@@ -105,11 +111,12 @@ pub fn reconstruct(
         "incremental mapper (COLMAP)",
         "mapping",
         &mut mapper(&[]),
-        &log,
+        &runner,
         count,
     );
     match first.and_then(|_| largest_model(&sparse)) {
         Ok(found) => Ok(found),
+        Err(ProcessError::Cancelled) => Err(ProcessError::Cancelled),
         // COLMAP's defaults want 100 inlier matches for the first pair; plain, smooth
         // surfaces and frames without a focal length in their EXIF (every video frame)
         // may offer fewer. One retry with lower thresholds; the registration check and
@@ -121,7 +128,7 @@ pub fn reconstruct(
                 "no first pair under COLMAP's defaults; mapping again with relaxed thresholds (few matches: a plain scene, or no focal length known)",
                 "mapping",
                 &mut mapper(&RELAXED),
-                &log,
+                &runner,
                 count,
             )?;
             largest_model(&sparse)
@@ -147,14 +154,14 @@ fn step(
     detail: &str,
     what: &str,
     cmd: &mut Command,
-    log: &Path,
+    runner: &Runner,
     count: usize,
 ) -> Result<(), ProcessError> {
     on_event(&ProcessEvent::Stage {
         stage,
         detail: detail.to_string(),
     });
-    tools::run_logged(COLMAP, what, cmd, log, |line| {
+    runner.run(COLMAP, what, cmd, |line| {
         if let Some((done, total)) = parse_progress(stage, line, count) {
             on_event(&ProcessEvent::Progress { stage, done, total });
         }

@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use crate::tools::{self, FFMPEG, FFPROBE};
+use crate::tools::{self, FFMPEG, FFPROBE, Runner};
 use crate::{ProcessError, ProcessEvent, Stage};
 
 /// Image files of a folder (JPEG or PNG, by extension), by name.
@@ -122,7 +122,7 @@ pub fn video_candidates(
     video: &Path,
     dir: &Path,
     target: usize,
-    log: &Path,
+    runner: &Runner,
     on_event: &mut dyn FnMut(&ProcessEvent),
 ) -> Result<Vec<PathBuf>, ProcessError> {
     let ffmpeg = FFMPEG.find()?;
@@ -145,7 +145,7 @@ pub fn video_candidates(
             frames.map_or(want, |f| f.min(want))
         ),
     });
-    tools::run_logged(FFMPEG, "decoding the video's frames", &mut cmd, log, |_| {})?;
+    runner.run(FFMPEG, "decoding the video's frames", &mut cmd, |_| {})?;
     list_images(dir)
 }
 

@@ -59,6 +59,8 @@ pub enum ProcessError {
     },
     #[error("--scale-by: {0}")]
     ScaleBy(String),
+    #[error("cancelled; nothing was written")]
+    Cancelled,
     #[error(transparent)]
     Fs(#[from] assist_fs::FsError),
 }
@@ -79,6 +81,8 @@ pub struct ProcessJob {
     pub scale_by: Option<ScaleBy>,
     /// Replace `out` if assist wrote it.
     pub force: bool,
+    /// Set to stop: the running program is killed and nothing is written.
+    pub cancel: std::sync::Arc<std::sync::atomic::AtomicBool>,
 }
 
 /// The stages, in order.
@@ -197,7 +201,7 @@ impl ProcessJob {
         );
         let t1 = Instant::now();
         let (model, model_dir) =
-            colmap::reconstruct(&images, &work, matcher, names.len(), on_event)?;
+            colmap::reconstruct(&images, &work, matcher, names.len(), &self.cancel, on_event)?;
         seconds.push((Stage::Mapping, t1.elapsed().as_secs_f64()));
         let registered: std::collections::BTreeSet<&str> =
             model.images.iter().map(|i| i.name.as_str()).collect();
@@ -281,8 +285,11 @@ impl ProcessJob {
         let candidates = if kind == "video" {
             let cand = dir.join("candidates");
             std::fs::create_dir_all(&cand).map_err(io(&cand))?;
-            let log = dir.join("colmap").join("ffmpeg.log");
-            frames::video_candidates(&self.input, &cand, self.frames, &log, on_event)?
+            let runner = tools::Runner {
+                log: dir.join("colmap").join("ffmpeg.log"),
+                cancel: &self.cancel,
+            };
+            frames::video_candidates(&self.input, &cand, self.frames, &runner, on_event)?
         } else {
             on_event(&ProcessEvent::Stage {
                 stage: Stage::Frames,
@@ -302,6 +309,9 @@ impl ProcessJob {
         let picked = if candidates.len() > self.frames {
             let mut scores = Vec::with_capacity(candidates.len());
             for (k, c) in candidates.iter().enumerate() {
+                if self.cancel.load(std::sync::atomic::Ordering::SeqCst) {
+                    return Err(ProcessError::Cancelled);
+                }
                 scores.push(frames::sharpness(c)?);
                 on_event(&ProcessEvent::Progress {
                     stage: Stage::Frames,

@@ -212,3 +212,72 @@ pub(crate) fn train<'py>(
     let outcome = outcome.map_err(err)?;
     to_py(py, &outcome.report)
 }
+
+/// `assist.process`: a video or a folder of photographs → a posed dataset (ffmpeg,
+/// COLMAP), as `assist process` does; `callback` gets each event (a dict with `kind`
+/// "stage" or "progress"); Ctrl+C stops the running program and writes nothing.
+#[pyfunction]
+#[pyo3(signature = (input, out, frames=Whole::of(assist_session::process::DEFAULT_FRAMES as i64), matcher=None, scale_by=None, force=false, callback=None))]
+pub(crate) fn process<'py>(
+    py: Python<'py>,
+    input: PathBuf,
+    out: PathBuf,
+    frames: Whole,
+    matcher: Option<&str>,
+    scale_by: Option<&str>,
+    force: bool,
+    callback: Option<Py<PyAny>>,
+) -> PyResult<Bound<'py, PyAny>> {
+    use assist_session::process::{Matcher, ProcessJob, ScaleBy};
+    let matcher = match matcher {
+        None | Some("auto") => None,
+        Some("sequential") => Some(Matcher::Sequential),
+        Some("exhaustive") => Some(Matcher::Exhaustive),
+        Some(m) => {
+            return Err(err(format!(
+                "matcher: expected auto, sequential or exhaustive, got {m:?}"
+            )));
+        }
+    };
+    let scale_by = scale_by
+        .map(|s| {
+            s.parse::<ScaleBy>()
+                .map_err(|e| err(format!("scale_by: {e}")))
+        })
+        .transpose()?;
+    let job = ProcessJob {
+        input,
+        out,
+        frames: frames.get("frames")?,
+        matcher,
+        scale_by,
+        force,
+        cancel: Default::default(),
+    };
+    let cancel = job.cancel.clone();
+    let mut stop: Option<PyErr> = None;
+    let outcome = py.detach(|| {
+        job.run(&mut |e| {
+            Python::attach(|py| {
+                if stop.is_none()
+                    && let Err(e) = py.check_signals()
+                {
+                    cancel.store(true, std::sync::atomic::Ordering::SeqCst);
+                    stop = Some(e);
+                }
+                if let (Some(cb), None) = (&callback, &stop) {
+                    let r = to_py(py, e).and_then(|ev| cb.call1(py, (ev,)));
+                    if let Err(e) = r {
+                        cancel.store(true, std::sync::atomic::Ordering::SeqCst);
+                        stop = Some(e);
+                    }
+                }
+            })
+        })
+    });
+    if let Some(e) = stop {
+        return Err(e);
+    }
+    let summary = outcome.map_err(err)?;
+    to_py(py, &summary)
+}

@@ -397,3 +397,28 @@ def test_ctrl_c_stops_render_and_plan(trained):
     # The render stops at its next batch of rays: seconds, not the minute a 4096-wide
     # frame takes on two cores.
     assert waited < 20, waited
+
+
+def test_process_checks_its_arguments_and_calls_back(trained, tmp_path):
+    """`assist.process` as `assist process`: arguments checked by name; a folder with one
+    photograph refused with nothing written, after the callback saw the first stage."""
+    import shutil
+
+    cap, _, _ = trained
+    with pytest.raises(assist.AssistError, match="matcher"):
+        assist.process(cap / "images", tmp_path / "d", matcher="nearest")
+    with pytest.raises(assist.AssistError, match="scale_by"):
+        assist.process(cap / "images", tmp_path / "d", scale_by="3:1,2 4:5,6 1ft")
+    with pytest.raises(assist.AssistError, match="frames"):
+        assist.process(cap / "images", tmp_path / "d", frames=-1)
+    if shutil.which("colmap") is None:
+        pytest.skip("colmap is not installed (Debian's colmap package)")
+    one = tmp_path / "one"
+    one.mkdir()
+    first = sorted((cap / "images").iterdir())[0]
+    shutil.copy(first, one / first.name)
+    events = []
+    with pytest.raises(assist.AssistError, match="at least 3"):
+        assist.process(one, tmp_path / "d", callback=events.append)
+    assert events and events[0]["kind"] == "stage" and events[0]["stage"] == "frames"
+    assert not (tmp_path / "d").exists()

@@ -223,6 +223,11 @@ pub struct TrainConfig {
     /// {"center", "size", "rotation"}}]}).
     #[arg(long, help_heading = SAMPLING, value_name = "FILE")]
     pub boxes: Option<PathBuf>,
+    /// Train the capture as nobody labelled it: one background node, the dataset's
+    /// instance masks, `masks/` folder and object boxes ignored (objects are made later,
+    /// from clicks or boxes; or to compare with a labelled run).
+    #[arg(long, help_heading = SAMPLING)]
+    pub no_objects: bool,
     /// Background prior under the objects: multi-view (from the other views that see it,
     /// where the dataset has depth; push-pull elsewhere), push-pull, exemplar, or none
     /// (none also sets the background's prior weights to 0 unless --prior-dir gives files).

@@ -126,6 +126,13 @@ impl TrainJob {
                 format!("expected a positive number of seconds, got {t}"),
             ));
         }
+        if c.no_objects && c.boxes.is_some() {
+            return Err(request(
+                "no_objects",
+                "--no-objects trains the background alone; --boxes gives objects: choose one"
+                    .into(),
+            ));
+        }
         if c.eval_every.is_some() && c.eval_views == 0 {
             return Err(request(
                 "eval_views",
@@ -188,7 +195,10 @@ impl TrainJob {
             prior_dir: c.prior_dir.clone(),
             ..Default::default()
         };
-        let ds = assist_data::load(&c.data, &load_opts).map_err(SessionError::Data)?;
+        let mut ds = assist_data::load(&c.data, &load_opts).map_err(SessionError::Data)?;
+        if c.no_objects {
+            unlabel(&mut ds);
+        }
         let n_train = ds.count(Split::Train);
         if n_train == 0 {
             return Err(request(
@@ -552,4 +562,14 @@ fn resume_state(out: &std::path::Path, info: &serde_json::Value) -> Result<Resum
             format!("{}: {m}", out.join("scene.json").display()),
         )
     })
+}
+
+/// The dataset as if nobody had labelled it (`--no-objects`): no instances, no instance
+/// masks, no masks folder.
+fn unlabel(ds: &mut assist_data::Dataset) {
+    ds.instances.clear();
+    ds.mask_folder = None;
+    for f in &mut ds.frames {
+        f.instance_mask_path = None;
+    }
 }

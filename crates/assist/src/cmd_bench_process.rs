@@ -47,6 +47,7 @@ pub fn run(a: ProcessBenchArgs) -> anyhow::Result<()> {
         matcher: None,
         scale_by: None,
         force: a.out.is_some(),
+        cancel: Default::default(),
     };
     let t0 = std::time::Instant::now();
     let done = job.run(&mut |e| {

@@ -56,6 +56,7 @@ pub fn run(a: ProcessArgs) -> anyhow::Result<()> {
         },
         scale_by: a.scale_by.clone(),
         force: a.force,
+        cancel: Default::default(),
     };
     let tty = std::io::stderr().is_terminal();
     let mut bar = crate::progress::bar(false, "");

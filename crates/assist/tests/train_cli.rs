@@ -249,6 +249,33 @@ fn boxes_are_listed_carved_overridden_and_checked() {
             assert!(!out2.exists());
         }
     }
+    // `--no-objects` trains the capture as nobody labelled it: the background alone
+    // (masks and boxes ignored); with `--boxes` it is a contradiction, refused.
+    let unlabelled = tmp.join("unlabelled.assist");
+    ok(&assist(&[
+        "train",
+        s(&data),
+        "--out",
+        s(&unlabelled),
+        "--iters",
+        "2",
+        "--no-objects",
+    ]));
+    let (one, _) = assist_scene::scene_file::load(&unlabelled).unwrap();
+    assert_eq!(one.scene.nodes.len(), 1);
+    assert!(one.scene.nodes[0].is_background());
+    fails_with(
+        &assist(&[
+            "train",
+            s(&data),
+            "--out",
+            s(&out2),
+            "--no-objects",
+            "--boxes",
+            s(&boxes_path),
+        ]),
+        &["--no-objects", "--boxes"],
+    );
     // Loss weights are refused when negative or not a number, naming the flag.
     for flag in ["--lambda-empty", "--lambda-distortion"] {
         for bad in ["-1", "NaN", "inf"] {
