@@ -14,7 +14,7 @@
 
 use assist_core::{DVec3, KeyLight, SceneNode, ShadowCast, Similarity3};
 use assist_render::light::{Occluder, light_points};
-use assist_scene::NeuralScene;
+use assist_scene::{NeuralScene, NodeField};
 use rayon::prelude::*;
 
 /// Share of the grids' darkening (sum of squares of `1 − s` about each object's mean, over
@@ -135,42 +135,7 @@ pub fn estimate_light_from(
         .iter()
         .enumerate()
         .filter(|(_, n)| !n.is_background())
-        .filter_map(|(node, n)| {
-            let nf = scene.field_of(node);
-            let g = nf.shade.as_ref()?;
-            let pose = learned_pose(n)?;
-            let r = g.res;
-            let coord = |i: usize| (i as f64 / (r - 1) as f64 * 2.0 - 1.0) * g.extent as f64;
-            let learned: Vec<usize> = (0..r * r * r)
-                .filter(|&k| {
-                    let v = &g.values[3 * k..3 * k + 3];
-                    let b = [k % r, k / r % r, k / (r * r)].map(coord);
-                    b.iter().any(|x| x.abs() > 1.05) && v.iter().any(|&x| (x - 1.0).abs() > 1e-3)
-                })
-                .collect();
-            if learned.is_empty() {
-                return None;
-            }
-            let stride = learned.len().div_ceil(FIT_POINTS);
-            let mut fit = Fit {
-                node,
-                occupancy: &nf.occupancy,
-                half_size: n.half_size,
-                pose,
-                points: Vec::new(),
-                dark: Vec::new(),
-                dark_rgb: Vec::new(),
-            };
-            for &k in learned.iter().step_by(stride) {
-                let b = DVec3::new(coord(k % r), coord(k / r % r), coord(k / (r * r)));
-                fit.points.push(pose.transform_point(b * n.half_size));
-                let v = &g.values[3 * k..3 * k + 3];
-                let rgb = [0, 1, 2].map(|c| 1.0 - v[c] as f64);
-                fit.dark.push(rgb.iter().sum::<f64>() / 3.0);
-                fit.dark_rgb.push(rgb);
-            }
-            Some(fit)
-        })
+        .filter_map(|(node, n)| learned_shadow(scene.field_of(node), node, n, learned_pose(n)?))
         .collect();
     let points: usize = fits.iter().map(|f| f.points.len()).sum();
     // What a uniform darkening per object leaves unexplained: a lamp must do better than
@@ -198,57 +163,7 @@ pub fn estimate_light_from(
         .map(|f| (f.half_size * f.pose.scale).length())
         .sum::<f64>()
         / fits.len() as f64;
-    // Coarse: directions above the objects × distances from them.
-    let mut best = (f64::INFINITY, centre + up * 8.0 * size);
-    for d in cap_directions(up, 48, MIN_ELEVATION) {
-        for dist in [4.0, 8.0, 16.0, 32.0, 64.0] {
-            let l = centre + d * dist * size;
-            let r = residual(&fits, &[l]);
-            if r < best.0 {
-                best = (r, l);
-            }
-        }
-    }
-    // Pattern search about the best.
-    let (mut score, mut pos) = best;
-    let mut step = 0.25 * (pos - centre).length();
-    for _ in 0..24 {
-        let mut moved = false;
-        for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
-            for sign in [-1.0, 1.0] {
-                let l = pos + axis * sign * step;
-                if (l - centre).normalize().dot(up) < MIN_ELEVATION.sin() {
-                    continue;
-                }
-                let r = residual(&fits, &[l]);
-                if r < score {
-                    (score, pos, moved) = (r, l, true);
-                }
-            }
-        }
-        if !moved {
-            step *= 0.5;
-            if step < 0.02 * (pos - centre).length() {
-                break;
-            }
-        }
-    }
-    // The disc's radius.
-    let dist = (pos - centre).length();
-    let mut light = KeyLight {
-        position: pos,
-        radius: 0.0,
-    };
-    for f in [0.1, 0.2, 0.3] {
-        let l = KeyLight {
-            position: pos,
-            radius: f * dist,
-        };
-        let r = residual(&fits, &light_points(&l, up));
-        if r < score {
-            (score, light) = (r, l);
-        }
-    }
+    let (score, light) = search_light(&fits, centre, size, up);
     out.explained = 1.0 - score / total;
     if out.explained < MIN_EXPLAINED {
         return out;
@@ -279,4 +194,105 @@ pub fn estimate_light_from(
         node.cast = Some(cast);
     }
     out
+}
+
+/// Where object `node`'s learned shadow grid (its shade values outside the box, away
+/// from 1) lies in the world under `pose`, at most [`FIT_POINTS`] points, with how dark
+/// each is; `None` when it has no shadow grid or nothing was learned.
+fn learned_shadow<'a>(
+    nf: &'a NodeField,
+    node: usize,
+    n: &SceneNode,
+    pose: Similarity3,
+) -> Option<Fit<'a>> {
+    let g = nf.shade.as_ref()?;
+    let r = g.res;
+    let coord = |i: usize| (i as f64 / (r - 1) as f64 * 2.0 - 1.0) * g.extent as f64;
+    let learned: Vec<usize> = (0..r * r * r)
+        .filter(|&k| {
+            let v = &g.values[3 * k..3 * k + 3];
+            let b = [k % r, k / r % r, k / (r * r)].map(coord);
+            b.iter().any(|x| x.abs() > 1.05) && v.iter().any(|&x| (x - 1.0).abs() > 1e-3)
+        })
+        .collect();
+    if learned.is_empty() {
+        return None;
+    }
+    let stride = learned.len().div_ceil(FIT_POINTS);
+    let mut fit = Fit {
+        node,
+        occupancy: &nf.occupancy,
+        half_size: n.half_size,
+        pose,
+        points: Vec::new(),
+        dark: Vec::new(),
+        dark_rgb: Vec::new(),
+    };
+    for &k in learned.iter().step_by(stride) {
+        let b = DVec3::new(coord(k % r), coord(k / r % r), coord(k / (r * r)));
+        fit.points.push(pose.transform_point(b * n.half_size));
+        let v = &g.values[3 * k..3 * k + 3];
+        let rgb = [0, 1, 2].map(|c| 1.0 - v[c] as f64);
+        fit.dark.push(rgb.iter().sum::<f64>() / 3.0);
+        fit.dark_rgb.push(rgb);
+    }
+    Some(fit)
+}
+
+/// The key light that best explains the fits' darkening, and its residual: directions
+/// above the objects (at `centre`, of typical size `size`) × distances, a pattern search
+/// about the best, then the disc's radius.
+fn search_light(fits: &[Fit], centre: DVec3, size: f64, up: DVec3) -> (f64, KeyLight) {
+    // Coarse: directions above the objects × distances from them.
+    let mut best = (f64::INFINITY, centre + up * 8.0 * size);
+    for d in cap_directions(up, 48, MIN_ELEVATION) {
+        for dist in [4.0, 8.0, 16.0, 32.0, 64.0] {
+            let l = centre + d * dist * size;
+            let r = residual(fits, &[l]);
+            if r < best.0 {
+                best = (r, l);
+            }
+        }
+    }
+    // Pattern search about the best.
+    let (mut score, mut pos) = best;
+    let mut step = 0.25 * (pos - centre).length();
+    for _ in 0..24 {
+        let mut moved = false;
+        for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
+            for sign in [-1.0, 1.0] {
+                let l = pos + axis * sign * step;
+                if (l - centre).normalize().dot(up) < MIN_ELEVATION.sin() {
+                    continue;
+                }
+                let r = residual(fits, &[l]);
+                if r < score {
+                    (score, pos, moved) = (r, l, true);
+                }
+            }
+        }
+        if !moved {
+            step *= 0.5;
+            if step < 0.02 * (pos - centre).length() {
+                break;
+            }
+        }
+    }
+    // The disc's radius.
+    let dist = (pos - centre).length();
+    let mut light = KeyLight {
+        position: pos,
+        radius: 0.0,
+    };
+    for f in [0.1, 0.2, 0.3] {
+        let l = KeyLight {
+            position: pos,
+            radius: f * dist,
+        };
+        let r = residual(fits, &light_points(&l, up));
+        if r < score {
+            (score, light) = (r, l);
+        }
+    }
+    (score, light)
 }

@@ -14,6 +14,9 @@ pub struct ProcessBenchArgs {
     /// Where to write the processed dataset (default: a temporary folder, removed).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// How COLMAP pairs images (as `assist process --matcher`).
+    #[arg(long, value_enum, default_value_t = crate::cmd_process::MatcherArg::Auto)]
+    pub matcher: crate::cmd_process::MatcherArg,
     /// Frames to keep (as `assist process --frames`).
     #[arg(long, default_value_t = assist_session::process::DEFAULT_FRAMES)]
     pub frames: usize,
@@ -44,7 +47,7 @@ pub fn run(a: ProcessBenchArgs) -> anyhow::Result<()> {
         input: folder.clone(),
         out: out.clone(),
         frames: a.frames.max(given.frames.len()),
-        matcher: None,
+        matcher: a.matcher.matcher(),
         scale_by: None,
         force: a.out.is_some(),
         cancel: Default::default(),

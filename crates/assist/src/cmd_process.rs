@@ -44,16 +44,22 @@ pub enum MatcherArg {
     Exhaustive,
 }
 
+impl MatcherArg {
+    pub fn matcher(self) -> Option<Matcher> {
+        match self {
+            MatcherArg::Auto => None,
+            MatcherArg::Sequential => Some(Matcher::Sequential),
+            MatcherArg::Exhaustive => Some(Matcher::Exhaustive),
+        }
+    }
+}
+
 pub fn run(a: ProcessArgs) -> anyhow::Result<()> {
     let job = ProcessJob {
         input: a.input.clone(),
         out: a.out.clone(),
         frames: a.frames,
-        matcher: match a.matcher {
-            MatcherArg::Auto => None,
-            MatcherArg::Sequential => Some(Matcher::Sequential),
-            MatcherArg::Exhaustive => Some(Matcher::Exhaustive),
-        },
+        matcher: a.matcher.matcher(),
         scale_by: a.scale_by.clone(),
         force: a.force,
         cancel: Default::default(),
