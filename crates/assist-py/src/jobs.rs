@@ -185,32 +185,56 @@ pub(crate) fn train<'py>(
     let job = assist_session::TrainJob::new(cfg);
     job.validate().map_err(err)?;
     let cancel = job.cancel_handle();
-    let mut interrupted: Option<PyErr> = None;
-    let mut failed: Option<PyErr> = None;
-    let outcome = py.detach(|| {
-        job.run(|e| {
-            Python::attach(|py| {
-                if interrupted.is_none()
-                    && let Err(e) = py.check_signals()
-                {
-                    cancel.store(true, std::sync::atomic::Ordering::SeqCst);
-                    interrupted = Some(e);
-                }
-                if let (Some(cb), None) = (&callback, &failed) {
-                    let r = to_py(py, e).and_then(|ev| cb.call1(py, (ev,)));
-                    if let Err(e) = r {
-                        cancel.store(true, std::sync::atomic::Ordering::SeqCst);
-                        failed = Some(e);
-                    }
-                }
-            })
-        })
-    });
-    if let Some(e) = interrupted.or(failed) {
-        return Err(e);
-    }
+    let mut relay = Relay::new(callback.as_ref(), &cancel);
+    let outcome = py.detach(|| job.run(|e| relay.event(e)));
+    relay.finish()?;
     let outcome = outcome.map_err(err)?;
     to_py(py, &outcome.report)
+}
+
+/// A long job's events relayed to a Python callback. Ctrl+C and a callback that raises
+/// both stop the job (through `cancel`); the first of each error is kept, Ctrl+C's first.
+struct Relay<'a> {
+    callback: Option<&'a Py<PyAny>>,
+    cancel: &'a std::sync::atomic::AtomicBool,
+    interrupted: Option<PyErr>,
+    failed: Option<PyErr>,
+}
+
+impl<'a> Relay<'a> {
+    fn new(callback: Option<&'a Py<PyAny>>, cancel: &'a std::sync::atomic::AtomicBool) -> Self {
+        Relay {
+            callback,
+            cancel,
+            interrupted: None,
+            failed: None,
+        }
+    }
+
+    fn event(&mut self, e: &impl serde::Serialize) {
+        Python::attach(|py| {
+            if self.interrupted.is_none()
+                && let Err(e) = py.check_signals()
+            {
+                self.cancel.store(true, std::sync::atomic::Ordering::SeqCst);
+                self.interrupted = Some(e);
+            }
+            if let (Some(cb), None) = (self.callback, &self.failed) {
+                let r = to_py(py, e).and_then(|ev| cb.call1(py, (ev,)));
+                if let Err(e) = r {
+                    self.cancel.store(true, std::sync::atomic::Ordering::SeqCst);
+                    self.failed = Some(e);
+                }
+            }
+        })
+    }
+
+    fn finish(self) -> PyResult<()> {
+        match self.interrupted.or(self.failed) {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
 }
 
 /// `assist.process`: a video or a folder of photographs → a posed dataset (ffmpeg,
@@ -255,29 +279,9 @@ pub(crate) fn process<'py>(
         cancel: Default::default(),
     };
     let cancel = job.cancel.clone();
-    let mut stop: Option<PyErr> = None;
-    let outcome = py.detach(|| {
-        job.run(&mut |e| {
-            Python::attach(|py| {
-                if stop.is_none()
-                    && let Err(e) = py.check_signals()
-                {
-                    cancel.store(true, std::sync::atomic::Ordering::SeqCst);
-                    stop = Some(e);
-                }
-                if let (Some(cb), None) = (&callback, &stop) {
-                    let r = to_py(py, e).and_then(|ev| cb.call1(py, (ev,)));
-                    if let Err(e) = r {
-                        cancel.store(true, std::sync::atomic::Ordering::SeqCst);
-                        stop = Some(e);
-                    }
-                }
-            })
-        })
-    });
-    if let Some(e) = stop {
-        return Err(e);
-    }
+    let mut relay = Relay::new(callback.as_ref(), &cancel);
+    let outcome = py.detach(|| job.run(&mut |e| relay.event(e)));
+    relay.finish()?;
     let summary = outcome.map_err(err)?;
     to_py(py, &summary)
 }

@@ -155,16 +155,8 @@ fn a_video_and_photographs_become_posed_datasets() {
     let given: std::collections::HashMap<String, DVec3> = centres(&capture).into_iter().collect();
     let (mut from, mut to) = (Vec::new(), Vec::new());
     for (name, c) in centres(&out) {
-        let k: usize = name["frame_".len()..name.len() - ".jpg".len()]
-            .parse()
-            .unwrap();
-        let original = order[k - 1]
-            .file_name()
-            .unwrap()
-            .to_string_lossy()
-            .into_owned();
         from.push(c);
-        to.push(given[&original]);
+        to.push(truth_of(&name, &order, &given));
     }
     let errors = assist_session::process::compare::residuals(&from, &to).unwrap();
     let worst = errors.iter().cloned().fold(0.0, f64::max);
@@ -216,17 +208,8 @@ fn a_video_and_photographs_become_posed_datasets() {
     assert_eq!(summary["meters_per_unit"], 1.0);
     let (mut from, mut to) = (Vec::new(), Vec::new());
     for (name, c) in centres(&photos) {
-        let k: usize = name["frame_".len()..name.len() - ".jpg".len()]
-            .parse()
-            .unwrap();
         from.push(c);
-        to.push(
-            given[&order[k - 1]
-                .file_name()
-                .unwrap()
-                .to_string_lossy()
-                .into_owned()],
-        );
+        to.push(truth_of(&name, &order, &given));
     }
     let fit = assist_session::process::compare::fit_similarity(&from, &to).unwrap();
     eprintln!(
@@ -294,16 +277,7 @@ fn known_distance(
         let [w, x, y, z] = img.qvec;
         let r = assist_core::DMat3::from_quat(assist_core::DQuat::from_xyzw(x, y, z, w));
         from.push(-(r.transpose() * DVec3::from_array(img.tvec)));
-        let k: usize = img.name["frame_".len()..img.name.len() - 4]
-            .parse()
-            .unwrap();
-        to.push(
-            given[&order[k - 1]
-                .file_name()
-                .unwrap()
-                .to_string_lossy()
-                .into_owned()],
-        );
+        to.push(truth_of(&img.name, &order, given));
     }
     let scale = assist_session::process::compare::fit_similarity(&from, &to)
         .unwrap()
@@ -337,4 +311,21 @@ fn known_distance(
         ),
         best.0 * scale,
     )
+}
+
+/// The capture's camera centre of processed frame `frame_0000k.jpg`: the k-th view in
+/// walking order.
+fn truth_of(
+    name: &str,
+    order: &[PathBuf],
+    given: &std::collections::HashMap<String, DVec3>,
+) -> DVec3 {
+    let k: usize = name["frame_".len()..name.len() - ".jpg".len()]
+        .parse()
+        .unwrap();
+    given[&order[k - 1]
+        .file_name()
+        .unwrap()
+        .to_string_lossy()
+        .into_owned()]
 }
