@@ -157,6 +157,109 @@ fn spread<T: Clone>(items: &[T], k: usize) -> Vec<T> {
         .collect()
 }
 
+/// Per object id in a view: its pixel count and box (x0, y0, x1, y1).
+type Boxes = BTreeMap<u16, (usize, (usize, usize, usize, usize))>;
+
+/// A training view as the crops need it: colour as bytes, ids, and its objects' boxes.
+struct Seen {
+    name: String,
+    width: usize,
+    height: usize,
+    rgb: Vec<u8>,
+    ids: Option<Vec<u16>>,
+    boxes: Boxes,
+}
+
+/// The training views `frames`, read in parallel.
+fn read_views(frames: &[&assist_data::Frame], bg: [f32; 3]) -> Result<Vec<Seen>> {
+    use rayon::prelude::*;
+    frames
+        .par_iter()
+        .enumerate()
+        .map(|(i, f)| {
+            let v = assist_train::load_view(f, i as u32, bg)?;
+            let mut boxes: Boxes = BTreeMap::new();
+            if let Some(ids) = &v.ids {
+                for (k, &id) in ids.iter().enumerate() {
+                    if id == 0 {
+                        continue;
+                    }
+                    let (x, y) = (k % v.width, k / v.width);
+                    let e = boxes.entry(id).or_insert((0, (x, y, x, y)));
+                    e.0 += 1;
+                    let b = &mut e.1;
+                    *b = (b.0.min(x), b.1.min(y), b.2.max(x), b.3.max(y));
+                }
+            }
+            Ok(Seen {
+                name: v.name,
+                width: v.width,
+                height: v.height,
+                rgb: to_u8(&v.rgb),
+                ids: v.ids,
+                boxes,
+            })
+        })
+        .collect::<std::result::Result<_, assist_train::TrainError>>()
+        .map_err(SessionError::Train)
+}
+
+/// A node's crops (at most `per_node`, spread over the views) and their views' names:
+/// the background's centre squares with the objects painted over, or an object's box
+/// with context in the views that see enough of it, other objects painted over.
+fn node_crops(
+    views: &[Seen],
+    id: InstanceId,
+    is_bg: bool,
+    per_node: usize,
+    fill: [u8; 3],
+    size: u32,
+) -> (Vec<RgbImage>, Vec<String>) {
+    let mut crops = Vec::new();
+    let mut names = Vec::new();
+    if is_bg {
+        for vi in spread(&(0..views.len()).collect::<Vec<_>>(), per_node) {
+            let v = &views[vi];
+            let ids = v.ids.as_deref();
+            let paint = |p: usize| ids.is_some_and(|ids| ids[p] != 0);
+            let whole = (0, 0, v.width - 1, v.height - 1);
+            // The centre square of the view, as CLIP's transform would take.
+            let side = v.width.min(v.height);
+            let (x0, y0) = ((v.width - side) / 2, (v.height - side) / 2);
+            let b = if side > 0 {
+                (x0, y0, x0 + side - 1, y0 + side - 1)
+            } else {
+                whole
+            };
+            crops.push(crop(&v.rgb, v.width, v.height, b, 1.0, &paint, fill, size));
+            names.push(v.name.clone());
+        }
+    } else {
+        let counts: Vec<(usize, usize)> = views
+            .iter()
+            .enumerate()
+            .filter_map(|(vi, v)| v.boxes.get(&id).map(|e| (vi, e.0)))
+            .collect();
+        let most = counts.iter().map(|c| c.1).max().unwrap_or(0);
+        let good: Vec<usize> = counts
+            .iter()
+            .filter(|c| c.1 >= MIN_PIXELS && c.1 * 4 >= most)
+            .map(|c| c.0)
+            .collect();
+        for vi in spread(&good, per_node) {
+            let v = &views[vi];
+            let ids = v.ids.as_deref().unwrap_or(&[]);
+            let paint = |p: usize| ids[p] != 0 && ids[p] != id;
+            let b = v.boxes[&id].1;
+            crops.push(crop(
+                &v.rgb, v.width, v.height, b, CONTEXT, &paint, fill, size,
+            ));
+            names.push(v.name.clone());
+        }
+    }
+    (crops, names)
+}
+
 impl Session {
     /// Embeds the scene's nodes with `clip` from the training views of `job.data` and
     /// stores the embeddings in the scene (save it to keep them). Nodes that already have
@@ -202,49 +305,7 @@ impl Session {
         progress(EmbedEvent::Reading {
             views: frames.len(),
         });
-        let bg = assist_train::background_color(&ds);
-        // Per view: colour as bytes, ids, and per object id its pixel count and box.
-        type Boxes = BTreeMap<u16, (usize, (usize, usize, usize, usize))>;
-        struct Seen {
-            name: String,
-            width: usize,
-            height: usize,
-            rgb: Vec<u8>,
-            ids: Option<Vec<u16>>,
-            boxes: Boxes,
-        }
-        let views: Vec<Seen> = {
-            use rayon::prelude::*;
-            frames
-                .par_iter()
-                .enumerate()
-                .map(|(i, f)| {
-                    let v = assist_train::load_view(f, i as u32, bg)?;
-                    let mut boxes: Boxes = BTreeMap::new();
-                    if let Some(ids) = &v.ids {
-                        for (k, &id) in ids.iter().enumerate() {
-                            if id == 0 {
-                                continue;
-                            }
-                            let (x, y) = (k % v.width, k / v.width);
-                            let e = boxes.entry(id).or_insert((0, (x, y, x, y)));
-                            e.0 += 1;
-                            let b = &mut e.1;
-                            *b = (b.0.min(x), b.1.min(y), b.2.max(x), b.3.max(y));
-                        }
-                    }
-                    Ok(Seen {
-                        name: v.name,
-                        width: v.width,
-                        height: v.height,
-                        rgb: to_u8(&v.rgb),
-                        ids: v.ids,
-                        boxes,
-                    })
-                })
-                .collect::<std::result::Result<_, assist_train::TrainError>>()
-                .map_err(SessionError::Train)?
-        };
+        let views = read_views(&frames, assist_train::background_color(&ds))?;
         let c = clip.config();
         let size = c.vision.image_size as u32;
         let fill = [0, 1, 2].map(|k| (c.mean[k] * 255.0).round() as u8);
@@ -261,48 +322,7 @@ impl Session {
             if by_field.contains_key(field) {
                 continue;
             }
-            let mut crops = Vec::new();
-            let mut names = Vec::new();
-            if *is_bg {
-                for vi in spread(&(0..views.len()).collect::<Vec<_>>(), job.views) {
-                    let v = &views[vi];
-                    let ids = v.ids.as_deref();
-                    let paint = |p: usize| ids.is_some_and(|ids| ids[p] != 0);
-                    let whole = (0, 0, v.width - 1, v.height - 1);
-                    // The centre square of the view, as CLIP's transform would take.
-                    let side = v.width.min(v.height);
-                    let (x0, y0) = ((v.width - side) / 2, (v.height - side) / 2);
-                    let b = if side > 0 {
-                        (x0, y0, x0 + side - 1, y0 + side - 1)
-                    } else {
-                        whole
-                    };
-                    crops.push(crop(&v.rgb, v.width, v.height, b, 1.0, &paint, fill, size));
-                    names.push(v.name.clone());
-                }
-            } else {
-                let counts: Vec<(usize, usize)> = views
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(vi, v)| v.boxes.get(id).map(|e| (vi, e.0)))
-                    .collect();
-                let most = counts.iter().map(|c| c.1).max().unwrap_or(0);
-                let good: Vec<usize> = counts
-                    .iter()
-                    .filter(|c| c.1 >= MIN_PIXELS && c.1 * 4 >= most)
-                    .map(|c| c.0)
-                    .collect();
-                for vi in spread(&good, job.views) {
-                    let v = &views[vi];
-                    let ids = v.ids.as_deref().unwrap_or(&[]);
-                    let paint = |p: usize| ids[p] != 0 && ids[p] != *id;
-                    let b = v.boxes[id].1;
-                    crops.push(crop(
-                        &v.rgb, v.width, v.height, b, CONTEXT, &paint, fill, size,
-                    ));
-                    names.push(v.name.clone());
-                }
-            }
+            let (crops, names) = node_crops(&views, *id, *is_bg, job.views, fill, size);
             if crops.is_empty() {
                 done.push(EmbeddedNode {
                     id: *id,

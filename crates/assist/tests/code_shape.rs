@@ -21,7 +21,6 @@ const SHRINK_ONLY: &[(&str, &str, usize)] = &[
     ("crates/assist-generate/src/sample.rs", "sample", 176),
     ("crates/assist-train/src/trainer/mod.rs", "step", 200),
     ("crates/assist-field/src/field/backward.rs", "backward", 201),
-    ("crates/assist-session/src/embed.rs", "embed", 203),
     ("crates/assist-render/src/batch.rs", "composite_ray", 230),
 ];
 

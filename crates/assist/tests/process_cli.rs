@@ -277,7 +277,7 @@ fn known_distance(
         let [w, x, y, z] = img.qvec;
         let r = assist_core::DMat3::from_quat(assist_core::DQuat::from_xyzw(x, y, z, w));
         from.push(-(r.transpose() * DVec3::from_array(img.tvec)));
-        to.push(truth_of(&img.name, &order, given));
+        to.push(truth_of(&img.name, order, given));
     }
     let scale = assist_session::process::compare::fit_similarity(&from, &to)
         .unwrap()
