@@ -93,7 +93,7 @@ pub fn reconstruct(
         path: sparse.clone(),
         message: e.to_string(),
     })?;
-    let mapper = |relaxed: &[&str]| {
+    let mapper = |out: &Path, relaxed: &[&str]| {
         let mut c = colmap_cmd();
         c.arg("mapper")
             .arg("--database_path")
@@ -101,7 +101,7 @@ pub fn reconstruct(
             .arg("--image_path")
             .arg(images)
             .arg("--output_path")
-            .arg(&sparse)
+            .arg(out)
             .args(relaxed);
         c
     };
@@ -110,30 +110,40 @@ pub fn reconstruct(
         Stage::Mapping,
         "incremental mapper (COLMAP)",
         "mapping",
-        &mut mapper(&[]),
+        &mut mapper(&sparse, &[]),
         &runner,
         count,
-    );
-    match first.and_then(|_| largest_model(&sparse)) {
-        Ok(found) => Ok(found),
-        Err(ProcessError::Cancelled) => Err(ProcessError::Cancelled),
-        // COLMAP's defaults want 100 inlier matches for the first pair; plain, smooth
-        // surfaces and frames without a focal length in their EXIF (every video frame)
-        // may offer fewer. One retry with lower thresholds; the registration check and
-        // the poses' use decide whether the result is good enough.
-        Err(_) => {
-            step(
-                on_event,
-                Stage::Mapping,
-                "no first pair under COLMAP's defaults; mapping again with relaxed thresholds (few matches: a plain scene, or no focal length known)",
-                "mapping",
-                &mut mapper(&RELAXED),
-                &runner,
-                count,
-            )?;
-            largest_model(&sparse)
-        }
+    )
+    .and_then(|_| largest_model(&sparse));
+    match first {
+        Err(ProcessError::Cancelled) => return Err(ProcessError::Cancelled),
+        Ok(found) if found.0.images.len() * 2 >= count => return Ok(found),
+        _ => {}
     }
+    // COLMAP's defaults want 100 inlier matches for the first pair and 30 to register
+    // an image; plain, smooth surfaces and frames without a focal length in their EXIF
+    // (every video frame) may offer fewer, leaving no model or one of a few frames. One
+    // retry with lower thresholds (in its own folder); the model registering more is
+    // kept, and the registration check decides whether it is enough.
+    let relaxed = work.join("sparse-relaxed");
+    std::fs::create_dir_all(&relaxed).map_err(|e| ProcessError::Io {
+        path: relaxed.clone(),
+        message: e.to_string(),
+    })?;
+    step(
+        on_event,
+        Stage::Mapping,
+        "fewer than half the frames posed under COLMAP's defaults; mapping again with relaxed thresholds (few matches: a plain scene, or no focal length known)",
+        "mapping",
+        &mut mapper(&relaxed, &RELAXED),
+        &runner,
+        count,
+    )?;
+    let second = largest_model(&relaxed)?;
+    Ok(match first {
+        Ok(found) if found.0.images.len() >= second.0.images.len() => found,
+        _ => second,
+    })
 }
 
 /// The mapper's thresholds for a second try: 25 inliers (not 100) and 8° (not 16°) for

@@ -216,8 +216,9 @@ fn a_video_and_photographs_become_posed_datasets() {
         "--scale-by {arg} {metres:.5}m: scale to the capture {:.4}",
         fit.scale
     );
-    // One pair of points sets the scale: 2.8% off measured on this plain scene.
-    assert!((fit.scale - 1.0).abs() < 0.05, "scale {}", fit.scale);
+    // One pair of COLMAP points sets the scale: 2.8% to 4.0% off measured on this plain
+    // scene, whose reconstruction differs from run to run.
+    assert!((fit.scale - 1.0).abs() < 0.08, "scale {}", fit.scale);
 
     // Unrelated --out content is never replaced, and a re-run needs --force.
     refused(
