@@ -32,6 +32,15 @@ pub const COLMAP: Tool = Tool {
 };
 
 impl Tool {
+    /// This program failed doing `what`.
+    fn failed(self, what: &str, message: String) -> ProcessError {
+        ProcessError::Tool {
+            tool: self.name,
+            what: what.to_string(),
+            message,
+        }
+    }
+
     /// The program's path on `PATH`, or an error naming the package to install.
     pub fn find(self) -> Result<PathBuf, ProcessError> {
         let path = std::env::var_os("PATH").unwrap_or_default();
@@ -77,11 +86,7 @@ impl Runner<'_> {
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
             .spawn()
-            .map_err(|e| ProcessError::Tool {
-                tool: tool.name,
-                what: what.to_string(),
-                message: format!("could not start it: {e}"),
-            })?;
+            .map_err(|e| tool.failed(what, format!("could not start it: {e}")))?;
         // Both streams, line by line, into one channel (COLMAP logs to stderr, ffmpeg too).
         let (tx, rx) = mpsc::channel::<String>();
         let readers: Vec<_> = [
@@ -157,11 +162,7 @@ pub fn output(tool: Tool, what: &str, cmd: &mut Command) -> Result<String, Proce
     let o = cmd
         .stdin(Stdio::null())
         .output()
-        .map_err(|e| ProcessError::Tool {
-            tool: tool.name,
-            what: what.to_string(),
-            message: format!("could not start it: {e}"),
-        })?;
+        .map_err(|e| tool.failed(what, format!("could not start it: {e}")))?;
     if !o.status.success() {
         return Err(ProcessError::Tool {
             tool: tool.name,
