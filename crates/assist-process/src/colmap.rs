@@ -117,13 +117,15 @@ pub fn reconstruct(
     .and_then(|_| largest_model(&sparse));
     match first {
         Err(ProcessError::Cancelled) => return Err(ProcessError::Cancelled),
-        Ok(found) if found.0.images.len() * 2 >= count => return Ok(found),
+        Ok(found) if found.0.images.len() as f64 >= RETRY_BELOW * count as f64 => {
+            return Ok(found);
+        }
         _ => {}
     }
     // COLMAP's defaults want 100 inlier matches for the first pair and 30 to register
     // an image; plain, smooth surfaces and frames without a focal length in their EXIF
-    // (every video frame) may offer fewer, leaving no model or one of a few frames. One
-    // retry with lower thresholds (in its own folder); the model registering more is
+    // (every video frame) may offer fewer, leaving no model, or the capture broken into
+    // several models at frames it could not register. One retry with lower thresholds (in its own folder); the model registering more is
     // kept, and the registration check decides whether it is enough.
     let relaxed = work.join("sparse-relaxed");
     std::fs::create_dir_all(&relaxed).map_err(|e| ProcessError::Io {
@@ -133,7 +135,7 @@ pub fn reconstruct(
     step(
         on_event,
         Stage::Mapping,
-        "fewer than half the frames posed under COLMAP's defaults; mapping again with relaxed thresholds (few matches: a plain scene, or no focal length known)",
+        "under 90% of the frames posed under COLMAP's defaults; mapping again with relaxed thresholds (few matches: a plain scene, or no focal length known)",
         "mapping",
         &mut mapper(&relaxed, &RELAXED),
         &runner,
@@ -145,6 +147,10 @@ pub fn reconstruct(
         _ => second,
     })
 }
+
+/// The share of the frames below which the mapper runs again with [`RELAXED`]
+/// thresholds (a capture is expected to register whole).
+pub const RETRY_BELOW: f64 = 0.9;
 
 /// The mapper's thresholds for a second try: 25 inliers (not 100) and 8° (not 16°) for
 /// the first pair, 15 inliers (not 30) to register an image.

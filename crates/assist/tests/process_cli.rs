@@ -288,13 +288,27 @@ fn known_distance(
         .iter()
         .find(|i| i.name == "frame_00001.jpg")
         .expect("the first frame registered");
-    let seen: Vec<_> = first
-        .points2d
-        .iter()
-        .filter(|(_, id)| *id >= 0)
-        .map(|(px, id)| (*px, model.points[&(*id as u64)].xyz))
-        .take(300)
-        .collect();
+    // Points seen in many frames: a rerun of the (multi-threaded, so not repeatable)
+    // mapper triangulates them again, so `--scale-by` finds them.
+    let mut track: std::collections::HashMap<i64, usize> = Default::default();
+    for img in &model.images {
+        for (_, id) in img.points2d.iter().filter(|(_, id)| *id >= 0) {
+            *track.entry(*id).or_default() += 1;
+        }
+    }
+    let observed = |min: usize| -> Vec<(assist_core::DVec2, DVec3)> {
+        first
+            .points2d
+            .iter()
+            .filter(|(_, id)| *id >= 0 && track[id] >= min)
+            .map(|(px, id)| (*px, model.points[&(*id as u64)].xyz))
+            .take(300)
+            .collect()
+    };
+    let mut seen = observed(8);
+    if seen.len() < 10 {
+        seen = observed(1);
+    }
     let mut best = (0.0, 0, 0);
     for i in 0..seen.len() {
         for j in i + 1..seen.len() {
