@@ -194,6 +194,9 @@ pub struct LoadOptions {
     pub downscale: u32,
     /// A folder of background priors made elsewhere ([`crate::priors`]).
     pub prior_dir: Option<std::path::PathBuf>,
+    /// Instance masks made elsewhere, replacing the dataset's own
+    /// ([`crate::masks::attach_given_masks`]).
+    pub masks: Option<std::path::PathBuf>,
 }
 
 impl Dataset {

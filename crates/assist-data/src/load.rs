@@ -106,7 +106,10 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<Dataset> {
             ));
         }
     }
-    ds.mask_folder = crate::masks::attach_mask_folder(&mut ds, opts.downscale.max(1))?;
+    ds.mask_folder = match &opts.masks {
+        Some(dir) => Some(crate::masks::attach_given_masks(&mut ds, dir)?),
+        None => crate::masks::attach_mask_folder(&mut ds, opts.downscale.max(1))?,
+    };
     if let Some(dir) = &opts.prior_dir {
         ds.prior_folder = Some(crate::priors::attach_prior_folder(&mut ds, dir)?);
     }

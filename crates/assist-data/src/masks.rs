@@ -148,18 +148,64 @@ pub fn attach_mask_folder(ds: &mut Dataset, downscale: u32) -> Result<Option<Mas
     let Some(folder) = folder else {
         return Ok(None);
     };
+    let frames: Vec<usize> = (0..ds.frames.len())
+        .filter(|&k| {
+            let f = &ds.frames[k];
+            f.instance_mask_path.is_none()
+                && f.image_path
+                    .parent()
+                    .and_then(|d| existing_mask_folder(d, downscale))
+                    .as_deref()
+                    == Some(folder.as_path())
+        })
+        .collect();
+    attach(ds, folder, &frames, false).map(Some)
+}
+
+/// Replaces every frame's instance mask with the one in `folder` (masks made elsewhere,
+/// e.g. by `assist dataset masks`); the dataset's own instances are dropped, and those of
+/// `folder/instances.json` (ids, labels, boxes, as `assist dataset boxes --json` writes
+/// them) declared when it exists.
+pub fn attach_given_masks(ds: &mut Dataset, folder: &Path) -> Result<MaskFolder> {
+    if !folder.is_dir() {
+        return Err(DataError::field(
+            folder,
+            "masks",
+            "expected a folder of instance masks, one per image named like it",
+        ));
+    }
+    for f in &mut ds.frames {
+        f.instance_mask_path = None;
+    }
+    ds.instances.clear();
+    let listed = folder.join(INSTANCES_FILE);
+    if listed.is_file() {
+        for b in crate::boxes::read_boxes(&listed)? {
+            let id = b.id.ok_or_else(|| {
+                DataError::field(&listed, &b.entry, "expected an \"id\" for each instance")
+            })?;
+            ds.instances.push(crate::dataset::InstanceInfo {
+                id,
+                label: b.label.clone().unwrap_or_else(|| format!("object {id}")),
+                bbox: Some(b.bbox),
+            });
+        }
+    }
+    let frames: Vec<usize> = (0..ds.frames.len()).collect();
+    let declared = !ds.instances.is_empty();
+    attach(ds, folder.to_path_buf(), &frames, declared)
+}
+
+/// The file in a masks folder that names its instances.
+pub const INSTANCES_FILE: &str = "instances.json";
+
+/// Sets the instance masks of `frames` from `folder` (each must have one) and decides
+/// their encoding from the values all of them use (`ids`: the values are ids, as a
+/// folder that declares its instances says, even with one object).
+fn attach(ds: &mut Dataset, folder: PathBuf, frames: &[usize], ids: bool) -> Result<MaskFolder> {
     let mut paths = Vec::new();
-    for f in ds.frames.iter_mut() {
-        if f.instance_mask_path.is_some() {
-            continue;
-        }
-        let d = f
-            .image_path
-            .parent()
-            .and_then(|d| existing_mask_folder(d, downscale));
-        if d.as_deref() != Some(folder.as_path()) {
-            continue;
-        }
+    for &k in frames {
+        let f = &mut ds.frames[k];
         let Some(m) = find_mask(&folder, &f.image_path) else {
             let stem = crate::dataset::file_stem(&f.image_path);
             return Err(DataError::field(
@@ -200,7 +246,9 @@ pub fn attach_mask_folder(ds: &mut Dataset, downscale: u32) -> Result<Option<Mas
         .filter(|&v| any[v])
         .map(|v| v as u16)
         .collect();
-    let encoding = if paths.iter().any(|p| is_jpeg(p)) {
+    let encoding = if ids {
+        MaskEncoding::Ids
+    } else if paths.iter().any(|p| is_jpeg(p)) {
         MaskEncoding::Binary {
             threshold: values.last().map_or(128, |&m| m.div_ceil(2).max(1)),
         }
@@ -222,12 +270,12 @@ pub fn attach_mask_folder(ds: &mut Dataset, downscale: u32) -> Result<Option<Mas
     let mut ids: Vec<u16> = values.iter().map(|&v| encoding.id(v)).collect();
     ids.retain(|&i| i != 0);
     ids.dedup();
-    Ok(Some(MaskFolder {
+    Ok(MaskFolder {
         folder,
         files: paths.len(),
         encoding,
         ids,
-    }))
+    })
 }
 
 #[cfg(test)]

@@ -4,7 +4,7 @@
 use assist_core::DVec3;
 use assist_data::consistency::reproject;
 use assist_data::image_io::{read_depth_png, read_ids};
-use assist_data::synth::{SynthConfig, generate};
+use assist_data::synth::{CameraPath, SynthConfig, generate};
 use assist_data::{LoadOptions, Split, load};
 use assist_testkit::TempDir;
 
@@ -17,7 +17,30 @@ fn small(seed: u64) -> SynthConfig {
         objects: 4,
         spp: 2,
         shadow_samples: 2,
+        path: CameraPath::Spiral,
     }
+}
+
+#[test]
+fn a_walk_goes_once_around_the_table_in_small_steps() {
+    let mut rng = assist_core::Rng::new(3);
+    let cams = assist_data::synth::scene::cameras(&mut rng, 48, 64, 48, CameraPath::Walk);
+    let centres: Vec<DVec3> = cams.iter().map(|c| c.pose.center()).collect();
+    let mut turned = 0.0;
+    for (k, c) in centres.iter().enumerate() {
+        let next = centres[(k + 1) % centres.len()];
+        // Neighbours (the last and the first too) a few centimetres apart.
+        assert!(c.distance(next) < 0.15, "{k}: {}", c.distance(next));
+        let (a, b) = (c.y.atan2(c.x), next.y.atan2(next.x));
+        turned +=
+            (b - a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
+        // Every camera looks at the table's centre, from above.
+        assert!(c.z > 0.9 && cams[k].pose.forward().z < -0.3, "{k}: {c}");
+    }
+    assert!(
+        (turned - std::f64::consts::TAU).abs() < 1e-6,
+        "turned {turned}"
+    );
 }
 
 #[test]

@@ -228,6 +228,11 @@ pub struct TrainConfig {
     /// from clicks or boxes; or to compare with a labelled run).
     #[arg(long, help_heading = SAMPLING)]
     pub no_objects: bool,
+    /// Instance masks made elsewhere (e.g. by `assist dataset masks`), replacing the
+    /// dataset's own: one per image named like it; an `instances.json` in the folder
+    /// names the objects and gives their boxes.
+    #[arg(long, help_heading = SAMPLING, value_name = "DIR")]
+    pub masks: Option<PathBuf>,
     /// Background prior under the objects: multi-view (from the other views that see it,
     /// where the dataset has depth; push-pull elsewhere), push-pull, exemplar, or none
     /// (none also sets the background's prior weights to 0 unless --prior-dir gives files).

@@ -126,6 +126,13 @@ impl TrainJob {
                 format!("expected a positive number of seconds, got {t}"),
             ));
         }
+        if c.no_objects && c.masks.is_some() {
+            return Err(request(
+                "no_objects",
+                "--no-objects trains the background alone; --masks gives objects: choose one"
+                    .into(),
+            ));
+        }
         if c.no_objects && c.boxes.is_some() {
             return Err(request(
                 "no_objects",
@@ -193,6 +200,7 @@ impl TrainJob {
         let load_opts = LoadOptions {
             downscale: c.downscale,
             prior_dir: c.prior_dir.clone(),
+            masks: c.masks.clone(),
             ..Default::default()
         };
         let mut ds = assist_data::load(&c.data, &load_opts).map_err(SessionError::Data)?;

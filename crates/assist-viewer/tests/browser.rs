@@ -65,6 +65,7 @@ fn the_viewer_works_in_a_real_browser() {
         objects: 3,
         spp: 2,
         shadow_samples: 2,
+        ..SynthConfig::default()
     };
     generate(&cfg, &data, false, &|_, _| {}).unwrap();
     let scene = work.join("scene.assist");

@@ -27,6 +27,9 @@ pub enum BenchCommand {
     /// `assist process` on a posed dataset's photographs against its own poses:
     /// registration, camera-centre error after a similarity, time per stage.
     Process(crate::cmd_bench_process::ProcessBenchArgs),
+    /// Masks derived from object boxes on a scene trained without masks, against the
+    /// dataset's instance masks: IoU per object, mIoU, time.
+    Split(crate::cmd_bench_split::SplitBenchArgs),
 }
 
 #[derive(Args, Debug)]
@@ -68,6 +71,7 @@ pub fn run(c: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Mesh(a) => crate::cmd_bench_mesh::run(a),
         BenchCommand::Embed(a) => crate::cmd_bench_embed::run(a),
         BenchCommand::Process(a) => crate::cmd_bench_process::run(a),
+        BenchCommand::Split(a) => crate::cmd_bench_split::run(a),
     }
 }
 

@@ -17,6 +17,10 @@ pub enum DatasetCommand {
     /// the instance masks plus a margin, or the ones --boxes gives). With --json, a file that
     /// `assist train --boxes` reads back: edit it and pass it to override any box.
     Boxes(BoxesArgs),
+    /// Instance masks for every image from boxes around the objects, on a scene trained
+    /// on the dataset without masks (`assist train --no-objects`): a folder any tool reads
+    /// and `assist train --masks` trains the objects from.
+    Masks(crate::cmd_dataset_masks::MasksArgs),
 }
 
 #[derive(Args, Debug)]
@@ -59,6 +63,7 @@ pub fn run(cmd: DatasetCommand) -> anyhow::Result<()> {
     match cmd {
         DatasetCommand::Info(a) => info(a),
         DatasetCommand::Boxes(a) => boxes(a),
+        DatasetCommand::Masks(a) => crate::cmd_dataset_masks::run(a),
     }
 }
 
@@ -138,6 +143,7 @@ pub fn load_options(
         llff_factor,
         downscale,
         prior_dir,
+        masks: None,
     })
 }
 

@@ -3,8 +3,15 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use assist_data::synth::{SynthConfig, generate};
+use assist_data::synth::{CameraPath, SynthConfig, generate};
 use clap::Args;
+
+/// `--path`: where the cameras stand.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum PathArg {
+    Spiral,
+    Walk,
+}
 
 #[derive(Args, Debug)]
 pub struct SynthArgs {
@@ -35,6 +42,10 @@ pub struct SynthArgs {
     /// Light samples per colour sample (soft shadows).
     #[arg(long, default_value_t = 4)]
     pub shadow_samples: u32,
+    /// Where the cameras stand: spiral (spread over the room, every view different) or
+    /// walk (one walk around the table in order, as a phone video is filmed).
+    #[arg(long, value_enum, default_value_t = PathArg::Spiral)]
+    pub path: PathArg,
     /// Replace an existing output folder.
     #[arg(long)]
     pub force: bool,
@@ -57,6 +68,10 @@ impl SynthArgs {
             objects: self.objects,
             spp: self.spp,
             shadow_samples: self.shadow_samples,
+            path: match self.path {
+                PathArg::Spiral => CameraPath::Spiral,
+                PathArg::Walk => CameraPath::Walk,
+            },
         })
     }
 }

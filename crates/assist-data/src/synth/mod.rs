@@ -12,4 +12,5 @@ pub mod scene;
 pub mod trace;
 pub mod write;
 
+pub use scene::CameraPath;
 pub use write::{SynthConfig, SynthSummary, generate};

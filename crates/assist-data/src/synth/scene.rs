@@ -312,9 +312,57 @@ pub fn build_scene(rng: &mut Rng, k: usize) -> Scene {
     }
 }
 
-/// Inward-facing cameras on a Fibonacci spiral over a spherical cap (elevation 20–60°),
-/// 0.7–0.95 m from a point just above the table centre, no roll.
-pub fn cameras(rng: &mut Rng, n: usize, width: u32, height: u32) -> Vec<Camera> {
+/// How the cameras are placed around the table.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CameraPath {
+    /// Spread evenly over a spherical cap (a Fibonacci spiral): every view different.
+    #[default]
+    Spiral,
+    /// One walk around the table in order, the camera bobbing gently up and down, as a
+    /// phone video is filmed: neighbouring views are close.
+    Walk,
+}
+
+/// Inward-facing cameras along `path`, looking at a point just above the table centre,
+/// no roll.
+pub fn cameras(rng: &mut Rng, n: usize, width: u32, height: u32, path: CameraPath) -> Vec<Camera> {
+    match path {
+        CameraPath::Spiral => spiral(rng, n, width, height),
+        CameraPath::Walk => walk(rng, n, width, height),
+    }
+}
+
+/// One turn at 0.8–0.9 m, the elevation 30–42° (two bobs per turn), the target within
+/// 1 cm of the table's centre.
+fn walk(rng: &mut Rng, n: usize, width: u32, height: u32) -> Vec<Camera> {
+    let intr = Intrinsics::from_fov_x(width, height, 2.0 * (18.0f64 / 35.0).atan());
+    let turn = std::f64::consts::TAU;
+    (0..n)
+        .map(|k| {
+            let f = k as f64 / n as f64;
+            let elev = (36.0 + 6.0 * (2.0 * turn * f).sin()).to_radians();
+            let az = turn * f;
+            let radius = 0.85 + 0.05 * (turn * f).cos();
+            let target = DVec3::new(
+                rng.range(-0.01, 0.01),
+                rng.range(-0.01, 0.01),
+                TABLE_Z + 0.05,
+            );
+            let eye = target
+                + radius * DVec3::new(elev.cos() * az.cos(), elev.cos() * az.sin(), elev.sin());
+            let pose = Pose::look_at(eye, target, DVec3::Z).expect("cameras are never vertical");
+            Camera {
+                intrinsics: intr,
+                pose,
+            }
+        })
+        .collect()
+}
+
+/// On a Fibonacci spiral over a spherical cap (elevation 20–60°), 0.7–0.95 m from the
+/// target.
+fn spiral(rng: &mut Rng, n: usize, width: u32, height: u32) -> Vec<Camera> {
     let intr = Intrinsics::from_fov_x(width, height, 2.0 * (18.0f64 / 35.0).atan());
     let golden = std::f64::consts::PI * (3.0 - 5.0f64.sqrt());
     (0..n)

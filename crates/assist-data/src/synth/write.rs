@@ -8,7 +8,7 @@ use assist_core::{Camera, DVec3, Rng};
 use rayon::prelude::*;
 use serde_json::{Value, json};
 
-use super::scene::{Object, Scene, build_scene, cameras};
+use super::scene::{CameraPath, Object, Scene, build_scene, cameras};
 use super::trace::render_view;
 use crate::error::{DataError, Result};
 use crate::image_io::write_atomic;
@@ -25,6 +25,8 @@ pub struct SynthConfig {
     pub spp: u32,
     /// Light samples per colour sample (soft shadows).
     pub shadow_samples: u32,
+    /// Where the cameras stand.
+    pub path: CameraPath,
 }
 
 impl Default for SynthConfig {
@@ -37,6 +39,7 @@ impl Default for SynthConfig {
             objects: 5,
             spp: 4,
             shadow_samples: 4,
+            path: CameraPath::Spiral,
         }
     }
 }
@@ -217,7 +220,7 @@ pub fn generate(
     assist_fs::check_replaceable_as(out, force, assist_fs::Kind::Dataset)?;
     let mut rng = Rng::new(cfg.seed);
     let scene = build_scene(&mut rng, cfg.objects);
-    let cams = cameras(&mut rng, cfg.views, cfg.width, cfg.height);
+    let cams = cameras(&mut rng, cfg.views, cfg.width, cfg.height, cfg.path);
     let edits = make_edits(&scene, &mut rng);
     // Written whole beside `out` and swapped into place.
     let staging = assist_fs::Staging::begin(out, "synth")?;
