@@ -11,6 +11,7 @@ use anyhow::{Context, bail};
 use assist_core::{DMat3, DVec3, Obb};
 use assist_data::{LoadOptions, image_io};
 use assist_session::Session;
+use assist_session::split::click::{self, ClickOptions};
 use assist_session::split::{MaskOptions, SplitBox};
 use clap::Args;
 use serde_json::json;
@@ -27,17 +28,23 @@ pub struct MasksArgs {
     /// up). Repeat for several objects.
     #[arg(long = "box", value_name = "BOX")]
     pub boxes: Vec<String>,
-    /// The objects' names, in the order of --box (default "object 1", "object 2", …).
+    /// An object under a pixel of a view: "VIEW:u,v" (VIEW a frame's index or file name,
+    /// u,v pixels of the full-size image); its box is found from the scene and reported.
+    /// Repeat for several objects.
+    #[arg(long = "click", value_name = "VIEW:u,v")]
+    pub clicks: Vec<String>,
+    /// The objects' names: those of --box first, then those of --click, each in the order
+    /// given (default "object 1", "object 2", …).
     #[arg(long = "label", value_name = "NAME")]
     pub labels: Vec<String>,
     /// Boxes from a file instead (as `assist dataset boxes --json` writes them).
-    #[arg(long, value_name = "FILE", conflicts_with = "boxes")]
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["boxes", "clicks"])]
     pub boxes_file: Option<PathBuf>,
     /// The masks folder written.
     #[arg(long)]
     pub out: PathBuf,
     /// Render N times smaller than the images (the masks are then refined at full size).
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=16))]
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=16))]
     pub render_downscale: u32,
     /// Replace --out if assist wrote it.
     #[arg(long)]
@@ -93,7 +100,7 @@ pub fn run(a: MasksArgs) -> anyhow::Result<()> {
     let session = Session::open(&a.scene)?;
     let ds = assist_data::load(&a.data, &LoadOptions::default())
         .with_context(|| format!("reading {}", a.data.display()))?;
-    let boxes = new_objects(&a, session.description().up)?;
+    let boxes = new_objects(&a, &session, &ds)?;
     check_inside(&boxes, &session)?;
     // Photographs are read one at a time, as each mask is refined.
     let photo_of = |f: &assist_data::Frame| -> anyhow::Result<image_io::ImageF32> {
@@ -197,9 +204,15 @@ fn write_json(path: &Path, v: &serde_json::Value) -> anyhow::Result<()> {
         .with_context(|| format!("writing {}", path.display()))
 }
 
-/// The objects of --box/--label or --boxes-file, with ids 1, 2, … in that order.
-fn new_objects(a: &MasksArgs, up: DVec3) -> anyhow::Result<Vec<SplitBox>> {
-    let obbs: Vec<(Obb, Option<String>)> = match &a.boxes_file {
+/// The objects of --box, --click and --label, or of --boxes-file, with ids 1, 2, … in
+/// that order.
+fn new_objects(
+    a: &MasksArgs,
+    session: &Session,
+    ds: &assist_data::Dataset,
+) -> anyhow::Result<Vec<SplitBox>> {
+    let up = session.description().up;
+    let mut obbs: Vec<(Obb, Option<String>)> = match &a.boxes_file {
         Some(p) => assist_data::boxes::read_boxes(p)?
             .into_iter()
             .map(|b| (b.bbox, b.label))
@@ -210,6 +223,33 @@ fn new_objects(a: &MasksArgs, up: DVec3) -> anyhow::Result<Vec<SplitBox>> {
             .map(|t| parse_box(t, up).map(|b| (b, None)))
             .collect::<anyhow::Result<_>>()?,
     };
+    let cameras: Vec<assist_core::Camera> = ds
+        .frames
+        .iter()
+        .filter(|f| f.split == assist_data::Split::Train)
+        .map(|f| f.camera)
+        .collect();
+    for c in &a.clicks {
+        let (frame, uv) = parse_click(c, ds)?;
+        let obb = click::box_at_click(
+            session,
+            &frame.camera,
+            uv,
+            &cameras,
+            &ClickOptions {
+                render_downscale: a.render_downscale,
+                ..ClickOptions::default()
+            },
+        )
+        .with_context(|| format!("--click {c}"))?;
+        let (ctr, size) = (obb.center, obb.size());
+        eprintln!(
+            "--click {c}: box centre {} size {}",
+            assist_core::fmt_vec(&ctr.to_array()),
+            assist_core::fmt_vec(&size.to_array())
+        );
+        obbs.push((obb, None));
+    }
     if obbs.len() > 255 {
         bail!(
             "at most 255 objects at a time (8-bit masks), got {}",
@@ -218,12 +258,12 @@ fn new_objects(a: &MasksArgs, up: DVec3) -> anyhow::Result<Vec<SplitBox>> {
     }
     if obbs.is_empty() {
         bail!(
-            "expected at least one object: --box \"cx,cy,cz,sx,sy,sz[,yaw]\" or --boxes-file FILE"
+            "expected at least one object: --box \"cx,cy,cz,sx,sy,sz[,yaw]\", --click VIEW:u,v or --boxes-file FILE"
         );
     }
     if a.labels.len() > obbs.len() {
         bail!(
-            "{} --label for {} boxes: give one label per box, in the same order",
+            "{} --label for {} objects: give one label per --box or --click, in the same order",
             a.labels.len(),
             obbs.len()
         );
@@ -242,6 +282,56 @@ fn new_objects(a: &MasksArgs, up: DVec3) -> anyhow::Result<Vec<SplitBox>> {
             obb,
         })
         .collect())
+}
+
+/// `"VIEW:u,v"`: the frame (by index, or by file name with or without its extension)
+/// and the pixel.
+fn parse_click<'a>(
+    text: &str,
+    ds: &'a assist_data::Dataset,
+) -> anyhow::Result<(&'a assist_data::Frame, (f64, f64))> {
+    let (view, px) = text
+        .rsplit_once(':')
+        .with_context(|| format!("--click {text:?}: expected \"VIEW:u,v\""))?;
+    let uv: Vec<f64> = px
+        .split(',')
+        .map(|t| t.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| {
+            anyhow::anyhow!("--click {text:?}: expected pixels \"u,v\" after the colon")
+        })?;
+    let [u, v] = uv[..] else {
+        bail!("--click {text:?}: expected two numbers \"u,v\" after the colon");
+    };
+    let frame = match view.parse::<usize>() {
+        Ok(k) => ds.frames.get(k).with_context(|| {
+            format!(
+                "--click {text:?}: view {k} does not exist ({} frames, 0 to {})",
+                ds.frames.len(),
+                ds.frames.len().saturating_sub(1)
+            )
+        })?,
+        Err(_) => ds
+            .frames
+            .iter()
+            .find(|f| {
+                f.image_path
+                    .file_name()
+                    .is_some_and(|n| n.to_string_lossy() == view)
+                    || assist_data::dataset::file_stem(&f.image_path) == view
+            })
+            .with_context(|| {
+                format!(
+                    "--click {text:?}: no frame named {view:?} in {}",
+                    ds.root.display()
+                )
+            })?,
+    };
+    let (w, h) = (frame.camera.width() as f64, frame.camera.height() as f64);
+    if !(u >= 0.0 && v >= 0.0 && u < w && v < h) {
+        bail!("--click {text:?}: ({u}, {v}) is outside the image ({w}×{h} pixels)");
+    }
+    Ok((frame, (u, v)))
 }
 
 /// Each box must overlap the scene's captured region and no existing object node.

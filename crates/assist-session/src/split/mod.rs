@@ -3,6 +3,7 @@
 //! object owns — those whose surface lies in the box above the support it stands on —
 //! and a colour-guided filter moves that mask onto the photograph's edges.
 
+pub mod click;
 pub mod guided;
 
 use assist_core::{Camera, DVec3, InstanceId, Obb};

@@ -1,0 +1,427 @@
+//! An object's box from one click: the surface under the click, the support it stands on
+//! (the densest layer of the connected surface below it), the part of that surface above
+//! the support connected to the click (in the clicked view), then the same region seen
+//! from the other views, fused in a voxel grid, its component through the click boxed
+//! upright (yaw by the smallest footprint).
+
+use std::collections::{HashMap, VecDeque};
+
+use assist_core::{Camera, DMat3, DVec3, Obb};
+
+use crate::{RenderRequest, Result, Session, SessionError, request};
+
+/// How a click becomes a box.
+#[derive(Debug, Clone, Copy)]
+pub struct ClickOptions {
+    /// Render the views this many times smaller.
+    pub render_downscale: u32,
+    /// Other views fused (spread over those that see the object).
+    pub views: usize,
+}
+
+impl Default for ClickOptions {
+    fn default() -> Self {
+        ClickOptions {
+            render_downscale: 4,
+            views: 16,
+        }
+    }
+}
+
+/// A view rendered to world points: per pixel, the surface point seen (`None` where the
+/// view sees nearly nothing or an existing object).
+struct Points {
+    width: usize,
+    height: usize,
+    at: Vec<Option<DVec3>>,
+    /// World size of a pixel at unit depth.
+    footprint: f64,
+}
+
+fn render_points(session: &Session, camera: &Camera, downscale: u32) -> Result<(Camera, Points)> {
+    let size = (
+        (camera.width() / downscale).max(1),
+        (camera.height() / downscale).max(1),
+    );
+    let cam = Session::sized(camera, Some(size))?;
+    let frame = session.render(&cam, &RenderRequest::default())?;
+    let w = frame.width as usize;
+    let at = (0..frame.depth.len())
+        .map(|i| {
+            (frame.opacity[i] >= 0.5 && frame.panoptic[i] == 0 && frame.depth[i] > 0.0)
+                .then(|| {
+                    cam.unproject(
+                        (i % w) as f64 + 0.5,
+                        (i / w) as f64 + 0.5,
+                        frame.depth[i] as f64,
+                    )
+                })
+                .flatten()
+        })
+        .collect();
+    Ok((
+        cam,
+        Points {
+            width: w,
+            height: frame.height as usize,
+            at,
+            footprint: 1.0 / cam.intrinsics.fx,
+        },
+    ))
+}
+
+/// Pixels 4-connected to `seed` whose points pass `keep` and lie within a few pixel
+/// footprints of their neighbour's (no depth jump between them).
+fn grow(pts: &Points, cam: &Camera, seed: usize, keep: impl Fn(DVec3) -> bool) -> Vec<usize> {
+    let eye = cam.pose.center();
+    let mut seen = vec![false; pts.at.len()];
+    let mut out = Vec::new();
+    let mut queue = VecDeque::from([seed]);
+    seen[seed] = true;
+    while let Some(i) = queue.pop_front() {
+        let Some(p) = pts.at[i] else { continue };
+        if !keep(p) {
+            continue;
+        }
+        out.push(i);
+        let (x, y) = (i % pts.width, i / pts.width);
+        let reach = 4.0 * pts.footprint * p.distance(eye);
+        let mut try_push = |j: usize| {
+            if !seen[j]
+                && let Some(q) = pts.at[j]
+                && q.distance(p) < reach
+            {
+                seen[j] = true;
+                queue.push_back(j);
+            }
+        };
+        if x > 0 {
+            try_push(i - 1);
+        }
+        if x + 1 < pts.width {
+            try_push(i + 1);
+        }
+        if y > 0 {
+            try_push(i - pts.width);
+        }
+        if y + 1 < pts.height {
+            try_push(i + pts.width);
+        }
+    }
+    out
+}
+
+/// The height of the support under the click: the middle of the fullest layer (bins of
+/// `bin`) of the connected surface's heights below the clicked point's.
+fn support_height(heights: &[f64], clicked: f64, bin: f64) -> Option<f64> {
+    let mut count: HashMap<i64, usize> = HashMap::new();
+    for &h in heights.iter().filter(|&&h| h < clicked - 2.0 * bin) {
+        *count.entry((h / bin).floor() as i64).or_default() += 1;
+    }
+    count
+        .into_iter()
+        .max_by_key(|&(k, n)| (n, -k))
+        .map(|(k, _)| (k as f64 + 0.5) * bin)
+}
+
+/// The box of the object under pixel `(u, v)` of `camera` (pixels of the camera's own
+/// size), fused over `others` (the capture's views).
+pub fn box_at_click(
+    session: &Session,
+    camera: &Camera,
+    (u, v): (f64, f64),
+    others: &[Camera],
+    opts: &ClickOptions,
+) -> Result<Obb> {
+    let up = session.description().up.normalize();
+    let (cam, pts) = render_points(session, camera, opts.render_downscale)?;
+    let f = opts.render_downscale as f64;
+    let (x, y) = ((u / f).floor(), (v / f).floor());
+    if x < 0.0 || y < 0.0 || x >= pts.width as f64 || y >= pts.height as f64 {
+        return Err(request(
+            "click",
+            format!(
+                "({u}, {v}) is outside the view ({}×{} pixels)",
+                camera.width(),
+                camera.height()
+            ),
+        ));
+    }
+    let seed = y as usize * pts.width + x as usize;
+    let Some(p0) = pts.at[seed] else {
+        return Err(nothing_there(u, v, "the view sees nothing solid there"));
+    };
+    let eye = cam.pose.center();
+    // Layers two pixels thick at the click's distance; the object starts two layers
+    // above its support's middle.
+    let bin = 2.0 * pts.footprint * p0.distance(eye);
+    let surface = grow(&pts, &cam, seed, |_| true);
+    let heights: Vec<f64> = surface
+        .iter()
+        .filter_map(|&i| pts.at[i])
+        .map(|p| p.dot(up))
+        .collect();
+    let h0 = p0.dot(up);
+    // On the connected surface's fullest layer (a table top, a floor): what objects
+    // stand on, not an object.
+    if support_height(&heights, f64::INFINITY, bin).is_some_and(|d| (h0 - d).abs() < 2.0 * bin) {
+        return Err(nothing_there(
+            u,
+            v,
+            "the click is on the surface objects stand on: click an object",
+        ));
+    }
+    let Some(support) = support_height(&heights, h0, bin) else {
+        return Err(nothing_there(
+            u,
+            v,
+            "nothing below the clicked surface: click an object standing on something",
+        ));
+    };
+    let floor = support + 2.0 * bin;
+    if h0 <= floor {
+        return Err(nothing_there(
+            u,
+            v,
+            "the click is on the surface objects stand on: click an object",
+        ));
+    }
+    let first: Vec<DVec3> = grow(&pts, &cam, seed, |p| p.dot(up) > floor)
+        .into_iter()
+        .filter_map(|i| pts.at[i])
+        .collect();
+    let scene_size = scene_extent(session);
+    let mut obb = upright_box(&first, up, support);
+    if obb.size().max_element() > 0.5 * scene_size {
+        return Err(nothing_there(
+            u,
+            v,
+            "the surface there is as large as the scene (a wall or the floor, not an object)",
+        ));
+    }
+    // Two rounds: the other views' points in the box grown, the component through the
+    // click kept, the box fitted again.
+    for _ in 0..2 {
+        let grown = Obb {
+            half_size: obb.half_size * DVec3::new(1.5, 1.5, 1.5),
+            ..obb
+        };
+        let mut cloud = first.clone();
+        for c in spread(others, obb.center, opts.views) {
+            let (_, p) = render_points(session, &c, opts.render_downscale)?;
+            cloud.extend(
+                p.at.iter()
+                    .flatten()
+                    .filter(|q| grown.contains(**q, 0.0) && q.dot(up) > floor),
+            );
+        }
+        // Voxels a few points across at the click's distance, finer for large objects.
+        let cell = (obb.size().max_element() / 24.0).max(2.0 * bin);
+        let kept = component_through(&cloud, p0, cell);
+        obb = upright_box(&kept, up, support);
+        if std::env::var_os("ASSIST_DEBUG_CLICK").is_some() {
+            eprintln!("round: {} points, size {}", kept.len(), obb.size());
+        }
+    }
+    // A margin of two voxels around the sides and over the top: the masks decide what
+    // in the box is the object; a box cut at its trimmed edge would lose them.
+    let margin = 2.0 * (obb.size().max_element() / 24.0).max(2.0 * bin);
+    let axis_up = obb.rotation.col(2);
+    Ok(Obb {
+        center: obb.center + axis_up * (margin / 2.0),
+        half_size: obb.half_size + DVec3::new(margin, margin, margin / 2.0),
+        ..obb
+    })
+}
+
+fn nothing_there(u: f64, v: f64, why: &str) -> SessionError {
+    request("click", format!("no object at ({u}, {v}): {why}"))
+}
+
+/// The diagonal of the box around the scene's nodes.
+fn scene_extent(session: &Session) -> f64 {
+    let mut lo = DVec3::splat(f64::INFINITY);
+    let mut hi = DVec3::splat(f64::NEG_INFINITY);
+    for n in &session.description().nodes {
+        for c in n.world_corners() {
+            lo = lo.min(c);
+            hi = hi.max(c);
+        }
+    }
+    (hi - lo).length()
+}
+
+/// Up to `n` of `cams` that look at `target` from in front, spread over the directions
+/// they see it from (farthest-point order, starting anywhere).
+fn spread(cams: &[Camera], target: DVec3, n: usize) -> Vec<Camera> {
+    let seeing: Vec<(Camera, DVec3)> = cams
+        .iter()
+        .filter(|c| {
+            c.project(target).is_some_and(|(px, z)| {
+                z > 0.0
+                    && px.x >= 0.0
+                    && px.y >= 0.0
+                    && px.x < c.width() as f64
+                    && px.y < c.height() as f64
+            })
+        })
+        .map(|c| (*c, (c.pose.center() - target).normalize()))
+        .collect();
+    let mut chosen: Vec<usize> = Vec::new();
+    let mut best = vec![f64::INFINITY; seeing.len()];
+    let mut next = 0;
+    while chosen.len() < n.min(seeing.len()) {
+        chosen.push(next);
+        for (k, (_, d)) in seeing.iter().enumerate() {
+            best[k] = best[k].min(d.distance(seeing[next].1));
+        }
+        next = (0..seeing.len())
+            .max_by(|&a, &b| best[a].total_cmp(&best[b]))
+            .unwrap_or(0);
+        if best[next] == 0.0 {
+            break;
+        }
+    }
+    chosen.into_iter().map(|k| seeing[k].0).collect()
+}
+
+/// The points of `cloud` in the 26-connected voxel component (voxels of `cell`) holding
+/// the voxel nearest `seed`; voxels of fewer than [`MIN_VOXEL_POINTS`] points (stray
+/// samples of fog) neither count nor connect.
+fn component_through(cloud: &[DVec3], seed: DVec3, cell: f64) -> Vec<DVec3> {
+    let key = |p: DVec3| (p / cell).floor().as_i64vec3().to_array();
+    let mut voxels: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
+    for (i, p) in cloud.iter().enumerate() {
+        voxels.entry(key(*p)).or_default().push(i);
+    }
+    voxels.retain(|_, v| v.len() >= MIN_VOXEL_POINTS);
+    let Some(start) = voxels
+        .keys()
+        .min_by(|a, b| {
+            let d = |k: &[i64; 3]| {
+                (DVec3::new(k[0] as f64, k[1] as f64, k[2] as f64) + 0.5) * cell - seed
+            };
+            d(a).length_squared().total_cmp(&d(b).length_squared())
+        })
+        .copied()
+    else {
+        return Vec::new();
+    };
+    let mut seen: HashMap<[i64; 3], ()> = HashMap::from([(start, ())]);
+    let mut queue = VecDeque::from([start]);
+    let mut out = Vec::new();
+    while let Some(k) = queue.pop_front() {
+        out.extend(voxels[&k].iter().map(|&i| cloud[i]));
+        for dz in -1..=1 {
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let n = [k[0] + dx, k[1] + dy, k[2] + dz];
+                    if voxels.contains_key(&n) && seen.insert(n, ()).is_none() {
+                        queue.push_back(n);
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Points a voxel needs to be part of an object.
+pub const MIN_VOXEL_POINTS: usize = 3;
+
+/// The share of the points left out at each end of each axis when boxing them (stray
+/// points do not stretch the box).
+pub const TRIM: f64 = 0.005;
+
+/// The smallest upright box (yaw in 2° steps) around `pts` (all but [`TRIM`] at each end
+/// of each axis), its base on the support.
+fn upright_box(pts: &[DVec3], up: DVec3, support: f64) -> Obb {
+    let [a, b] = assist_mesh::sim::horizontal_axes(up);
+    let mut best: Option<(f64, Obb)> = None;
+    let range = |mut v: Vec<f64>| -> (f64, f64) {
+        v.sort_by(f64::total_cmp);
+        let cut = ((v.len() as f64 * TRIM) as usize).min(v.len().saturating_sub(1) / 2);
+        (v[cut], v[v.len() - 1 - cut])
+    };
+    if pts.is_empty() {
+        return Obb::new(DVec3::ZERO, DVec3::splat(1e-6), DMat3::IDENTITY);
+    }
+    for step in 0..45 {
+        let yaw = (step as f64 * 2.0).to_radians();
+        let (x, y) = (a * yaw.cos() + b * yaw.sin(), b * yaw.cos() - a * yaw.sin());
+        let (x0, x1) = range(pts.iter().map(|p| p.dot(x)).collect());
+        let (y0, y1) = range(pts.iter().map(|p| p.dot(y)).collect());
+        let (_, z1) = range(pts.iter().map(|p| p.dot(up)).collect());
+        let lo = DVec3::new(x0, y0, support);
+        let hi = DVec3::new(x1, y1, z1);
+        let area = (hi.x - lo.x) * (hi.y - lo.y);
+        if best.as_ref().is_none_or(|(b, _)| area < *b) {
+            let r = DMat3::from_cols(x, y, up);
+            let c = (lo + hi) / 2.0;
+            best = Some((area, Obb::new(r * c, (hi - lo).max(DVec3::splat(1e-6)), r)));
+        }
+    }
+    best.map(|(_, b)| b)
+        .unwrap_or_else(|| Obb::new(DVec3::ZERO, DVec3::splat(1e-6), DMat3::IDENTITY))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_support_is_the_fullest_layer_below_the_click() {
+        // A table at 0.75 (many points), a box top at 0.9, the click at 0.85.
+        let mut h = vec![0.75; 500];
+        h.extend(vec![0.9; 200]);
+        h.extend((0..100).map(|k| 0.75 + 0.15 * k as f64 / 100.0));
+        let s = support_height(&h, 0.85, 0.005).unwrap();
+        assert!((s - 0.7525).abs() < 0.0026, "{s}");
+        assert_eq!(support_height(&[0.9, 0.95], 0.85, 0.005), None);
+    }
+
+    #[test]
+    fn voxel_components_split_what_is_apart() {
+        // Two dense runs of points 0.4 apart, and a lone point between them.
+        let mut cloud: Vec<DVec3> = (0..40)
+            .map(|k| DVec3::new(k as f64 * 0.0025, 0.0, 0.0))
+            .collect();
+        cloud.extend((0..40).map(|k| DVec3::new(0.5 + k as f64 * 0.0025, 0.0, 0.0)));
+        cloud.push(DVec3::new(0.3, 0.0, 0.0));
+        let got = component_through(&cloud, DVec3::new(0.02, 0.0, 0.0), 0.015);
+        assert_eq!(got.len(), 40);
+        assert!(got.iter().all(|p| p.x < 0.2));
+    }
+
+    #[test]
+    fn the_upright_box_finds_a_turned_footprint() {
+        // Corners of a 0.2 × 0.1 rectangle turned by 30°, from height 0.1 to 0.3.
+        let yaw = 30f64.to_radians();
+        let (x, y) = (
+            DVec3::new(yaw.cos(), yaw.sin(), 0.0),
+            DVec3::new(-yaw.sin(), yaw.cos(), 0.0),
+        );
+        let mut pts = Vec::new();
+        for (i, j, z) in [
+            (-1.0, -1.0, 0.1),
+            (1.0, -1.0, 0.3),
+            (1.0, 1.0, 0.2),
+            (-1.0, 1.0, 0.3),
+        ] {
+            pts.push(x * 0.1 * i + y * 0.05 * j + DVec3::new(1.0, 2.0, z));
+        }
+        let b = upright_box(&pts, DVec3::Z, 0.0);
+        let s = b.size();
+        let (long, short) = (s.x.max(s.y), s.x.min(s.y));
+        assert!(
+            (long - 0.2).abs() < 1e-6 && (short - 0.1).abs() < 1e-6,
+            "{s}"
+        );
+        assert!((s.z - 0.3).abs() < 1e-9, "from the support up: {s}");
+        assert!(
+            (b.center - DVec3::new(1.0, 2.0, 0.15)).length() < 1e-6,
+            "{}",
+            b.center
+        );
+    }
+}

@@ -1,0 +1,254 @@
+//! Objects from boxes and clicks on a capture nobody labelled (issue 41), as a user meets
+//! it: desk trained without its masks, then `assist dataset masks` from the objects'
+//! boxes and from one click on the duck. The masks match desk's own instances on its
+//! held-out views; `assist train --masks` makes the labelled objects from them; bad
+//! boxes and clicks are refused by name with nothing written.
+
+mod common;
+
+use std::path::Path;
+
+use common::{ok, refused, run, s};
+
+/// Intersection over union of instance `id` between two mask folders' PNGs (derived,
+/// truth), summed over the images named in `names`.
+fn iou(derived: &Path, truth: &Path, names: &[String], id: u16, truth_id: u16) -> f64 {
+    let (mut inter, mut union) = (0u64, 0u64);
+    for n in names {
+        let a = assist_data::image_io::read_ids(&derived.join(n)).unwrap();
+        let b = assist_data::image_io::read_ids(&truth.join(n)).unwrap();
+        assert_eq!((a.width, a.height), (b.width, b.height), "{n}");
+        for (x, y) in a.data.iter().zip(&b.data) {
+            let (p, q) = (*x == id, *y == truth_id);
+            inter += u64::from(p && q);
+            union += u64::from(p || q);
+        }
+    }
+    inter as f64 / union.max(1) as f64
+}
+
+#[test]
+fn desk_without_masks_gets_its_objects_from_boxes_and_clicks() {
+    let Some(desk) = assist_testkit::shared_dataset("split_cli", "desk") else {
+        return;
+    };
+    let tmp = assist_testkit::TempDir::new("split");
+    let root = tmp.path().to_path_buf();
+    let scene = root.join("plain.assist");
+    ok(&run(&[
+        "train",
+        s(&desk),
+        "--out",
+        s(&scene),
+        "--downscale",
+        "4",
+        "--iters",
+        "600",
+        "--no-objects",
+    ]));
+    let test_views: Vec<String> = {
+        let ds = assist_data::load(&desk, &Default::default()).unwrap();
+        ds.frames
+            .iter()
+            .filter(|f| f.split == assist_data::Split::Test)
+            .map(|f| format!("{}.png", assist_data::dataset::file_stem(&f.image_path)))
+            .collect()
+    };
+    assert_eq!(test_views.len(), 20);
+    let truth = desk.join("instances");
+
+    // The objects' boxes (desk's own, as `dataset boxes` lists them): masks for all 120
+    // images, each object's IoU with desk's instances on the held-out views.
+    let boxes = root.join("boxes.json");
+    let o = run(&["dataset", "boxes", s(&desk), "--json"]);
+    std::fs::write(&boxes, ok(&o)).unwrap();
+    let masks = root.join("masks");
+    ok(&run(&[
+        "dataset",
+        "masks",
+        s(&desk),
+        "--scene",
+        s(&scene),
+        "--boxes-file",
+        s(&boxes),
+        "--out",
+        s(&masks),
+        "--json",
+    ]));
+    let pngs = std::fs::read_dir(&masks)
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .unwrap()
+                .path()
+                .extension()
+                .is_some_and(|x| x == "png")
+        })
+        .count();
+    assert_eq!(pngs, 120);
+    let ious: Vec<f64> = (1..=5)
+        .map(|k| iou(&masks, &truth, &test_views, k, k))
+        .collect();
+    let miou = ious.iter().sum::<f64>() / 5.0;
+    eprintln!("masks from boxes: IoU {ious:.3?}, mIoU {miou:.3}");
+    assert!(miou >= 0.90, "mIoU {miou} from desk's boxes");
+    assert!(ious.iter().all(|&v| v >= 0.8), "{ious:?}");
+
+    // One click on the duck in the first image: its box near desk's, its mask as good.
+    let clicked = root.join("clicked");
+    let o = run(&[
+        "dataset",
+        "masks",
+        s(&desk),
+        "--scene",
+        s(&scene),
+        "--click",
+        "r_000:155,178",
+        "--label",
+        "duck",
+        "--out",
+        s(&clicked),
+    ]);
+    let said = String::from_utf8_lossy(&o.stderr).into_owned();
+    ok(&o);
+    assert!(said.contains("--click r_000:155,178: box centre"), "{said}");
+    let listed: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(clicked.join("instances.json")).unwrap()).unwrap();
+    let given: serde_json::Value = serde_json::from_slice(&std::fs::read(&boxes).unwrap()).unwrap();
+    let centre = |v: &serde_json::Value| -> Vec<f64> {
+        v["bbox"]["center"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect()
+    };
+    let (a, b) = (
+        centre(&listed["instances"][0]),
+        centre(&given["instances"][0]),
+    );
+    let off = a
+        .iter()
+        .zip(&b)
+        .map(|(x, y)| (x - y).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    assert_eq!(listed["instances"][0]["label"], "duck");
+    assert!(
+        off < 0.03,
+        "the clicked duck's box centre is {off} m from desk's"
+    );
+    let duck = iou(&clicked, &truth, &test_views, 1, 1);
+    eprintln!("duck from a click: IoU {duck:.3}, box centre {off:.4} m off");
+    assert!(duck >= 0.9, "duck IoU {duck}");
+
+    // Training from the masks makes the five labelled objects.
+    let objects = root.join("objects.assist");
+    ok(&run(&[
+        "train",
+        s(&desk),
+        "--out",
+        s(&objects),
+        "--downscale",
+        "4",
+        "--iters",
+        "5",
+        "--masks",
+        s(&masks),
+    ]));
+    let (made, _) = assist_scene::scene_file::load(&objects).unwrap();
+    let labels: Vec<String> = made.scene.nodes.iter().map(|n| n.label.clone()).collect();
+    assert_eq!(made.scene.nodes.len(), 6, "{labels:?}");
+    assert!(
+        labels.iter().any(|l| l == "yellow rubber duck"),
+        "{labels:?}"
+    );
+
+    // Refused, naming what to do, with nothing written.
+    let bad = root.join("bad");
+    let masks_with = |extra: &[&str], on: &Path| {
+        let mut args = vec![
+            "dataset",
+            "masks",
+            s(&desk),
+            "--scene",
+            s(on),
+            "--out",
+            s(&bad),
+        ];
+        args.extend_from_slice(extra);
+        run(&args)
+    };
+    for (extra, needles, on) in [
+        (
+            vec!["--box", "50,50,50,0.1,0.1,0.1"],
+            vec!["outside the captured region"],
+            &scene,
+        ),
+        (
+            vec!["--box", "0,0,0.8,0.1,0.1"],
+            vec!["--box", "6 or 7"],
+            &scene,
+        ),
+        (
+            vec!["--box", "0,0,0.8,0.1,-1,0.1"],
+            vec!["--box", "sizes above 0"],
+            &scene,
+        ),
+        (vec![], vec!["at least one object"], &scene),
+        (
+            vec![
+                "--box",
+                "0,0,0.8,0.1,0.1,0.1",
+                "--label",
+                "a",
+                "--label",
+                "b",
+            ],
+            vec!["2 --label for 1 objects"],
+            &scene,
+        ),
+        // The table top between the objects: the surface objects stand on.
+        (
+            vec!["--click", "r_000:240,330"],
+            vec!["--click", "no object", "stand on"],
+            &scene,
+        ),
+        (
+            vec!["--click", "r_000:900,10"],
+            vec!["outside the image"],
+            &scene,
+        ),
+        (
+            vec!["--click", "nosuch:10,10"],
+            vec!["no frame named"],
+            &scene,
+        ),
+        // The duck's box on a scene that has the duck already.
+        (
+            vec!["--boxes-file", s(&boxes)],
+            vec!["overlaps the object 1"],
+            &objects,
+        ),
+    ] {
+        refused(&masks_with(&extra, on), &needles);
+        assert!(!bad.exists(), "{extra:?} wrote {}", bad.display());
+    }
+    // An existing folder is replaced only with --force, and only when assist wrote it.
+    let before = std::fs::read(masks.join("r_000.png")).unwrap();
+    refused(
+        &run(&[
+            "dataset",
+            "masks",
+            s(&desk),
+            "--scene",
+            s(&scene),
+            "--boxes-file",
+            s(&boxes),
+            "--out",
+            s(&masks),
+        ]),
+        &["--force"],
+    );
+    assert_eq!(before, std::fs::read(masks.join("r_000.png")).unwrap());
+}
