@@ -43,7 +43,7 @@ fn desk_without_masks_gets_its_objects_from_boxes_and_clicks() {
         "--downscale",
         "4",
         "--iters",
-        "600",
+        "1500",
         "--no-objects",
     ]));
     let test_views: Vec<String> = {
@@ -61,7 +61,8 @@ fn desk_without_masks_gets_its_objects_from_boxes_and_clicks() {
     // images, each object's IoU with desk's instances on the held-out views.
     let boxes = root.join("boxes.json");
     let o = run(&["dataset", "boxes", s(&desk), "--json"]);
-    std::fs::write(&boxes, ok(&o)).unwrap();
+    ok(&o);
+    std::fs::write(&boxes, &o.stdout).unwrap();
     let masks = root.join("masks");
     ok(&run(&[
         "dataset",

@@ -134,8 +134,10 @@ pub fn box_at_click(
     opts: &ClickOptions,
 ) -> Result<Obb> {
     let up = session.description().up.normalize();
-    let (cam, pts) = render_points(session, camera, opts.render_downscale)?;
-    let f = opts.render_downscale as f64;
+    // The clicked view at twice the others' resolution: its layers are thinner.
+    let fine = (opts.render_downscale / 2).max(1);
+    let (cam, pts) = render_points(session, camera, fine)?;
+    let f = fine as f64;
     let (x, y) = ((u / f).floor(), (v / f).floor());
     if x < 0.0 || y < 0.0 || x >= pts.width as f64 || y >= pts.height as f64 {
         return Err(request(
@@ -164,7 +166,7 @@ pub fn box_at_click(
     let h0 = p0.dot(up);
     // On the connected surface's fullest layer (a table top, a floor): what objects
     // stand on, not an object.
-    if support_height(&heights, f64::INFINITY, bin).is_some_and(|d| (h0 - d).abs() < 2.0 * bin) {
+    if support_height(&heights, f64::INFINITY, bin).is_some_and(|d| (h0 - d).abs() < bin) {
         return Err(nothing_there(
             u,
             v,
@@ -190,13 +192,16 @@ pub fn box_at_click(
         .into_iter()
         .filter_map(|i| pts.at[i])
         .collect();
-    let scene_size = scene_extent(session);
     let mut obb = upright_box(&first, up, support);
-    if obb.size().max_element() > 0.5 * scene_size {
+    // An object is much smaller than the surface it stands on; a region as wide is that
+    // surface (its field not quite flat) or a wall.
+    let surface_points: Vec<DVec3> = surface.iter().filter_map(|&i| pts.at[i]).collect();
+    let wide = |b: &Obb| b.size().x.max(b.size().y);
+    if wide(&obb) > MAX_SHARE_OF_SURFACE * wide(&upright_box(&surface_points, up, support)) {
         return Err(nothing_there(
             u,
             v,
-            "the surface there is as large as the scene (a wall or the floor, not an object)",
+            "the region there is about as wide as the surface under it (the surface itself, not an object on it)",
         ));
     }
     // Two rounds: the other views' points in the box grown, the component through the
@@ -238,18 +243,9 @@ fn nothing_there(u: f64, v: f64, why: &str) -> SessionError {
     request("click", format!("no object at ({u}, {v}): {why}"))
 }
 
-/// The diagonal of the box around the scene's nodes.
-fn scene_extent(session: &Session) -> f64 {
-    let mut lo = DVec3::splat(f64::INFINITY);
-    let mut hi = DVec3::splat(f64::NEG_INFINITY);
-    for n in &session.description().nodes {
-        for c in n.world_corners() {
-            lo = lo.min(c);
-            hi = hi.max(c);
-        }
-    }
-    (hi - lo).length()
-}
+/// The widest an object may be, as a share of the surface it stands on (in the clicked
+/// view).
+pub const MAX_SHARE_OF_SURFACE: f64 = 0.5;
 
 /// Up to `n` of `cams` that look at `target` from in front, spread over the directions
 /// they see it from (farthest-point order, starting anywhere).
