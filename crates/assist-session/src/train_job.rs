@@ -197,16 +197,7 @@ impl TrainJob {
             Some(p) => assist_data::boxes::read_boxes(p).map_err(SessionError::Data)?,
             None => Vec::new(),
         };
-        let load_opts = LoadOptions {
-            downscale: c.downscale,
-            prior_dir: c.prior_dir.clone(),
-            masks: c.masks.clone(),
-            ..Default::default()
-        };
-        let mut ds = assist_data::load(&c.data, &load_opts).map_err(SessionError::Data)?;
-        if c.no_objects {
-            unlabel(&mut ds);
-        }
+        let ds = self.dataset()?;
         let n_train = ds.count(Split::Train);
         if n_train == 0 {
             return Err(request(
@@ -516,7 +507,23 @@ impl TrainJob {
         Ok((resume, max_time))
     }
 
-    /// A new scene for the dataset, or the one being resumed.
+    /// The dataset as this run reads it: downscaled, with the user's priors and masks,
+    /// unlabelled with `--no-objects`.
+    fn dataset(&self) -> Result<Dataset> {
+        let c = &self.config;
+        let load_opts = LoadOptions {
+            downscale: c.downscale,
+            prior_dir: c.prior_dir.clone(),
+            masks: c.masks.clone(),
+            ..Default::default()
+        };
+        let mut ds = assist_data::load(&c.data, &load_opts).map_err(SessionError::Data)?;
+        if c.no_objects {
+            unlabel(&mut ds);
+        }
+        Ok(ds)
+    }
+
     /// Whether the fields get per-image appearance codes (`auto`: for the formats of
     /// real photographs).
     fn appearance(&self, ds: &Dataset) -> bool {
@@ -541,6 +548,7 @@ impl TrainJob {
             .map_err(SessionError::Output)
     }
 
+    /// A new scene for the dataset, or the one being resumed.
     fn scene(
         &self,
         ds: &Dataset,

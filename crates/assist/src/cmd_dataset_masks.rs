@@ -5,6 +5,7 @@
 //! `instances.json` (ids, labels, boxes) and `masks.json` (how they were made); any tool
 //! reads it, and `assist train DATA --masks DIR` trains the objects from it.
 
+use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
@@ -118,11 +119,17 @@ pub fn run(a: MasksArgs) -> anyhow::Result<()> {
             (c.height() / a.render_downscale).max(1),
         ))
     };
+    let show = !a.json && std::io::stderr().is_terminal();
+    let bar = crate::progress::bar(show, "rendering views");
+    let mut step = crate::progress::steps(&bar);
     let mut seen = Vec::with_capacity(n);
     for (k, f) in ds.frames.iter().enumerate() {
         seen.push(session.boxes_in_view(&f.camera, &boxes, size(&f.camera))?);
-        progress(a.json, "rendered", k + 1, n);
+        step(k + 1, n);
     }
+    bar.finish_and_clear();
+    let bar = crate::progress::bar(show, "refining masks");
+    let mut step = crate::progress::steps(&bar);
     let levels = session.support_levels(&boxes, &seen, &opts);
     for (k, (f, view)) in ds.frames.iter().zip(&seen).enumerate() {
         let photo = photo_of(f)?;
@@ -138,8 +145,9 @@ pub fn run(a: MasksArgs) -> anyhow::Result<()> {
             photo.height,
             &bytes,
         )?;
-        progress(a.json, "refined", k + 1, n);
+        step(k + 1, n);
     }
+    bar.finish_and_clear();
     let instances: Vec<_> = boxes
         .iter()
         .map(|b| {
@@ -191,12 +199,6 @@ pub fn run(a: MasksArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
-}
-
-fn progress(json: bool, what: &str, done: usize, total: usize) {
-    if !json && (done == total || done % 10 == 0) {
-        eprintln!("{what}: {done}/{total}");
-    }
 }
 
 fn write_json(path: &Path, v: &serde_json::Value) -> anyhow::Result<()> {

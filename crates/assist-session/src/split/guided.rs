@@ -199,7 +199,7 @@ mod tests {
             for (x, &v) in row.iter().enumerate() {
                 assert_eq!(v > 0.5, x < 20, "({x}, {y}): {v}");
                 if !(12..=29).contains(&x) {
-                    assert!(v > 0.9 || v < 0.1, "({x}, {y}): {v}");
+                    assert!(!(0.1..=0.9).contains(&v), "({x}, {y}): {v}");
                 }
             }
         }
