@@ -55,15 +55,18 @@ pub struct MasksArgs {
     pub json: bool,
 }
 
+/// Comma-separated numbers; `None` when one is not a number.
+fn numbers(text: &str) -> Option<Vec<f64>> {
+    text.split(',')
+        .map(|t| t.trim().parse::<f64>().ok())
+        .collect()
+}
+
 /// `"cx,cy,cz,sx,sy,sz[,yaw]"` as a box standing upright along `up`.
 pub fn parse_box(text: &str, up: DVec3) -> anyhow::Result<Obb> {
-    let v: Vec<f64> = text
-        .split(',')
-        .map(|t| t.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .map_err(|_| {
-            anyhow::anyhow!("--box {text:?}: expected numbers \"cx,cy,cz,sx,sy,sz[,yaw]\"")
-        })?;
+    let v = numbers(text).ok_or_else(|| {
+        anyhow::anyhow!("--box {text:?}: expected numbers \"cx,cy,cz,sx,sy,sz[,yaw]\"")
+    })?;
     if !(v.len() == 6 || v.len() == 7) || v.iter().any(|x| !x.is_finite()) {
         bail!(
             "--box {text:?}: expected 6 or 7 finite numbers \"cx,cy,cz,sx,sy,sz[,yaw]\", got {}",
@@ -295,13 +298,9 @@ fn parse_click<'a>(
     let (view, px) = text
         .rsplit_once(':')
         .with_context(|| format!("--click {text:?}: expected \"VIEW:u,v\""))?;
-    let uv: Vec<f64> = px
-        .split(',')
-        .map(|t| t.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .map_err(|_| {
-            anyhow::anyhow!("--click {text:?}: expected pixels \"u,v\" after the colon")
-        })?;
+    let uv = numbers(px).ok_or_else(|| {
+        anyhow::anyhow!("--click {text:?}: expected pixels \"u,v\" after the colon")
+    })?;
     let [u, v] = uv[..] else {
         bail!("--click {text:?}: expected two numbers \"u,v\" after the colon");
     };

@@ -349,15 +349,18 @@ fn walk(rng: &mut Rng, n: usize, width: u32, height: u32) -> Vec<Camera> {
                 rng.range(-0.01, 0.01),
                 TABLE_Z + 0.05,
             );
-            let eye = target
-                + radius * DVec3::new(elev.cos() * az.cos(), elev.cos() * az.sin(), elev.sin());
-            let pose = Pose::look_at(eye, target, DVec3::Z).expect("cameras are never vertical");
-            Camera {
-                intrinsics: intr,
-                pose,
-            }
+            aimed(intr, target, radius, elev, az)
         })
         .collect()
+}
+
+/// A camera `radius` from `target` at elevation `elev` and azimuth `az`, looking at it,
+/// no roll.
+fn aimed(intrinsics: Intrinsics, target: DVec3, radius: f64, elev: f64, az: f64) -> Camera {
+    let eye =
+        target + radius * DVec3::new(elev.cos() * az.cos(), elev.cos() * az.sin(), elev.sin());
+    let pose = Pose::look_at(eye, target, DVec3::Z).expect("cameras are never vertical");
+    Camera { intrinsics, pose }
 }
 
 /// On a Fibonacci spiral over a spherical cap (elevation 20–60°), 0.7–0.95 m from the
@@ -377,13 +380,7 @@ fn spiral(rng: &mut Rng, n: usize, width: u32, height: u32) -> Vec<Camera> {
                 rng.range(-0.03, 0.03),
                 TABLE_Z + 0.05,
             );
-            let eye = target
-                + radius * DVec3::new(elev.cos() * az.cos(), elev.cos() * az.sin(), elev.sin());
-            let pose = Pose::look_at(eye, target, DVec3::Z).expect("cameras are never vertical");
-            Camera {
-                intrinsics: intr,
-                pose,
-            }
+            aimed(intr, target, radius, elev, az)
         })
         .collect()
 }

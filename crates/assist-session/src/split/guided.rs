@@ -8,47 +8,35 @@ use rayon::prelude::*;
 /// Mean over the (2r+1)² window around each pixel of `src` (w × h, one channel),
 /// clamped at the borders (each mean over the pixels inside the image).
 pub fn box_mean(src: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
-    // Column sums by a running window, then row sums of those.
+    // Column means by a running window (stored column-major), then row means of those.
     let mut cols = vec![0f32; w * h];
     cols.par_chunks_mut(h.max(1))
         .enumerate()
-        .for_each(|(x, col)| {
-            let mut acc = 0f64;
-            let (mut lo, mut hi) = (0usize, 0usize);
-            for (y, out) in col.iter_mut().enumerate() {
-                let (a, b) = (y.saturating_sub(r), (y + r + 1).min(h));
-                while hi < b {
-                    acc += src[hi * w + x] as f64;
-                    hi += 1;
-                }
-                while lo < a {
-                    acc -= src[lo * w + x] as f64;
-                    lo += 1;
-                }
-                *out = (acc / (b - a) as f64) as f32;
-            }
-        });
-    // `cols` is column-major (x, y); the row pass writes row-major.
+        .for_each(|(x, col)| running_mean(|y| src[y * w + x], r, col));
     let mut out = vec![0f32; w * h];
     out.par_chunks_mut(w.max(1))
         .enumerate()
-        .for_each(|(y, row)| {
-            let mut acc = 0f64;
-            let (mut lo, mut hi) = (0usize, 0usize);
-            for (x, o) in row.iter_mut().enumerate() {
-                let (a, b) = (x.saturating_sub(r), (x + r + 1).min(w));
-                while hi < b {
-                    acc += cols[hi * h + y] as f64;
-                    hi += 1;
-                }
-                while lo < a {
-                    acc -= cols[lo * h + y] as f64;
-                    lo += 1;
-                }
-                *o = (acc / (b - a) as f64) as f32;
-            }
-        });
+        .for_each(|(y, row)| running_mean(|x| cols[x * h + y], r, row));
     out
+}
+
+/// `out[i]` = the mean of `at(j)` over `|i − j| ≤ r` within `0..out.len()`.
+fn running_mean(at: impl Fn(usize) -> f32, r: usize, out: &mut [f32]) {
+    let n = out.len();
+    let mut acc = 0f64;
+    let (mut lo, mut hi) = (0usize, 0usize);
+    for (i, o) in out.iter_mut().enumerate() {
+        let (a, b) = (i.saturating_sub(r), (i + r + 1).min(n));
+        while hi < b {
+            acc += at(hi) as f64;
+            hi += 1;
+        }
+        while lo < a {
+            acc -= at(lo) as f64;
+            lo += 1;
+        }
+        *o = (acc / (b - a) as f64) as f32;
+    }
 }
 
 /// `p` (w × h, values in [0, 1]) filtered with the colour guide `rgb` (interleaved, w × h,
