@@ -55,6 +55,11 @@ pub struct MasksArgs {
     pub json: bool,
 }
 
+/// A point or size to a tenth of a millimetre in metres (for messages).
+pub fn vec3(v: DVec3) -> String {
+    format!("[{:.4}, {:.4}, {:.4}]", v.x, v.y, v.z)
+}
+
 /// Comma-separated numbers; `None` when one is not a number.
 fn numbers(text: &str) -> Option<Vec<f64>> {
     text.split(',')
@@ -248,11 +253,7 @@ fn new_objects(
         )
         .with_context(|| format!("--click {c}"))?;
         let (ctr, size) = (obb.center, obb.size());
-        eprintln!(
-            "--click {c}: box centre {} size {}",
-            assist_core::fmt_vec(&ctr.to_array()),
-            assist_core::fmt_vec(&size.to_array())
-        );
+        eprintln!("--click {c}: box centre {} size {}", vec3(ctr), vec3(size));
         obbs.push((obb, None));
     }
     if obbs.len() > 255 {

@@ -4,7 +4,8 @@
 //! two minutes on 2 cores) and the second briefly, edits the first with plain-language
 //! instructions — move, rotate, duplicate, delete, and insert an object from the second
 //! scene — and renders test views before and after (RGB, depth, panoptic ids) into
-//! `./assist-demo/`, with a contact sheet.
+//! `./assist-demo/`, with a contact sheet. Last, the first scene trained as if nobody had
+//! labelled it gets its first object from one click.
 
 use std::path::{Path, PathBuf};
 
@@ -36,9 +37,13 @@ pub struct DemoArgs {
     /// Training time of the second scene (the source of the inserted object), seconds.
     #[arg(long, default_value_t = 30.0)]
     pub other_seconds: f64,
+    /// Training time of the scene trained as if nobody had labelled it (an object is then
+    /// made from one click), seconds.
+    #[arg(long, default_value_t = 40.0)]
+    pub plain_seconds: f64,
 }
 
-fn train(data: &Path, out: &Path, seconds: f64, seed: u64) -> anyhow::Result<()> {
+fn train(data: &Path, out: &Path, seconds: f64, seed: u64, no_objects: bool) -> anyhow::Result<()> {
     // `assist train`'s defaults (declared once, in the job's configuration).
     let cfg = TrainConfig {
         data: data.to_path_buf(),
@@ -49,6 +54,7 @@ fn train(data: &Path, out: &Path, seconds: f64, seed: u64) -> anyhow::Result<()>
         seed,
         checkpoint_every: 1e9,
         force: true,
+        no_objects,
         ..TrainConfig::default()
     };
     TrainJob::new(cfg).run(|_| {})?;
@@ -111,7 +117,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         ..SynthConfig::default()
     };
     eprintln!(
-        "1/6 generating two built-in scenes ({} views at {}x{}, {} objects each)",
+        "1/7 generating two built-in scenes ({} views at {}x{}, {} objects each)",
         cfg.views, cfg.width, cfg.height, cfg.objects
     );
     crate::cmd_synth::synth(&cfg, &data_a, true, false)?;
@@ -127,15 +133,15 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     }
 
     let (scene_a, scene_b) = (out.join("scene.assist"), out.join("other.assist"));
-    eprintln!("2/6 training the scene for {:.0} s", a.train_seconds);
-    train(&data_a, &scene_a, a.train_seconds, a.seed)?;
+    eprintln!("2/7 training the scene for {:.0} s", a.train_seconds);
+    train(&data_a, &scene_a, a.train_seconds, a.seed, false)?;
     eprintln!(
-        "3/6 training the second scene for {:.0} s (the object to insert comes from it)",
+        "3/7 training the second scene for {:.0} s (the object to insert comes from it)",
         a.other_seconds
     );
-    train(&data_b, &scene_b, a.other_seconds, a.seed)?;
+    train(&data_b, &scene_b, a.other_seconds, a.seed, false)?;
 
-    eprintln!("4/6 measuring the trained scene on its test views");
+    eprintln!("4/7 measuring the trained scene on its test views");
     let before = Session::open(&scene_a)?;
     let r = before.evaluate(&ds, Some(Split::Test), 1, |_, _| {})?;
     eprintln!(
@@ -147,7 +153,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         r.images
     );
 
-    eprintln!("5/6 editing with plain language");
+    eprintln!("5/7 editing with plain language");
     let mut session = Session::open(&scene_a)?;
     let other = Session::describe(&scene_b)?;
     let text = instruction(&session.scene().scene, &other, &scene_b.to_string_lossy())?;
@@ -164,7 +170,16 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     let edited = out.join("edited.assist");
     session.save(&edited, true)?;
 
-    eprintln!("6/6 rendering test views before and after");
+    let plain = out.join("plain.assist");
+    eprintln!(
+        "6/7 training the scene as if nobody had labelled it for {:.0} s, then making an object from one click",
+        a.plain_seconds
+    );
+    train(&data_a, &plain, a.plain_seconds, a.seed, true)?;
+    let said = object_from_a_click(&ds, &plain)?;
+    eprintln!("    {said}");
+
+    eprintln!("7/7 rendering test views before and after");
     let sheet = contact_sheet_of(&ds, &r, &before, &session, out)?;
     println!("Done in {:.0} s. Look at:", t0.elapsed().as_secs_f64());
     println!(
@@ -189,6 +204,97 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         edited.display()
     );
     Ok(())
+}
+
+/// Clicks the first object where a training view shows the most of it (the pixel of its
+/// mask nearest the mask's centre), makes its box on the `plain` scene (trained without
+/// masks), and measures the mask it owns on the test views against the ground truth.
+fn object_from_a_click(ds: &assist_data::Dataset, plain: &Path) -> anyhow::Result<String> {
+    let session = Session::open(plain)?;
+    let id = ds
+        .instances
+        .iter()
+        .map(|i| i.id)
+        .min()
+        .context("no objects")?;
+    let label = ds.instance(id).map(|i| i.label.clone()).unwrap_or_default();
+    let ids_of = |f: &assist_data::Frame| -> anyhow::Result<Vec<u16>> {
+        let p = f.instance_mask_path.as_ref().context("no instance mask")?;
+        Ok(assist_data::image_io::read_instance_mask(p, f.mask_encoding)?.data)
+    };
+    let mut best: Option<(usize, &assist_data::Frame, (f64, f64))> = None;
+    for f in ds.frames.iter().filter(|f| f.split == Split::Train) {
+        let m = ids_of(f)?;
+        let w = f.camera.width() as usize;
+        let px: Vec<(f64, f64)> = (0..m.len())
+            .filter(|&i| m[i] == id)
+            .map(|i| ((i % w) as f64 + 0.5, (i / w) as f64 + 0.5))
+            .collect();
+        if px.len() > best.as_ref().map_or(0, |b| b.0) {
+            let n = px.len() as f64;
+            let c = px
+                .iter()
+                .fold((0.0, 0.0), |a, p| (a.0 + p.0 / n, a.1 + p.1 / n));
+            let d = |p: &(f64, f64)| (p.0 - c.0).powi(2) + (p.1 - c.1).powi(2);
+            let at = px
+                .iter()
+                .copied()
+                .min_by(|a, b| d(a).total_cmp(&d(b)))
+                .unwrap_or(c);
+            best = Some((px.len(), f, at));
+        }
+    }
+    let (_, frame, at) = best.context("the first object is in no training view")?;
+    let cams: Vec<_> = ds
+        .frames
+        .iter()
+        .filter(|f| f.split == Split::Train)
+        .map(|f| f.camera)
+        .collect();
+    let opts = assist_session::split::click::ClickOptions {
+        render_downscale: 1,
+        ..Default::default()
+    };
+    let obb =
+        assist_session::split::click::box_at_click(&session, &frame.camera, at, &cams, &opts)?;
+    let boxes = [assist_session::split::SplitBox {
+        id,
+        label: label.clone(),
+        obb,
+    }];
+    let test: Vec<&assist_data::Frame> = ds
+        .frames
+        .iter()
+        .filter(|f| f.split == Split::Test)
+        .collect();
+    let photos = test
+        .iter()
+        .map(|f| Ok(assist_data::image_io::read_rgb(&f.image_path, [0.0; 3])?.0))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let views: Vec<_> = test
+        .iter()
+        .zip(&photos)
+        .map(|(f, p)| assist_session::split::MaskView {
+            camera: f.camera,
+            photo: Some(p),
+        })
+        .collect();
+    let masks = session.box_masks(&views, &boxes, None, &Default::default(), |_| {})?;
+    let pairs = masks
+        .into_iter()
+        .zip(&test)
+        .map(|(m, f)| Ok((m, ids_of(f)?)))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let iou = assist_session::split::iou_per_id(&pairs, &[id])[0].1;
+    Ok(format!(
+        "a click on the {label} at ({:.0}, {:.0}) of {}: box centre {}, size {}; its mask on the {} test views: IoU {iou:.3}",
+        at.0,
+        at.1,
+        frame.name,
+        crate::cmd_dataset_masks::vec3(obb.center),
+        crate::cmd_dataset_masks::vec3(obb.size()),
+        test.len()
+    ))
 }
 
 /// Renders two test views before and after the edit into `out/render/` and writes the

@@ -146,8 +146,18 @@ fn demo_runs_end_to_end() {
         "6",
         "--other-seconds",
         "3",
+        "--plain-seconds",
+        "60",
     ]);
     assert!(ok, "{err}");
+    // The object made from one click on the scene trained without masks.
+    let iou: f64 = err
+        .split("test views: IoU ")
+        .nth(1)
+        .and_then(|t| t.split_whitespace().next())
+        .and_then(|t| t.parse().ok())
+        .unwrap_or_else(|| panic!("no click step in {err}"));
+    assert!(iou >= 0.7, "the clicked object's mask IoU {iou}");
     assert!(stdout.contains("contact_sheet.png"), "{stdout}");
     assert!(out.join("contact_sheet.png").is_file());
     let log = std::fs::read_to_string(out.join("edits.jsonl")).unwrap();
