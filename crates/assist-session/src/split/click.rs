@@ -224,9 +224,6 @@ pub fn box_at_click(
         let cell = (obb.size().max_element() / 24.0).max(2.0 * bin);
         let kept = component_through(&cloud, p0, cell);
         obb = upright_box(&kept, up, support);
-        if std::env::var_os("ASSIST_DEBUG_CLICK").is_some() {
-            eprintln!("round: {} points, size {}", kept.len(), obb.size());
-        }
     }
     // A margin of two voxels around the sides and over the top: the masks decide what
     // in the box is the object; a box cut at its trimmed edge would lose them.
