@@ -29,7 +29,7 @@ pub struct SplitBenchArgs {
     #[arg(long, default_value = "test")]
     pub split: String,
     /// Render N times smaller than the photographs.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = assist_session::split::click::RENDER_DOWNSCALE)]
     pub render_downscale: u32,
     /// Guided-filter radii as shares of the photograph's larger side (comma-separated;
     /// 0 = unrefined).

@@ -45,7 +45,7 @@ pub struct MasksArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// Render N times smaller than the images (the masks are then refined at full size).
-    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=16))]
+    #[arg(long, default_value_t = assist_session::split::click::RENDER_DOWNSCALE, value_parser = clap::value_parser!(u32).range(1..=16))]
     pub render_downscale: u32,
     /// Replace --out if assist wrote it.
     #[arg(long)]

@@ -19,10 +19,14 @@ pub struct ClickOptions {
     pub views: usize,
 }
 
+/// How many times smaller than the photographs views are rendered to find boxes and
+/// masks (the masks are then refined at full size).
+pub const RENDER_DOWNSCALE: u32 = 4;
+
 impl Default for ClickOptions {
     fn default() -> Self {
         ClickOptions {
-            render_downscale: 4,
+            render_downscale: RENDER_DOWNSCALE,
             views: 16,
         }
     }
