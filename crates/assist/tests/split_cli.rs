@@ -27,6 +27,21 @@ fn iou(derived: &Path, truth: &Path, names: &[String], id: u16, truth_id: u16) -
     inter as f64 / union.max(1) as f64
 }
 
+/// `assist dataset masks DESK --scene SCENE --out OUT` with `extra` arguments.
+fn masks(desk: &Path, scene: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
+    let mut args = vec![
+        "dataset",
+        "masks",
+        s(desk),
+        "--scene",
+        s(scene),
+        "--out",
+        s(out),
+    ];
+    args.extend_from_slice(extra);
+    run(&args)
+}
+
 #[test]
 fn desk_without_masks_gets_its_objects_from_boxes_and_clicks() {
     let Some(desk) = assist_testkit::shared_dataset("split_cli", "desk") else {
@@ -63,20 +78,14 @@ fn desk_without_masks_gets_its_objects_from_boxes_and_clicks() {
     let o = run(&["dataset", "boxes", s(&desk), "--json"]);
     ok(&o);
     std::fs::write(&boxes, &o.stdout).unwrap();
-    let masks = root.join("masks");
-    ok(&run(&[
-        "dataset",
-        "masks",
-        s(&desk),
-        "--scene",
-        s(&scene),
-        "--boxes-file",
-        s(&boxes),
-        "--out",
-        s(&masks),
-        "--json",
-    ]));
-    let pngs = std::fs::read_dir(&masks)
+    let derived = root.join("masks");
+    ok(&masks(
+        &desk,
+        &scene,
+        &derived,
+        &["--boxes-file", s(&boxes), "--json"],
+    ));
+    let pngs = std::fs::read_dir(&derived)
         .unwrap()
         .filter(|e| {
             e.as_ref()
@@ -88,7 +97,7 @@ fn desk_without_masks_gets_its_objects_from_boxes_and_clicks() {
         .count();
     assert_eq!(pngs, 120);
     let ious: Vec<f64> = (1..=5)
-        .map(|k| iou(&masks, &truth, &test_views, k, k))
+        .map(|k| iou(&derived, &truth, &test_views, k, k))
         .collect();
     let miou = ious.iter().sum::<f64>() / 5.0;
     eprintln!("masks from boxes: IoU {ious:.3?}, mIoU {miou:.3}");
@@ -97,19 +106,12 @@ fn desk_without_masks_gets_its_objects_from_boxes_and_clicks() {
 
     // One click on the duck in the first image: its box near desk's, its mask as good.
     let clicked = root.join("clicked");
-    let o = run(&[
-        "dataset",
-        "masks",
-        s(&desk),
-        "--scene",
-        s(&scene),
-        "--click",
-        "r_000:155,178",
-        "--label",
-        "duck",
-        "--out",
-        s(&clicked),
-    ]);
+    let o = masks(
+        &desk,
+        &scene,
+        &clicked,
+        &["--click", "r_000:155,178", "--label", "duck"],
+    );
     let said = String::from_utf8_lossy(&o.stderr).into_owned();
     ok(&o);
     assert!(said.contains("--click r_000:155,178: box centre"), "{said}");
@@ -155,7 +157,7 @@ fn desk_without_masks_gets_its_objects_from_boxes_and_clicks() {
         "--iters",
         "5",
         "--masks",
-        s(&masks),
+        s(&derived),
     ]));
     let (made, _) = assist_scene::scene_file::load(&objects).unwrap();
     let labels: Vec<String> = made.scene.nodes.iter().map(|n| n.label.clone()).collect();
@@ -167,19 +169,6 @@ fn desk_without_masks_gets_its_objects_from_boxes_and_clicks() {
 
     // Refused, naming what to do, with nothing written.
     let bad = root.join("bad");
-    let masks_with = |extra: &[&str], on: &Path| {
-        let mut args = vec![
-            "dataset",
-            "masks",
-            s(&desk),
-            "--scene",
-            s(on),
-            "--out",
-            s(&bad),
-        ];
-        args.extend_from_slice(extra);
-        run(&args)
-    };
     for (extra, needles, on) in [
         (
             vec!["--box", "50,50,50,0.1,0.1,0.1"],
@@ -232,24 +221,14 @@ fn desk_without_masks_gets_its_objects_from_boxes_and_clicks() {
             &objects,
         ),
     ] {
-        refused(&masks_with(&extra, on), &needles);
+        refused(&masks(&desk, on, &bad, &extra), &needles);
         assert!(!bad.exists(), "{extra:?} wrote {}", bad.display());
     }
     // An existing folder is replaced only with --force, and only when assist wrote it.
-    let before = std::fs::read(masks.join("r_000.png")).unwrap();
+    let before = std::fs::read(derived.join("r_000.png")).unwrap();
     refused(
-        &run(&[
-            "dataset",
-            "masks",
-            s(&desk),
-            "--scene",
-            s(&scene),
-            "--boxes-file",
-            s(&boxes),
-            "--out",
-            s(&masks),
-        ]),
+        &masks(&desk, &scene, &derived, &["--boxes-file", s(&boxes)]),
         &["--force"],
     );
-    assert_eq!(before, std::fs::read(masks.join("r_000.png")).unwrap());
+    assert_eq!(before, std::fs::read(derived.join("r_000.png")).unwrap());
 }
