@@ -102,6 +102,19 @@ impl NeuralScene {
     /// opacity of a short world segment `l` at `p` is `1 − exp(−σ·l)`); 0 outside the
     /// node's box (or, for a contracted node, beyond its far shell).
     pub fn density_at_world(&self, index: usize, points: &[DVec3]) -> Vec<f32> {
+        self.query_at_world(index, points, None).0
+    }
+
+    /// Density (as [`density_at_world`](Self::density_at_world)) and, when `dirs` (unit
+    /// world directions, one per point) are given, colour of node `index`'s field at
+    /// world points, with the average appearance code; black where the density is 0
+    /// (or without `dirs`).
+    pub fn query_at_world(
+        &self,
+        index: usize,
+        points: &[DVec3],
+        dirs: Option<&[DVec3]>,
+    ) -> (Vec<f32>, Vec<[f32; 3]>) {
         let node = &self.scene.nodes[index];
         let nf = self.field_of(index);
         let w = &node.world_from_local;
@@ -109,7 +122,8 @@ impl NeuralScene {
         let far = assist_field::contraction::FAR_RADIUS as f64;
         let mut inside = Vec::with_capacity(points.len());
         let mut pos: [Vec<f32>; 3] = Default::default();
-        for p in points {
+        let mut dir: [Vec<f32>; 3] = Default::default();
+        for (k, p) in points.iter().enumerate() {
             let l = w.local_from_world_point(*p);
             let u = match nf.space {
                 NodeSpace::Box => {
@@ -125,28 +139,53 @@ impl NeuralScene {
             };
             inside.push(u.is_some());
             if let Some(u) = u {
+                let d = dirs
+                    .map(|d| w.local_from_world_vector(d[k]).normalize_or_zero())
+                    .unwrap_or(DVec3::Z);
                 for a in 0..3 {
                     pos[a].push(u[a]);
+                    dir[a].push(d[a] as f32);
                 }
             }
         }
-        let mut sigma = vec![0.0f32; pos[0].len()];
-        if !sigma.is_empty() {
-            nf.field.density([&pos[0], &pos[1], &pos[2]], &mut sigma);
+        let n = pos[0].len();
+        let mut sigma = vec![0.0f32; n];
+        let mut rgb = vec![0.0f32; if dirs.is_some() { 3 * n } else { 0 }];
+        if n > 0 {
+            let p = [&pos[0][..], &pos[1][..], &pos[2][..]];
+            match dirs {
+                Some(_) => {
+                    let s = assist_field::Samples {
+                        pos: p,
+                        dir: [&dir[0], &dir[1], &dir[2]],
+                        image: &[],
+                    };
+                    nf.field.forward(&s, &mut sigma, &mut rgb);
+                }
+                None => nf.field.density(p, &mut sigma),
+            }
         }
         // σ is per box diagonal of local length: per world unit it is σ · local_per_world / unit
         // (the mean scale for a node scaled unevenly).
         let per_world = (3.0 / w.scale.element_sum()) as f32 / nf.unit;
-        let mut it = sigma.into_iter();
-        inside
-            .into_iter()
-            .map(|ok| {
-                if ok {
-                    it.next().unwrap_or(0.0) * per_world
-                } else {
-                    0.0
-                }
-            })
-            .collect()
+        let mut k = 0;
+        let mut out_sigma = Vec::with_capacity(points.len());
+        let mut out_rgb = Vec::with_capacity(if dirs.is_some() { points.len() } else { 0 });
+        for ok in inside {
+            let (s, c) = if ok {
+                let c = rgb
+                    .get(3 * k..3 * k + 3)
+                    .map_or([0.0; 3], |c| [c[0], c[1], c[2]]);
+                k += 1;
+                (sigma[k - 1] * per_world, c)
+            } else {
+                (0.0, [0.0; 3])
+            };
+            out_sigma.push(s);
+            if dirs.is_some() {
+                out_rgb.push(c);
+            }
+        }
+        (out_sigma, out_rgb)
     }
 }

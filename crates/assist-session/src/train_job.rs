@@ -8,7 +8,7 @@ use std::sync::atomic::AtomicBool;
 
 use assist_data::{Dataset, LoadOptions, Split};
 use assist_scene::NeuralScene;
-use assist_train::{ResumeState, StepStats};
+use assist_train::{KeptHistory, ResumeState, StepStats};
 use assist_train::{
     SetupOptions, TrainOptions, TrainReport, Trainer, background_color, build_scene,
 };
@@ -81,6 +81,8 @@ pub struct TrainOutcome {
 pub struct TrainJob {
     pub config: TrainConfig,
     cancel: Arc<AtomicBool>,
+    /// A scene to train on instead of a new one, with the history it keeps (a split).
+    start: Option<(NeuralScene, KeptHistory)>,
 }
 
 impl TrainJob {
@@ -88,7 +90,15 @@ impl TrainJob {
         TrainJob {
             config,
             cancel: Arc::new(AtomicBool::new(false)),
+            start: None,
         }
+    }
+
+    /// Trains `scene` (its nodes and fields as they are) instead of a new scene, saving
+    /// it with `kept`'s history.
+    pub fn starting_from(mut self, scene: NeuralScene, kept: KeptHistory) -> Self {
+        self.start = Some((scene, kept));
+        self
     }
 
     /// A handle that stops the run after the current step when set (the scene trained so
@@ -236,7 +246,7 @@ impl TrainJob {
                 seen_share: mv.filled_pixels as f64 / mv.hole_pixels as f64,
             });
         }
-        let mut scene = self.scene(&ds, &views, user_boxes)?;
+        let (mut scene, kept) = self.scene(&ds, &views, user_boxes)?;
         self.check_space(scene.fields.values().map(|f| f.field.param_count()).sum())?;
         let carved = assist_train::carve_scene(&mut scene, &views);
         if !carved.is_empty() {
@@ -244,7 +254,7 @@ impl TrainJob {
         }
         let held_shadows = self.shadows(&mut scene, &mut views, &mut on_event);
         let lambdas = lambdas(c, views.iter().any(|v| v.inpaint.is_some()));
-        if !c.resume && views.iter().all(|v| v.ids.is_none()) {
+        if !c.resume && self.start.is_none() && views.iter().all(|v| v.ids.is_none()) {
             on_event(&TrainEvent::NoMasks {
                 unused: assist_data::masks::unused_mask_folders(&ds),
             });
@@ -271,6 +281,7 @@ impl TrainJob {
         let preview = preview_path(&c.out);
         let mut eval_error = None;
         let mut trainer = Trainer::new(scene, views, opts)?;
+        trainer.kept = kept;
         if c.shadows == Shadows::Fixed {
             // What the photographs show of each shadow stays as estimated, and what lies
             // nearer another object stays shadow-free; the rest (under the object) trains
@@ -341,7 +352,9 @@ impl TrainJob {
             )));
         }
         let out = &self.config.out;
-        assist_scene::scene_file::save(out, &trainer.scene, trainer.info(seconds), true)?;
+        trainer
+            .kept
+            .save(out, &trainer.scene, trainer.info(seconds))?;
         on_event(&TrainEvent::Saved { path: out.clone() });
         Ok(())
     }
@@ -548,16 +561,22 @@ impl TrainJob {
             .map_err(SessionError::Output)
     }
 
-    /// A new scene for the dataset, or the one being resumed.
+    /// A new scene for the dataset, the one given to start from, or the one being
+    /// resumed, with the history it keeps.
     fn scene(
         &self,
         ds: &Dataset,
         views: &[assist_train::View],
         boxes: Vec<assist_data::boxes::BoxOverride>,
-    ) -> Result<NeuralScene> {
+    ) -> Result<(NeuralScene, KeptHistory)> {
         let c = &self.config;
+        if let Some((scene, kept)) = &self.start {
+            return Ok((scene.clone(), kept.clone()));
+        }
         if c.resume {
-            return Ok(assist_scene::scene_file::load(&c.out)?.0);
+            let (mut scene, history, _) = assist_scene::scene_file::load_with_history(&c.out)?;
+            let kept = KeptHistory::split_off(&mut scene, history);
+            return Ok((scene, kept));
         }
         let so = SetupOptions {
             appearance: self.appearance(ds),
@@ -566,7 +585,7 @@ impl TrainJob {
             background_space: c.background,
             ..Default::default()
         };
-        Ok(build_scene(ds, views, &so)?)
+        Ok((build_scene(ds, views, &so)?, KeptHistory::default()))
     }
 }
 

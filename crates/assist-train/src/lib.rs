@@ -7,6 +7,7 @@
 
 #![forbid(unsafe_code)]
 
+mod distil;
 mod error;
 mod eval;
 mod freespace;
@@ -21,6 +22,7 @@ pub mod shadow;
 mod trainer;
 mod views;
 
+pub use distil::{DistilOptions, DistilReport, distil};
 pub use error::{Result, TrainError};
 pub use eval::{
     EvalReport, ImageScore, PriorReport, PriorScore, background_dataset, evaluate, evaluate_priors,
@@ -31,13 +33,14 @@ pub use multiview::MultiViewStats;
 pub use optimizer::{CpuOptimizer, NodeOptimizer};
 pub use setup::{
     BackgroundSpace, BoxSource, NodeBox, SetupOptions, background_color, build_scene,
-    is_object_capture, near_plane, node_boxes, scene_param_estimate, scene_region,
+    is_object_capture, near_plane, node_boxes, object_field, scene_param_estimate, scene_region,
 };
 pub use shadow::{
     ShadowEstimate, ShadowPriorStats, add_shadow_grids, estimate_shadows, shadow_free_priors,
 };
 pub use trainer::{
-    EMPTY_MARGIN, Lambdas, POSE_LR, PhaseTimes, PoseRefiner, ResumeState, StepStats, StopReason,
-    TERMS, TermInfo, Terms, TrainOptions, TrainReport, Trainer, term, update_depth_affine,
+    EMPTY_MARGIN, KeptHistory, Lambdas, POSE_LR, PhaseTimes, PoseRefiner, ResumeState, StepStats,
+    StopReason, TERMS, TermInfo, Terms, TrainOptions, TrainReport, Trainer, term,
+    update_depth_affine,
 };
 pub use views::{PriorKind, View, fill_prior, fill_priors, load_view, load_views};

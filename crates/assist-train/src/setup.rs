@@ -167,15 +167,7 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
     for nb in node_boxes(ds, views, &region, opts)? {
         let key = format!("object-{}", nb.id);
         let node = SceneNode::from_obb(nb.id, &nb.label, &key, &nb.obb);
-        let field = Field::new(app(FieldConfig::object(n_images)), opts.seed + nb.id as u64)?;
-        fields.insert(
-            key,
-            Arc::new(NodeField::new(
-                field,
-                training_grid(opts.object_grid),
-                nb.obb.half_size,
-            )),
-        );
+        fields.insert(key, Arc::new(object_field(opts, n_images, &node)?));
         nodes.push(node);
     }
     let scene = Scene {
@@ -197,6 +189,21 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
     let mut scene = scene;
     scene.register_classes();
     Ok(NeuralScene { scene, fields })
+}
+
+/// A new, untrained field for object `node` (its seed from the node's id), as training
+/// gives every object of a dataset.
+pub fn object_field(opts: &SetupOptions, n_images: usize, node: &SceneNode) -> Result<NodeField> {
+    let mut c = FieldConfig::object(n_images);
+    if !opts.appearance {
+        c.appearance_dim = 0;
+    }
+    let field = Field::new(c, opts.seed + node.id as u64)?;
+    Ok(NodeField::new(
+        field,
+        training_grid(opts.object_grid),
+        node.half_size,
+    ))
 }
 
 /// Refresh samples each occupancy cell takes before training may empty it (see

@@ -21,6 +21,10 @@ pub enum SceneCommand {
     /// that a moved object's shadow is re-cast under it (training does this at its end;
     /// this is for scenes trained before, or to look again). Writes the scene to `--out`.
     Light(LightArgs),
+    /// Make object nodes in a scene trained without masks, from boxes or clicks: masks
+    /// derived for every image, each node's field started from the background's, then a
+    /// short fine-tune. One undo step (undo merges the objects back). Writes `--out`.
+    Split(crate::cmd_scene_split::SplitArgs),
 }
 
 #[derive(Args, Debug)]
@@ -89,6 +93,7 @@ pub fn run(c: SceneCommand) -> anyhow::Result<()> {
     match c {
         SceneCommand::Info(a) => info(a),
         SceneCommand::Light(a) => light(a),
+        SceneCommand::Split(a) => crate::cmd_scene_split::run(a),
     }
 }
 

@@ -27,6 +27,7 @@ mod cmd_generate;
 mod cmd_process;
 mod cmd_render;
 mod cmd_scene;
+mod cmd_scene_split;
 mod cmd_synth;
 mod cmd_train;
 mod cmd_view;

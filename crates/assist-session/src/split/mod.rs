@@ -4,7 +4,13 @@
 //! and a colour-guided filter moves that mask onto the photograph's edges.
 
 pub mod click;
+mod folder;
 pub mod guided;
+mod job;
+pub mod targets;
+
+pub use folder::{MaskProgress, MasksWritten, Owned, node_obb};
+pub use job::{SPLIT_ITERS, SplitConfig, SplitEvent, SplitJob, SplitOutcome};
 
 use assist_core::{Camera, DVec3, InstanceId, Obb};
 use assist_data::image_io::ImageF32;
@@ -219,6 +225,8 @@ pub struct BoxView {
     pub width: usize,
     pub height: usize,
     pub seen: Vec<Vec<(u32, f32)>>,
+    /// The scene's own instance ids at render size (its existing objects).
+    pub panoptic: Vec<u16>,
 }
 
 impl BoxView {
@@ -237,6 +245,19 @@ impl BoxView {
             Some(p) => refine(&soft, &ids, (self.width, self.height), p, opts),
             None => hard(&soft, &ids, self.width * self.height),
         }
+    }
+
+    /// `ids` (a mask at `w` × `h`) with the scene's existing objects where no box
+    /// claims the pixel (their rendered ids, nearest pixel).
+    pub fn with_existing(&self, mut ids: Vec<u16>, w: usize, h: usize) -> Vec<u16> {
+        for (i, id) in ids.iter_mut().enumerate() {
+            if *id == 0 {
+                let x = (i % w) * self.width / w.max(1);
+                let y = (i / w) * self.height / h.max(1);
+                *id = self.panoptic[y.min(self.height - 1) * self.width + x.min(self.width - 1)];
+            }
+        }
+        ids
     }
 }
 
@@ -260,6 +281,7 @@ impl Session {
             width: frame.width as usize,
             height: frame.height as usize,
             seen: in_boxes(&frame, &cam, &obbs(boxes), self.description().up),
+            panoptic: frame.panoptic.clone(),
         })
     }
 

@@ -40,7 +40,8 @@ mod terms;
 
 use objective::Objective;
 pub use options::{
-    EMPTY_MARGIN, PhaseTimes, ResumeState, StepStats, StopReason, TrainOptions, TrainReport,
+    EMPTY_MARGIN, KeptHistory, PhaseTimes, ResumeState, StepStats, StopReason, TrainOptions,
+    TrainReport,
 };
 pub use poses::{POSE_EVERY, POSE_LR, PoseRefiner};
 use rays::Target;
@@ -93,6 +94,8 @@ pub struct Trainer {
     /// Lattice points of shadow grids that keep their values (by field key; see
     /// [`crate::ShadowEstimate::held`]): every other point trains with the scene.
     pub shade_held: BTreeMap<String, Vec<bool>>,
+    /// The history saved with every checkpoint.
+    pub kept: KeptHistory,
 }
 
 impl Trainer {
@@ -178,6 +181,7 @@ impl Trainer {
             ray_views: Vec::new(),
             shade_adam: BTreeMap::new(),
             shade_held: BTreeMap::new(),
+            kept: KeptHistory::default(),
         })
     }
 
@@ -521,7 +525,7 @@ impl Trainer {
             {
                 if self.is_finite() {
                     let el = self.elapsed_before + start.elapsed().as_secs_f64();
-                    assist_scene::scene_file::save(dir, &self.scene, self.info(el), true)?;
+                    self.kept.save(dir, &self.scene, self.info(el))?;
                     saved = Some(dir.clone());
                 }
                 last_ckpt = Instant::now();

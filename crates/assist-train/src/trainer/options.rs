@@ -252,3 +252,49 @@ impl ResumeState {
         })
     }
 }
+
+/// The edit history a trained scene keeps with it (a split's scene before the split, so
+/// that undo merges it back), and the fields only its steps refer to: saved with every
+/// checkpoint, never trained.
+#[derive(Debug, Clone, Default)]
+pub struct KeptHistory {
+    pub history: assist_core::History,
+    pub fields: std::collections::BTreeMap<String, std::sync::Arc<assist_scene::NodeField>>,
+}
+
+impl KeptHistory {
+    /// Takes out of `scene` the fields no node of it draws with (those `history` alone
+    /// refers to), keeping them with `history`.
+    pub fn split_off(scene: &mut assist_scene::NeuralScene, history: assist_core::History) -> Self {
+        let used: std::collections::BTreeSet<&String> =
+            scene.scene.nodes.iter().map(|n| &n.field).collect();
+        let unused: Vec<String> = scene
+            .fields
+            .keys()
+            .filter(|k| !used.contains(k))
+            .cloned()
+            .collect();
+        let fields = unused
+            .into_iter()
+            .filter_map(|k| scene.fields.remove(&k).map(|f| (k, f)))
+            .collect();
+        KeptHistory { history, fields }
+    }
+
+    /// Saves `scene` at `dir` with this history and its fields (replacing `dir`).
+    pub fn save(
+        &self,
+        dir: &std::path::Path,
+        scene: &assist_scene::NeuralScene,
+        info: serde_json::Value,
+    ) -> Result<(), assist_scene::SceneFileError> {
+        if self.history.is_empty() {
+            return assist_scene::scene_file::save(dir, scene, info, true);
+        }
+        let mut all = scene.clone();
+        for (k, f) in &self.fields {
+            all.fields.entry(k.clone()).or_insert_with(|| f.clone());
+        }
+        assist_scene::scene_file::save_with_history(dir, &all, &self.history, info, true)
+    }
+}

@@ -1,0 +1,340 @@
+//! `SplitJob`: new object nodes cut out of a scene trained without masks (issue 41).
+//! The objects come from boxes or clicks ([`Targets`]); a masks folder is derived for
+//! every image of the scene's dataset (the scene's existing objects kept); each new node's
+//! field starts from what the background holds in its box ([`assist_train::distil`]);
+//! then the scene is fine-tuned with those masks — the background learns what lay behind
+//! the objects from the multi-view prior, as in a training run with masks. The split is
+//! one step of the scene's history: undo brings back the scene before it, weights and
+//! all (every field the fine-tune changes gets a new key; the old ones stay for undo).
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use assist_core::{Obb, SceneNode};
+use assist_data::{LoadOptions, Split};
+use assist_train::{DistilOptions, DistilReport, KeptHistory};
+
+use super::targets::Targets;
+use super::{MaskProgress, MasksWritten, SplitBox};
+use crate::{NeuralScene, Result, Session, SessionError, TrainConfig, TrainEvent, TrainJob};
+use crate::{TrainOutcome, request};
+
+/// What a split is asked for.
+#[derive(Debug, Clone)]
+pub struct SplitConfig {
+    /// The scene to split (trained without masks, or with some objects already).
+    pub scene: PathBuf,
+    /// The scene written: the objects added and fine-tuned.
+    pub out: PathBuf,
+    /// Boxes `"cx,cy,cz,sx,sy,sz[,yaw]"` in the scene's world units.
+    pub boxes: Vec<String>,
+    /// Clicks `"VIEW:u,v"` (a frame's index or file name, pixels of its full-size image).
+    pub clicks: Vec<String>,
+    /// Boxes from a file (as `assist dataset boxes --json` writes them).
+    pub boxes_file: Option<PathBuf>,
+    /// Names in the order boxes (of the file, then of `boxes`), then clicks.
+    pub labels: Vec<String>,
+    /// The dataset (default: the one the scene records it was trained on).
+    pub data: Option<PathBuf>,
+    /// Fine-tune steps, and an optional time limit in seconds.
+    pub iters: usize,
+    pub max_time: Option<f64>,
+    /// Leave the fine-tune to a later `assist train --resume` (needs `masks_out`).
+    pub no_train: bool,
+    /// Also keep the derived masks in this folder.
+    pub masks_out: Option<PathBuf>,
+    pub render_downscale: u32,
+    pub force: bool,
+}
+
+/// Fine-tune steps of a split by default.
+pub const SPLIT_ITERS: usize = 2000;
+
+/// What a split tells as it goes.
+#[derive(Debug)]
+pub enum SplitEvent {
+    /// A click's object found: its box.
+    Clicked {
+        click: String,
+        obb: Obb,
+    },
+    Masks(MaskProgress),
+    MasksDone(MasksWritten),
+    /// A new node's field started from the background's.
+    Distilled {
+        id: u16,
+        label: String,
+        report: DistilReport,
+    },
+    Train(TrainEvent),
+    Saved {
+        path: PathBuf,
+    },
+}
+
+/// What a split made.
+#[derive(Debug)]
+pub struct SplitOutcome {
+    pub objects: Vec<SplitBox>,
+    pub masks: MasksWritten,
+    /// The fine-tune (`None` with `no_train`).
+    pub trained: Option<TrainOutcome>,
+    pub out: PathBuf,
+}
+
+pub struct SplitJob {
+    pub config: SplitConfig,
+}
+
+impl SplitJob {
+    pub fn new(config: SplitConfig) -> Self {
+        SplitJob { config }
+    }
+
+    /// Checks the outputs before any work: `out` (a scene) and `masks_out` are replaced
+    /// only with `force` and only when assist wrote them, never an input.
+    fn check_outputs(&self, data: &Path) -> Result<()> {
+        let c = &self.config;
+        assist_fs::check_replaceable_as(&c.out, c.force, assist_fs::Kind::Scene)
+            .map_err(SessionError::Output)?;
+        assist_fs::check_not_input(&c.out, &[c.scene.as_path(), data])
+            .map_err(SessionError::Output)?;
+        if let Some(m) = &c.masks_out {
+            assist_fs::check_replaceable(m, c.force).map_err(SessionError::Output)?;
+            assist_fs::check_not_input(m, &[c.scene.as_path(), data, c.out.as_path()])
+                .map_err(SessionError::Output)?;
+        }
+        if c.no_train && c.masks_out.is_none() {
+            return Err(request(
+                "no_train",
+                "the fine-tune left for later (`assist train DATA --out OUT --resume --masks DIR`) needs the masks: give a folder to keep them in (masks_out)".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    pub fn run(&self, mut on: impl FnMut(SplitEvent)) -> Result<SplitOutcome> {
+        let c = &self.config;
+        let session = Session::open(&c.scene)?;
+        let info = session.info().clone();
+        let data = match &c.data {
+            Some(d) => d.clone(),
+            None => info
+                .get("dataset")
+                .and_then(|d| d.as_str())
+                .map(PathBuf::from)
+                .ok_or_else(|| {
+                    request(
+                        "data",
+                        format!(
+                            "{} does not record the dataset it was trained on: give the dataset",
+                            c.scene.join("scene.json").display()
+                        ),
+                    )
+                })?,
+        };
+        self.check_outputs(&data)?;
+        let _lock = assist_fs::lock(&c.out, &format!("assist scene split {}", c.scene.display()))
+            .map_err(SessionError::Output)?;
+        let ds = assist_data::load(&data, &LoadOptions::default()).map_err(SessionError::Data)?;
+        let up = session.description().up;
+        let mut targets = Targets::parse(&c.boxes, &c.clicks, &c.labels, up)?;
+        if let Some(p) = &c.boxes_file {
+            let listed = assist_data::boxes::read_boxes(p).map_err(SessionError::Data)?;
+            let given = std::mem::take(&mut targets.boxes);
+            targets.boxes = listed.into_iter().map(|b| (b.bbox, b.label)).collect();
+            targets.boxes.extend(given);
+        }
+        let first = session.description().fresh_id();
+        let objects = targets.resolve(&session, &ds, first, c.render_downscale, |click, obb| {
+            on(SplitEvent::Clicked {
+                click: click.to_string(),
+                obb: *obb,
+            })
+        })?;
+        // The masks: kept in `masks_out`, or in a temporary folder beside `out`.
+        let (masks_dir, staging) = match &c.masks_out {
+            Some(m) => {
+                let st = assist_fs::Staging::begin(m, "scene split masks")
+                    .map_err(SessionError::Output)?;
+                (st.dir().to_path_buf(), Some(st))
+            }
+            None => (temp_beside(&c.out)?, None),
+        };
+        let _cleanup = staging.is_none().then(|| RemoveOnDrop(masks_dir.clone()));
+        let masks =
+            session.write_masks(&ds, &objects, &masks_dir, c.render_downscale, true, |p| {
+                on(SplitEvent::Masks(p))
+            })?;
+        on(SplitEvent::MasksDone(masks.clone()));
+        let masks_dir = match staging {
+            Some(st) => {
+                st.commit().map_err(SessionError::Output)?;
+                c.masks_out.clone().unwrap_or(masks_dir)
+            }
+            None => masks_dir,
+        };
+        let (scene, kept) = self.split_scene(&session, &ds, &objects, &mut on)?;
+        let mut record: TrainConfig = info
+            .get("train_config")
+            .and_then(|v| serde_json::from_value(v.clone()).ok())
+            .unwrap_or_default();
+        record.data = data.clone();
+        record.out = c.out.clone();
+        record.masks = Some(masks_dir.clone());
+        record.no_objects = false;
+        record.boxes = None;
+        record.resume = false;
+        record.force = c.force;
+        record.iters = c.iters;
+        record.max_time = c.max_time;
+        record.eval_every = None;
+        let trained = if c.no_train {
+            let mut info = info.clone();
+            info["iteration"] = 0.into();
+            info["elapsed_seconds"] = 0.0.into();
+            info["train_config"] = record.record();
+            kept.save(&c.out, &scene, info)?;
+            None
+        } else {
+            let job = TrainJob::new(record).starting_from(scene, kept);
+            Some(job.run(|e| on(SplitEvent::Train(e.clone())))?)
+        };
+        on(SplitEvent::Saved {
+            path: c.out.clone(),
+        });
+        Ok(SplitOutcome {
+            objects,
+            masks,
+            trained,
+            out: c.out.clone(),
+        })
+    }
+
+    /// The scene with the new nodes (fields distilled from the background's) and every
+    /// existing field under a new key, and the history that undoes the split.
+    fn split_scene(
+        &self,
+        session: &Session,
+        ds: &assist_data::Dataset,
+        objects: &[SplitBox],
+        on: &mut impl FnMut(SplitEvent),
+    ) -> Result<(NeuralScene, KeptHistory)> {
+        let before = session.scene();
+        let bg = before
+            .scene
+            .nodes
+            .iter()
+            .position(|n| n.is_background())
+            .ok_or_else(|| request("scene", "the scene has no background node to split".into()))?;
+        let mut taken = session.history().field_keys();
+        taken.extend(before.fields.keys().cloned());
+        // `stem` itself when free (a new object), else `stem-splitK`.
+        let mut fresh = |stem: &str, new: bool| {
+            let base = stem.split("-split").next().unwrap_or(stem).to_string();
+            let key = (new && !taken.contains(&base))
+                .then(|| base.clone())
+                .or_else(|| {
+                    (1..)
+                        .map(|k| format!("{base}-split{k}"))
+                        .find(|k| !taken.contains(k))
+                })
+                .unwrap_or_default();
+            taken.insert(key.clone());
+            key
+        };
+        let mut scene = before.clone();
+        // Every field the fine-tune changes gets a new key; the old ones stay for undo.
+        let renames: std::collections::BTreeMap<String, String> = before
+            .scene
+            .nodes
+            .iter()
+            .map(|n| n.field.clone())
+            .collect::<std::collections::BTreeSet<_>>()
+            .into_iter()
+            .map(|k| {
+                let new = fresh(&k, false);
+                (k, new)
+            })
+            .collect();
+        for n in &mut scene.scene.nodes {
+            n.field = renames[&n.field].clone();
+        }
+        scene.fields = renames
+            .iter()
+            .map(|(old, new)| (new.clone(), before.fields[old].clone()))
+            .collect();
+        let bg_field = &before.fields[&before.scene.nodes[bg].field].field;
+        let opts = assist_train::SetupOptions {
+            appearance: bg_field.config.appearance_dim > 0,
+            ..Default::default()
+        };
+        let eyes: Vec<_> = ds
+            .frames
+            .iter()
+            .filter(|f| f.split == Split::Train)
+            .map(|f| f.camera.pose.center())
+            .collect();
+        for b in objects {
+            let key = fresh(&format!("object-{}", b.id), true);
+            let node = SceneNode::from_obb(b.id, &b.label, &key, &b.obb);
+            let mut nf = assist_train::object_field(&opts, bg_field.config.num_images, &node)?;
+            let report = assist_train::distil(
+                before,
+                bg,
+                &node,
+                &mut nf,
+                &eyes,
+                &DistilOptions {
+                    seed: b.id as u64,
+                    ..Default::default()
+                },
+            );
+            on(SplitEvent::Distilled {
+                id: b.id,
+                label: b.label.clone(),
+                report,
+            });
+            scene.fields.insert(key, Arc::new(nf));
+            scene.scene.nodes.push(node);
+        }
+        scene.scene.selected = None;
+        scene.scene.register_classes();
+        let mut history = session.history().clone();
+        let labels: Vec<&str> = objects.iter().map(|b| b.label.as_str()).collect();
+        history.record(
+            before.scene.clone(),
+            Some(format!("split: {}", labels.join(", "))),
+            Vec::new(),
+        );
+        let mut kept = KeptHistory {
+            history,
+            fields: before.fields.clone(),
+        };
+        kept.fields.retain(|k, _| !scene.fields.contains_key(k));
+        Ok((scene, kept))
+    }
+}
+
+/// A new folder beside `out` for the split's temporary masks.
+fn temp_beside(out: &Path) -> Result<PathBuf> {
+    let parent = out
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = out.file_name().unwrap_or_default().to_string_lossy();
+    let dir = parent.join(format!(".{name}.split-masks-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir)
+        .map_err(|e| request("out", format!("cannot create {}: {e}", dir.display())))?;
+    Ok(dir)
+}
+
+/// Removes a temporary folder when dropped.
+struct RemoveOnDrop(PathBuf);
+
+impl Drop for RemoveOnDrop {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}

@@ -1,0 +1,172 @@
+//! `assist scene split SCENE --out OUT (--box … | --click VIEW:u,v)… [--label …]`: new
+//! object nodes cut out of a scene trained without masks, by boxes or clicks; masks
+//! derived for every image, the nodes' fields started from the background's, then a short
+//! fine-tune ([`assist_session::split::SplitJob`]). One undo step of the scene's history.
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+
+use assist_session::TrainEvent;
+use assist_session::split::{MaskProgress, SPLIT_ITERS, SplitConfig, SplitEvent, SplitJob};
+use clap::Args;
+use serde_json::json;
+
+use crate::cmd_dataset_masks::vec3;
+
+#[derive(Args, Debug)]
+pub struct SplitArgs {
+    /// The scene (trained without masks: `assist train DATA --no-objects`, or one with
+    /// some objects already).
+    pub scene: PathBuf,
+    /// The scene written, with the new objects.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// An object's box in the scene's world units: "cx,cy,cz,sx,sy,sz[,yaw]" (centre,
+    /// size along the box's axes, the last along the scene's up; yaw in degrees about
+    /// up). Repeat for several objects.
+    #[arg(long = "box", value_name = "BOX")]
+    pub boxes: Vec<String>,
+    /// An object under a pixel of a view: "VIEW:u,v" (VIEW a frame's index or file name,
+    /// u,v pixels of the full-size image); its box is found from the scene and reported.
+    /// Repeat for several objects.
+    #[arg(long = "click", value_name = "VIEW:u,v")]
+    pub clicks: Vec<String>,
+    /// Boxes from a file (as `assist dataset boxes --json` writes them), before --box.
+    #[arg(long, value_name = "FILE")]
+    pub boxes_file: Option<PathBuf>,
+    /// The objects' names: those of --boxes-file and --box first, then those of --click,
+    /// each in the order given (default "object N", N its id).
+    #[arg(long = "label", value_name = "NAME")]
+    pub labels: Vec<String>,
+    /// The dataset (default: the one the scene was trained on, as it records).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Fine-tune steps.
+    #[arg(long, default_value_t = SPLIT_ITERS)]
+    pub iters: usize,
+    /// Stop the fine-tune after this many seconds.
+    #[arg(long, value_name = "SECONDS")]
+    pub max_time: Option<f64>,
+    /// Make the nodes without the fine-tune (continue with `assist train DATA --out OUT
+    /// --resume --masks MASKS`); needs --masks-out.
+    #[arg(long)]
+    pub no_train: bool,
+    /// Keep the derived masks in this folder (as `assist dataset masks` writes them).
+    #[arg(long, value_name = "DIR")]
+    pub masks_out: Option<PathBuf>,
+    /// Render N times smaller than the images to find boxes and masks.
+    #[arg(long, default_value_t = assist_session::split::click::RENDER_DOWNSCALE, value_parser = clap::value_parser!(u32).range(1..=16))]
+    pub render_downscale: u32,
+    /// Replace --out (and --masks-out) if assist wrote them.
+    #[arg(long)]
+    pub force: bool,
+    /// Print a JSON summary on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(a: SplitArgs) -> anyhow::Result<()> {
+    let job = SplitJob::new(SplitConfig {
+        scene: a.scene.clone(),
+        out: a.out.clone(),
+        boxes: a.boxes.clone(),
+        clicks: a.clicks.clone(),
+        boxes_file: a.boxes_file.clone(),
+        labels: a.labels.clone(),
+        data: a.data.clone(),
+        iters: a.iters,
+        max_time: a.max_time,
+        no_train: a.no_train,
+        masks_out: a.masks_out.clone(),
+        render_downscale: a.render_downscale,
+        force: a.force,
+    });
+    let show = !a.json && std::io::stderr().is_terminal();
+    let text = !a.json;
+    let bar = crate::progress::bar(show, "split");
+    let mut last_line = std::time::Instant::now();
+    let outcome = job.run(|e| match e {
+        SplitEvent::Clicked { click, obb } if text => eprintln!(
+            "--click {click}: box centre {} size {}",
+            vec3(obb.center),
+            vec3(obb.size())
+        ),
+        SplitEvent::Masks(MaskProgress::Rendering { done, total }) => {
+            bar.set_message("rendering views");
+            crate::progress::steps(&bar)(done, total)
+        }
+        SplitEvent::Masks(MaskProgress::Refining { done, total }) => {
+            bar.set_message("masks");
+            crate::progress::steps(&bar)(done, total)
+        }
+        SplitEvent::Distilled { id, label, report } if text => eprintln!(
+            "{id:>3}  {label}: field started from the background's ({} steps, log-density error {:.3}, colour error {:.3}, {:.1} s)",
+            report.steps, report.density_error, report.color_error, report.seconds
+        ),
+        SplitEvent::Train(TrainEvent::Step { stats, eta_seconds, .. }) => {
+            bar.set_message(format!(
+                "fine-tune it {} psnr {:.2}",
+                stats.iteration, stats.psnr
+            ));
+            crate::progress::steps(&bar)((stats.progress * 1000.0) as usize, 1000);
+            if text && !show && last_line.elapsed().as_secs_f64() > 10.0 {
+                last_line = std::time::Instant::now();
+                let eta = eta_seconds
+                    .map(|e| format!("  ETA {e:.0} s"))
+                    .unwrap_or_default();
+                eprintln!(
+                    "fine-tune it {:>6}  {:>6.1} s{eta}  loss {:.5}  psnr {:.2}",
+                    stats.iteration, stats.elapsed, stats.loss, stats.psnr
+                );
+            }
+        }
+        _ => {}
+    });
+    bar.finish_and_clear();
+    let outcome = outcome?;
+    if a.json {
+        let v = json!({
+            "out": outcome.out,
+            "objects": outcome.objects.iter().map(|b| json!({
+                "id": b.id,
+                "label": b.label,
+                "center": b.obb.center.to_array(),
+                "size": b.obb.size().to_array(),
+            })).collect::<Vec<_>>(),
+            "masks": outcome.masks,
+            "fine_tune": outcome.trained.as_ref().map(|t| &t.report),
+        });
+        println!("{}", serde_json::to_string_pretty(&v)?);
+        return Ok(());
+    }
+    for (b, o) in outcome.objects.iter().zip(&outcome.masks.objects) {
+        println!(
+            "{:>3}  {:<24} box centre {} size {}  {} mask pixels over {} images",
+            b.id,
+            b.label,
+            vec3(b.obb.center),
+            vec3(b.obb.size()),
+            o.pixels,
+            outcome.masks.images
+        );
+    }
+    match &outcome.trained {
+        Some(t) => println!(
+            "fine-tuned {} steps in {:.0} s (train psnr {:.2}) -> {} (undo merges the objects back)",
+            t.report.iterations,
+            t.report.seconds,
+            t.report.final_stats.psnr,
+            outcome.out.display()
+        ),
+        None => println!(
+            "saved {} without the fine-tune: continue with `assist train DATA --out {} --resume --masks {}`",
+            outcome.out.display(),
+            outcome.out.display(),
+            a.masks_out
+                .as_ref()
+                .map(|m| m.display().to_string())
+                .unwrap_or_default()
+        ),
+    }
+    Ok(())
+}
