@@ -68,7 +68,19 @@ pub fn evaluate(
             message: format!("the dataset has no frames in split {split_name:?}"),
         });
     }
-    let bg_truth = background_dataset(&ds.root)?;
+    let mut bg_truth = background_dataset(&ds.root)?;
+    // The truth is read at the size of the frames measured (a dataset read with
+    // `--downscale`).
+    if let Some(bt) = &mut bg_truth
+        && let Some((f, b)) = frames
+            .iter()
+            .find_map(|f| bt.frames.iter().find(|b| b.name == f.name).map(|b| (f, b)))
+    {
+        let factor = (b.camera.width() as f64 / f.camera.width().max(1) as f64).round() as u32;
+        if factor > 1 {
+            assist_data::downscale::apply(bt, factor)?;
+        }
+    }
     let bg_scene = scene
         .scene
         .nodes

@@ -83,6 +83,8 @@ pub struct ViewerOptions {
 
 struct App {
     scene: PathBuf,
+    /// The dataset given (`--data`).
+    data: Option<PathBuf>,
     others: worker::OtherScenes,
     token: Option<String>,
     /// The `Host` values requests may carry (`None`: listening on every address, any).
@@ -242,6 +244,7 @@ pub async fn start(opts: ViewerOptions) -> Result<Running, ViewerError> {
     let addr = listener.local_addr()?;
     let app = Arc::new(App {
         scene: opts.scene.clone(),
+        data: opts.data.clone(),
         others,
         token: token.clone(),
         hosts: served_hosts(addr),
@@ -385,6 +388,7 @@ async fn client(mut socket: WebSocket, app: Arc<App>) {
     let (out_tx, mut out_rx) = tokio::sync::mpsc::unbounded_channel::<Outgoing>();
     let scene = app.scene.clone();
     let others = app.others.clone();
+    let data = app.data.clone();
     let gone = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     let worker_gone = gone.clone();
     let worker = std::thread::Builder::new()
@@ -393,6 +397,7 @@ async fn client(mut socket: WebSocket, app: Arc<App>) {
             worker::Worker::new(session, &scene, others)
                 .with_disk_stamp(stamp)
                 .with_gone_flag(worker_gone)
+                .with_data(data)
                 .run(in_rx, |o| out_tx.send(o).is_ok())
         });
     if worker.is_err() {

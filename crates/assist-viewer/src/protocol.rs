@@ -134,6 +134,32 @@ pub enum ClientMsg {
         id: InstanceId,
         hidden: bool,
     },
+    /// New-object mode: propose an object under pixel `(x, y)` of the current view of a
+    /// scene where it is part of the background (the reply is a `proposal`).
+    Propose {
+        x: f64,
+        y: f64,
+    },
+    /// The proposal with its box changed: centre and size in world units, yaw in degrees
+    /// about the scene's up.
+    Reshape {
+        center: [f64; 3],
+        size: [f64; 3],
+        #[serde(default)]
+        yaw: f64,
+    },
+    /// Make the box an object node (`assist scene split`: masks, its field from the
+    /// background's, a fine-tune of `iters` steps): the scene is written beside this one
+    /// and opened (one undo step merges the object back).
+    MakeObject {
+        center: [f64; 3],
+        size: [f64; 3],
+        #[serde(default)]
+        yaw: f64,
+        label: String,
+        #[serde(default = "default_split_iters")]
+        iters: usize,
+    },
     Undo,
     Redo,
     Output {
@@ -222,9 +248,32 @@ pub enum ServerMsg {
         scene: String,
         nodes: Vec<NodeState>,
     },
+    /// A proposed object (new-object mode): its box (centre and size in world units, yaw
+    /// in degrees about up, the eight corners) and, over the current view, the pixels it
+    /// would own (a PNG data URL, transparent elsewhere; `pixels` of them).
+    Proposal {
+        center: [f64; 3],
+        size: [f64; 3],
+        yaw: f64,
+        corners: Vec<[f64; 3]>,
+        mask: String,
+        pixels: usize,
+    },
+    /// Long work under way (`task`), `done` of 1.
+    Progress {
+        task: String,
+        done: f64,
+    },
     Error {
         message: String,
     },
+}
+
+/// Fine-tune steps of a `make_object` that names none (few: the page waits for them).
+pub const VIEWER_SPLIT_ITERS: usize = 300;
+
+fn default_split_iters() -> usize {
+    VIEWER_SPLIT_ITERS
 }
 
 /// The client messages that carry nothing but their type.
@@ -252,10 +301,42 @@ pub fn parse_client(text: &str) -> Result<ClientMsg, String> {
         ));
     }
     let msg: ClientMsg = serde_json::from_value(value).map_err(|e| format!("bad message: {e}"))?;
-    if let ClientMsg::View { view } = &msg {
-        view.camera()?;
+    match &msg {
+        ClientMsg::View { view } => {
+            view.camera()?;
+        }
+        ClientMsg::Reshape { center, size, yaw } => check_box(center, size, *yaw)?,
+        ClientMsg::MakeObject {
+            center,
+            size,
+            yaw,
+            label,
+            iters,
+        } => {
+            check_box(center, size, *yaw)?;
+            if label.trim().is_empty() || label.len() > 200 {
+                return Err("make_object.label: expected a name of 1 to 200 bytes".into());
+            }
+            if *iters > 100_000 {
+                return Err(format!(
+                    "make_object.iters: expected at most 100000 steps, got {iters}"
+                ));
+            }
+        }
+        _ => {}
     }
     Ok(msg)
+}
+
+/// A box of a proposal: finite centre and yaw, sizes above 0.
+fn check_box(center: &[f64; 3], size: &[f64; 3], yaw: f64) -> Result<(), String> {
+    if !(center.iter().all(|v| v.is_finite()) && yaw.is_finite()) {
+        return Err("box: expected finite center and yaw".into());
+    }
+    if !size.iter().all(|v| v.is_finite() && *v > 0.0) {
+        return Err(format!("box.size: expected sizes above 0, got {size:?}"));
+    }
+    Ok(())
 }
 
 impl View {

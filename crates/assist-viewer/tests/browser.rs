@@ -167,3 +167,116 @@ fn the_viewer_works_in_a_real_browser() {
     assert!((z1 - z0 - 0.03).abs() < 0.02, "moved up: {z0} → {z1}");
     drop(rt);
 }
+
+/// New-object mode on a capture trained without masks (issue 41): the page proposes the
+/// object under a click, with its box and mask; naming and confirming it writes the split
+/// scene beside the opened one, the node appears in the list and its handle drags it. The
+/// steps are in `browser/new_object.mjs`.
+#[test]
+fn new_object_mode_works_in_a_real_browser() {
+    let (chromium, node, dir) = match tools() {
+        Ok(t) => t,
+        Err(why) => {
+            if std::env::var("ASSIST_REQUIRE_BROWSER").as_deref() == Ok("1") {
+                panic!("browser test required but cannot run: {why}");
+            }
+            eprintln!("SKIPPED new_object_mode_works_in_a_real_browser: {why}");
+            return;
+        }
+    };
+    let work =
+        std::env::temp_dir().join(format!("assist-viewer-new-object-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&work);
+    std::fs::create_dir_all(&work).unwrap();
+    let data = work.join("synth");
+    let cfg = SynthConfig {
+        seed: 5,
+        views: 24,
+        width: 128,
+        height: 96,
+        objects: 3,
+        spp: 2,
+        shadow_samples: 2,
+        ..SynthConfig::default()
+    };
+    generate(&cfg, &data, false, &|_, _| {}).unwrap();
+    let scene = work.join("plain.assist");
+    TrainJob::new(TrainConfig {
+        data: data.clone(),
+        out: scene.clone(),
+        iters: 800,
+        no_objects: true,
+        ..TrainConfig::default()
+    })
+    .run(|_| {})
+    .unwrap();
+    let ds = assist_data::load(&data, &assist_data::LoadOptions::default()).unwrap();
+    let centres: Vec<[f64; 3]> = ds
+        .instances
+        .iter()
+        .filter_map(|i| i.bbox.map(|b| b.center.to_array()))
+        .collect();
+    assert_eq!(centres.len(), 3);
+
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    let running = rt
+        .block_on(start(ViewerOptions {
+            scene: scene.clone(),
+            data: Some(data.clone()),
+            host: IpAddr::V4(Ipv4Addr::LOCALHOST),
+            port: 0,
+            token: None,
+            others: Vec::new(),
+            scenes: None,
+        }))
+        .unwrap();
+    let shots = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../target/viewer-browser-test")
+        .join(format!("screenshots-{}", std::process::id()));
+    let out = Command::new(node)
+        .arg(dir.join("new_object.mjs"))
+        .arg(&running.url)
+        .arg(&shots)
+        .arg(&chromium)
+        .arg(serde_json::to_string(&centres).unwrap())
+        .current_dir(&dir)
+        .output()
+        .expect("node runs");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    eprintln!("{stdout}");
+    let report: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap_or(""))
+        .unwrap_or_else(|e| panic!("no report from the browser ({e}); stderr:\n{stderr}"));
+    assert!(
+        out.status.success() && report["ok"] == true,
+        "new-object steps failed: {report}\nstderr:\n{stderr}"
+    );
+    // The proposed box lies around the object clicked.
+    let k = report["object"].as_u64().unwrap() as usize;
+    let truth = ds.instances[k].bbox.unwrap();
+    let got: Vec<f64> = report["proposal"]["center"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let off = (assist_core::DVec3::new(got[0], got[1], got[2]) - truth.center).length();
+    let reach = truth.size().length();
+    assert!(
+        off < 0.5 * reach,
+        "the proposal's centre is {off} from the object's (its diagonal {reach})"
+    );
+    // The split scene was written beside the opened one, with the node and one undo step
+    // (the drag is in the session, not saved).
+    let saved = PathBuf::from(report["saved"].as_str().unwrap());
+    assert_eq!(saved, work.join("plain-objects.assist"));
+    let (split, history, _) = assist_session::scene_file::load_with_history(&saved).unwrap();
+    assert_eq!((split.scene.nodes.len(), history.undo.len()), (2, 1));
+    assert_eq!(split.scene.nodes[1].label, "found object");
+    drop(rt);
+    let _ = std::fs::remove_dir_all(&work);
+}

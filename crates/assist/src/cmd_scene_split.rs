@@ -135,6 +135,7 @@ pub fn run(a: SplitArgs) -> anyhow::Result<()> {
             })).collect::<Vec<_>>(),
             "masks": outcome.masks,
             "fine_tune": outcome.trained.as_ref().map(|t| &t.report),
+            "held_out": outcome.trained.as_ref().and_then(|t| t.held_out.as_ref()),
         });
         println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
@@ -152,10 +153,17 @@ pub fn run(a: SplitArgs) -> anyhow::Result<()> {
     }
     match &outcome.trained {
         Some(t) => println!(
-            "fine-tuned {} steps in {:.0} s (train psnr {:.2}) -> {} (undo merges the objects back)",
+            "fine-tuned {} steps in {:.0} s (last batch psnr {:.2}{}) -> {} (undo merges the objects back)",
             t.report.iterations,
             t.report.seconds,
             t.report.final_stats.psnr,
+            t.held_out
+                .as_ref()
+                .map(|h| format!(
+                    ", held-out {:.2} dB on {} {} views",
+                    h.psnr, h.views, h.split
+                ))
+                .unwrap_or_default(),
             outcome.out.display()
         ),
         None => println!(

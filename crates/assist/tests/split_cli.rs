@@ -177,12 +177,12 @@ fn desk_without_masks_gets_its_objects_from_boxes_and_clicks() {
         ),
         (
             vec!["--box", "0,0,0.8,0.1,0.1"],
-            vec!["--box", "6 or 7"],
+            vec!["box: ", "6 or 7"],
             &scene,
         ),
         (
             vec!["--box", "0,0,0.8,0.1,-1,0.1"],
-            vec!["--box", "sizes above 0"],
+            vec!["box: ", "sizes above 0"],
             &scene,
         ),
         (vec![], vec!["at least one object"], &scene),
@@ -195,13 +195,13 @@ fn desk_without_masks_gets_its_objects_from_boxes_and_clicks() {
                 "--label",
                 "b",
             ],
-            vec!["2 --label for 1 objects"],
+            vec!["2 labels for 1 objects"],
             &scene,
         ),
         // The table top between the objects: the surface objects stand on.
         (
             vec!["--click", "r_000:240,330"],
-            vec!["--click", "no object", "stand on"],
+            vec!["click: ", "no object", "stand on"],
             &scene,
         ),
         (
@@ -231,4 +231,136 @@ fn desk_without_masks_gets_its_objects_from_boxes_and_clicks() {
         &["--force"],
     );
     assert_eq!(before, std::fs::read(derived.join("r_000.png")).unwrap());
+
+    split_the_scene(&desk, &root, &scene, &truth, &test_views);
+}
+
+/// Held-out PSNR of `scene` on desk's test views.
+fn psnr(desk: &Path, scene: &Path) -> f64 {
+    let o = run(&[
+        "eval",
+        s(scene),
+        "--data",
+        s(desk),
+        "--split",
+        "test",
+        "--json",
+    ]);
+    ok(&o);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    v["psnr"].as_f64().unwrap()
+}
+
+/// `assist scene split` on the plain scene: a box (the mug) and a click (the duck) make
+/// two nodes in one undo step; the masks it keeps match desk's; the fine-tuned scene
+/// renders the held-out views as well as the plain one; undo gives the plain scene back,
+/// weights and all; `--no-train` leaves the fine-tune to `train --resume`; bad requests
+/// are refused with nothing written.
+fn split_the_scene(desk: &Path, root: &Path, plain: &Path, truth: &Path, test_views: &[String]) {
+    let out = root.join("split.assist");
+    let kept = root.join("split-masks");
+    let mug = "0.22,-0.12,0.85,0.1,0.13,0.12";
+    let o = run(&[
+        "scene",
+        "split",
+        s(plain),
+        "--out",
+        s(&out),
+        "--box",
+        mug,
+        "--click",
+        "r_000:155,178",
+        "--label",
+        "red mug",
+        "--label",
+        "duck",
+        "--iters",
+        "300",
+        "--masks-out",
+        s(&kept),
+        "--json",
+    ]);
+    ok(&o);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["objects"][0]["label"], "red mug", "{v}");
+    assert_eq!(v["objects"][1]["id"], 2, "{v}");
+    let (scene, history, _) = assist_scene::scene_file::load_with_history(&out).unwrap();
+    let labels: Vec<&str> = scene.scene.nodes.iter().map(|n| n.label.as_str()).collect();
+    assert_eq!(labels, ["background", "red mug", "duck"]);
+    assert_eq!(history.undo.len(), 1);
+    let duck = iou(&kept, truth, test_views, 2, 1);
+    let mug_iou = iou(&kept, truth, test_views, 1, 3);
+    let (before, after) = (psnr(desk, plain), psnr(desk, &out));
+    eprintln!(
+        "scene split: duck IoU {duck:.3}, mug IoU {mug_iou:.3}; held-out PSNR {before:.2} → {after:.2} dB"
+    );
+    assert!(duck >= 0.9 && mug_iou >= 0.85, "duck {duck}, mug {mug_iou}");
+    assert!(
+        after >= before - 1.0,
+        "held-out PSNR {before} before the split, {after} after"
+    );
+
+    // Undo merges the objects back: the plain scene's nodes and background weights.
+    let undone = root.join("undone.assist");
+    ok(&run(&["edit", s(&out), "--undo", "1", "--out", s(&undone)]));
+    let (back, _) = assist_scene::scene_file::load(&undone).unwrap();
+    let (orig, _) = assist_scene::scene_file::load(plain).unwrap();
+    assert_eq!(back.scene.nodes.len(), 1);
+    assert_eq!(back.field_of(0).field.params, orig.field_of(0).field.params);
+
+    // Without the fine-tune, then `train --resume` with the kept masks: the history stays.
+    let later = root.join("later.assist");
+    let masks2 = root.join("later-masks");
+    let no_train = [
+        "scene",
+        "split",
+        s(plain),
+        "--out",
+        s(&later),
+        "--box",
+        mug,
+        "--no-train",
+    ];
+    refused(&run(&no_train), &["masks_out"]);
+    assert!(!later.exists());
+    let mut args = no_train.to_vec();
+    args.extend(["--masks-out", s(&masks2)]);
+    ok(&run(&args));
+    ok(&run(&[
+        "train",
+        s(desk),
+        "--out",
+        s(&later),
+        "--resume",
+        "--masks",
+        s(&masks2),
+        "--iters",
+        "20",
+        "--downscale",
+        "4",
+    ]));
+    let (resumed, history, _) = assist_scene::scene_file::load_with_history(&later).unwrap();
+    assert_eq!((resumed.scene.nodes.len(), history.undo.len()), (2, 1));
+
+    // Refused with nothing written: the table top, an object the scene has, no object.
+    let bad = root.join("bad-split.assist");
+    for (on, extra, needles) in [
+        (
+            plain,
+            vec!["--click", "r_000:240,330"],
+            vec!["click: ", "stand on"],
+        ),
+        (&out, vec!["--box", mug], vec!["overlaps the object 1"]),
+        (plain, vec![], vec!["at least one object"]),
+    ] {
+        let mut args = vec!["scene", "split", s(on), "--out", s(&bad)];
+        args.extend(extra.iter().copied());
+        refused(&run(&args), &needles);
+        assert!(!bad.exists(), "{extra:?} wrote {}", bad.display());
+    }
+    assert!(
+        common::leftovers(root).is_empty(),
+        "{:?}",
+        common::leftovers(root)
+    );
 }

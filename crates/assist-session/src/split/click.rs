@@ -42,10 +42,10 @@ struct Points {
     footprint: f64,
 }
 
-fn render_points(session: &Session, camera: &Camera, downscale: u32) -> Result<(Camera, Points)> {
+fn render_points(session: &Session, camera: &Camera, downscale: f64) -> Result<(Camera, Points)> {
     let size = (
-        (camera.width() / downscale).max(1),
-        (camera.height() / downscale).max(1),
+        ((camera.width() as f64 / downscale).round() as u32).max(1),
+        ((camera.height() as f64 / downscale).round() as u32).max(1),
     );
     let cam = Session::sized(camera, Some(size))?;
     let frame = session.render(&cam, &RenderRequest::default())?;
@@ -138,11 +138,22 @@ pub fn box_at_click(
     opts: &ClickOptions,
 ) -> Result<Obb> {
     let up = session.description().up.normalize();
-    // The clicked view at twice the others' resolution: its layers are thinner.
-    let fine = (opts.render_downscale / 2).max(1);
+    // The clicked view at twice the others' resolution (its layers are thinner), and no
+    // finer than that for a camera larger than the capture's (a viewer's window): the
+    // layers of a blurry scene must stay thicker than its noise.
+    let mut widths: Vec<u32> = others.iter().map(|c| c.width()).collect();
+    widths.sort_unstable();
+    let capture = widths
+        .get(widths.len() / 2)
+        .copied()
+        .unwrap_or(camera.width());
+    let larger = (camera.width() as f64 / capture.max(1) as f64).max(1.0);
+    let fine = (opts.render_downscale / 2).max(1) as f64 * larger;
     let (cam, pts) = render_points(session, camera, fine)?;
-    let f = fine as f64;
-    let (x, y) = ((u / f).floor(), (v / f).floor());
+    let (x, y) = (
+        (u * pts.width as f64 / camera.width() as f64).floor(),
+        (v * pts.height as f64 / camera.height() as f64).floor(),
+    );
     if x < 0.0 || y < 0.0 || x >= pts.width as f64 || y >= pts.height as f64 {
         return Err(request(
             "click",
@@ -217,7 +228,7 @@ pub fn box_at_click(
         };
         let mut cloud = first.clone();
         for c in spread(others, obb.center, opts.views) {
-            let (_, p) = render_points(session, &c, opts.render_downscale)?;
+            let (_, p) = render_points(session, &c, opts.render_downscale as f64)?;
             cloud.extend(
                 p.at.iter()
                     .flatten()

@@ -113,9 +113,20 @@ impl SplitJob {
         Ok(())
     }
 
-    pub fn run(&self, mut on: impl FnMut(SplitEvent)) -> Result<SplitOutcome> {
+    /// Splits the scene saved at `config.scene`.
+    pub fn run(&self, on: impl FnMut(SplitEvent)) -> Result<SplitOutcome> {
+        let session = Session::open(&self.config.scene)?;
+        self.run_on(&session, on)
+    }
+
+    /// Splits `session`'s scene as it is now (with its history; a viewer's, edits and
+    /// all); `config.scene` is where it was read from.
+    pub fn run_on(
+        &self,
+        session: &Session,
+        mut on: impl FnMut(SplitEvent),
+    ) -> Result<SplitOutcome> {
         let c = &self.config;
-        let session = Session::open(&c.scene)?;
         let info = session.info().clone();
         let data = match &c.data {
             Some(d) => d.clone(),
@@ -146,7 +157,7 @@ impl SplitJob {
             targets.boxes.extend(given);
         }
         let first = session.description().fresh_id();
-        let objects = targets.resolve(&session, &ds, first, c.render_downscale, |click, obb| {
+        let objects = targets.resolve(session, &ds, first, c.render_downscale, |click, obb| {
             on(SplitEvent::Clicked {
                 click: click.to_string(),
                 obb: *obb,
@@ -174,7 +185,7 @@ impl SplitJob {
             }
             None => masks_dir,
         };
-        let (scene, kept) = self.split_scene(&session, &ds, &objects, &mut on)?;
+        let (scene, kept) = self.split_scene(session, &ds, &objects, &mut on)?;
         let mut record: TrainConfig = info
             .get("train_config")
             .and_then(|v| serde_json::from_value(v.clone()).ok())

@@ -309,6 +309,29 @@ impl Session {
             .collect())
     }
 
+    /// The pixels of `camera`'s view (rendered at `render_size`) that the box `obb` would
+    /// own, unrefined, with the support found in this view alone: (width, height, mask).
+    pub fn box_mask_in_view(
+        &self,
+        camera: &Camera,
+        obb: &Obb,
+        render_size: Option<(u32, u32)>,
+    ) -> Result<(usize, usize, Vec<bool>)> {
+        let b = [SplitBox {
+            id: 1,
+            label: String::new(),
+            obb: *obb,
+        }];
+        let view = self.boxes_in_view(camera, &b, render_size)?;
+        let levels = self.support_levels(&b, std::slice::from_ref(&view), &MaskOptions::default());
+        let ids = view.mask(&b, &levels, None, &MaskOptions::default());
+        Ok((
+            view.width,
+            view.height,
+            ids.iter().map(|&v| v == 1).collect(),
+        ))
+    }
+
     /// [`support_levels`] of `boxes` over the views `seen`, along the scene's up.
     pub fn support_levels(
         &self,

@@ -267,6 +267,12 @@ impl Worker {
     }
 
     /// A flag the socket sets when the client goes: a frame in progress stops.
+    /// The dataset new objects are split with (else the one the scene records).
+    pub fn with_data(mut self, data: Option<PathBuf>) -> Self {
+        self.data = data;
+        self
+    }
+
     pub fn with_gone_flag(mut self, gone: std::sync::Arc<std::sync::atomic::AtomicBool>) -> Self {
         self.gone = Some(gone);
         self

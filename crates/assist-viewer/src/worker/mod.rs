@@ -9,7 +9,7 @@ use std::sync::mpsc::{Receiver, TryRecvError};
 use std::time::Instant;
 
 use assist_core::{
-    Action, ActionConfig, AxisSpec, Camera, DVec3, InstanceId, Operation, SceneNode,
+    Action, ActionConfig, AxisSpec, Camera, DVec3, InstanceId, Obb, Operation, SceneNode,
 };
 use assist_data::visual::{depth_image, ids_image};
 use assist_data::{DatasetWriter, Output as WriterOutput, ViewImages};
@@ -31,6 +31,7 @@ pub const PREVIEW_DIVISOR: u32 = 4;
 const JPEG_QUALITY: u8 = 85;
 
 mod handlers;
+mod new_object;
 
 /// What a handled message changed: the frame (render again) and the scene's state (send
 /// the client the node list and history again).
@@ -178,6 +179,8 @@ pub struct Worker {
     disk: Option<u64>,
     /// Set when the client's socket closes: a frame in progress stops.
     gone: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
+    /// The dataset the viewer was given (`--data`), for new objects.
+    data: Option<PathBuf>,
 }
 
 /// A digest of a scene's `scene.json` (`None` when it cannot be read).
@@ -204,6 +207,7 @@ impl Worker {
             hidden: Default::default(),
             disk: None,
             gone: None,
+            data: None,
         }
     }
 
@@ -333,6 +337,15 @@ impl Worker {
                     Ok(Changed::ALL)
                 }
             }
+            ClientMsg::Propose { x, y } => self.propose(x, y, send),
+            ClientMsg::Reshape { center, size, yaw } => self.reshape(center, size, yaw, send),
+            ClientMsg::MakeObject {
+                center,
+                size,
+                yaw,
+                label,
+                iters,
+            } => self.make_object((center, size, yaw), &label, iters, send),
             ClientMsg::Undo => Ok(if self.session.undo() {
                 self.log.push("undo".into());
                 Changed::ALL

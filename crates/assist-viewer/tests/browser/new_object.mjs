@@ -1,0 +1,110 @@
+// New-object mode in headless chromium, on a scene trained without masks: `n` turns it
+// on; a click on an object (a projected centre given by the test) shows its proposed box
+// and mask; a name and "make the object" split it off (a short fine-tune); the node
+// appears in the list, selected, and its x axis handle drags it along x. Prints one JSON
+// object; exits 1 on the first failure.
+// Usage: node new_object.mjs URL SHOTS_DIR CHROMIUM CENTRES_JSON
+import puppeteer from "puppeteer-core";
+import { mkdirSync } from "node:fs";
+
+const [url, shots, chromium, centresJson] = process.argv.slice(2);
+const centres = JSON.parse(centresJson);
+mkdirSync(shots, { recursive: true });
+const out = { steps: [] };
+const browser = await puppeteer.launch({
+  executablePath: chromium,
+  headless: true,
+  args: ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"],
+});
+let step = 0;
+function fail(msg) {
+  out.error = msg;
+  console.log(JSON.stringify(out));
+  process.exit(1);
+}
+try {
+  const page = await browser.newPage();
+  await page.setViewport({ width: 960, height: 480 });
+  await page.goto(url);
+  const shot = async (name) => {
+    step += 1;
+    await page.screenshot({ path: `${shots}/new-object-${String(step).padStart(2, "0")}-${name}.png` });
+    out.steps.push(name);
+  };
+  const fullFrame = async (after) => {
+    await page.waitForFunction(
+      (n) => window.__assist.frames > n && window.__assist.frame && !window.__assist.frame.preview,
+      { timeout: 120000 }, after);
+    await new Promise((r) => setTimeout(r, 100));
+  };
+  const frames = () => page.evaluate(() => window.__assist.frames);
+  await fullFrame(0);
+  // The first dataset camera.
+  let n0 = await frames();
+  await page.click("#cameras .cam");
+  await fullFrame(n0);
+  await page.keyboard.press("n");
+  if (!(await page.$eval("#newobj", (b) => b.classList.contains("on")))) fail("n did not turn new-object mode on");
+  // Click each object's projected centre until one is proposed.
+  for (const [k, c] of centres.entries()) {
+    const p = await page.evaluate((c) => window.__assist.project(c), c);
+    if (!p) continue;
+    const r = await page.$eval("#stage", (e) => { const b = e.getBoundingClientRect(); return [b.left, b.top, b.right, b.bottom]; });
+    if (p[0] < r[0] + 2 || p[1] < r[1] + 2 || p[0] > r[2] - 2 || p[1] > r[3] - 2) continue;
+    await page.evaluate(() => { window.__assist.proposal = null; window.__assist.error = null; });
+    await page.mouse.click(p[0], p[1]);
+    await page.waitForFunction(() => window.__assist.proposal || window.__assist.error, { timeout: 120000 });
+    const got = await page.evaluate(() => window.__assist.proposal && { center: window.__assist.proposal.center, size: window.__assist.proposal.size, pixels: window.__assist.proposal.pixels });
+    if (got) { out.object = k; out.proposal = got; break; }
+    out.refused = (out.refused || []).concat([await page.evaluate(() => window.__assist.error)]);
+  }
+  if (!out.proposal) fail("no object was proposed");
+  if (!(out.proposal.pixels > 10)) fail(`the proposal owns ${out.proposal.pixels} pixels of the view`);
+  if (await page.$eval("#proposal", (d) => d.hidden)) fail("the proposal panel is hidden");
+  if (await page.$eval("#pmask", (d) => d.hidden)) fail("the proposal's mask is not shown");
+  await shot("proposal");
+  // Name it and make it (a short fine-tune).
+  await page.click("#plabel");
+  await page.keyboard.type("found object");
+  await page.$eval("#piters", (e) => { e.value = "20"; });
+  const undo0 = await page.evaluate(() => window.__assist.state.undo);
+  await page.evaluate(() => { window.__assist.error = null; });
+  await page.click("#pconfirm");
+  await page.waitForFunction(() => window.__assist.state.nodes.some((x) => x.label === "found object") || window.__assist.error, { timeout: 600000 });
+  const made = await page.evaluate(() => { const s = window.__assist.state; return { node: s.nodes.find((x) => x.label === "found object"), selected: s.selected, undo: s.undo }; });
+  if (!made.node) fail(`no node made: ${await page.evaluate(() => window.__assist.error)}`);
+  out.made = made.node.id; out.saved = await page.evaluate(() => window.__assist.saved);
+  if (made.selected !== made.node.id) fail(`the new node ${made.node.id} is not selected (${made.selected})`);
+  if (!(made.undo > undo0)) fail(`no undo step (${undo0} → ${made.undo})`);
+  const row = await page.$(`.node[data-id="${made.node.id}"]`);
+  if (!row) fail("the new node has no row in the list");
+  await fullFrame(await frames() - 1);
+  await shot("made");
+  // Its x handle drags it along x, as one step.
+  const centre = (id) => page.evaluate((id) => {
+    const n = window.__assist.state.nodes.find((x) => x.id === id);
+    return [0, 1, 2].map((a) => n.corners.reduce((s, p) => s + p[a], 0) / 8);
+  }, id);
+  const c0 = await centre(made.node.id);
+  const steps0 = await page.evaluate(() => window.__assist.state.undo);
+  const gx = (await page.evaluate(() => window.__assist.gizmo())).find((a) => a.axis === "x");
+  if (!gx) fail("no x axis handle drawn for the new node");
+  const len = Math.hypot(gx.tip[0] - gx.o[0], gx.tip[1] - gx.o[1]);
+  const dir = [(gx.tip[0] - gx.o[0]) / len, (gx.tip[1] - gx.o[1]) / len];
+  const hx = gx.o[0] + 0.85 * (gx.tip[0] - gx.o[0]), hy = gx.o[1] + 0.85 * (gx.tip[1] - gx.o[1]);
+  await page.mouse.move(hx, hy);
+  await page.mouse.down();
+  for (let k = 1; k <= 8; k++) await page.mouse.move(hx + 5 * k * dir[0], hy + 5 * k * dir[1], { steps: 1 });
+  await page.mouse.up();
+  await page.waitForFunction((n) => window.__assist.state.undo > n, { timeout: 60000 }, steps0);
+  const c1 = await centre(made.node.id);
+  out.moved = [c1[0] - c0[0], c1[1] - c0[1], c1[2] - c0[2]];
+  if (!(c1[0] - c0[0] > 0.005)) fail(`the x handle moved the new node by ${JSON.stringify(out.moved)}`);
+  await shot("dragged");
+  out.ok = true;
+  console.log(JSON.stringify(out));
+} catch (e) {
+  fail(String(e && e.stack || e));
+} finally {
+  await browser.close();
+}
