@@ -285,3 +285,86 @@ pub(crate) fn process<'py>(
     let summary = outcome.map_err(err)?;
     to_py(py, &summary)
 }
+
+/// `assist.split`: object nodes cut out of a scene trained without masks, from boxes
+/// (`"cx,cy,cz,sx,sy,sz[,yaw]"`) or clicks (`"VIEW:u,v"`), as `assist scene split` does;
+/// `callback` gets each event (a dict with `kind`: "clicked", "masks", "distilled",
+/// "step"); returns the objects made (id, label, box), the masks' summary and the
+/// held-out figure of the fine-tune.
+#[pyfunction]
+#[pyo3(signature = (scene, out, boxes=Vec::new(), clicks=Vec::new(), labels=Vec::new(), iters=Whole::of(assist_session::split::SPLIT_ITERS as i64), max_time=None, data=None, masks_out=None, no_train=false, force=false, callback=None))]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn split<'py>(
+    py: Python<'py>,
+    scene: PathBuf,
+    out: PathBuf,
+    boxes: Vec<String>,
+    clicks: Vec<String>,
+    labels: Vec<String>,
+    iters: Whole,
+    max_time: Option<f64>,
+    data: Option<PathBuf>,
+    masks_out: Option<PathBuf>,
+    no_train: bool,
+    force: bool,
+    callback: Option<Py<PyAny>>,
+) -> PyResult<Bound<'py, PyAny>> {
+    use assist_session::split::{MaskProgress, SplitConfig, SplitEvent, SplitJob};
+    if let Some(t) = max_time
+        && !(t.is_finite() && t > 0.0)
+    {
+        return Err(err(format!("max_time: expected seconds above 0, got {t}")));
+    }
+    let job = SplitJob::new(SplitConfig {
+        scene,
+        out,
+        boxes,
+        clicks,
+        boxes_file: None,
+        labels,
+        data,
+        iters: iters.get("iters")?,
+        max_time,
+        lr: None,
+        no_train,
+        masks_out,
+        render_downscale: assist_session::split::click::RENDER_DOWNSCALE,
+        force,
+    });
+    let cancel = std::sync::atomic::AtomicBool::new(false);
+    let mut relay = Relay::new(callback.as_ref(), &cancel);
+    let outcome = py.detach(|| {
+        job.run(|e| {
+            let v = match e {
+                SplitEvent::Clicked { click, obb } => serde_json::json!({
+                    "kind": "clicked", "click": click,
+                    "center": obb.center.to_array(), "size": obb.size().to_array(),
+                }),
+                SplitEvent::Masks(MaskProgress::Rendering { done, total })
+                | SplitEvent::Masks(MaskProgress::Refining { done, total }) => {
+                    serde_json::json!({"kind": "masks", "done": done, "total": total})
+                }
+                SplitEvent::Distilled { id, label, report } => serde_json::json!({
+                    "kind": "distilled", "id": id, "label": label, "report": report,
+                }),
+                SplitEvent::Train(assist_session::TrainEvent::Step { stats, .. }) => {
+                    serde_json::json!({"kind": "step", "iteration": stats.iteration, "psnr": stats.psnr})
+                }
+                _ => return,
+            };
+            relay.event(&v);
+        })
+    });
+    relay.finish()?;
+    let outcome = outcome.map_err(err)?;
+    let summary = serde_json::json!({
+        "out": outcome.out,
+        "objects": outcome.objects.iter().map(|b| serde_json::json!({
+            "id": b.id, "label": b.label,
+            "center": b.obb.center.to_array(), "size": b.obb.size().to_array(),
+        })).collect::<Vec<_>>(),
+        "masks": outcome.masks,
+        "held_out": outcome.trained.as_ref().and_then(|t| t.held_out.as_ref()),
+    });
+    to_py(py, &summary)
+}

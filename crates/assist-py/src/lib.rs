@@ -23,7 +23,7 @@ mod scene;
 
 use args::{Whole, whole_opt};
 use clip::Clip;
-use jobs::{Samples, generate, process, train};
+use jobs::{Samples, generate, process, split, train};
 use scene::Scene;
 
 pyo3::create_exception!(
@@ -248,6 +248,7 @@ fn assist(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(generate, m)?)?;
     m.add_function(wrap_pyfunction!(train, m)?)?;
     m.add_function(wrap_pyfunction!(process, m)?)?;
+    m.add_function(wrap_pyfunction!(split, m)?)?;
     m.add_class::<Samples>()?;
     m.add_class::<Clip>()?;
     Ok(())

@@ -422,3 +422,27 @@ def test_process_checks_its_arguments_and_calls_back(trained, tmp_path):
         assist.process(one, tmp_path / "d", callback=events.append)
     assert events and events[0]["kind"] == "stage" and events[0]["stage"] == "frames"
     assert not (tmp_path / "d").exists()
+
+
+def test_split_makes_an_object_node_of_a_scene_trained_without_masks(trained, tmp_path):
+    """`assist.split` as `assist scene split`: a box makes an object node with its field
+    from the background's and a short fine-tune, as one undo step; the callback sees the
+    masks and the field's start; a bad box is refused by name with nothing written."""
+    cap, _, _ = trained
+    plain = tmp_path / "plain.assist"
+    assist.train(cap, plain, iters=60, no_objects=True)
+    assert len(assist.Scene.load(plain).nodes) == 1
+    inst = json.loads((cap / "transforms.json").read_text())["instances"][0]["bbox"]
+    box = ",".join(str(v) for v in inst["center"] + [s * 1.3 for s in inst["size"]])
+    events = []
+    out = tmp_path / "split.assist"
+    made = assist.split(plain, out, boxes=[box], labels=["thing"], iters=5, callback=events.append)
+    assert [(o["id"], o["label"]) for o in made["objects"]] == [(1, "thing")]
+    kinds = {e["kind"] for e in events}
+    assert {"masks", "distilled", "step"} <= kinds, kinds
+    s = assist.Scene.load(out)
+    assert [n["label"] for n in s.nodes] == ["background", "thing"]
+    assert s.undo() and len(s.nodes) == 1
+    with pytest.raises(assist.AssistError, match="box"):
+        assist.split(plain, tmp_path / "bad.assist", boxes=["1,2"])
+    assert not (tmp_path / "bad.assist").exists()

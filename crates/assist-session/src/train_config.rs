@@ -11,6 +11,8 @@ use assist_train::{BackgroundSpace, Lambdas, PriorKind, TERMS, TrainOptions};
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use serde::{Deserialize, Serialize};
 
+use crate::{SessionError, request};
+
 /// Per-image appearance embeddings.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
@@ -189,6 +191,13 @@ pub struct TrainConfig {
     /// --resume, this many seconds more than the scene was trained already.
     #[arg(long, help_heading = RUN, value_name = "SECONDS")]
     pub max_time: Option<f64>,
+    /// Learning rate of the first step; it decays exponentially to --lr-end over the run
+    /// (its iterations or its time).
+    #[arg(long, help_heading = RUN, value_name = "LR", default_value_t = TrainOptions::default().lr_start)]
+    pub lr_start: f32,
+    /// Learning rate of the last step.
+    #[arg(long, help_heading = RUN, value_name = "LR", default_value_t = TrainOptions::default().lr_end)]
+    pub lr_end: f32,
     /// Seed of every random draw (ray batches, initial weights): the same seed, data and
     /// flags give the same scene, bit for bit, on a machine with as many cores.
     #[arg(long, help_heading = RUN, default_value_t = 0)]
@@ -305,6 +314,101 @@ impl Default for TrainConfig {
 }
 
 impl TrainConfig {
+    /// Checks the configuration without reading the dataset.
+    pub fn validate(&self) -> crate::Result<()> {
+        let c = self;
+        if c.data.as_os_str().is_empty() {
+            return Err(request("data", "expected a dataset path".into()));
+        }
+        if c.out.as_os_str().is_empty() {
+            return Err(request("out", "expected a scene path to write".into()));
+        }
+        if c.out.exists() && !c.force && !c.resume {
+            return Err(SessionError::OutExists(c.out.clone()));
+        }
+        if !(MIN_BATCH_SAMPLES..=MAX_BATCH_SAMPLES).contains(&c.batch_samples) {
+            return Err(request(
+                "batch_samples",
+                format!(
+                    "expected {MIN_BATCH_SAMPLES} to {MAX_BATCH_SAMPLES}, got {}",
+                    c.batch_samples
+                ),
+            ));
+        }
+        for (what, lr) in [("lr_start", c.lr_start), ("lr_end", c.lr_end)] {
+            if !(lr.is_finite() && lr > 0.0 && lr <= 1.0) {
+                return Err(request(
+                    what,
+                    format!("expected a learning rate above 0 and at most 1, got {lr}"),
+                ));
+            }
+        }
+        if let Some(t) = c.max_time
+            && !(t.is_finite() && t > 0.0)
+        {
+            return Err(request(
+                "max_time",
+                format!("expected a positive number of seconds, got {t}"),
+            ));
+        }
+        if c.no_objects && c.masks.is_some() {
+            return Err(request(
+                "no_objects",
+                "--no-objects trains the background alone; --masks gives objects: choose one"
+                    .into(),
+            ));
+        }
+        if c.no_objects && c.boxes.is_some() {
+            return Err(request(
+                "no_objects",
+                "--no-objects trains the background alone; --boxes gives objects: choose one"
+                    .into(),
+            ));
+        }
+        if c.eval_every.is_some() && c.eval_views == 0 {
+            return Err(request(
+                "eval_views",
+                "expected at least 1 view to evaluate every eval_every iterations".into(),
+            ));
+        }
+        if !(0.0..=1.0).contains(&c.object_rays) {
+            return Err(request(
+                "object_rays",
+                format!("expected a fraction between 0 and 1, got {}", c.object_rays),
+            ));
+        }
+        if !(0.0..=1.0).contains(&c.hidden_stop) {
+            return Err(request(
+                "hidden_stop",
+                format!(
+                    "expected a transmittance between 0 and 1 (0 = off), got {}",
+                    c.hidden_stop
+                ),
+            ));
+        }
+        for (name, v) in c.lambdas.iter() {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(request(
+                    &crate::train_config::lambda_key(name),
+                    format!("expected a finite weight of 0 or more (0 = off), got {v}"),
+                ));
+            }
+        }
+        if c.resume && c.boxes.is_some() {
+            return Err(request(
+                "boxes",
+                "cannot change the boxes of a scene being resumed (train anew instead)".into(),
+            ));
+        }
+        if !(1..=64).contains(&c.downscale) {
+            return Err(request(
+                "downscale",
+                format!("expected 1 to 64, got {}", c.downscale),
+            ));
+        }
+        Ok(())
+    }
+
     /// Whether objects learn shadow grids.
     pub fn learns_shadows(&self) -> bool {
         self.shadows != Shadows::Off

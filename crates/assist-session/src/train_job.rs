@@ -17,9 +17,7 @@ use serde::Serialize;
 
 use crate::held_out::HeldOutSet;
 pub use crate::held_out::{HeldOut, preview_path};
-use crate::train_config::{
-    Appearance, MAX_BATCH_SAMPLES, MIN_BATCH_SAMPLES, OnOff, Shadows, TrainConfig, lambdas,
-};
+use crate::train_config::{Appearance, OnOff, Shadows, TrainConfig, lambdas};
 use crate::{Result, SessionError, request};
 
 /// What a training job tells while it runs.
@@ -107,91 +105,9 @@ impl TrainJob {
         self.cancel.clone()
     }
 
-    /// Checks the configuration without reading the dataset.
+    /// Checks the configuration before any work (see [`TrainConfig::validate`]).
     pub fn validate(&self) -> Result<()> {
-        let c = &self.config;
-        if c.data.as_os_str().is_empty() {
-            return Err(request("data", "expected a dataset path".into()));
-        }
-        if c.out.as_os_str().is_empty() {
-            return Err(request("out", "expected a scene path to write".into()));
-        }
-        if c.out.exists() && !c.force && !c.resume {
-            return Err(SessionError::OutExists(c.out.clone()));
-        }
-        if !(MIN_BATCH_SAMPLES..=MAX_BATCH_SAMPLES).contains(&c.batch_samples) {
-            return Err(request(
-                "batch_samples",
-                format!(
-                    "expected {MIN_BATCH_SAMPLES} to {MAX_BATCH_SAMPLES}, got {}",
-                    c.batch_samples
-                ),
-            ));
-        }
-        if let Some(t) = c.max_time
-            && !(t.is_finite() && t > 0.0)
-        {
-            return Err(request(
-                "max_time",
-                format!("expected a positive number of seconds, got {t}"),
-            ));
-        }
-        if c.no_objects && c.masks.is_some() {
-            return Err(request(
-                "no_objects",
-                "--no-objects trains the background alone; --masks gives objects: choose one"
-                    .into(),
-            ));
-        }
-        if c.no_objects && c.boxes.is_some() {
-            return Err(request(
-                "no_objects",
-                "--no-objects trains the background alone; --boxes gives objects: choose one"
-                    .into(),
-            ));
-        }
-        if c.eval_every.is_some() && c.eval_views == 0 {
-            return Err(request(
-                "eval_views",
-                "expected at least 1 view to evaluate every eval_every iterations".into(),
-            ));
-        }
-        if !(0.0..=1.0).contains(&c.object_rays) {
-            return Err(request(
-                "object_rays",
-                format!("expected a fraction between 0 and 1, got {}", c.object_rays),
-            ));
-        }
-        if !(0.0..=1.0).contains(&c.hidden_stop) {
-            return Err(request(
-                "hidden_stop",
-                format!(
-                    "expected a transmittance between 0 and 1 (0 = off), got {}",
-                    c.hidden_stop
-                ),
-            ));
-        }
-        for (name, v) in c.lambdas.iter() {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(request(
-                    &crate::train_config::lambda_key(name),
-                    format!("expected a finite weight of 0 or more (0 = off), got {v}"),
-                ));
-            }
-        }
-        if c.resume && c.boxes.is_some() {
-            return Err(request(
-                "boxes",
-                "cannot change the boxes of a scene being resumed (train anew instead)".into(),
-            ));
-        }
-        if !(1..=64).contains(&c.downscale) {
-            return Err(request(
-                "downscale",
-                format!("expected 1 to 64, got {}", c.downscale),
-            ));
-        }
-        Ok(())
+        self.config.validate()
     }
 
     /// Loads, trains and saves, telling `on_event` as it goes.
@@ -434,6 +350,8 @@ impl TrainJob {
         TrainOptions {
             iters: c.iters,
             max_time,
+            lr_start: c.lr_start,
+            lr_end: c.lr_end,
             batch_samples: c.batch_samples,
             object_ray_fraction: c.object_rays,
             downscale: c.downscale,

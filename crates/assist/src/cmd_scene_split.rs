@@ -47,6 +47,13 @@ pub struct SplitArgs {
     /// Stop the fine-tune after this many seconds.
     #[arg(long, value_name = "SECONDS")]
     pub max_time: Option<f64>,
+    /// The fine-tune's learning rate at its first step, decaying to --lr-end (default:
+    /// those the scene was trained with; measured in BENCHMARKS.md).
+    #[arg(long, value_name = "LR", requires = "lr_end")]
+    pub lr_start: Option<f32>,
+    /// The fine-tune's learning rate at its last step.
+    #[arg(long, value_name = "LR", requires = "lr_start")]
+    pub lr_end: Option<f32>,
     /// Make the nodes without the fine-tune (continue with `assist train DATA --out OUT
     /// --resume --masks MASKS`); needs --masks-out.
     #[arg(long)]
@@ -76,6 +83,7 @@ pub fn run(a: SplitArgs) -> anyhow::Result<()> {
         data: a.data.clone(),
         iters: a.iters,
         max_time: a.max_time,
+        lr: a.lr_start.zip(a.lr_end),
         no_train: a.no_train,
         masks_out: a.masks_out.clone(),
         render_downscale: a.render_downscale,

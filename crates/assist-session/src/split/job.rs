@@ -39,6 +39,9 @@ pub struct SplitConfig {
     /// Fine-tune steps, and an optional time limit in seconds.
     pub iters: usize,
     pub max_time: Option<f64>,
+    /// The fine-tune's learning rate, first and last step (`None`: as the scene was
+    /// trained).
+    pub lr: Option<(f32, f32)>,
     /// Leave the fine-tune to a later `assist train --resume` (needs `masks_out`).
     pub no_train: bool,
     /// Also keep the derived masks in this folder.
@@ -199,6 +202,9 @@ impl SplitJob {
         record.force = c.force;
         record.iters = c.iters;
         record.max_time = c.max_time;
+        if let Some((start, end)) = c.lr {
+            (record.lr_start, record.lr_end) = (start, end);
+        }
         record.eval_every = None;
         let trained = if c.no_train {
             let mut info = info.clone();

@@ -142,6 +142,7 @@ impl Worker {
             data: Some(data),
             iters,
             max_time: None,
+            lr: None,
             no_train: false,
             masks_out: None,
             render_downscale: assist_session::split::click::RENDER_DOWNSCALE,
