@@ -16,6 +16,65 @@ use assist_data::synth::{SynthConfig, generate};
 use assist_session::{RenderRequest, Session, TrainConfig, TrainJob};
 use assist_viewer::{ViewerOptions, start};
 
+/// The built-in scene rendered small (24 views of 128×96, 3 objects) into `work/synth`.
+fn synth_capture(work: &Path) -> PathBuf {
+    let data = work.join("synth");
+    let cfg = SynthConfig {
+        seed: 5,
+        views: 24,
+        width: 128,
+        height: 96,
+        objects: 3,
+        spp: 2,
+        shadow_samples: 2,
+        ..SynthConfig::default()
+    };
+    generate(&cfg, &data, false, &|_, _| {}).unwrap();
+    data
+}
+
+/// A viewer on `scene` with `data`'s cameras, on a free loopback port, without a token.
+fn serve(scene: &Path, data: &Path) -> (tokio::runtime::Runtime, assist_viewer::Running) {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    let running = rt
+        .block_on(start(ViewerOptions {
+            scene: scene.to_path_buf(),
+            data: Some(data.to_path_buf()),
+            host: IpAddr::V4(Ipv4Addr::LOCALHOST),
+            port: 0,
+            token: None,
+            others: Vec::new(),
+            scenes: None,
+        }))
+        .unwrap();
+    (rt, running)
+}
+
+/// Runs `node SCRIPT ARGS…` in the browser folder and returns its JSON report (the last
+/// line of its output), failing the test unless it says `ok`.
+fn drive(node: &Path, dir: &Path, script: &str, args: &[&std::ffi::OsStr]) -> serde_json::Value {
+    let out = Command::new(node)
+        .arg(dir.join(script))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("node runs");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    eprintln!("{stdout}");
+    let report: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap_or(""))
+        .unwrap_or_else(|e| panic!("no report from the browser ({e}); stderr:\n{stderr}"));
+    assert!(
+        out.status.success() && report["ok"] == true,
+        "{script} failed: {report}\nstderr:\n{stderr}"
+    );
+    report
+}
+
 fn which(name: &str) -> Option<PathBuf> {
     std::env::var_os("PATH").and_then(|paths| {
         std::env::split_paths(&paths)
@@ -56,18 +115,7 @@ fn the_viewer_works_in_a_real_browser() {
     let work = std::env::temp_dir().join(format!("assist-viewer-browser-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&work);
     std::fs::create_dir_all(&work).unwrap();
-    let data = work.join("synth");
-    let cfg = SynthConfig {
-        seed: 5,
-        views: 24,
-        width: 128,
-        height: 96,
-        objects: 3,
-        spp: 2,
-        shadow_samples: 2,
-        ..SynthConfig::default()
-    };
-    generate(&cfg, &data, false, &|_, _| {}).unwrap();
+    let data = synth_capture(&work);
     let scene = work.join("scene.assist");
     TrainJob::new(TrainConfig {
         data: data.clone(),
@@ -79,22 +127,7 @@ fn the_viewer_works_in_a_real_browser() {
     .run(|_| {})
     .unwrap();
 
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap();
-    let running = rt
-        .block_on(start(ViewerOptions {
-            scene: scene.clone(),
-            data: Some(data.clone()),
-            host: IpAddr::V4(Ipv4Addr::LOCALHOST),
-            port: 0,
-            token: None,
-            others: Vec::new(),
-            scenes: None,
-        }))
-        .unwrap();
+    let (rt, running) = serve(&scene, &data);
     // Issue 47 item 9: a plain `chromium --headless --screenshot` of the address `view`
     // prints showed an empty black stage. The page says what it is doing before the first
     // frame arrives (and the frame itself once it has).
@@ -134,22 +167,15 @@ fn the_viewer_works_in_a_real_browser() {
         .join("../../target/viewer-browser-test")
         .join(format!("screenshots-{}", std::process::id()));
     eprintln!("browser test screenshots: {}", shots.display());
-    let out = Command::new(node)
-        .arg(dir.join("drive.mjs"))
-        .arg(&running.url)
-        .arg(&shots)
-        .arg(&chromium)
-        .current_dir(&dir)
-        .output()
-        .expect("node runs");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    eprintln!("{stdout}");
-    let report: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap_or(""))
-        .unwrap_or_else(|e| panic!("no report from the browser ({e}); stderr:\n{stderr}"));
-    assert!(
-        out.status.success() && report["ok"] == true,
-        "browser steps failed: {report}\nstderr:\n{stderr}"
+    let report = drive(
+        &node,
+        &dir,
+        "drive.mjs",
+        &[
+            running.url.as_ref(),
+            shots.as_os_str(),
+            chromium.as_os_str(),
+        ],
     );
     // Save-as wrote a scene beside the opened one, and it renders.
     let saved = PathBuf::from(report["saved"].as_str().unwrap());
@@ -188,18 +214,7 @@ fn new_object_mode_works_in_a_real_browser() {
         std::env::temp_dir().join(format!("assist-viewer-new-object-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&work);
     std::fs::create_dir_all(&work).unwrap();
-    let data = work.join("synth");
-    let cfg = SynthConfig {
-        seed: 5,
-        views: 24,
-        width: 128,
-        height: 96,
-        objects: 3,
-        spp: 2,
-        shadow_samples: 2,
-        ..SynthConfig::default()
-    };
-    generate(&cfg, &data, false, &|_, _| {}).unwrap();
+    let data = synth_capture(&work);
     let scene = work.join("plain.assist");
     TrainJob::new(TrainConfig {
         data: data.clone(),
@@ -218,42 +233,21 @@ fn new_object_mode_works_in_a_real_browser() {
         .collect();
     assert_eq!(centres.len(), 3);
 
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap();
-    let running = rt
-        .block_on(start(ViewerOptions {
-            scene: scene.clone(),
-            data: Some(data.clone()),
-            host: IpAddr::V4(Ipv4Addr::LOCALHOST),
-            port: 0,
-            token: None,
-            others: Vec::new(),
-            scenes: None,
-        }))
-        .unwrap();
+    let (rt, running) = serve(&scene, &data);
     let shots = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../../target/viewer-browser-test")
         .join(format!("screenshots-{}", std::process::id()));
-    let out = Command::new(node)
-        .arg(dir.join("new_object.mjs"))
-        .arg(&running.url)
-        .arg(&shots)
-        .arg(&chromium)
-        .arg(serde_json::to_string(&centres).unwrap())
-        .current_dir(&dir)
-        .output()
-        .expect("node runs");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    eprintln!("{stdout}");
-    let report: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap_or(""))
-        .unwrap_or_else(|e| panic!("no report from the browser ({e}); stderr:\n{stderr}"));
-    assert!(
-        out.status.success() && report["ok"] == true,
-        "new-object steps failed: {report}\nstderr:\n{stderr}"
+    let centres = serde_json::to_string(&centres).unwrap();
+    let report = drive(
+        &node,
+        &dir,
+        "new_object.mjs",
+        &[
+            running.url.as_ref(),
+            shots.as_os_str(),
+            chromium.as_os_str(),
+            centres.as_ref(),
+        ],
     );
     // The proposed box lies around the object clicked.
     let k = report["object"].as_u64().unwrap() as usize;

@@ -24,6 +24,22 @@ pub struct MasksArgs {
     /// A scene trained on DATA (without masks: `assist train DATA --no-objects`).
     #[arg(long)]
     pub scene: PathBuf,
+    #[command(flatten)]
+    pub objects: ObjectArgs,
+    /// The masks folder written.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Replace --out if assist wrote it.
+    #[arg(long)]
+    pub force: bool,
+    /// Print a JSON summary on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// The objects asked for (by `dataset masks` and `scene split`): boxes, clicks, names.
+#[derive(Args, Debug)]
+pub struct ObjectArgs {
     /// An object's box in the scene's world units: "cx,cy,cz,sx,sy,sz[,yaw]" (centre,
     /// size along the box's axes, the last along the scene's up; yaw in degrees about
     /// up). Repeat for several objects.
@@ -34,25 +50,17 @@ pub struct MasksArgs {
     /// Repeat for several objects.
     #[arg(long = "click", value_name = "VIEW:u,v")]
     pub clicks: Vec<String>,
-    /// The objects' names: those of --box first, then those of --click, each in the order
-    /// given (default "object 1", "object 2", …).
+    /// Boxes from a file (as `assist dataset boxes --json` writes them), before --box.
+    #[arg(long, value_name = "FILE")]
+    pub boxes_file: Option<PathBuf>,
+    /// The objects' names: those of --boxes-file and --box first, then those of --click,
+    /// each in the order given (default "object N", N its id).
     #[arg(long = "label", value_name = "NAME")]
     pub labels: Vec<String>,
-    /// Boxes from a file instead (as `assist dataset boxes --json` writes them).
-    #[arg(long, value_name = "FILE", conflicts_with_all = ["boxes", "clicks"])]
-    pub boxes_file: Option<PathBuf>,
-    /// The masks folder written.
-    #[arg(long)]
-    pub out: PathBuf,
-    /// Render N times smaller than the images (the masks are then refined at full size).
+    /// Render N times smaller than the images to find boxes and masks (the masks are
+    /// then refined at full size).
     #[arg(long, default_value_t = assist_session::split::click::RENDER_DOWNSCALE, value_parser = clap::value_parser!(u32).range(1..=16))]
     pub render_downscale: u32,
-    /// Replace --out if assist wrote it.
-    #[arg(long)]
-    pub force: bool,
-    /// Print a JSON summary on stdout.
-    #[arg(long)]
-    pub json: bool,
 }
 
 /// A point or size to a tenth of a millimetre in metres (for messages).
@@ -66,14 +74,10 @@ pub fn run(a: MasksArgs) -> anyhow::Result<()> {
     let session = Session::open(&a.scene)?;
     let ds = assist_data::load(&a.data, &LoadOptions::default())
         .with_context(|| format!("reading {}", a.data.display()))?;
-    let mut targets = Targets::parse(&a.boxes, &a.clicks, &a.labels, session.description().up)?;
-    if let Some(p) = &a.boxes_file {
-        targets.boxes = assist_data::boxes::read_boxes(p)?
-            .into_iter()
-            .map(|b| (b.bbox, b.label))
-            .collect();
-    }
-    let boxes = targets.resolve(&session, &ds, 1, a.render_downscale, |c, obb| {
+    let o = &a.objects;
+    let targets = Targets::parse(&o.boxes, &o.clicks, &o.labels, session.description().up)?
+        .with_file(o.boxes_file.as_deref())?;
+    let boxes = targets.resolve(&session, &ds, 1, o.render_downscale, |c, obb| {
         eprintln!(
             "--click {c}: box centre {} size {}",
             vec3(obb.center),
@@ -83,14 +87,21 @@ pub fn run(a: MasksArgs) -> anyhow::Result<()> {
     let staging = assist_fs::Staging::begin(&a.out, "dataset masks")?;
     let show = !a.json && std::io::stderr().is_terminal();
     let bar = crate::progress::bar(show, "rendering views");
-    let made = session.write_masks(&ds, &boxes, staging.dir(), a.render_downscale, false, |p| {
-        let (message, done, total) = match p {
-            MaskProgress::Rendering { done, total } => ("rendering views", done, total),
-            MaskProgress::Refining { done, total } => ("refining masks", done, total),
-        };
-        bar.set_message(message);
-        crate::progress::steps(&bar)(done, total)
-    })?;
+    let made = session.write_masks(
+        &ds,
+        &boxes,
+        staging.dir(),
+        a.objects.render_downscale,
+        false,
+        |p| {
+            let (message, done, total) = match p {
+                MaskProgress::Rendering { done, total } => ("rendering views", done, total),
+                MaskProgress::Refining { done, total } => ("refining masks", done, total),
+            };
+            bar.set_message(message);
+            crate::progress::steps(&bar)(done, total)
+        },
+    )?;
     bar.finish_and_clear();
     staging.commit()?;
     if let Some(o) = made.objects.iter().find(|o| o.pixels == 0) {
@@ -105,7 +116,7 @@ pub fn run(a: MasksArgs) -> anyhow::Result<()> {
         v["data"] = json!(a.data);
         v["scene"] = json!(a.scene);
         v["out"] = json!(a.out);
-        v["render_downscale"] = json!(a.render_downscale);
+        v["render_downscale"] = json!(a.objects.render_downscale);
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         for o in &made.objects {

@@ -21,23 +21,8 @@ pub struct SplitArgs {
     /// The scene written, with the new objects.
     #[arg(long)]
     pub out: PathBuf,
-    /// An object's box in the scene's world units: "cx,cy,cz,sx,sy,sz[,yaw]" (centre,
-    /// size along the box's axes, the last along the scene's up; yaw in degrees about
-    /// up). Repeat for several objects.
-    #[arg(long = "box", value_name = "BOX")]
-    pub boxes: Vec<String>,
-    /// An object under a pixel of a view: "VIEW:u,v" (VIEW a frame's index or file name,
-    /// u,v pixels of the full-size image); its box is found from the scene and reported.
-    /// Repeat for several objects.
-    #[arg(long = "click", value_name = "VIEW:u,v")]
-    pub clicks: Vec<String>,
-    /// Boxes from a file (as `assist dataset boxes --json` writes them), before --box.
-    #[arg(long, value_name = "FILE")]
-    pub boxes_file: Option<PathBuf>,
-    /// The objects' names: those of --boxes-file and --box first, then those of --click,
-    /// each in the order given (default "object N", N its id).
-    #[arg(long = "label", value_name = "NAME")]
-    pub labels: Vec<String>,
+    #[command(flatten)]
+    pub objects: crate::cmd_dataset_masks::ObjectArgs,
     /// The dataset (default: the one the scene was trained on, as it records).
     #[arg(long)]
     pub data: Option<PathBuf>,
@@ -61,9 +46,6 @@ pub struct SplitArgs {
     /// Keep the derived masks in this folder (as `assist dataset masks` writes them).
     #[arg(long, value_name = "DIR")]
     pub masks_out: Option<PathBuf>,
-    /// Render N times smaller than the images to find boxes and masks.
-    #[arg(long, default_value_t = assist_session::split::click::RENDER_DOWNSCALE, value_parser = clap::value_parser!(u32).range(1..=16))]
-    pub render_downscale: u32,
     /// Replace --out (and --masks-out) if assist wrote them.
     #[arg(long)]
     pub force: bool,
@@ -76,17 +58,17 @@ pub fn run(a: SplitArgs) -> anyhow::Result<()> {
     let job = SplitJob::new(SplitConfig {
         scene: a.scene.clone(),
         out: a.out.clone(),
-        boxes: a.boxes.clone(),
-        clicks: a.clicks.clone(),
-        boxes_file: a.boxes_file.clone(),
-        labels: a.labels.clone(),
+        boxes: a.objects.boxes.clone(),
+        clicks: a.objects.clicks.clone(),
+        boxes_file: a.objects.boxes_file.clone(),
+        labels: a.objects.labels.clone(),
         data: a.data.clone(),
         iters: a.iters,
         max_time: a.max_time,
         lr: a.lr_start.zip(a.lr_end),
         no_train: a.no_train,
         masks_out: a.masks_out.clone(),
-        render_downscale: a.render_downscale,
+        render_downscale: a.objects.render_downscale,
         force: a.force,
     });
     let show = !a.json && std::io::stderr().is_terminal();

@@ -152,13 +152,8 @@ impl SplitJob {
             .map_err(SessionError::Output)?;
         let ds = assist_data::load(&data, &LoadOptions::default()).map_err(SessionError::Data)?;
         let up = session.description().up;
-        let mut targets = Targets::parse(&c.boxes, &c.clicks, &c.labels, up)?;
-        if let Some(p) = &c.boxes_file {
-            let listed = assist_data::boxes::read_boxes(p).map_err(SessionError::Data)?;
-            let given = std::mem::take(&mut targets.boxes);
-            targets.boxes = listed.into_iter().map(|b| (b.bbox, b.label)).collect();
-            targets.boxes.extend(given);
-        }
+        let targets = Targets::parse(&c.boxes, &c.clicks, &c.labels, up)?
+            .with_file(c.boxes_file.as_deref())?;
         let first = session.description().fresh_id();
         let objects = targets.resolve(session, &ds, first, c.render_downscale, |click, obb| {
             on(SplitEvent::Clicked {

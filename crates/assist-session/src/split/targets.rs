@@ -122,6 +122,18 @@ impl Targets {
         })
     }
 
+    /// With the boxes of a file (as `assist dataset boxes --json` writes them) before
+    /// the others.
+    pub fn with_file(mut self, file: Option<&std::path::Path>) -> Result<Self> {
+        if let Some(p) = file {
+            let listed = assist_data::boxes::read_boxes(p).map_err(crate::SessionError::Data)?;
+            let given = std::mem::take(&mut self.boxes);
+            self.boxes = listed.into_iter().map(|b| (b.bbox, b.label)).collect();
+            self.boxes.extend(given);
+        }
+        Ok(self)
+    }
+
     /// The objects as boxes in `session`'s scene with ids from `first_id` on, boxes first
     /// and then clicks, each click's box found over `ds`'s training views; `on_click` is
     /// told each click's box. Refused: no object, too many, more labels than objects, a

@@ -5,41 +5,13 @@
 // writes a scene; hiding an object takes it out of the view and showing brings it back; a
 // row's rename changes its label; dragging the x axis handle moves the object along x; the camera list shows the views' photographs and jumps. Prints one JSON object of measurements; exits 1 on the first failure.
 // Usage: node drive.mjs URL SHOTS_DIR CHROMIUM
-import puppeteer from "puppeteer-core";
-import { mkdirSync } from "node:fs";
+import { start } from "./harness.mjs";
 
 const [url, shots, chromium] = process.argv.slice(2);
-mkdirSync(shots, { recursive: true });
-const out = { steps: [] };
-const browser = await puppeteer.launch({
-  executablePath: chromium,
-  headless: true,
-  args: ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"],
-});
-let step = 0;
-function fail(msg) {
-  out.error = msg;
-  console.log(JSON.stringify(out));
-  process.exit(1);
-}
+const { browser, page, out, fail, shot, frames, fullFrame } = await start(shots, chromium, "");
 try {
-  const page = await browser.newPage();
   page.on("dialog", (d) => d.accept(d.message().startsWith("Rename") ? "renamed object" : "browser-saved.assist"));
-  await page.setViewport({ width: 960, height: 480 });
   await page.goto(url);
-  const shot = async (name) => {
-    step += 1;
-    await page.screenshot({ path: `${shots}/${String(step).padStart(2, "0")}-${name}.png` });
-    out.steps.push(name);
-  };
-  // Waits for a full frame newer than `after` (a frame count).
-  const fullFrame = async (after) => {
-    await page.waitForFunction(
-      (n) => window.__assist.frames > n && window.__assist.frame && !window.__assist.frame.preview,
-      { timeout: 120000 }, after);
-    await new Promise((r) => setTimeout(r, 100));
-  };
-  const frames = () => page.evaluate(() => window.__assist.frames);
   // Pixels of the frame image, as the page shows it, with the mask of `color`.
   const analyse = (color) => page.evaluate((color) => {
     const img = document.getElementById("frame");

@@ -4,40 +4,13 @@
 // appears in the list, selected, and its x axis handle drags it along x. Prints one JSON
 // object; exits 1 on the first failure.
 // Usage: node new_object.mjs URL SHOTS_DIR CHROMIUM CENTRES_JSON
-import puppeteer from "puppeteer-core";
-import { mkdirSync } from "node:fs";
+import { start } from "./harness.mjs";
 
 const [url, shots, chromium, centresJson] = process.argv.slice(2);
 const centres = JSON.parse(centresJson);
-mkdirSync(shots, { recursive: true });
-const out = { steps: [] };
-const browser = await puppeteer.launch({
-  executablePath: chromium,
-  headless: true,
-  args: ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"],
-});
-let step = 0;
-function fail(msg) {
-  out.error = msg;
-  console.log(JSON.stringify(out));
-  process.exit(1);
-}
+const { browser, page, out, fail, shot, frames, fullFrame } = await start(shots, chromium, "new-object-");
 try {
-  const page = await browser.newPage();
-  await page.setViewport({ width: 960, height: 480 });
   await page.goto(url);
-  const shot = async (name) => {
-    step += 1;
-    await page.screenshot({ path: `${shots}/new-object-${String(step).padStart(2, "0")}-${name}.png` });
-    out.steps.push(name);
-  };
-  const fullFrame = async (after) => {
-    await page.waitForFunction(
-      (n) => window.__assist.frames > n && window.__assist.frame && !window.__assist.frame.preview,
-      { timeout: 120000 }, after);
-    await new Promise((r) => setTimeout(r, 100));
-  };
-  const frames = () => page.evaluate(() => window.__assist.frames);
   await fullFrame(0);
   // The first dataset camera.
   let n0 = await frames();
