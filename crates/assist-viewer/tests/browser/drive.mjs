@@ -8,7 +8,7 @@
 import { start } from "./harness.mjs";
 
 const [url, shots, chromium] = process.argv.slice(2);
-const { browser, page, out, fail, shot, frames, fullFrame } = await start(shots, chromium, "");
+const { browser, page, out, fail, shot, frames, fullFrame, dragX } = await start(shots, chromium, "");
 try {
   page.on("dialog", (d) => d.accept(d.message().startsWith("Rename") ? "renamed object" : "browser-saved.assist"));
   await page.goto(url);
@@ -155,25 +155,9 @@ try {
 
   // 5b. The axis handle: press on the x axis near its tip and drag 40 px along it; the
   // object moves along +x alone, as one step.
-  const centre = (id) => page.evaluate((id) => {
-    const n = window.__assist.state.nodes.find((x) => x.id === id);
-    return [0, 1, 2].map((a) => n.corners.reduce((s, p) => s + p[a], 0) / 8);
-  }, id);
-  const c0 = await centre(target.id);
-  const steps0 = await page.evaluate(() => window.__assist.state.undo);
-  const gx = (await page.evaluate(() => window.__assist.gizmo())).find((a) => a.axis === "x");
-  if (!gx) fail("no x axis handle drawn for the selected object");
-  const len = Math.hypot(gx.tip[0] - gx.o[0], gx.tip[1] - gx.o[1]);
-  const dir = [(gx.tip[0] - gx.o[0]) / len, (gx.tip[1] - gx.o[1]) / len];
-  const hx = gx.o[0] + 0.85 * (gx.tip[0] - gx.o[0]), hy = gx.o[1] + 0.85 * (gx.tip[1] - gx.o[1]);
-  await page.mouse.move(hx, hy);
-  await page.mouse.down();
-  for (let k = 1; k <= 8; k++) await page.mouse.move(hx + 5 * k * dir[0], hy + 5 * k * dir[1], { steps: 1 });
-  await page.mouse.up();
-  await page.waitForFunction((n) => window.__assist.state.undo > n, { timeout: 60000 }, steps0);
-  const c1 = await centre(target.id);
-  out.handle_moved = [c1[0] - c0[0], c1[1] - c0[1], c1[2] - c0[2]];
-  if (!(c1[0] - c0[0] > 0.005) || Math.abs(c1[1] - c0[1]) > 1e-6 || Math.abs(c1[2] - c0[2]) > 1e-6) fail(`the x handle moved the object by ${JSON.stringify(out.handle_moved)}`);
+  out.handle_moved = await dragX(target.id);
+  const m = out.handle_moved;
+  if (!(m[0] > 0.005) || Math.abs(m[1]) > 1e-6 || Math.abs(m[2]) > 1e-6) fail(`the x handle moved the object by ${JSON.stringify(m)}`);
   await shot("handle");
 
   // 6. A typed instruction applies.

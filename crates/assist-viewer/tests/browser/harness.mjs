@@ -33,5 +33,27 @@ export async function start(shots, chromium, prefix = "") {
       { timeout: 120000 }, after);
     await new Promise((r) => setTimeout(r, 100));
   };
-  return { browser, page, out, fail, shot, frames, fullFrame };
+  // Drags the selected node `id`'s x axis handle 40 px along itself (pressed near its
+  // tip) and waits for the one undo step; returns the move of the box's centre.
+  const dragX = async (id) => {
+    const centre = () => page.evaluate((id) => {
+      const n = window.__assist.state.nodes.find((x) => x.id === id);
+      return [0, 1, 2].map((a) => n.corners.reduce((s, p) => s + p[a], 0) / 8);
+    }, id);
+    const c0 = await centre();
+    const steps0 = await page.evaluate(() => window.__assist.state.undo);
+    const gx = (await page.evaluate(() => window.__assist.gizmo())).find((a) => a.axis === "x");
+    if (!gx) fail(`no x axis handle drawn for node ${id}`);
+    const len = Math.hypot(gx.tip[0] - gx.o[0], gx.tip[1] - gx.o[1]);
+    const dir = [(gx.tip[0] - gx.o[0]) / len, (gx.tip[1] - gx.o[1]) / len];
+    const hx = gx.o[0] + 0.85 * (gx.tip[0] - gx.o[0]), hy = gx.o[1] + 0.85 * (gx.tip[1] - gx.o[1]);
+    await page.mouse.move(hx, hy);
+    await page.mouse.down();
+    for (let k = 1; k <= 8; k++) await page.mouse.move(hx + 5 * k * dir[0], hy + 5 * k * dir[1], { steps: 1 });
+    await page.mouse.up();
+    await page.waitForFunction((n) => window.__assist.state.undo > n, { timeout: 60000 }, steps0);
+    const c1 = await centre();
+    return [c1[0] - c0[0], c1[1] - c0[1], c1[2] - c0[2]];
+  };
+  return { browser, page, out, fail, shot, frames, fullFrame, dragX };
 }
