@@ -309,28 +309,27 @@ pub(crate) fn split<'py>(
     force: bool,
     callback: Option<Py<PyAny>>,
 ) -> PyResult<Bound<'py, PyAny>> {
+    use assist_session::split::targets::Objects;
     use assist_session::split::{MaskProgress, SplitConfig, SplitEvent, SplitJob};
     if let Some(t) = max_time
         && !(t.is_finite() && t > 0.0)
     {
         return Err(err(format!("max_time: expected seconds above 0, got {t}")));
     }
-    let job = SplitJob::new(SplitConfig {
-        scene,
-        out,
+    let objects = Objects {
         boxes,
         clicks,
-        boxes_file: None,
         labels,
-        data,
-        iters: iters.get("iters")?,
-        max_time,
-        lr: None,
-        no_train,
-        masks_out,
-        render_downscale: assist_session::split::click::RENDER_DOWNSCALE,
-        force,
-    });
+        ..Objects::default()
+    };
+    let mut config = SplitConfig::new(scene, out, objects);
+    config.iters = iters.get("iters")?;
+    config.max_time = max_time;
+    config.data = data;
+    config.masks_out = masks_out;
+    config.no_train = no_train;
+    config.force = force;
+    let job = SplitJob::new(config);
     let cancel = std::sync::atomic::AtomicBool::new(false);
     let mut relay = Relay::new(callback.as_ref(), &cancel);
     let outcome = py.detach(|| {

@@ -13,7 +13,7 @@ use assist_core::DVec3;
 use assist_data::LoadOptions;
 use assist_session::Session;
 use assist_session::split::MaskProgress;
-use assist_session::split::targets::Targets;
+use assist_session::split::targets::Objects;
 use clap::Args;
 use serde_json::json;
 
@@ -25,7 +25,7 @@ pub struct MasksArgs {
     #[arg(long)]
     pub scene: PathBuf,
     #[command(flatten)]
-    pub objects: ObjectArgs,
+    pub objects: Objects,
     /// The masks folder written.
     #[arg(long)]
     pub out: PathBuf,
@@ -35,32 +35,6 @@ pub struct MasksArgs {
     /// Print a JSON summary on stdout.
     #[arg(long)]
     pub json: bool,
-}
-
-/// The objects asked for (by `dataset masks` and `scene split`): boxes, clicks, names.
-#[derive(Args, Debug)]
-pub struct ObjectArgs {
-    /// An object's box in the scene's world units: "cx,cy,cz,sx,sy,sz[,yaw]" (centre,
-    /// size along the box's axes, the last along the scene's up; yaw in degrees about
-    /// up). Repeat for several objects.
-    #[arg(long = "box", value_name = "BOX")]
-    pub boxes: Vec<String>,
-    /// An object under a pixel of a view: "VIEW:u,v" (VIEW a frame's index or file name,
-    /// u,v pixels of the full-size image); its box is found from the scene and reported.
-    /// Repeat for several objects.
-    #[arg(long = "click", value_name = "VIEW:u,v")]
-    pub clicks: Vec<String>,
-    /// Boxes from a file (as `assist dataset boxes --json` writes them), before --box.
-    #[arg(long, value_name = "FILE")]
-    pub boxes_file: Option<PathBuf>,
-    /// The objects' names: those of --boxes-file and --box first, then those of --click,
-    /// each in the order given (default "object N", N its id).
-    #[arg(long = "label", value_name = "NAME")]
-    pub labels: Vec<String>,
-    /// Render N times smaller than the images to find boxes and masks (the masks are
-    /// then refined at full size).
-    #[arg(long, default_value_t = assist_session::split::click::RENDER_DOWNSCALE, value_parser = clap::value_parser!(u32).range(1..=16))]
-    pub render_downscale: u32,
 }
 
 /// A point or size to a tenth of a millimetre in metres (for messages).
@@ -74,10 +48,8 @@ pub fn run(a: MasksArgs) -> anyhow::Result<()> {
     let session = Session::open(&a.scene)?;
     let ds = assist_data::load(&a.data, &LoadOptions::default())
         .with_context(|| format!("reading {}", a.data.display()))?;
-    let o = &a.objects;
-    let targets = Targets::parse(&o.boxes, &o.clicks, &o.labels, session.description().up)?
-        .with_file(o.boxes_file.as_deref())?;
-    let boxes = targets.resolve(&session, &ds, 1, o.render_downscale, |c, obb| {
+    let targets = a.objects.targets(session.description().up)?;
+    let boxes = targets.resolve(&session, &ds, 1, a.objects.render_downscale, |c, obb| {
         eprintln!(
             "--click {c}: box centre {} size {}",
             vec3(obb.center),

@@ -4,10 +4,9 @@
 //! fine-tune ([`assist_session::split::SplitJob`]). One undo step of the scene's history.
 
 use std::io::IsTerminal;
-use std::path::PathBuf;
 
 use assist_session::TrainEvent;
-use assist_session::split::{MaskProgress, SPLIT_ITERS, SplitConfig, SplitEvent, SplitJob};
+use assist_session::split::{MaskProgress, SplitConfig, SplitEvent, SplitJob};
 use clap::Args;
 use serde_json::json;
 
@@ -15,62 +14,16 @@ use crate::cmd_dataset_masks::vec3;
 
 #[derive(Args, Debug)]
 pub struct SplitArgs {
-    /// The scene (trained without masks: `assist train DATA --no-objects`, or one with
-    /// some objects already).
-    pub scene: PathBuf,
-    /// The scene written, with the new objects.
-    #[arg(long)]
-    pub out: PathBuf,
     #[command(flatten)]
-    pub objects: crate::cmd_dataset_masks::ObjectArgs,
-    /// The dataset (default: the one the scene was trained on, as it records).
-    #[arg(long)]
-    pub data: Option<PathBuf>,
-    /// Fine-tune steps.
-    #[arg(long, default_value_t = SPLIT_ITERS)]
-    pub iters: usize,
-    /// Stop the fine-tune after this many seconds.
-    #[arg(long, value_name = "SECONDS")]
-    pub max_time: Option<f64>,
-    /// The fine-tune's learning rate at its first step, decaying to --lr-end (default:
-    /// those the scene was trained with; measured in BENCHMARKS.md).
-    #[arg(long, value_name = "LR", requires = "lr_end")]
-    pub lr_start: Option<f32>,
-    /// The fine-tune's learning rate at its last step.
-    #[arg(long, value_name = "LR", requires = "lr_start")]
-    pub lr_end: Option<f32>,
-    /// Make the nodes without the fine-tune (continue with `assist train DATA --out OUT
-    /// --resume --masks MASKS`); needs --masks-out.
-    #[arg(long)]
-    pub no_train: bool,
-    /// Keep the derived masks in this folder (as `assist dataset masks` writes them).
-    #[arg(long, value_name = "DIR")]
-    pub masks_out: Option<PathBuf>,
-    /// Replace --out (and --masks-out) if assist wrote them.
-    #[arg(long)]
-    pub force: bool,
+    pub config: SplitConfig,
     /// Print a JSON summary on stdout.
     #[arg(long)]
     pub json: bool,
 }
 
 pub fn run(a: SplitArgs) -> anyhow::Result<()> {
-    let job = SplitJob::new(SplitConfig {
-        scene: a.scene.clone(),
-        out: a.out.clone(),
-        boxes: a.objects.boxes.clone(),
-        clicks: a.objects.clicks.clone(),
-        boxes_file: a.objects.boxes_file.clone(),
-        labels: a.objects.labels.clone(),
-        data: a.data.clone(),
-        iters: a.iters,
-        max_time: a.max_time,
-        lr: a.lr_start.zip(a.lr_end),
-        no_train: a.no_train,
-        masks_out: a.masks_out.clone(),
-        render_downscale: a.objects.render_downscale,
-        force: a.force,
-    });
+    let masks_out = a.config.masks_out.clone();
+    let job = SplitJob::new(a.config);
     let show = !a.json && std::io::stderr().is_terminal();
     let text = !a.json;
     let bar = crate::progress::bar(show, "split");
@@ -160,7 +113,7 @@ pub fn run(a: SplitArgs) -> anyhow::Result<()> {
             "saved {} without the fine-tune: continue with `assist train DATA --out {} --resume --masks {}`",
             outcome.out.display(),
             outcome.out.display(),
-            a.masks_out
+            masks_out
                 .as_ref()
                 .map(|m| m.display().to_string())
                 .unwrap_or_default()

@@ -14,40 +14,67 @@ use assist_core::{Obb, SceneNode};
 use assist_data::{LoadOptions, Split};
 use assist_train::{DistilOptions, DistilReport, KeptHistory};
 
-use super::targets::Targets;
+use super::targets::Objects;
 use super::{MaskProgress, MasksWritten, SplitBox};
 use crate::{NeuralScene, Result, Session, SessionError, TrainConfig, TrainEvent, TrainJob};
 use crate::{TrainOutcome, request};
 
-/// What a split is asked for.
-#[derive(Debug, Clone)]
+/// What a split is asked for: clap derives `assist scene split`'s flags from it.
+#[derive(Debug, Clone, clap::Args)]
 pub struct SplitConfig {
-    /// The scene to split (trained without masks, or with some objects already).
+    /// The scene (trained without masks: `assist train DATA --no-objects`, or one with
+    /// some objects already).
     pub scene: PathBuf,
-    /// The scene written: the objects added and fine-tuned.
+    /// The scene written, with the new objects.
+    #[arg(long)]
     pub out: PathBuf,
-    /// Boxes `"cx,cy,cz,sx,sy,sz[,yaw]"` in the scene's world units.
-    pub boxes: Vec<String>,
-    /// Clicks `"VIEW:u,v"` (a frame's index or file name, pixels of its full-size image).
-    pub clicks: Vec<String>,
-    /// Boxes from a file (as `assist dataset boxes --json` writes them).
-    pub boxes_file: Option<PathBuf>,
-    /// Names in the order boxes (of the file, then of `boxes`), then clicks.
-    pub labels: Vec<String>,
-    /// The dataset (default: the one the scene records it was trained on).
+    #[command(flatten)]
+    pub objects: Objects,
+    /// The dataset (default: the one the scene was trained on, as it records).
+    #[arg(long)]
     pub data: Option<PathBuf>,
-    /// Fine-tune steps, and an optional time limit in seconds.
+    /// Fine-tune steps.
+    #[arg(long, default_value_t = SPLIT_ITERS)]
     pub iters: usize,
+    /// Stop the fine-tune after this many seconds.
+    #[arg(long, value_name = "SECONDS")]
     pub max_time: Option<f64>,
-    /// The fine-tune's learning rate, first and last step (`None`: as the scene was
-    /// trained).
-    pub lr: Option<(f32, f32)>,
-    /// Leave the fine-tune to a later `assist train --resume` (needs `masks_out`).
+    /// The fine-tune's learning rate at its first step, decaying to --lr-end (default:
+    /// those the scene was trained with; measured in BENCHMARKS.md).
+    #[arg(long, value_name = "LR", requires = "lr_end")]
+    pub lr_start: Option<f32>,
+    /// The fine-tune's learning rate at its last step.
+    #[arg(long, value_name = "LR", requires = "lr_start")]
+    pub lr_end: Option<f32>,
+    /// Make the nodes without the fine-tune (continue with `assist train DATA --out OUT
+    /// --resume --masks MASKS`); needs --masks-out.
+    #[arg(long)]
     pub no_train: bool,
-    /// Also keep the derived masks in this folder.
+    /// Keep the derived masks in this folder (as `assist dataset masks` writes them).
+    #[arg(long, value_name = "DIR")]
     pub masks_out: Option<PathBuf>,
-    pub render_downscale: u32,
+    /// Replace --out (and --masks-out) if assist wrote them.
+    #[arg(long)]
     pub force: bool,
+}
+
+impl SplitConfig {
+    /// A split of `scene` into `out` with every other setting at its default.
+    pub fn new(scene: PathBuf, out: PathBuf, objects: Objects) -> Self {
+        SplitConfig {
+            scene,
+            out,
+            objects,
+            data: None,
+            iters: SPLIT_ITERS,
+            max_time: None,
+            lr_start: None,
+            lr_end: None,
+            no_train: false,
+            masks_out: None,
+            force: false,
+        }
+    }
 }
 
 /// Fine-tune steps of a split by default.
@@ -152,15 +179,20 @@ impl SplitJob {
             .map_err(SessionError::Output)?;
         let ds = assist_data::load(&data, &LoadOptions::default()).map_err(SessionError::Data)?;
         let up = session.description().up;
-        let targets = Targets::parse(&c.boxes, &c.clicks, &c.labels, up)?
-            .with_file(c.boxes_file.as_deref())?;
+        let targets = c.objects.targets(up)?;
         let first = session.description().fresh_id();
-        let objects = targets.resolve(session, &ds, first, c.render_downscale, |click, obb| {
-            on(SplitEvent::Clicked {
-                click: click.to_string(),
-                obb: *obb,
-            })
-        })?;
+        let objects = targets.resolve(
+            session,
+            &ds,
+            first,
+            c.objects.render_downscale,
+            |click, obb| {
+                on(SplitEvent::Clicked {
+                    click: click.to_string(),
+                    obb: *obb,
+                })
+            },
+        )?;
         // The masks: kept in `masks_out`, or in a temporary folder beside `out`.
         let (masks_dir, staging) = match &c.masks_out {
             Some(m) => {
@@ -171,10 +203,14 @@ impl SplitJob {
             None => (temp_beside(&c.out)?, None),
         };
         let _cleanup = staging.is_none().then(|| RemoveOnDrop(masks_dir.clone()));
-        let masks =
-            session.write_masks(&ds, &objects, &masks_dir, c.render_downscale, true, |p| {
-                on(SplitEvent::Masks(p))
-            })?;
+        let masks = session.write_masks(
+            &ds,
+            &objects,
+            &masks_dir,
+            c.objects.render_downscale,
+            true,
+            |p| on(SplitEvent::Masks(p)),
+        )?;
         on(SplitEvent::MasksDone(masks.clone()));
         let masks_dir = match staging {
             Some(st) => {
@@ -197,7 +233,7 @@ impl SplitJob {
         record.force = c.force;
         record.iters = c.iters;
         record.max_time = c.max_time;
-        if let Some((start, end)) = c.lr {
+        if let Some((start, end)) = c.lr_start.zip(c.lr_end) {
             (record.lr_start, record.lr_end) = (start, end);
         }
         record.eval_every = None;

@@ -7,7 +7,7 @@ use assist_core::{Camera, DMat3, DVec3, InstanceId, Obb};
 use assist_data::{Dataset, Frame, Split};
 
 use super::SplitBox;
-use super::click::{self, ClickOptions};
+use super::click::{self, ClickOptions, RENDER_DOWNSCALE};
 use crate::{Result, Session, request};
 
 /// Comma-separated numbers; `None` when one is not a number.
@@ -90,6 +90,54 @@ pub fn parse_click<'a>(text: &str, ds: &'a Dataset) -> Result<(&'a Frame, (f64, 
         )));
     }
     Ok((frame, (u, v)))
+}
+
+/// The objects asked for, as a user gives them (`assist dataset masks`, `assist scene
+/// split`, Python): boxes, clicks, names, a boxes file, and the size they are found at.
+#[derive(Debug, Clone, PartialEq, clap::Args)]
+pub struct Objects {
+    /// An object's box in the scene's world units: "cx,cy,cz,sx,sy,sz[,yaw]" (centre,
+    /// size along the box's axes, the last along the scene's up; yaw in degrees about
+    /// up). Repeat for several objects.
+    #[arg(long = "box", value_name = "BOX")]
+    pub boxes: Vec<String>,
+    /// An object under a pixel of a view: "VIEW:u,v" (VIEW a frame's index or file name,
+    /// u,v pixels of the full-size image); its box is found from the scene and reported.
+    /// Repeat for several objects.
+    #[arg(long = "click", value_name = "VIEW:u,v")]
+    pub clicks: Vec<String>,
+    /// Boxes from a file (as `assist dataset boxes --json` writes them), before --box.
+    #[arg(long, value_name = "FILE")]
+    pub boxes_file: Option<std::path::PathBuf>,
+    /// The objects' names: those of --boxes-file and --box first, then those of --click,
+    /// each in the order given (default "object N", N its id).
+    #[arg(long = "label", value_name = "NAME")]
+    pub labels: Vec<String>,
+    /// Render N times smaller than the images to find boxes and masks (the masks are
+    /// then refined at full size).
+    #[arg(long, default_value_t = RENDER_DOWNSCALE, value_parser = clap::value_parser!(u32).range(1..=16))]
+    pub render_downscale: u32,
+}
+
+impl Default for Objects {
+    fn default() -> Self {
+        Objects {
+            boxes: Vec::new(),
+            clicks: Vec::new(),
+            boxes_file: None,
+            labels: Vec::new(),
+            render_downscale: RENDER_DOWNSCALE,
+        }
+    }
+}
+
+impl Objects {
+    /// What they ask for in `up`'s scene: the boxes read (the file's first), the clicks
+    /// and the names.
+    pub fn targets(&self, up: DVec3) -> Result<Targets> {
+        Targets::parse(&self.boxes, &self.clicks, &self.labels, up)?
+            .with_file(self.boxes_file.as_deref())
+    }
 }
 
 /// What a user asked for: boxes (with a name a boxes file may give), clicks, and names in

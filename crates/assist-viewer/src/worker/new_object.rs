@@ -8,7 +8,7 @@ use base64::Engine;
 
 use super::*;
 use assist_session::split::click::{self, ClickOptions};
-use assist_session::split::targets::upright;
+use assist_session::split::targets::{Objects, upright};
 use assist_session::split::{SplitConfig, SplitEvent, SplitJob};
 
 /// The yaw about `up` (degrees) of a box standing along it.
@@ -132,22 +132,15 @@ impl Worker {
             "{},{},{},{},{},{},{}",
             center[0], center[1], center[2], size[0], size[1], size[2], yaw
         );
-        let job = SplitJob::new(SplitConfig {
-            scene: self.scene_path.clone(),
-            out: out.clone(),
+        let objects = Objects {
             boxes: vec![b],
-            clicks: Vec::new(),
-            boxes_file: None,
             labels: vec![label.trim().to_string()],
-            data: Some(data),
-            iters,
-            max_time: None,
-            lr: None,
-            no_train: false,
-            masks_out: None,
-            render_downscale: assist_session::split::click::RENDER_DOWNSCALE,
-            force: false,
-        });
+            ..Objects::default()
+        };
+        let mut config = SplitConfig::new(self.scene_path.clone(), out.clone(), objects);
+        config.data = Some(data);
+        config.iters = iters;
+        let job = SplitJob::new(config);
         let progress = |task: &str, done: f64| {
             send(Outgoing::Json(ServerMsg::Progress {
                 task: task.to_string(),
