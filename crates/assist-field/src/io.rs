@@ -188,6 +188,9 @@ pub fn from_bytes(path: &Path, bytes: &[u8]) -> Result<(Field, Option<OccupancyG
     Ok((f, o))
 }
 
+/// The file's metadata, checked to be an assist field of this build's version.
+type Meta = std::collections::HashMap<String, String>;
+
 /// Parses and validates, shadow grid included; `path` names the file in errors.
 pub fn from_bytes_with_shade(path: &Path, bytes: &[u8]) -> Result<Loaded, FieldError> {
     let (_, meta) = safetensors::SafeTensors::read_metadata(bytes)
@@ -195,6 +198,17 @@ pub fn from_bytes_with_shade(path: &Path, bytes: &[u8]) -> Result<Loaded, FieldE
     let st = safetensors::SafeTensors::deserialize(bytes)
         .map_err(|e| fmt_err(path, format!("not a valid safetensors file: {e}")))?;
     let md = meta.metadata().clone().unwrap_or_default();
+    let cfg = read_config(path, &md, bytes.len())?;
+    let mut field = Field::new(cfg, 0).map_err(|e| fmt_err(path, e.to_string()))?;
+    read_params(path, &st, &mut field)?;
+    let occupancy = read_occupancy(path, &st, &md)?;
+    let shade = read_shade(path, &st, &md)?;
+    Ok((field, occupancy, shade))
+}
+
+/// The field's configuration from the metadata, after its format and version; refused
+/// when the parameters it asks for cannot be in a file of `file_len` bytes.
+fn read_config(path: &Path, md: &Meta, file_len: usize) -> Result<FieldConfig, FieldError> {
     match md.get("format").map(String::as_str) {
         Some(FORMAT) => {}
         other => {
@@ -225,16 +239,24 @@ pub fn from_bytes_with_shade(path: &Path, bytes: &[u8]) -> Result<Loaded, FieldE
     // The parameters the configuration asks for must be in the file before anything is
     // allocated for them (a forged config could otherwise ask for gigabytes).
     let want = crate::field::ParamLayout::new(&cfg).total as u64 * 4;
-    if want > bytes.len() as u64 {
+    if want > file_len as u64 {
         return Err(fmt_err(
             path,
             format!(
-                "metadata.config: asks for {want} bytes of parameters, but the file holds {}",
-                bytes.len()
+                "metadata.config: asks for {want} bytes of parameters, but the file holds {file_len}"
             ),
         ));
     }
-    let mut field = Field::new(cfg, 0).map_err(|e| fmt_err(path, e.to_string()))?;
+    Ok(cfg)
+}
+
+/// Fills the field's parameters from its tensors: every one present, F32, of the
+/// shape the configuration gives, finite; no tensor that is not part of a field.
+fn read_params(
+    path: &Path,
+    st: &safetensors::SafeTensors,
+    field: &mut Field,
+) -> Result<(), FieldError> {
     let groups = field.layout.groups(&field.config);
     let mut expected: Vec<&str> = groups.iter().map(|g| g.0.as_str()).collect();
     expected.push("occupancy.density");
@@ -258,7 +280,7 @@ pub fn from_bytes_with_shade(path: &Path, bytes: &[u8]) -> Result<Loaded, FieldE
         let t = st
             .tensor(name)
             .map_err(|_| fmt_err(path, format!("tensor {name:?}: missing")))?;
-        let shape = shape_of(&field, name, *len);
+        let shape = shape_of(field, name, *len);
         if t.dtype() != Dtype::F32 {
             return Err(fmt_err(
                 path,
@@ -287,7 +309,16 @@ pub fn from_bytes_with_shade(path: &Path, bytes: &[u8]) -> Result<Loaded, FieldE
             ));
         }
     }
-    let occupancy = match st.tensor("occupancy.density") {
+    Ok(())
+}
+
+/// The occupancy grid, when the file has one.
+fn read_occupancy(
+    path: &Path,
+    st: &safetensors::SafeTensors,
+    md: &Meta,
+) -> Result<Option<OccupancyGrid>, FieldError> {
+    Ok(match st.tensor("occupancy.density") {
         Ok(t) => {
             let s = t.shape();
             if t.dtype() != Dtype::F32 || s.len() != 3 || s[0] != s[1] || s[1] != s[2] || s[0] == 0
@@ -319,8 +350,16 @@ pub fn from_bytes_with_shade(path: &Path, bytes: &[u8]) -> Result<Loaded, FieldE
             Some(g)
         }
         Err(_) => None,
-    };
-    let shade = match st.tensor("shade") {
+    })
+}
+
+/// The shadow grid, when the file has one.
+fn read_shade(
+    path: &Path,
+    st: &safetensors::SafeTensors,
+    md: &Meta,
+) -> Result<Option<ShadeGrid>, FieldError> {
+    Ok(match st.tensor("shade") {
         Ok(t) => {
             // `[r, r, r, 3]`: a factor per colour channel; `[r, r, r]`: one factor for all
             // three (files written before the factors had colour).
@@ -362,6 +401,5 @@ pub fn from_bytes_with_shade(path: &Path, bytes: &[u8]) -> Result<Loaded, FieldE
             Some(g)
         }
         Err(_) => None,
-    };
-    Ok((field, occupancy, shade))
+    })
 }

@@ -227,6 +227,170 @@ fn check_look_at(spec: &Spec, bases: &[Base]) -> Result<()> {
     })
 }
 
+/// The dataset base scene `k` was trained on: as the spec gives it, else as the scene
+/// records it (its cameras and views are needed).
+fn base_data(k: usize, b: &spec::BaseScene, session: &Session) -> Result<PathBuf> {
+    if let Some(d) = &b.data {
+        return Ok(d.clone());
+    }
+    let message = match assist_session::recorded_dataset(&b.path, session.info()) {
+        Ok(Some(d)) => return Ok(d),
+        Ok(None) => "the scene does not record its training dataset; give it as data = \"…\" (its cameras and views are needed)".into(),
+        Err(e) => e.to_string(),
+    };
+    Err(GenError::Spec {
+        path: b.path.clone(),
+        field: format!("scenes[{k}].data"),
+        message,
+    })
+}
+
+/// Base scene `k` loaded and surveyed: its cameras, what its training views saw, the
+/// surfaces objects may stand on, each object's shape and the library as it stands there.
+fn prepare_base(
+    spec: &Spec,
+    k: usize,
+    b: &spec::BaseScene,
+    surveyed: &mut BTreeMap<String, Option<Survey>>,
+    progress: &mut dyn Progress,
+) -> Result<Base> {
+    progress.preparing(&format!("loading {}", b.path.display()));
+    let session = Session::open(&b.path)?;
+    let data = base_data(k, b, &session)?;
+    progress.preparing(&format!("reading the cameras of {}", data.display()));
+    let train = assist_session::dataset_cameras(&data, SplitChoice::Train, 1)?;
+    let cameras = match spec.cameras.from {
+        CameraFrom::Train | CameraFrom::Orbit => train.clone(),
+        CameraFrom::Test => assist_session::dataset_cameras(&data, SplitChoice::Test, 1)?,
+        CameraFrom::All => assist_session::dataset_cameras(&data, SplitChoice::All, 1)?,
+    };
+    progress.preparing(&format!(
+        "surveying {} training views for support surfaces",
+        train.len().min(48)
+    ));
+    let views = surface::small_views(&train, 96, 48);
+    let (seen, points) = surface::survey(session.scene(), &views);
+    let scene = session.description();
+    let mpu = scene.meters_per_unit;
+    let no_surface = || GenError::Spec {
+        path: b.path.clone(),
+        field: "placement.surfaces".into(),
+        message: "the training views show no upward-facing surface to place objects on".into(),
+    };
+    let all =
+        surface::support_map(scene.up, &points, 0.01 / mpu, 0.005 / mpu).ok_or_else(no_surface)?;
+    let shapes = object_shapes(&session, &all);
+    let up = surface::UpFrame::new(scene.up);
+    let levels: Vec<f64> = scene
+        .nodes
+        .iter()
+        .filter(|n| !n.is_background())
+        .filter_map(|n| {
+            let s = shapes.get(&n.field)?.as_ref()?;
+            Some(place::Posed::of(n).bottom(s, up.up))
+        })
+        .collect();
+    let mut support = all;
+    if spec.placement.surfaces == spec::Surfaces::Objects {
+        support.restrict_to_levels(&levels, spec.placement.level_m / mpu);
+    }
+    if support.allowed.is_empty() {
+        return Err(no_surface());
+    }
+    let mut library = Vec::new();
+    for (j, l) in spec.library.iter().enumerate() {
+        library.push(lib_node(&session, j, l)?);
+    }
+    let library = library_shapes(&session, &b.path, &shapes, library, surveyed, progress);
+    Ok(Base {
+        path: b.path.clone(),
+        session,
+        cameras,
+        seen,
+        support,
+        shapes,
+        library,
+    })
+}
+
+/// Each object field's shape without what lies below the surface it stood on (or its
+/// whole occupancy when nothing is left), by field key.
+fn object_shapes(session: &Session, all: &surface::SupportMap) -> BTreeMap<String, Option<Shape>> {
+    let scene = session.description();
+    let (mpu, up) = (scene.meters_per_unit, surface::UpFrame::new(scene.up));
+    // Raw shapes give the levels objects stood at (surfaces = "objects").
+    let raw: BTreeMap<String, Option<Shape>> = scene
+        .nodes
+        .iter()
+        .filter(|n| !n.is_background())
+        .map(|n| {
+            let nf = &session.scene().fields[&n.field];
+            let ax = place::up_axis(&n.world_from_local, scene.up);
+            (n.field.clone(), Shape::of(nf, ax, |_| true))
+        })
+        .collect();
+    let mut shapes = BTreeMap::new();
+    for n in scene.nodes.iter().filter(|n| !n.is_background()) {
+        if shapes.contains_key(&n.field) {
+            continue;
+        }
+        let nf = &session.scene().fields[&n.field];
+        let ax = place::up_axis(&n.world_from_local, scene.up);
+        let keep = above_support(n, all, up, mpu);
+        let s = Shape::of(nf, ax, keep).or_else(|| raw[&n.field].clone());
+        shapes.insert(n.field.clone(), s);
+    }
+    shapes
+}
+
+/// The library's shapes as they stand in base scene `path`: a node from this same scene
+/// keeps its cut shape; from another scene, it is cut at the surface it stood on there
+/// (that scene surveyed once), or keeps its whole occupancy when that scene's capture is
+/// not at hand.
+fn library_shapes(
+    session: &Session,
+    path: &Path,
+    shapes: &BTreeMap<String, Option<Shape>>,
+    library: Vec<(LibNode, std::sync::Arc<assist_session::NodeField>)>,
+    surveyed: &mut BTreeMap<String, Option<Survey>>,
+    progress: &mut dyn Progress,
+) -> Vec<LibNode> {
+    let scene = session.description();
+    let this = std::fs::canonicalize(path).ok();
+    library
+        .into_iter()
+        .map(|(mut ln, nf)| {
+            let own = scene.nodes.iter().find(|n| n.id == ln.id);
+            ln.shape = match own {
+                Some(n)
+                    if this.as_deref().map(|p| p.to_string_lossy().to_string())
+                        == Some(ln.scene.clone()) =>
+                {
+                    shapes[&n.field].clone()
+                }
+                _ => {
+                    let ax = place::up_axis(&ln.node.world_from_local, scene.up);
+                    let survey = surveyed.entry(ln.scene.clone()).or_insert_with(|| {
+                        progress.preparing(&format!(
+                            "surveying {} for the surfaces its objects stood on",
+                            ln.scene
+                        ));
+                        Survey::of(Path::new(&ln.scene))
+                    });
+                    survey
+                        .as_ref()
+                        .and_then(|sv| {
+                            let n = sv.session.node(ln.id)?;
+                            Shape::of(&nf, ax, above_support(n, &sv.support, sv.up, sv.mpu))
+                        })
+                        .or_else(|| Shape::of(&nf, ax, |_| true))
+                }
+            };
+            ln
+        })
+        .collect()
+}
+
 impl Generator {
     /// Loads the base scenes and library, and surveys each base scene's training views
     /// (support surfaces, what was seen).
@@ -240,140 +404,7 @@ impl Generator {
         // Library scenes surveyed so far (by canonical path).
         let mut surveyed: BTreeMap<String, Option<Survey>> = BTreeMap::new();
         for (k, b) in spec.scenes.iter().enumerate() {
-            progress.preparing(&format!("loading {}", b.path.display()));
-            let session = Session::open(&b.path)?;
-            let data = match &b.data {
-                Some(d) => d.clone(),
-                None => match assist_session::recorded_dataset(&b.path, session.info()) {
-                    Ok(Some(d)) => d,
-                    Ok(None) => {
-                        return Err(GenError::Spec {
-                            path: b.path.clone(),
-                            field: format!("scenes[{k}].data"),
-                            message: "the scene does not record its training dataset; give it as data = \"…\" (its cameras and views are needed)".into(),
-                        });
-                    }
-                    Err(e) => {
-                        return Err(GenError::Spec {
-                            path: b.path.clone(),
-                            field: format!("scenes[{k}].data"),
-                            message: e.to_string(),
-                        });
-                    }
-                },
-            };
-            progress.preparing(&format!("reading the cameras of {}", data.display()));
-            let train = assist_session::dataset_cameras(&data, SplitChoice::Train, 1)?;
-            let cameras = match spec.cameras.from {
-                CameraFrom::Train | CameraFrom::Orbit => train.clone(),
-                CameraFrom::Test => assist_session::dataset_cameras(&data, SplitChoice::Test, 1)?,
-                CameraFrom::All => assist_session::dataset_cameras(&data, SplitChoice::All, 1)?,
-            };
-            progress.preparing(&format!(
-                "surveying {} training views for support surfaces",
-                train.len().min(48)
-            ));
-            let views = surface::small_views(&train, 96, 48);
-            let (seen, points) = surface::survey(session.scene(), &views);
-            let scene = session.description();
-            let mpu = scene.meters_per_unit;
-            let up = surface::UpFrame::new(scene.up);
-            // Raw shapes give the levels objects stood at (surfaces = "objects").
-            let raw: BTreeMap<String, Option<Shape>> = scene
-                .nodes
-                .iter()
-                .filter(|n| !n.is_background())
-                .map(|n| {
-                    let nf = &session.scene().fields[&n.field];
-                    let ax = place::up_axis(&n.world_from_local, scene.up);
-                    (n.field.clone(), Shape::of(nf, ax, |_| true))
-                })
-                .collect();
-            let no_surface = || GenError::Spec {
-                path: b.path.clone(),
-                field: "placement.surfaces".into(),
-                message: "the training views show no upward-facing surface to place objects on"
-                    .into(),
-            };
-            let all = surface::support_map(scene.up, &points, 0.01 / mpu, 0.005 / mpu)
-                .ok_or_else(no_surface)?;
-            // Each object's shape without what lies below the surface it stood on.
-            let mut shapes = BTreeMap::new();
-            for n in scene.nodes.iter().filter(|n| !n.is_background()) {
-                if shapes.contains_key(&n.field) {
-                    continue;
-                }
-                let nf = &session.scene().fields[&n.field];
-                let ax = place::up_axis(&n.world_from_local, scene.up);
-                let keep = above_support(n, &all, up, mpu);
-                let s = Shape::of(nf, ax, keep).or_else(|| raw[&n.field].clone());
-                shapes.insert(n.field.clone(), s);
-            }
-            let levels: Vec<f64> = scene
-                .nodes
-                .iter()
-                .filter(|n| !n.is_background())
-                .filter_map(|n| {
-                    let s = shapes.get(&n.field)?.as_ref()?;
-                    Some(place::Posed::of(n).bottom(s, up.up))
-                })
-                .collect();
-            let mut support = all;
-            if spec.placement.surfaces == spec::Surfaces::Objects {
-                support.restrict_to_levels(&levels, spec.placement.level_m / mpu);
-            }
-            if support.allowed.is_empty() {
-                return Err(no_surface());
-            }
-            let mut library = Vec::new();
-            for (j, l) in spec.library.iter().enumerate() {
-                library.push(lib_node(&session, j, l)?);
-            }
-            // A library node from this same scene keeps its cut shape; from another scene,
-            // it is cut at the surface it stood on there (that scene surveyed once), or
-            // keeps its whole occupancy when that scene's capture is not at hand.
-            let this = std::fs::canonicalize(&b.path).ok();
-            let library = library
-                .into_iter()
-                .map(|(mut ln, nf)| {
-                    let own = scene.nodes.iter().find(|n| n.id == ln.id);
-                    ln.shape = match own {
-                        Some(n)
-                            if this.as_deref().map(|p| p.to_string_lossy().to_string())
-                                == Some(ln.scene.clone()) =>
-                        {
-                            shapes[&n.field].clone()
-                        }
-                        _ => {
-                            let ax = place::up_axis(&ln.node.world_from_local, scene.up);
-                            let survey = surveyed.entry(ln.scene.clone()).or_insert_with(|| {
-                                progress.preparing(&format!(
-                                    "surveying {} for the surfaces its objects stood on",
-                                    ln.scene
-                                ));
-                                Survey::of(Path::new(&ln.scene))
-                            });
-                            survey
-                                .as_ref()
-                                .and_then(|sv| {
-                                    let n = sv.session.node(ln.id)?;
-                                    Shape::of(&nf, ax, above_support(n, &sv.support, sv.up, sv.mpu))
-                                })
-                                .or_else(|| Shape::of(&nf, ax, |_| true))
-                        }
-                    };
-                    ln
-                })
-                .collect();
-            bases.push(Base {
-                path: b.path.clone(),
-                session,
-                cameras,
-                seen,
-                support,
-                shapes,
-                library,
-            });
+            bases.push(prepare_base(&spec, k, b, &mut surveyed, progress)?);
         }
         check_look_at(&spec, &bases)?;
         let classes = class_list(&bases);

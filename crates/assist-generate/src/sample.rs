@@ -40,10 +40,9 @@ pub struct Sample {
     /// BOP `scene_camera.json` and `scene_gt.json`.
     pub scene_camera: Value,
     pub scene_gt: Value,
-    /// The sample's objects (ids and labels).
-    pub instances: Vec<assist_data::Instance>,
-    pub meters_per_unit: f64,
-    pub up: [f64; 3],
+    /// How its views are written: the scene's units, up and objects, the generator's
+    /// classes and outputs.
+    pub writer: WriterConfig,
     /// Empty when not rendered.
     pub views: Vec<View>,
     pub report: SampleReport,
@@ -181,11 +180,62 @@ impl Generator {
         let session = self.apply(&plan)?;
         let cameras = self.cameras(&mut plan, &session)?;
         let base = &self.bases[plan.base];
-        let scene = session.description();
-        let mpu = scene.meters_per_unit;
-        let class_of =
-            |label: &str| self.classes.iter().position(|c| c == label).unwrap_or(0) as u16;
-        // Objects as they stand.
+        let objects = self.objects_json(&plan, base, session.description());
+        let (scene_camera, scene_gt) = self.bop_cameras(&cameras, session.description());
+        let (views, views_json) = if render {
+            self.render_views(base, &session, &cameras)?
+        } else {
+            (Vec::new(), Vec::new())
+        };
+        let report = SampleReport {
+            index,
+            objects: objects.len(),
+            draws: plan.draws,
+            rejected: plan.rejected,
+            gave_up: plan.gave_up.clone(),
+            views: cameras.len(),
+        };
+        let sample = json!({
+            "index": index,
+            "seed": self.spec.seed,
+            "scene": base.path,
+            "objects": objects,
+            "deleted": plan.deleted,
+            "gave_up": plan.gave_up,
+            "draws": plan.draws,
+            "rejected": plan.rejected,
+            "rejections": plan
+                .rejections
+                .iter()
+                .map(|(r, k)| (r.name().to_string(), json!(k)))
+                .collect::<serde_json::Map<String, Value>>(),
+            "views": views_json,
+            "rendered": render,
+        });
+        let writer = WriterConfig {
+            classes: self.classes.clone(),
+            ..session.writer_config(self.outputs.clone())
+        };
+        Ok(Sample {
+            index,
+            actions: plan.actions.clone(),
+            record: sample,
+            scene_camera: Value::Object(scene_camera),
+            scene_gt: Value::Object(scene_gt),
+            writer,
+            views,
+            report,
+        })
+    }
+
+    /// The generator's class id of a label (0, the background's, when it has none).
+    fn class_of(&self, label: &str) -> u16 {
+        self.classes.iter().position(|c| c == label).unwrap_or(0) as u16
+    }
+
+    /// The sample's objects as they stand, for `sample.json`: pose, class, whether the
+    /// plan added, moved or kept each, and the box its occupancy fills.
+    fn objects_json(&self, plan: &Plan, base: &Base, scene: &assist_core::Scene) -> Vec<Value> {
         let up = scene.up.normalize();
         let mut objects = Vec::new();
         for n in scene.nodes.iter().filter(|n| !n.is_background()) {
@@ -203,7 +253,7 @@ impl Generator {
             let mut o = json!({
                 "id": n.id,
                 "label": n.label,
-                "class": class_of(n.class_name()),
+                "class": self.class_of(n.class_name()),
                 "status": status,
                 "pose": pose_json(&n.world_from_local),
                 "half_size": n.half_size.to_array(),
@@ -227,7 +277,19 @@ impl Generator {
             }
             objects.push(o);
         }
-        let mut views_json = Vec::new();
+        objects
+    }
+
+    /// BOP's `scene_camera.json` and `scene_gt.json` entries of each camera (millimetres).
+    fn bop_cameras(
+        &self,
+        cameras: &[NamedCamera],
+        scene: &assist_core::Scene,
+    ) -> (
+        serde_json::Map<String, Value>,
+        serde_json::Map<String, Value>,
+    ) {
+        let mpu = scene.meters_per_unit;
         let mut scene_camera = serde_json::Map::new();
         let mut scene_gt = serde_json::Map::new();
         for (v, c) in cameras.iter().enumerate() {
@@ -256,7 +318,7 @@ impl Generator {
                     let r = r_w2c * DMat3::from_quat(n.world_from_local.rotation);
                     let t = r_w2c * n.world_from_local.translation + t_w2c;
                     json!({
-                        "obj_id": class_of(n.class_name()),
+                        "obj_id": self.class_of(n.class_name()),
                         "inst_id": n.id,
                         "cam_R_m2c": flat(&r),
                         "cam_t_m2c": (t * mm).to_array(),
@@ -266,91 +328,65 @@ impl Generator {
                 .collect();
             scene_gt.insert(v.to_string(), Value::Array(gt));
         }
+        (scene_camera, scene_gt)
+    }
+
+    /// Each camera's render (with the background alone when the outputs ask for it),
+    /// semantic classes and annotations.
+    fn render_views(
+        &self,
+        base: &Base,
+        session: &Session,
+        cameras: &[NamedCamera],
+    ) -> Result<(Vec<View>, Vec<Value>)> {
         let mut views = Vec::new();
-        if render {
-            let background = if self.outputs.contains(&assist_data::Output::Background) {
-                let mut bg = session.scene().clone();
-                bg.scene.nodes.retain(|n| n.is_background());
-                Some(bg)
-            } else {
-                None
-            };
-            let req = RenderRequest {
-                layers: true,
-                ..Default::default()
-            };
-            for c in &cameras {
-                let frame = session.render(&c.camera, &req)?;
-                let bg = background.as_ref().map(|b| {
-                    assist_session::render_camera(
-                        b,
-                        &c.camera,
-                        u32::MAX,
-                        &assist_session::RenderOptions::default(),
-                    )
-                    .rgb
-                });
-                let (annotations, unobserved, coco_panoptic) =
-                    self.annotate(base, &session, &c.name, &c.camera, &frame);
-                views_json.push(annotations);
-                let semantic = frame
-                    .panoptic
-                    .iter()
-                    .map(|&id| {
-                        session
-                            .node(id)
-                            .filter(|n| !n.is_background())
-                            .map(|n| class_of(n.class_name()))
-                            .unwrap_or(0)
-                    })
-                    .collect();
-                views.push(View {
-                    camera: c.clone(),
-                    frame,
-                    semantic,
-                    unobserved,
-                    coco_panoptic,
-                    background: bg,
-                });
-            }
-        }
-        let report = SampleReport {
-            index,
-            objects: objects.len(),
-            draws: plan.draws,
-            rejected: plan.rejected,
-            gave_up: plan.gave_up.clone(),
-            views: cameras.len(),
+        let mut views_json = Vec::new();
+        let background = if self.outputs.contains(&assist_data::Output::Background) {
+            let mut bg = session.scene().clone();
+            bg.scene.nodes.retain(|n| n.is_background());
+            Some(bg)
+        } else {
+            None
         };
-        let sample = json!({
-            "index": index,
-            "seed": self.spec.seed,
-            "scene": base.path,
-            "objects": objects,
-            "deleted": plan.deleted,
-            "gave_up": plan.gave_up,
-            "draws": plan.draws,
-            "rejected": plan.rejected,
-            "rejections": plan
-                .rejections
+        let req = RenderRequest {
+            layers: true,
+            ..Default::default()
+        };
+        for c in cameras {
+            let frame = session.render(&c.camera, &req)?;
+            let bg = background.as_ref().map(|b| {
+                assist_session::render_camera(
+                    b,
+                    &c.camera,
+                    u32::MAX,
+                    &assist_session::RenderOptions::default(),
+                )
+                .rgb
+            });
+            let (annotations, unobserved, coco_panoptic) =
+                self.annotate(base, session, &c.name, &c.camera, &frame);
+            views_json.push(annotations);
+            let semantic = frame
+                .panoptic
                 .iter()
-                .map(|(r, k)| (r.name().to_string(), json!(k)))
-                .collect::<serde_json::Map<String, Value>>(),
-            "views": views_json,
-            "rendered": render,
-        });
-        Ok(Sample {
-            index,
-            actions: plan.actions.clone(),
-            record: sample,
-            scene_camera: Value::Object(scene_camera),
-            scene_gt: Value::Object(scene_gt),
-            instances: session.instances(),
-            meters_per_unit: mpu,
-            up: scene.up.to_array(),
-            views,
-            report,
-        })
+                .map(|&id| {
+                    session
+                        .node(id)
+                        .filter(|n| !n.is_background())
+                        .map(|n| self.class_of(n.class_name()))
+                        .unwrap_or(0)
+                })
+                .collect();
+            views.push(View {
+                camera: c.clone(),
+                frame,
+                semantic,
+                unobserved,
+                coco_panoptic,
+                background: bg,
+            });
+        }
+        Ok((views, views_json))
     }
 
     /// Makes sample `index` into `dir` (a staging folder the caller commits).
@@ -367,16 +403,8 @@ impl Generator {
         write(&dir.join("scene_camera.json"), &pretty(&s.scene_camera))?;
         write(&dir.join("scene_gt.json"), &pretty(&s.scene_gt))?;
         if !dry_run {
-            let cfg = WriterConfig {
-                outputs: self.outputs.clone(),
-                meters_per_unit: s.meters_per_unit,
-                world_up: s.up,
-                instances: s.instances.clone(),
-                classes: self.classes.clone(),
-                ..WriterConfig::default()
-            };
             let vdir = dir.join("views");
-            let writer = DatasetWriter::create_in(&vdir, cfg)?;
+            let writer = DatasetWriter::create_in(&vdir, s.writer.clone())?;
             for (k, v) in s.views.iter().enumerate() {
                 let f = &v.frame;
                 let layers = assist_session::frame_layers(f);

@@ -84,24 +84,21 @@ impl Quadric {
     }
 }
 
-/// An edge and its cost when pushed (24 bytes: the heap holds millions); the collapse
-/// point is computed again when it is popped.
-impl NodeMesh {
-    /// Collapses edges until at most `target` triangles are left (or no collapse is
-    /// allowed); returns the number of triangles removed. Normals are recomputed.
-    pub fn decimate(&mut self, target: usize) -> usize {
-        let before = self.triangles.len();
-        if before <= target || before < 8 {
-            return 0;
-        }
-        let nv = self.positions.len();
-        let mut pos: Vec<DVec3> = self
-            .positions
-            .iter()
-            .map(|p| DVec3::from_array(*p))
-            .collect();
-        let mut tris = self.triangles.clone();
-        let mut alive = vec![true; tris.len()];
+/// The mesh being reduced: positions, triangles (dead ones kept, flagged), each
+/// vertex's triangles and quadric.
+struct Collapse {
+    pos: Vec<DVec3>,
+    tris: Vec<[u32; 3]>,
+    alive: Vec<bool>,
+    faces: Vec<Vec<u32>>,
+    quad: Vec<Quadric>,
+}
+
+impl Collapse {
+    fn new(m: &NodeMesh) -> Collapse {
+        let nv = m.positions.len();
+        let pos: Vec<DVec3> = m.positions.iter().map(|p| DVec3::from_array(*p)).collect();
+        let tris = m.triangles.clone();
         let mut faces: Vec<Vec<u32>> = vec![Vec::new(); nv];
         for (f, t) in tris.iter().enumerate() {
             for &v in t {
@@ -122,35 +119,138 @@ impl NodeMesh {
                 quad[v as usize] = quad[v as usize].add(&q);
             }
         }
-        let neighbours = |faces: &[Vec<u32>], tris: &[[u32; 3]], alive: &[bool], v: u32| {
-            let mut n: Vec<u32> = faces[v as usize]
-                .iter()
-                .filter(|&&f| alive[f as usize])
-                .flat_map(|&f| tris[f as usize])
-                .filter(|&w| w != v)
-                .collect();
-            n.sort_unstable();
-            n.dedup();
-            n
-        };
-        let mut count = before;
-        let mut touched = vec![false; nv];
-        let mut edges: Vec<(f64, u32, u32)> = Vec::new();
-        while count > target {
-            edges.clear();
-            for (f, t) in tris.iter().enumerate() {
-                if !alive[f] {
-                    continue;
-                }
-                for e in 0..3 {
-                    let (u, v) = (t[e], t[(e + 1) % 3]);
-                    if u < v {
-                        let q = quad[u as usize].add(&quad[v as usize]);
-                        edges.push((q.best(pos[u as usize], pos[v as usize]).1, u, v));
-                    }
+        Collapse {
+            pos,
+            alive: vec![true; tris.len()],
+            tris,
+            faces,
+            quad,
+        }
+    }
+
+    /// The vertices sharing a live triangle with `v`, sorted.
+    fn neighbours(&self, v: u32) -> Vec<u32> {
+        let mut n: Vec<u32> = self.faces[v as usize]
+            .iter()
+            .filter(|&&f| self.alive[f as usize])
+            .flat_map(|&f| self.tris[f as usize])
+            .filter(|&w| w != v)
+            .collect();
+        n.sort_unstable();
+        n.dedup();
+        n
+    }
+
+    /// Every live edge once, with the cost of its best collapse, cheapest first.
+    fn edges_by_cost(&self, edges: &mut Vec<(f64, u32, u32)>) {
+        edges.clear();
+        for (f, t) in self.tris.iter().enumerate() {
+            if !self.alive[f] {
+                continue;
+            }
+            for e in 0..3 {
+                let (u, v) = (t[e], t[(e + 1) % 3]);
+                if u < v {
+                    let q = self.quad[u as usize].add(&self.quad[v as usize]);
+                    edges.push((q.best(self.pos[u as usize], self.pos[v as usize]).1, u, v));
                 }
             }
-            edges.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then((a.1, a.2).cmp(&(b.1, b.2))));
+        }
+        edges.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then((a.1, a.2).cmp(&(b.1, b.2))));
+    }
+
+    /// Whether moving `u` and `v` to `at` would fold over a triangle kept (one not in
+    /// `shared`, the edge's own two).
+    fn folds(&self, u: u32, v: u32, at: DVec3, shared: &[u32]) -> bool {
+        [u, v].iter().any(|&w| {
+            self.faces[w as usize].iter().any(|&f| {
+                if !self.alive[f as usize] || shared.contains(&f) {
+                    return false;
+                }
+                let t = self.tris[f as usize];
+                let p = t.map(|x| self.pos[x as usize]);
+                let q = t.map(|x| {
+                    if x == u || x == v {
+                        at
+                    } else {
+                        self.pos[x as usize]
+                    }
+                });
+                let n0 = (p[1] - p[0]).cross(p[2] - p[0]);
+                let n1 = (q[1] - q[0]).cross(q[2] - q[0]);
+                n1.length_squared() == 0.0
+                    || n0.normalize_or_zero().dot(n1.normalize_or_zero()) < 0.2
+            })
+        })
+    }
+
+    /// Where edge (u, v) may collapse to, with its two triangles and the ends'
+    /// neighbours; None when the collapse would change the topology or fold a triangle.
+    fn allowed(&self, u: u32, v: u32) -> Option<(DVec3, Vec<u32>, Vec<u32>, Vec<u32>)> {
+        // The edge's triangles: exactly two (a closed, manifold edge).
+        let shared: Vec<u32> = self.faces[u as usize]
+            .iter()
+            .copied()
+            .filter(|&f| self.alive[f as usize] && self.tris[f as usize].contains(&v))
+            .collect();
+        if shared.len() != 2 {
+            return None;
+        }
+        let nu = self.neighbours(u);
+        let nv = self.neighbours(v);
+        let common = nu.iter().filter(|w| nv.binary_search(w).is_ok()).count();
+        if common != 2 || nu.len() + nv.len() < 7 {
+            return None;
+        }
+        let (pu, pv) = (self.pos[u as usize], self.pos[v as usize]);
+        let at = self.quad[u as usize]
+            .add(&self.quad[v as usize])
+            .best(pu, pv)
+            .0;
+        if self.folds(u, v, at, &shared) {
+            return None;
+        }
+        Some((at, shared, nu, nv))
+    }
+
+    /// Collapses `v` into `u` at `at`, killing the edge's triangles `shared`.
+    fn collapse(&mut self, u: u32, v: u32, at: DVec3, shared: &[u32]) {
+        for &f in shared {
+            self.alive[f as usize] = false;
+        }
+        let moved = std::mem::take(&mut self.faces[v as usize]);
+        for f in moved {
+            if !self.alive[f as usize] {
+                continue;
+            }
+            for x in &mut self.tris[f as usize] {
+                if *x == v {
+                    *x = u;
+                }
+            }
+            self.faces[u as usize].push(f);
+        }
+        let alive = &self.alive;
+        self.faces[u as usize].retain(|&f| alive[f as usize]);
+        self.pos[u as usize] = at;
+        self.quad[u as usize] = self.quad[u as usize].add(&self.quad[v as usize]);
+    }
+}
+
+impl NodeMesh {
+    /// Collapses edges until at most `target` triangles are left (or no collapse is
+    /// allowed); returns the number of triangles removed. Normals are recomputed.
+    pub fn decimate(&mut self, target: usize) -> usize {
+        let before = self.triangles.len();
+        if before <= target || before < 8 {
+            return 0;
+        }
+        let mut w = Collapse::new(self);
+        let mut count = before;
+        let mut touched = vec![false; self.positions.len()];
+        let mut edges: Vec<(f64, u32, u32)> = Vec::new();
+        while count > target {
+            w.edges_by_cost(&mut edges);
             touched.iter_mut().for_each(|t| *t = false);
             let mut collapsed = 0usize;
             for &(_, u, v) in edges.iter() {
@@ -160,75 +260,16 @@ impl NodeMesh {
                 if touched[u as usize] || touched[v as usize] {
                     continue;
                 }
-                // The edge's triangles: exactly two (a closed, manifold edge).
-                let shared: Vec<u32> = faces[u as usize]
-                    .iter()
-                    .copied()
-                    .filter(|&f| alive[f as usize] && tris[f as usize].contains(&v))
-                    .collect();
-                if shared.len() != 2 {
+                let Some((at, shared, nu, nv)) = w.allowed(u, v) else {
                     continue;
+                };
+                // u, v and their neighbours wait for the next round.
+                for &x in nu.iter().chain(&nv).chain(&[u, v]) {
+                    touched[x as usize] = true;
                 }
-                let nu = neighbours(&faces, &tris, &alive, u);
-                let nv_ = neighbours(&faces, &tris, &alive, v);
-                let common = nu.iter().filter(|w| nv_.binary_search(w).is_ok()).count();
-                if common != 2 || nu.len() + nv_.len() < 7 {
-                    continue;
-                }
-                let at = quad[u as usize]
-                    .add(&quad[v as usize])
-                    .best(pos[u as usize], pos[v as usize])
-                    .0;
-                // No triangle kept may fold over.
-                let folds = [u, v].iter().any(|&w| {
-                    faces[w as usize].iter().any(|&f| {
-                        if !alive[f as usize] || shared.contains(&f) {
-                            return false;
-                        }
-                        let t = tris[f as usize];
-                        let p = t.map(|x| pos[x as usize]);
-                        let q = t.map(|x| {
-                            if x == u || x == v {
-                                at
-                            } else {
-                                pos[x as usize]
-                            }
-                        });
-                        let n0 = (p[1] - p[0]).cross(p[2] - p[0]);
-                        let n1 = (q[1] - q[0]).cross(q[2] - q[0]);
-                        n1.length_squared() == 0.0
-                            || n0.normalize_or_zero().dot(n1.normalize_or_zero()) < 0.2
-                    })
-                });
-                if folds {
-                    continue;
-                }
-                // Collapse v into u; u, v and their neighbours wait for the next round.
-                for &w in nu.iter().chain(&nv_) {
-                    touched[w as usize] = true;
-                }
-                touched[u as usize] = true;
-                touched[v as usize] = true;
-                for &f in &shared {
-                    alive[f as usize] = false;
-                }
+                w.collapse(u, v, at, &shared);
                 count -= 2;
                 collapsed += 1;
-                let moved = std::mem::take(&mut faces[v as usize]);
-                for f in moved {
-                    if !alive[f as usize] {
-                        continue;
-                    }
-                    for x in &mut tris[f as usize] {
-                        if *x == v {
-                            *x = u;
-                        }
-                    }
-                    faces[u as usize].push(f);
-                }
-                faces[u as usize].retain(|&f| alive[f as usize]);
-                pos[u as usize] = at;
-                quad[u as usize] = quad[u as usize].add(&quad[v as usize]);
                 let (cu, cv) = (self.colors[u as usize], self.colors[v as usize]);
                 self.colors[u as usize] = [0, 1, 2].map(|k| 0.5 * (cu[k] + cv[k]));
             }
@@ -236,19 +277,24 @@ impl NodeMesh {
                 break;
             }
         }
-        // Compact.
-        let mut map = vec![u32::MAX; nv];
+        self.compact(&w, count);
+        before - self.triangles.len()
+    }
+
+    /// Keeps the live triangles of `w` and the vertices they use (in first-use order).
+    fn compact(&mut self, w: &Collapse, count: usize) {
+        let mut map = vec![u32::MAX; w.pos.len()];
         let (mut p2, mut c2) = (Vec::new(), Vec::new());
         let mut t2 = Vec::with_capacity(count);
-        for (f, t) in tris.iter().enumerate() {
-            if !alive[f] {
+        for (f, t) in w.tris.iter().enumerate() {
+            if !w.alive[f] {
                 continue;
             }
             t2.push(t.map(|v| {
                 let m = &mut map[v as usize];
                 if *m == u32::MAX {
                     *m = p2.len() as u32;
-                    p2.push(pos[v as usize].to_array());
+                    p2.push(w.pos[v as usize].to_array());
                     c2.push(self.colors[v as usize]);
                 }
                 *m
@@ -258,7 +304,6 @@ impl NodeMesh {
         self.positions = p2;
         self.colors = c2;
         self.triangles = t2;
-        before - self.triangles.len()
     }
 }
 

@@ -38,7 +38,7 @@ impl Samples {
         d.set_item("objects", to_py(py, &s.record["objects"])?)?;
         d.set_item("gave_up", to_py(py, &s.record["gave_up"])?)?;
         let views = PyList::empty(py);
-        let mpu = s.meters_per_unit as f32;
+        let mpu = s.writer.meters_per_unit as f32;
         let notes = s.record["views"].as_array().cloned().unwrap_or_default();
         for (k, v) in s.views.into_iter().enumerate() {
             let (w, h) = (v.frame.width as usize, v.frame.height as usize);

@@ -299,21 +299,109 @@ fn composite_ray(
         share,
         distortion,
     } = o;
-    // Block-local range of this ray's samples in node k.
-    let range = |v: &NodeView| {
-        let b0 = v.start[0] as usize;
-        (v.start[i] as usize - b0)..(v.start[i + 1] as usize - b0)
+    merge_samples(i, views, sc);
+    let m = sc.merged.len();
+    let mut acc = forward_merged(views, hidden, share, sc);
+    // The backdrop: a colour, or the colour of the last sample (black without samples).
+    let last = sc.merged.last().map(|&(_, k, j)| (k as usize, j as usize));
+    let background = match (behind, last) {
+        (Behind::Color(c), _) => c,
+        (Behind::LastSample, Some((k, j))) => {
+            let c = &views[k].rgb[3 * j..3 * j + 3];
+            let sh = views[k].shade(j);
+            [c[0] * sh[0], c[1] * sh[1], c[2] * sh[2]]
+        }
+        (Behind::LastSample, None) => [0.0; 3],
     };
+    for c in 0..3 {
+        acc.rgb[c] += (1.0 - acc.opacity) * background[c];
+    }
+    *out = acc;
+    // Distortion Σ_{i,j} w_i w_j |t_i − t_j| = 2 Σ_i w_i (t_i W_{<i} − S_{<i}) over the
+    // depth-sorted samples (W, S: prefix sums of w and w·t).
+    let (mut w_before, mut s_before, mut dist) = (0.0f32, 0.0f32, 0.0f32);
+    for (q, &(t, _, _)) in sc.merged.iter().enumerate() {
+        let w = sc.w[q];
+        dist += 2.0 * w * (t * w_before - s_before);
+        w_before += w;
+        s_before += w * t;
+    }
+    *distortion = dist;
+    for (k, v) in views.iter().enumerate() {
+        node_out[k] = node_alone(v, ray_range(v, i), beyond, front);
+    }
+    let Some(grad) = grad else { return };
+    let mut g = CompositeGrad::default();
+    sc.node_grads.clear();
+    sc.node_grads.resize(views.len(), CompositeGrad::default());
+    let outputs = RayOutputs {
+        ray: r,
+        composite: out,
+        nodes: node_out,
+        share: &*share,
+        distortion: dist,
+    };
+    grad(&outputs, &mut g, &mut sc.node_grads);
+    // The last sample's colour also shows through what is left of the transmittance.
+    let last_hidden = m > 0 && sc.hidden[m - 1];
+    if let (Behind::LastSample, Some((k, j)), false) = (behind, last, last_hidden) {
+        let rest = 1.0 - acc.opacity;
+        let v = &mut views[k];
+        let sh = v.shade(j);
+        for ch in 0..3 {
+            v.d_rgb[3 * j + ch] += rest * sh[ch] * g.rgb[ch];
+        }
+        if !v.d_shade.is_empty() {
+            for ch in 0..3 {
+                v.d_shade[3 * j + ch] += rest * g.rgb[ch] * v.rgb[3 * j + ch];
+            }
+        }
+    }
+    let totals = (acc, w_before, s_before);
+    backward_merged(views, &g, background, totals, sc);
+    // Backward through each node alone (no background colour).
+    for (k, v) in views.iter_mut().enumerate() {
+        let ng = CompositeGrad {
+            share: 0.0,
+            ..sc.node_grads[k]
+        };
+        if ng != CompositeGrad::default() {
+            node_alone_backward(v, ray_range(v, i), (beyond, front), &ng, sc);
+        }
+    }
+}
+
+/// Block-local range of ray `i`'s samples in a node's view.
+#[inline(always)]
+fn ray_range(v: &NodeView, i: usize) -> std::ops::Range<usize> {
+    let b0 = v.start[0] as usize;
+    (v.start[i] as usize - b0)..(v.start[i + 1] as usize - b0)
+}
+
+/// Ray `i`'s samples of every node, merged by depth into `sc.merged` as (t, node, index).
+#[inline(always)]
+fn merge_samples(i: usize, views: &[NodeView], sc: &mut RayScratch) {
     sc.merged.clear();
     for (k, v) in views.iter().enumerate() {
-        for j in range(v) {
+        for j in ray_range(v, i) {
             sc.merged.push((v.t[j], k as u32, j as u32));
         }
     }
     if views.len() > 1 {
         sc.merged.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
     }
-    // Forward over the merged samples.
+}
+
+/// The forward composite over the merged samples, before the backdrop: each sample's
+/// weight and the transmittance after it (kept in `sc` for the backward), each node's
+/// share of the weight, and which background samples objects hide.
+#[inline(always)]
+fn forward_merged(
+    views: &[NodeView],
+    hidden: Option<HiddenStop>,
+    share: &mut [f32],
+    sc: &mut RayScratch,
+) -> Composite {
     let m = sc.merged.len();
     sc.w.clear();
     sc.w.resize(m, 0.0);
@@ -349,90 +437,53 @@ fn composite_ray(
         acc.opacity += w;
         share[k as usize] += w;
     }
-    // The backdrop: a colour, or the colour of the last sample (black without samples).
-    let last = sc.merged.last().map(|&(_, k, j)| (k as usize, j as usize));
-    let background = match (behind, last) {
-        (Behind::Color(c), _) => c,
-        (Behind::LastSample, Some((k, j))) => {
-            let c = &views[k].rgb[3 * j..3 * j + 3];
-            let sh = views[k].shade(j);
-            [c[0] * sh[0], c[1] * sh[1], c[2] * sh[2]]
+    acc
+}
+
+/// A node's samples of one ray composited alone (no backdrop, no shading), with the
+/// weight beyond `beyond` and in front of `front`.
+#[inline(always)]
+fn node_alone(v: &NodeView, range: std::ops::Range<usize>, beyond: f32, front: f32) -> Composite {
+    let mut a = Composite::default();
+    let mut log_t = 0.0f32;
+    for j in range {
+        let tau = v.sigma[j] * v.dt[j];
+        let w = log_t.exp() * (1.0 - (-tau).exp());
+        log_t -= tau;
+        for c in 0..3 {
+            a.rgb[c] += w * v.rgb[3 * j + c];
         }
-        (Behind::LastSample, None) => [0.0; 3],
-    };
-    for c in 0..3 {
-        acc.rgb[c] += (1.0 - acc.opacity) * background[c];
-    }
-    *out = acc;
-    // Distortion Σ_{i,j} w_i w_j |t_i − t_j| = 2 Σ_i w_i (t_i W_{<i} − S_{<i}) over the
-    // depth-sorted samples (W, S: prefix sums of w and w·t).
-    let (mut w_before, mut s_before, mut dist) = (0.0f32, 0.0f32, 0.0f32);
-    for (q, &(t, _, _)) in sc.merged.iter().enumerate() {
-        let w = sc.w[q];
-        dist += 2.0 * w * (t * w_before - s_before);
-        w_before += w;
-        s_before += w * t;
-    }
-    *distortion = dist;
-    // Each node alone.
-    for (k, v) in views.iter().enumerate() {
-        let mut a = Composite::default();
-        let mut log_t = 0.0f32;
-        for j in range(v) {
-            let tau = v.sigma[j] * v.dt[j];
-            let w = log_t.exp() * (1.0 - (-tau).exp());
-            log_t -= tau;
-            for c in 0..3 {
-                a.rgb[c] += w * v.rgb[3 * j + c];
-            }
-            a.depth += w * v.t[j];
-            a.depth_sq += w * v.t[j] * v.t[j];
-            a.opacity += w;
-            if v.t[j] >= beyond {
-                a.beyond += w;
-            }
-            if v.t[j] < front {
-                a.front += w;
-            }
+        a.depth += w * v.t[j];
+        a.depth_sq += w * v.t[j] * v.t[j];
+        a.opacity += w;
+        if v.t[j] >= beyond {
+            a.beyond += w;
         }
-        node_out[k] = a;
+        if v.t[j] < front {
+            a.front += w;
+        }
     }
-    let Some(grad) = grad else { return };
-    let mut g = CompositeGrad::default();
-    sc.node_grads.clear();
-    sc.node_grads.resize(views.len(), CompositeGrad::default());
-    let outputs = RayOutputs {
-        ray: r,
-        composite: out,
-        nodes: node_out,
-        share: &*share,
-        distortion: dist,
-    };
-    grad(&outputs, &mut g, &mut sc.node_grads);
-    // Backward through the merged composite:
-    // dL/dσ_i = δ_i (T_{i+1} g_i − Σ_{j>i} w_j g_j), g_i = dL/dw_i (which includes the
-    // gradient of the share of the sample's node).
+    a
+}
+
+/// Backward through the merged composite:
+/// dL/dσ_i = δ_i (T_{i+1} g_i − Σ_{j>i} w_j g_j), g_i = dL/dw_i (which includes the
+/// gradient of the share of the sample's node and of the distortion). `totals`: the
+/// composite before the backdrop's colour, Σ w and Σ w·t.
+#[inline(always)]
+fn backward_merged(
+    views: &mut [NodeView],
+    g: &CompositeGrad,
+    background: [f32; 3],
+    (acc, mut w_before, mut s_before): (Composite, f32, f32),
+    sc: &RayScratch,
+) {
     let g_bg = g.opacity
         - (g.rgb[0] * background[0] + g.rgb[1] * background[1] + g.rgb[2] * background[2]);
-    // The last sample's colour also shows through what is left of the transmittance.
-    let last_hidden = m > 0 && sc.hidden[m - 1];
-    if let (Behind::LastSample, Some((k, j)), false) = (behind, last, last_hidden) {
-        let rest = 1.0 - acc.opacity;
-        let v = &mut views[k];
-        let sh = v.shade(j);
-        for ch in 0..3 {
-            v.d_rgb[3 * j + ch] += rest * sh[ch] * g.rgb[ch];
-        }
-        if !v.d_shade.is_empty() {
-            for ch in 0..3 {
-                v.d_shade[3 * j + ch] += rest * g.rgb[ch] * v.rgb[3 * j + ch];
-            }
-        }
-    }
     // d dist / d w_i = 2 Σ_j w_j |t_i − t_j| = 2 (t_i W_{<i} − S_{<i} + S_{>i} − t_i W_{>i}),
     // with the prefix sums run backwards from the totals (W = O, S = D).
     let mut suffix = 0.0f32;
-    for q in (0..m).rev() {
+    for q in (0..sc.merged.len()).rev() {
         let (t, k, j) = sc.merged[q];
         let v = &mut views[k as usize];
         let j = j as usize;
@@ -474,41 +525,42 @@ fn composite_ray(
             }
         }
     }
-    // Backward through each node alone (no background colour).
-    for (k, v) in views.iter_mut().enumerate() {
-        let ng = CompositeGrad {
-            share: 0.0,
-            ..sc.node_grads[k]
-        };
-        if ng == CompositeGrad::default() {
-            continue;
-        }
-        let rg = range(v);
-        sc.w.clear();
-        sc.t_next.clear();
-        let mut log_t = 0.0f32;
-        for j in rg.clone() {
-            let tau = v.sigma[j] * v.dt[j];
-            sc.w.push(log_t.exp() * (1.0 - (-tau).exp()));
-            log_t -= tau;
-            sc.t_next.push(log_t.exp());
-        }
-        let mut suffix = 0.0f32;
-        for (q, j) in rg.clone().enumerate().rev() {
-            let c = &v.rgb[3 * j..3 * j + 3];
-            let gi = ng.rgb[0] * c[0]
-                + ng.rgb[1] * c[1]
-                + ng.rgb[2] * c[2]
-                + ng.depth * v.t[j]
-                + ng.depth_sq * v.t[j] * v.t[j]
-                + ng.opacity
-                + if v.t[j] >= beyond { ng.beyond } else { 0.0 }
-                + if v.t[j] < front { ng.front } else { 0.0 };
-            v.d_sigma[j] += v.dt[j] * (sc.t_next[q] * gi - suffix);
-            suffix += sc.w[q] * gi;
-            for ch in 0..3 {
-                v.d_rgb[3 * j + ch] += sc.w[q] * ng.rgb[ch];
-            }
+}
+
+/// Backward through one node composited alone, with its gradient `ng` (`sc.w` and
+/// `sc.t_next` are reused for its weights).
+#[inline(always)]
+fn node_alone_backward(
+    v: &mut NodeView,
+    rg: std::ops::Range<usize>,
+    (beyond, front): (f32, f32),
+    ng: &CompositeGrad,
+    sc: &mut RayScratch,
+) {
+    sc.w.clear();
+    sc.t_next.clear();
+    let mut log_t = 0.0f32;
+    for j in rg.clone() {
+        let tau = v.sigma[j] * v.dt[j];
+        sc.w.push(log_t.exp() * (1.0 - (-tau).exp()));
+        log_t -= tau;
+        sc.t_next.push(log_t.exp());
+    }
+    let mut suffix = 0.0f32;
+    for (q, j) in rg.enumerate().rev() {
+        let c = &v.rgb[3 * j..3 * j + 3];
+        let gi = ng.rgb[0] * c[0]
+            + ng.rgb[1] * c[1]
+            + ng.rgb[2] * c[2]
+            + ng.depth * v.t[j]
+            + ng.depth_sq * v.t[j] * v.t[j]
+            + ng.opacity
+            + if v.t[j] >= beyond { ng.beyond } else { 0.0 }
+            + if v.t[j] < front { ng.front } else { 0.0 };
+        v.d_sigma[j] += v.dt[j] * (sc.t_next[q] * gi - suffix);
+        suffix += sc.w[q] * gi;
+        for ch in 0..3 {
+            v.d_rgb[3 * j + ch] += sc.w[q] * ng.rgb[ch];
         }
     }
 }

@@ -187,36 +187,31 @@ impl Field {
             .chain(&lay.color)
             .map(|l| l.transposed(&self.params))
             .collect();
-        let max_in = self.max_inputs();
-        let max_rows = rows.total;
-        let enc = &tape.enc;
-        let act = &tape.act;
-        let (geo, a) = (cfg.geo_features, cfg.appearance_dim);
+        let a = cfg.appearance_dim;
         // One scratch set per worker thread, kept in the tape across steps (no allocation
         // in the hot loop); each holds that thread's share of the MLP gradient.
-        let threads = rayon::current_num_threads().max(1);
-        let k0 = self.product_cols();
         let code_rows = if a > 0 { cfg.num_images + 1 } else { 0 };
         let sizes = (
             mlp_len,
-            max_rows * CHUNK,
-            CHUNK * max_in,
+            rows.total * CHUNK,
+            CHUNK * self.max_inputs(),
             code_rows * lay.color[0].out,
         );
-        if tape.scratch.len() != threads || tape.scratch_sizes != sizes {
-            tape.scratch = (0..threads)
-                .map(|_| {
-                    std::sync::Mutex::new(Scratch {
-                        g: vec![0.0; sizes.0],
-                        da: vec![0.0; sizes.1],
-                        db: vec![0.0; sizes.1],
-                        xt: vec![0.0; sizes.2],
-                        code_sums: vec![0.0; sizes.3],
-                    })
-                })
-                .collect();
-            tape.scratch_sizes = sizes;
-        }
+        ensure_scratch(tape, sizes);
+        let chunk = ChunkBackward {
+            field: self,
+            s,
+            wts: &wts,
+            act: &tape.act,
+            enc: &tape.enc,
+            rows: &rows,
+            d_sigma,
+            d_rgb,
+            n,
+            block,
+            mlp0,
+            k0: self.product_cols(),
+        };
         let scratch = &tape.scratch;
         // The chunks are split into one contiguous run per scratch set, each run summed in
         // chunk order into its own set, and the sets summed in order below: the gradient is
@@ -229,112 +224,9 @@ impl Field {
             .enumerate()
             .for_each(|(slot, d_run)| {
                 let mut guard = scratch[slot].lock().unwrap_or_else(|p| p.into_inner());
-                let Scratch {
-                    g,
-                    da: da_buf,
-                    db: db_buf,
-                    xt,
-                    code_sums,
-                } = &mut *guard;
-                let (g, xt) = (g.as_mut_slice(), xt.as_mut_slice());
                 assist_simd::simd(|| {
                     for (k, d_enc) in d_run.chunks_mut(block).enumerate() {
-                        let c = slot * per + k;
-                        let (mut da, mut db) = (da_buf.as_mut_slice(), db_buf.as_mut_slice());
-                        let act = &act[c * rows.total * CHUNK..(c + 1) * rows.total * CHUNK];
-                        let row = |r: usize, k: usize| &act[r * CHUNK..(r + k) * CHUNK];
-                        let c0 = c * CHUNK;
-                        let lanes = CHUNK.min(n - c0);
-                        // dL/d(rgb pre-activation) into `da` (3 rows).
-                        da[..3 * CHUNK].fill(0.0);
-                        for l in 0..lanes {
-                            for k in 0..3 {
-                                let y = act[(rows.rgb + k) * CHUNK + l];
-                                da[k * CHUNK + l] = d_rgb[3 * (c0 + l) + k] * y * (1.0 - y);
-                            }
-                        }
-                        // Colour layers, last to first; `da` holds dL/d(pre-activation).
-                        let nl = lay.color.len();
-                        for li in (1..nl).rev() {
-                            let l = &lay.color[li];
-                            let x = row(rows.color[li - 1], l.inp_pad);
-                            l.backward(
-                                &wts[2 + li],
-                                x,
-                                &da[..l.out * CHUNK],
-                                g,
-                                mlp0,
-                                Some(&mut db[..l.inp_pad * CHUNK]),
-                                xt,
-                                l.inp_pad,
-                            );
-                            relu_mask(&mut db[..l.inp_pad * CHUNK], x);
-                            std::mem::swap(&mut da, &mut db);
-                        }
-                        // First colour layer: the product's columns (geometry + SH), dx for the
-                        // geometry rows only (SH has no parameters), and the appearance part
-                        // summed per code: Σ dy over a code's lanes gives both its weight
-                        // gradient and its code gradient (after the loop over chunks).
-                        let l0 = &lay.color[0];
-                        l0.backward(
-                            &wts[2],
-                            row(rows.cin, l0.inp_pad),
-                            &da[..l0.out * CHUNK],
-                            g,
-                            mlp0,
-                            // (16 rows rather than the 15 geometry ones: the fast kernel.)
-                            Some(&mut db[..crate::mlp::pad16(geo).min(l0.inp_pad) * CHUNK]),
-                            xt,
-                            k0,
-                        );
-                        if a > 0 {
-                            let mut slots = [0u32; CHUNK];
-                            let dy = &da[..l0.out * CHUNK];
-                            if self.chunk_slots(s, c0, &mut slots) {
-                                let sum = &mut code_sums[slots[0] as usize * l0.out..][..l0.out];
-                                for (o, r) in dy.chunks_exact(CHUNK).enumerate() {
-                                    sum[o] += r[..lanes].iter().sum::<f32>();
-                                }
-                            } else {
-                                for (o, r) in dy.chunks_exact(CHUNK).enumerate() {
-                                    for (&v, &sl) in r[..lanes].iter().zip(&slots) {
-                                        code_sums[sl as usize * l0.out + o] += v;
-                                    }
-                                }
-                            }
-                        }
-                        std::mem::swap(&mut da, &mut db);
-                        // dL/d(density net output) into `db`: row 0 from σ, rows 1.. from geo.
-                        let d2 = &lay.density[1];
-                        db[..d2.out * CHUNK].fill(0.0);
-                        for l in 0..lanes {
-                            let sig = act[rows.sigma * CHUNK + l];
-                            db[l] = d_sigma[c0 + l] * sig;
-                        }
-                        db[CHUNK..(1 + geo) * CHUNK].copy_from_slice(&da[..geo * CHUNK]);
-                        let hid = row(rows.hidden, d2.inp_pad);
-                        d2.backward(
-                            &wts[1],
-                            hid,
-                            &db[..d2.out * CHUNK],
-                            g,
-                            mlp0,
-                            Some(&mut da[..d2.inp_pad * CHUNK]),
-                            xt,
-                            d2.inp_pad,
-                        );
-                        relu_mask(&mut da[..d2.inp_pad * CHUNK], hid);
-                        let d1 = &lay.density[0];
-                        d1.backward(
-                            &wts[0],
-                            &enc[c * block..(c + 1) * block],
-                            &da[..d1.out * CHUNK],
-                            g,
-                            mlp0,
-                            Some(d_enc),
-                            xt,
-                            d1.inp_pad,
-                        );
+                        chunk.run(slot * per + k, d_enc, &mut guard);
                     }
                 });
             });
@@ -357,5 +249,161 @@ impl Field {
         tape.times.mlp_backward += (t1 - t0).as_secs_f64();
         encode_backward(&lay.grid, s.pos, width, &tape.d_enc, &mut grad[..mlp0]);
         tape.times.encode_backward += t1.elapsed().as_secs_f64();
+    }
+}
+
+/// Makes the tape's scratch sets (one per worker thread) the sizes asked for, keeping
+/// them when they already are.
+fn ensure_scratch(tape: &mut Tape, sizes: (usize, usize, usize, usize)) {
+    let threads = rayon::current_num_threads().max(1);
+    if tape.scratch.len() != threads || tape.scratch_sizes != sizes {
+        tape.scratch = (0..threads)
+            .map(|_| {
+                std::sync::Mutex::new(Scratch {
+                    g: vec![0.0; sizes.0],
+                    da: vec![0.0; sizes.1],
+                    db: vec![0.0; sizes.1],
+                    xt: vec![0.0; sizes.2],
+                    code_sums: vec![0.0; sizes.3],
+                })
+            })
+            .collect();
+        tape.scratch_sizes = sizes;
+    }
+}
+
+/// The MLP backward of one chunk of samples, with what every chunk reads: the
+/// forward's record, the transposed weights, the loss's gradients of density and colour.
+struct ChunkBackward<'a> {
+    field: &'a Field,
+    s: &'a Samples<'a>,
+    wts: &'a [Vec<f32>],
+    act: &'a [f32],
+    enc: &'a [f32],
+    rows: &'a super::layout::Rows,
+    d_sigma: &'a [f32],
+    d_rgb: &'a [f32],
+    n: usize,
+    block: usize,
+    mlp0: usize,
+    /// The first colour layer's product columns (geometry + SH).
+    k0: usize,
+}
+
+impl ChunkBackward<'_> {
+    /// Chunk `c`: its MLP gradient summed into the scratch set `sc`, its gradient of the
+    /// encoding written to `d_enc`. Inlined into the SIMD-dispatched loop.
+    #[inline(always)]
+    fn run(&self, c: usize, d_enc: &mut [f32], sc: &mut Scratch) {
+        let lay = &self.field.layout;
+        let (rows, mlp0, k0) = (self.rows, self.mlp0, self.k0);
+        let (geo, a) = (
+            self.field.config.geo_features,
+            self.field.config.appearance_dim,
+        );
+        let (d_sigma, d_rgb, n) = (self.d_sigma, self.d_rgb, self.n);
+        let Scratch {
+            g,
+            da: da_buf,
+            db: db_buf,
+            xt,
+            code_sums,
+        } = sc;
+        let (g, xt) = (g.as_mut_slice(), xt.as_mut_slice());
+        let (mut da, mut db) = (da_buf.as_mut_slice(), db_buf.as_mut_slice());
+        let act = &self.act[c * rows.total * CHUNK..(c + 1) * rows.total * CHUNK];
+        let row = |r: usize, k: usize| &act[r * CHUNK..(r + k) * CHUNK];
+        let c0 = c * CHUNK;
+        let lanes = CHUNK.min(n - c0);
+        // dL/d(rgb pre-activation) into `da` (3 rows).
+        da[..3 * CHUNK].fill(0.0);
+        for l in 0..lanes {
+            for k in 0..3 {
+                let y = act[(rows.rgb + k) * CHUNK + l];
+                da[k * CHUNK + l] = d_rgb[3 * (c0 + l) + k] * y * (1.0 - y);
+            }
+        }
+        // Colour layers, last to first; `da` holds dL/d(pre-activation).
+        let nl = lay.color.len();
+        for li in (1..nl).rev() {
+            let l = &lay.color[li];
+            let x = row(rows.color[li - 1], l.inp_pad);
+            l.backward(
+                &self.wts[2 + li],
+                x,
+                &da[..l.out * CHUNK],
+                g,
+                mlp0,
+                Some(&mut db[..l.inp_pad * CHUNK]),
+                xt,
+                l.inp_pad,
+            );
+            relu_mask(&mut db[..l.inp_pad * CHUNK], x);
+            std::mem::swap(&mut da, &mut db);
+        }
+        // First colour layer: the product's columns (geometry + SH), dx for the
+        // geometry rows only (SH has no parameters), and the appearance part
+        // summed per code: Σ dy over a code's lanes gives both its weight
+        // gradient and its code gradient (after the loop over chunks).
+        let l0 = &lay.color[0];
+        l0.backward(
+            &self.wts[2],
+            row(rows.cin, l0.inp_pad),
+            &da[..l0.out * CHUNK],
+            g,
+            mlp0,
+            // (16 rows rather than the 15 geometry ones: the fast kernel.)
+            Some(&mut db[..crate::mlp::pad16(geo).min(l0.inp_pad) * CHUNK]),
+            xt,
+            k0,
+        );
+        if a > 0 {
+            let mut slots = [0u32; CHUNK];
+            let dy = &da[..l0.out * CHUNK];
+            if self.field.chunk_slots(self.s, c0, &mut slots) {
+                let sum = &mut code_sums[slots[0] as usize * l0.out..][..l0.out];
+                for (o, r) in dy.chunks_exact(CHUNK).enumerate() {
+                    sum[o] += r[..lanes].iter().sum::<f32>();
+                }
+            } else {
+                for (o, r) in dy.chunks_exact(CHUNK).enumerate() {
+                    for (&v, &sl) in r[..lanes].iter().zip(&slots) {
+                        code_sums[sl as usize * l0.out + o] += v;
+                    }
+                }
+            }
+        }
+        std::mem::swap(&mut da, &mut db);
+        // dL/d(density net output) into `db`: row 0 from σ, rows 1.. from geo.
+        let d2 = &lay.density[1];
+        db[..d2.out * CHUNK].fill(0.0);
+        for l in 0..lanes {
+            let sig = act[rows.sigma * CHUNK + l];
+            db[l] = d_sigma[c0 + l] * sig;
+        }
+        db[CHUNK..(1 + geo) * CHUNK].copy_from_slice(&da[..geo * CHUNK]);
+        let hid = row(rows.hidden, d2.inp_pad);
+        d2.backward(
+            &self.wts[1],
+            hid,
+            &db[..d2.out * CHUNK],
+            g,
+            mlp0,
+            Some(&mut da[..d2.inp_pad * CHUNK]),
+            xt,
+            d2.inp_pad,
+        );
+        relu_mask(&mut da[..d2.inp_pad * CHUNK], hid);
+        let d1 = &lay.density[0];
+        d1.backward(
+            &self.wts[0],
+            &self.enc[c * self.block..(c + 1) * self.block],
+            &da[..d1.out * CHUNK],
+            g,
+            mlp0,
+            Some(d_enc),
+            xt,
+            d1.inp_pad,
+        );
     }
 }

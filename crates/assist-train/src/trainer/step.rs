@@ -1,0 +1,300 @@
+//! One training step: the batch's rays traced through every node, the fields queried,
+//! the composite with the objective's gradient, backward into the fields, shadow grids
+//! and poses, and the optimizers' steps.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use assist_field::Adam;
+use assist_render::{CompositeGrad, RayOutputs, SampleOptions, composite_batch, sample_rays};
+
+use super::objective::Objective;
+use super::{
+    EMPTY_MARGIN, POSE_EVERY, POSE_LR, PhaseTimes, StepStats, Trainer, update_depth_affine,
+};
+use crate::error::{Result, TrainError};
+
+impl Trainer {
+    fn progress(&self, elapsed: f64) -> f64 {
+        let by_iter = self.iteration as f64 / self.opts.iters.max(1) as f64;
+        let by_time = self
+            .opts
+            .max_time
+            .map(|t| elapsed / t.max(1e-9))
+            .unwrap_or(0.0);
+        by_iter.max(by_time).min(1.0)
+    }
+
+    /// One training step.
+    pub fn step(&mut self, elapsed: f64) -> Result<StepStats> {
+        let progress = self.progress(elapsed);
+        let lr = self.opts.lr_start * (self.opts.lr_end / self.opts.lr_start).powf(progress as f32);
+        let tp = Instant::now();
+        let mut phase = [0.0f64; 6];
+        let (candidates, pruned) = self.trace();
+        phase[0] = tp.elapsed().as_secs_f64();
+        let q = assist_render::Query::Train;
+        assist_render::query_fields(&self.scene, &mut self.traced, &mut self.tapes, q);
+        phase[1] = tp.elapsed().as_secs_f64();
+        // The step's figures; the losses come with the compositing.
+        let mut s = StepStats {
+            iteration: self.iteration,
+            rays: self.targets.len(),
+            samples: self.traced.total_samples(),
+            candidates,
+            pruned: pruned.dropped,
+            lr,
+            elapsed,
+            progress,
+            ..Default::default()
+        };
+        let g_wq = self.composite_and_losses(&mut s)?;
+        phase[2] = tp.elapsed().as_secs_f64();
+        let shade_grads = self.backward();
+        phase[3] = tp.elapsed().as_secs_f64();
+        self.update(lr, shade_grads, g_wq);
+        phase[4] = tp.elapsed().as_secs_f64();
+        if self.opts.poison_at == Some(self.iteration) {
+            for nf in self.scene.fields.values_mut() {
+                Arc::make_mut(nf).field.poison();
+            }
+        }
+        self.iteration += 1;
+        if self
+            .iteration
+            .is_multiple_of(self.opts.occupancy_every.max(1))
+        {
+            self.update_occupancy();
+        }
+        phase[5] = tp.elapsed().as_secs_f64();
+        s.phase = PhaseTimes::from_marks(phase);
+        for (k, ns) in self.traced.nodes.iter().take(4).enumerate() {
+            s.samples_per_ray[k] = ns.len() as f32 / s.rays.max(1) as f32;
+        }
+        // Adapt the ray count towards the target sample count.
+        // A sample through the density pass costs about half a full one more (the
+        // hash-grid encoding and the density net, no tape).
+        let per_ray = (s.samples as f64 + 0.5 * pruned.queried as f64) / s.rays.max(1) as f64;
+        let want = (self.opts.batch_samples as f64 / per_ray.max(1.0)) as usize;
+        self.rays_per_batch = ((self.rays_per_batch + want) / 2).clamp(256, 1 << 16);
+        Ok(s)
+    }
+
+    /// Draws the batch's rays and their samples in every node, drops those hidden behind
+    /// opaque ones, and shades the background beyond: the candidates drawn and what the
+    /// pruning did.
+    fn trace(&mut self) -> (usize, assist_render::PruneStats) {
+        self.draw_rays();
+        let so = SampleOptions {
+            jitter: true,
+            seed: self.opts.seed.wrapping_add(self.iteration as u64 * 7919),
+            max_per_node: 1024,
+        };
+        sample_rays(&self.scene, &self.rays, &so, &mut self.traced);
+        let candidates = self.traced.total_samples();
+        let pruned = if self.opts.prune_eps > 0.0 {
+            assist_render::prune_occluded(
+                &self.scene,
+                &mut self.traced,
+                self.opts.prune_eps,
+                &mut self.prune,
+            )
+        } else {
+            assist_render::PruneStats::default()
+        };
+        self.set_beyond();
+        self.traced.hidden_stop = match self.background {
+            Some(b) if self.opts.hidden_stop > 0.0 && self.traced.nodes.len() > 1 => {
+                Some(assist_render::HiddenStop {
+                    background: b,
+                    below: self.opts.hidden_stop,
+                })
+            }
+            _ => None,
+        };
+        assist_render::shade_background(&self.scene, &self.rays, &mut self.traced);
+        (candidates, pruned)
+    }
+
+    /// Composites the batch with the objective's gradient per sample, then sums the
+    /// loss terms into `s` (per ray, averaged); returns the depth scale/shift gradient.
+    fn composite_and_losses(&mut self, s: &mut StepStats) -> Result<[f32; 2]> {
+        let nn = self.traced.nodes.len();
+        let lam = self.opts.lambdas;
+        let is_object: Vec<bool> = self
+            .scene
+            .scene
+            .nodes
+            .iter()
+            .map(|n| !n.is_background())
+            .collect();
+        let objective = Objective {
+            lam,
+            n_rays: self.targets.len().max(1) as f32,
+            extent: self.extent,
+            background: self.background,
+            depth_affine: self.opts.depth_affine,
+            depth_wq: self.depth_wq,
+            is_object: &is_object,
+        };
+        let targets = &self.targets;
+        let grad_fn = |o: &RayOutputs, g: &mut CompositeGrad, gn: &mut [CompositeGrad]| {
+            objective.ray(&targets[o.ray], o, Some((g, gn)));
+        };
+        composite_batch(
+            &mut self.traced,
+            assist_render::Behind::of(&self.scene.scene),
+            &mut self.out,
+            Some(&grad_fn),
+        );
+        let mut g_wq = [0.0f32; 2];
+        for (r, t) in self.targets.iter().enumerate() {
+            let o = RayOutputs {
+                ray: r,
+                composite: &self.out.rays[r],
+                nodes: &self.out.nodes[r * nn..(r + 1) * nn],
+                share: &self.out.share[r * nn..(r + 1) * nn],
+                distortion: self.out.distortion[r],
+            };
+            let v = objective.ray(t, &o, None);
+            s.terms.zip_with(&v.map(f64::from), |a, b| *a += b);
+            g_wq[0] += v.d_depth_wq[0];
+            g_wq[1] += v.d_depth_wq[1];
+        }
+        let nr = self.targets.len().max(1) as f64;
+        s.terms = s.terms.map(|v| v / nr);
+        s.loss = s.terms.weighted(&lam);
+        s.psnr = crate::metrics::mse_to_psnr(s.terms.comp_rgb);
+        if !s.loss.is_finite() {
+            return Err(TrainError::Diverged {
+                iteration: self.iteration,
+                message: format!("the loss became {}", s.loss),
+                checkpoint: None,
+            });
+        }
+        Ok(g_wq)
+    }
+
+    /// Backward from the samples into each field's optimizer, the shadow grids and
+    /// (every POSE_EVERY steps) the camera poses; returns the shadow grids' gradients.
+    fn backward(&mut self) -> Vec<(usize, Vec<f32>)> {
+        for (ns, tape) in self.traced.nodes.iter().zip(self.tapes.iter_mut()) {
+            if ns.is_empty() {
+                continue;
+            }
+            let key = &self.scene.scene.nodes[ns.node].field;
+            self.optimizers
+                .get_mut(key)
+                .expect("optimizer per field")
+                .accumulate(
+                    &self.scene.fields[key],
+                    &ns.samples(),
+                    tape,
+                    &ns.d_sigma,
+                    &ns.d_rgb,
+                );
+        }
+        let shade_grads = assist_render::shade_backward(&self.scene, &self.rays, &self.traced);
+        let pose_step = self.iteration.is_multiple_of(POSE_EVERY);
+        if let Some(p) = self.poses.as_mut().filter(|_| pose_step) {
+            p.accumulate(
+                &self.scene,
+                &self.traced,
+                &self.tapes,
+                &self.rays,
+                &self.ray_views,
+            );
+        }
+        shade_grads
+    }
+
+    /// The optimizers' steps at learning rate `lr`: poses, fields, shadow grids (points
+    /// held keep their factors) and the depth scale/shift.
+    fn update(&mut self, lr: f32, shade_grads: Vec<(usize, Vec<f32>)>, mut g_wq: [f32; 2]) {
+        let pose_step = self.iteration.is_multiple_of(POSE_EVERY);
+        if let Some(p) = self.poses.as_mut().filter(|_| pose_step) {
+            p.step(POSE_LR * lr / self.opts.lr_start);
+        }
+        for (key, nf) in self.scene.fields.iter_mut() {
+            self.optimizers
+                .get_mut(key)
+                .expect("optimizer per field")
+                .step(Arc::make_mut(nf), lr);
+        }
+        for (k, mut g) in shade_grads {
+            let key = self.scene.scene.nodes[k].field.clone();
+            let nf = Arc::make_mut(self.scene.fields.get_mut(&key).expect("field of node"));
+            if let Some(grid) = nf.shade.as_mut() {
+                let held = self
+                    .shade_held
+                    .get(&key)
+                    .filter(|h| 3 * h.len() == grid.values.len());
+                let keep: Vec<f32> = held.map_or_else(Vec::new, |_| grid.values.clone());
+                self.shade_adam
+                    .entry(key)
+                    .or_insert_with(|| Adam::new(grid.values.len()))
+                    .update(lr, &mut grid.values, &mut g);
+                grid.clamp();
+                if let Some(h) = held {
+                    // Per lattice point: its three factors.
+                    for ((v, k), &hold) in grid
+                        .values
+                        .chunks_exact_mut(3)
+                        .zip(keep.chunks_exact(3))
+                        .zip(h)
+                    {
+                        if hold {
+                            v.copy_from_slice(k);
+                        }
+                    }
+                }
+            }
+        }
+        if self.background.is_some() && self.opts.lambdas.bg_depth > 0.0 && self.opts.depth_affine {
+            update_depth_affine(&mut self.wq_adam, &mut self.depth_wq, &mut g_wq);
+        }
+    }
+}
+
+/// Where the background must be opaque behind: this fraction of the prior's depth along
+/// the ray (the margin absorbs the prior's depth error; what lies between is hidden by the
+/// object that covers the pixel, or is the surface itself).
+const BEYOND_FRACTION: f32 = 0.95;
+
+impl Trainer {
+    /// Sets `Traced::beyond` of every ray whose prior has a depth to
+    /// [`BEYOND_FRACTION`] of it (in world distance along the ray, through the learnt
+    /// scale and shift when the prior's depth has no scale); the background's opacity past
+    /// it is what `Lambdas::bg_opacity` asks to be 1.
+    fn set_beyond(&mut self) {
+        self.traced.front.clear();
+        if self.opts.lambdas.empty > 0.0 {
+            let e = self.extent * (1.0 - EMPTY_MARGIN);
+            self.traced.front.extend(
+                self.targets
+                    .iter()
+                    .map(|t| t.surface.map_or(f32::NEG_INFINITY, |d| d * e)),
+            );
+        }
+        self.traced.beyond.clear();
+        if self.background.is_none() || self.opts.lambdas.bg_opacity <= 0.0 {
+            return;
+        }
+        let (e, [a, b]) = (self.extent, self.depth_wq);
+        let affine = self.opts.depth_affine;
+        self.traced.beyond.extend(self.targets.iter().map(|t| {
+            match (t.inpaint, t.depth) {
+                (Some(_), Some(d)) => {
+                    // The prior's depth in units of the extent: `a·x + b = d`.
+                    let x = if affine { (d - b) / a } else { d };
+                    if x.is_finite() && x > 0.0 {
+                        BEYOND_FRACTION * x * e
+                    } else {
+                        f32::INFINITY
+                    }
+                }
+                _ => f32::INFINITY,
+            }
+        }));
+    }
+}
