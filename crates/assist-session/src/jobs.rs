@@ -197,3 +197,26 @@ pub fn recorded_dataset(
     }
     Ok(Some(path))
 }
+
+/// The box training would give each object of the dataset at `path` (from its instance
+/// masks or boxes, or from `user`'s boxes, which win), in its world frame.
+pub fn dataset_boxes(
+    path: &std::path::Path,
+    user: Vec<assist_data::boxes::BoxOverride>,
+) -> Result<Vec<assist_train::NodeBox>> {
+    use assist_data::Split;
+    use assist_train::{SetupOptions, background_color, node_boxes, scene_region};
+    let ds = assist_data::load(path, &LoadOptions::default()).map_err(SessionError::Data)?;
+    if ds.count(Split::Train) == 0 {
+        return Err(crate::request(
+            "dataset",
+            format!("{}: the dataset has no training frames", path.display()),
+        ));
+    }
+    let views = assist_train::load_views(&ds, Split::Train, background_color(&ds))?;
+    let opts = SetupOptions {
+        boxes: user,
+        ..Default::default()
+    };
+    Ok(node_boxes(&ds, &views, &scene_region(&ds, &views), &opts)?)
+}

@@ -42,6 +42,7 @@ pub use assist_render::RenderedImage as Frame;
 pub use assist_render::{DragCache, RenderOptions, render_camera};
 pub use assist_scene::scene_file;
 pub use assist_scene::{NeuralScene, NodeField};
+pub use assist_train::NodeBox;
 pub use cameras::{
     CameraSource, MAX_ORBIT_FRAMES, NamedCamera, Orbit, SplitChoice, dataset_cameras, objects_box,
     orbit,
@@ -54,8 +55,8 @@ pub use export::{
 };
 pub use frames::{MAX_CAMERA_RADII, RenderRequest};
 pub use jobs::{
-    EvalJob, EvalReport, LIGHT_MIN_EXPLAINED, LightEstimate, LightJob, Photograph, photograph,
-    recorded_dataset, trained_downscale,
+    EvalJob, EvalReport, LIGHT_MIN_EXPLAINED, LightEstimate, LightJob, Photograph, dataset_boxes,
+    photograph, recorded_dataset, trained_downscale,
 };
 pub use render_job::{
     DatasetOutput, Highlight, RenderJob, RenderSummary, ViewDone, frame_layers, view_images,

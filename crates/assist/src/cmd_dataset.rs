@@ -68,22 +68,12 @@ pub fn run(cmd: DatasetCommand) -> anyhow::Result<()> {
 }
 
 fn boxes(a: BoxesArgs) -> anyhow::Result<()> {
-    use assist_train::{SetupOptions, background_color, node_boxes, scene_region};
     let user = match &a.boxes {
         Some(p) => assist_data::boxes::read_boxes(p).context("--boxes")?,
         None => Vec::new(),
     };
-    let ds = assist_data::load(&a.path, &LoadOptions::default())
-        .with_context(|| format!("loading dataset {}", a.path.display()))?;
-    if ds.count(Split::Train) == 0 {
-        bail!("{}: the dataset has no training frames", a.path.display());
-    }
-    let views = assist_train::load_views(&ds, Split::Train, background_color(&ds))?;
-    let opts = SetupOptions {
-        boxes: user,
-        ..Default::default()
-    };
-    let list = node_boxes(&ds, &views, &scene_region(&ds, &views), &opts)?;
+    let list = assist_session::dataset_boxes(&a.path, user)
+        .with_context(|| format!("dataset {}", a.path.display()))?;
     if a.json {
         let triples: Vec<_> = list
             .iter()

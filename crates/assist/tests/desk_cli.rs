@@ -17,16 +17,7 @@ fn desk_trained_briefly() {
     let tmp = assist_testkit::TempDir::new("desk");
     let root = tmp.path().to_path_buf();
     let scene = root.join("desk.assist");
-    ok(&run(&[
-        "train",
-        s(&desk),
-        "--out",
-        s(&scene),
-        "--downscale",
-        "4",
-        "--iters",
-        "600",
-    ]));
+    common::train_quarter(&desk, &scene, 600, &[]);
     generates_on_the_table(&desk, &scene, &root);
     meshes_are_true_and_rest_in_mujoco(&scene, &root);
     a_moved_object_leaves_no_stain(&desk, &scene, &root);

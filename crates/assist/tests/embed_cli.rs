@@ -277,16 +277,7 @@ fn embed_desk_with_a_vit_b_32_sized_model() {
     let clip = root.join("vit-b-32");
     write_model(&clip, &RandomSpec::vit_b_32(), 2).unwrap();
     let scene = root.join("desk.assist");
-    ok(&run(&[
-        "train",
-        s(&desk),
-        "--out",
-        s(&scene),
-        "--downscale",
-        "4",
-        "--iters",
-        "10",
-    ]));
+    common::train_quarter(&desk, &scene, 10, &[]);
     let o = run(&["embed", s(&scene), "--clip", s(&clip), "--json"]);
     ok(&o);
     let sum: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();

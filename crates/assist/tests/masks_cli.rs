@@ -3,31 +3,13 @@
 //! binary mask gives one object; a capture without masks trains as background only and
 //! says so; a folder missing a mask is a clear error.
 
+mod common;
+
 use std::path::Path;
-use std::process::{Command, Output};
 
 use assist_testkit::TempDir;
+use common::{ok_stdout as ok, run as assist, s};
 use serde_json::Value;
-
-fn assist(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_assist"))
-        .args(args)
-        .output()
-        .expect("run assist")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-fn ok(out: &Output) -> String {
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
 
 /// A synthetic capture as a phone user brings it: images and cameras only (no instance
 /// masks, boxes or depth in transforms.json), plus the instance ids as `masks/NAME.png`.

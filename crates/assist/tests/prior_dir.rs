@@ -2,31 +2,13 @@
 //! folder is found and reported, bad folders are clear errors, and training follows the
 //! supplied prior where objects hide the background.
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 use assist_testkit::TempDir;
+use common::{ok_stdout as ok, run as assist, s};
 use serde_json::Value;
-
-fn assist(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_assist"))
-        .args(args)
-        .output()
-        .expect("run assist")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-fn ok(out: &Output) -> String {
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
 
 fn synth(tmp: &TempDir) -> PathBuf {
     let data = tmp.join("capture");

@@ -1,32 +1,14 @@
 //! `assist dataset boxes` and `assist train --boxes`: the boxes a scene is built with can be
 //! listed, edited and given back; bad box files are clear errors.
 
-use std::path::Path;
-use std::process::{Command, Output};
+mod common;
+
+use std::process::Output;
 
 use assist_core::{DMat3, DQuat, DVec3};
 use assist_testkit::TempDir;
+use common::{ok_stdout as ok, run as assist, s};
 use serde_json::{Value, json};
-
-fn assist(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_assist"))
-        .args(args)
-        .output()
-        .expect("run assist")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-fn ok(out: &Output) -> String {
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
 
 fn fails_with(out: &Output, needles: &[&str]) {
     let err = String::from_utf8_lossy(&out.stderr);

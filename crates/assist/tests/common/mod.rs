@@ -85,6 +85,12 @@ pub fn ok(out: &std::process::Output) -> String {
     err
 }
 
+/// Succeeds (or fails the test with its stderr); returns stdout.
+pub fn ok_stdout(out: &std::process::Output) -> String {
+    ok(out);
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
 /// Fails cleanly (exit 1, no panic), naming every needle; returns stderr.
 pub fn refused(out: &std::process::Output, needles: &[&str]) -> String {
     let err = String::from_utf8_lossy(&out.stderr).into_owned();
@@ -137,6 +143,24 @@ pub fn tiny_scene(root: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
         "4096",
     ]));
     (data, sc)
+}
+
+/// `assist train DATA --out OUT --downscale 4 --iters ITERS EXTRA…`, which must succeed:
+/// a shared capture trained briefly at a quarter of its size.
+pub fn train_quarter(data: &Path, out: &Path, iters: u32, extra: &[&str]) {
+    let iters = iters.to_string();
+    let mut args = vec![
+        "train",
+        s(data),
+        "--out",
+        s(out),
+        "--downscale",
+        "4",
+        "--iters",
+        &iters,
+    ];
+    args.extend_from_slice(extra);
+    ok(&run(&args));
 }
 
 /// The `info` of a scene's `scene.json` (training state, provenance).
