@@ -94,6 +94,15 @@ struct Collapse {
     quad: Vec<Quadric>,
 }
 
+/// An edge collapse that is allowed: the point both ends move to, the edge's two
+/// triangles, and each end's neighbours.
+struct Allowed {
+    at: DVec3,
+    shared: Vec<u32>,
+    nu: Vec<u32>,
+    nv: Vec<u32>,
+}
+
 impl Collapse {
     fn new(m: &NodeMesh) -> Collapse {
         let nv = m.positions.len();
@@ -186,7 +195,7 @@ impl Collapse {
 
     /// Where edge (u, v) may collapse to, with its two triangles and the ends'
     /// neighbours; None when the collapse would change the topology or fold a triangle.
-    fn allowed(&self, u: u32, v: u32) -> Option<(DVec3, Vec<u32>, Vec<u32>, Vec<u32>)> {
+    fn allowed(&self, u: u32, v: u32) -> Option<Allowed> {
         // The edge's triangles: exactly two (a closed, manifold edge).
         let shared: Vec<u32> = self.faces[u as usize]
             .iter()
@@ -210,7 +219,7 @@ impl Collapse {
         if self.folds(u, v, at, &shared) {
             return None;
         }
-        Some((at, shared, nu, nv))
+        Some(Allowed { at, shared, nu, nv })
     }
 
     /// Collapses `v` into `u` at `at`, killing the edge's triangles `shared`.
@@ -260,7 +269,7 @@ impl NodeMesh {
                 if touched[u as usize] || touched[v as usize] {
                     continue;
                 }
-                let Some((at, shared, nu, nv)) = w.allowed(u, v) else {
+                let Some(Allowed { at, shared, nu, nv }) = w.allowed(u, v) else {
                     continue;
                 };
                 // u, v and their neighbours wait for the next round.
