@@ -30,7 +30,7 @@ use assist_scene::{EditError, Editor, SceneFileError};
 pub use assist_clip as clip;
 pub use assist_core::placement::{Placement, Problem};
 pub use assist_data::Output;
-pub use assist_lang::Resolved;
+pub use assist_lang::{LlmProvider, Resolved};
 pub use assist_mesh::write::{Format as MeshFormat, mesh_ply};
 pub use assist_mesh::{
     DEFAULT_CLOSE, DEFAULT_DENSITY, DEFAULT_MAX_TRIANGLES, DEFAULT_MIN_PART, DEFAULT_OPACITY,
@@ -43,6 +43,7 @@ pub use assist_render::{DragCache, RenderOptions, render_camera};
 pub use assist_scene::scene_file;
 pub use assist_scene::{NeuralScene, NodeField};
 pub use assist_train::NodeBox;
+pub use assist_train::{StepStats, StopReason};
 pub use cameras::{
     CameraSource, MAX_ORBIT_FRAMES, NamedCamera, Orbit, SplitChoice, dataset_cameras, objects_box,
     orbit,

@@ -316,7 +316,7 @@ pub fn run(a: EditArgs) -> anyhow::Result<()> {
     let mut note = None;
     if let Some(text) = &a.text {
         if a.llm {
-            let p = assist_lang::LlmProvider::from_env()
+            let p = assist_session::LlmProvider::from_env()
                 .context("--llm: set ASSIST_LLM_URL (and ASSIST_LLM_MODEL, ASSIST_LLM_API_KEY) to an OpenAI-compatible endpoint")?;
             actions = session.ask_llm(&p, text)?;
             note = Some(format!("{text} (LLM)"));

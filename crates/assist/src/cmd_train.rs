@@ -4,8 +4,8 @@ use std::io::IsTerminal;
 use std::path::PathBuf;
 
 use anyhow::Context;
+use assist_session::StopReason;
 use assist_session::{Every, TrainConfig, TrainEvent, TrainJob};
-use assist_train::StopReason;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
@@ -153,7 +153,7 @@ impl Log {
 }
 
 /// A step as a log line: losses, PSNR, speed, learning rate and phase times.
-fn step_line(s: &assist_train::StepStats) -> serde_json::Value {
+fn step_line(s: &assist_session::StepStats) -> serde_json::Value {
     let step_s = s.phase.total();
     let phases: serde_json::Map<String, serde_json::Value> = s.phase.named()[..6]
         .iter()
@@ -358,7 +358,7 @@ impl Reporter {
     /// a line on stderr without a terminal (phases, terms and occupancy with --verbose).
     fn step(
         &mut self,
-        s: &assist_train::StepStats,
+        s: &assist_session::StepStats,
         occupancy: Option<&[(String, f64)]>,
         eta_seconds: Option<f64>,
     ) {

@@ -66,7 +66,7 @@ fn leaving_capture(before: &Scene, after: &Scene, cams: &[assist_core::Camera]) 
 /// base lies at least 3 cm below the support level the background shows around them
 /// ([`assist_core::edit::sinking_depth`]), 2 cm deeper than before the edit (a trained
 /// surface is only good to a centimetre or so).
-fn sinking(weights: &assist_scene::NeuralScene, before: &Scene, after: &Scene) -> Vec<String> {
+fn sinking(weights: &assist_session::NeuralScene, before: &Scene, after: &Scene) -> Vec<String> {
     let Some(bg) = weights.scene.nodes.iter().position(|n| n.is_background()) else {
         return Vec::new();
     };

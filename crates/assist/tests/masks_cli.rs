@@ -15,19 +15,7 @@ use serde_json::Value;
 /// masks, boxes or depth in transforms.json), plus the instance ids as `masks/NAME.png`.
 fn capture(tmp: &TempDir) -> std::path::PathBuf {
     let data = tmp.join("capture");
-    ok(&assist(&[
-        "synth",
-        "--out",
-        s(&data),
-        "--views",
-        "24",
-        "--width",
-        "64",
-        "--height",
-        "48",
-        "--objects",
-        "3",
-    ]));
+    common::synth_small(&data, 24);
     let tf_path = data.join("transforms.json");
     let mut tf: Value = serde_json::from_slice(&std::fs::read(&tf_path).unwrap()).unwrap();
     tf.as_object_mut().unwrap().remove("instances");

@@ -12,19 +12,7 @@ use serde_json::Value;
 
 fn synth(tmp: &TempDir) -> PathBuf {
     let data = tmp.join("capture");
-    ok(&assist(&[
-        "synth",
-        "--out",
-        s(&data),
-        "--views",
-        "24",
-        "--width",
-        "64",
-        "--height",
-        "48",
-        "--objects",
-        "3",
-    ]));
+    common::synth_small(&data, 24);
     data
 }
 

@@ -31,19 +31,7 @@ fn vec3(v: &Value) -> DVec3 {
 fn boxes_are_listed_carved_overridden_and_checked() {
     let tmp = TempDir::new("cli-boxes");
     let data = tmp.join("synth");
-    ok(&assist(&[
-        "synth",
-        "--out",
-        s(&data),
-        "--views",
-        "24",
-        "--width",
-        "64",
-        "--height",
-        "48",
-        "--objects",
-        "3",
-    ]));
+    common::synth_small(&data, 24);
     // The dataset's true boxes, then the same dataset without instance 2's box: its box
     // must be carved from the masks and hold the true one.
     let tf_path = data.join("transforms.json");

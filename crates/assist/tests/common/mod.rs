@@ -145,6 +145,25 @@ pub fn tiny_scene(root: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
     (data, sc)
 }
 
+/// `assist synth --out DIR --views VIEWS --width 64 --height 48 --objects 3`, which must
+/// succeed: a small synthetic capture with three objects.
+pub fn synth_small(dir: &Path, views: u32) {
+    let views = views.to_string();
+    ok(&run(&[
+        "synth",
+        "--out",
+        s(dir),
+        "--views",
+        &views,
+        "--width",
+        "64",
+        "--height",
+        "48",
+        "--objects",
+        "3",
+    ]));
+}
+
 /// `assist train DATA --out OUT --downscale 4 --iters ITERS EXTRA…`, which must succeed:
 /// a shared capture trained briefly at a quarter of its size.
 pub fn train_quarter(data: &Path, out: &Path, iters: u32, extra: &[&str]) {
