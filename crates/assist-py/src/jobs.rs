@@ -330,7 +330,7 @@ pub(crate) fn split<'py>(
     config.no_train = no_train;
     config.force = force;
     let job = SplitJob::new(config);
-    let cancel = std::sync::atomic::AtomicBool::new(false);
+    let cancel = job.cancel_handle();
     let mut relay = Relay::new(callback.as_ref(), &cancel);
     let outcome = py.detach(|| {
         job.run(|e| {

@@ -78,9 +78,12 @@ pub struct TrainOutcome {
 /// A training run to do.
 pub struct TrainJob {
     pub config: TrainConfig,
-    cancel: Arc<AtomicBool>,
+    pub(crate) cancel: Arc<AtomicBool>,
     /// A scene to train on instead of a new one, with the history it keeps (a split).
     start: Option<(NeuralScene, KeptHistory)>,
+    /// Whether the scene records `config.masks` (false for a folder deleted after the
+    /// run: a split's temporary masks).
+    pub(crate) masks_recorded: bool,
 }
 
 impl TrainJob {
@@ -89,6 +92,7 @@ impl TrainJob {
             config,
             cancel: Arc::new(AtomicBool::new(false)),
             start: None,
+            masks_recorded: true,
         }
     }
 
@@ -376,7 +380,13 @@ impl TrainJob {
                         .into(),
                 ),
                 ("dataset_fingerprint".to_string(), fingerprint.into()),
-                ("train_config".to_string(), c.record()),
+                ("train_config".to_string(), {
+                    let mut r = c.record();
+                    if !self.masks_recorded {
+                        r["masks"] = serde_json::Value::Null;
+                    }
+                    r
+                }),
             ]),
             ..Default::default()
         }

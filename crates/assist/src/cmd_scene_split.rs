@@ -24,6 +24,16 @@ pub struct SplitArgs {
 pub fn run(a: SplitArgs) -> anyhow::Result<()> {
     let masks_out = a.config.masks_out.clone();
     let job = SplitJob::new(a.config);
+    // Ctrl+C or SIGTERM: before the fine-tune, stop and write nothing; during it, save the
+    // scene fine-tuned so far. A second one quits at once.
+    let cancel = job.cancel_handle();
+    let _ = ctrlc::set_handler(move || {
+        if cancel.swap(true, std::sync::atomic::Ordering::SeqCst) {
+            eprintln!("\ninterrupted again: quitting without saving");
+            std::process::exit(130);
+        }
+        eprintln!("\ninterrupted: stopping the split (interrupt again to quit at once)");
+    });
     let show = !a.json && std::io::stderr().is_terminal();
     let text = !a.json;
     let bar = crate::progress::bar(show, "split");
@@ -67,6 +77,8 @@ pub fn run(a: SplitArgs) -> anyhow::Result<()> {
     });
     bar.finish_and_clear();
     let outcome = outcome?;
+    // Saved, but the fine-tune did not finish: scripts must not take it for a whole split.
+    let stopped = outcome.trained.as_ref().is_some_and(|t| t.report.cancelled);
     if a.json {
         let v = json!({
             "out": outcome.out,
@@ -81,6 +93,9 @@ pub fn run(a: SplitArgs) -> anyhow::Result<()> {
             "held_out": outcome.trained.as_ref().and_then(|t| t.held_out.as_ref()),
         });
         println!("{}", serde_json::to_string_pretty(&v)?);
+        if stopped {
+            std::process::exit(130);
+        }
         return Ok(());
     }
     for (b, o) in outcome.objects.iter().zip(&outcome.masks.objects) {
@@ -96,8 +111,9 @@ pub fn run(a: SplitArgs) -> anyhow::Result<()> {
     }
     match &outcome.trained {
         Some(t) => println!(
-            "fine-tuned {} steps in {:.0} s (last batch psnr {:.2}{}) -> {} (undo merges the objects back)",
+            "fine-tuned {} steps{} in {:.0} s (last batch psnr {:.2}{}) -> {} (undo merges the objects back)",
             t.report.iterations,
+            if stopped { " (interrupted)" } else { "" },
             t.report.seconds,
             t.report.final_stats.psnr,
             t.held_out
@@ -118,6 +134,9 @@ pub fn run(a: SplitArgs) -> anyhow::Result<()> {
                 .map(|m| m.display().to_string())
                 .unwrap_or_default()
         ),
+    }
+    if stopped {
+        std::process::exit(130);
     }
     Ok(())
 }

@@ -294,6 +294,8 @@ fn split_the_scene(desk: &Path, root: &Path, plain: &Path, truth: &Path, test_vi
         "held-out PSNR {before} before the split, {after} after"
     );
 
+    an_interrupted_split_keeps_what_it_fine_tuned(plain, root, mug);
+
     // Undo merges the objects back: the plain scene's nodes and background weights.
     let undone = root.join("undone.assist");
     ok(&run(&["edit", s(&out), "--undo", "1", "--out", s(&undone)]));
@@ -357,4 +359,48 @@ fn split_the_scene(desk: &Path, root: &Path, plain: &Path, truth: &Path, test_vi
         "{:?}",
         common::leftovers(root)
     );
+}
+
+/// Ctrl+C during the fine-tune: the scene fine-tuned so far is saved (exit 130, as an
+/// interrupted training run), its record names no masks (the temporary ones are gone),
+/// and nothing is left beside it.
+fn an_interrupted_split_keeps_what_it_fine_tuned(plain: &Path, root: &Path, mug: &str) {
+    use std::io::BufRead;
+    let out = root.join("stopped.assist");
+    let mut child = common::bin()
+        .args(["scene", "split", s(plain), "--out", s(&out), "--box", mug])
+        .args(["--iters", "1000000"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = std::io::BufReader::new(child.stderr.take().unwrap()).lines();
+    // Text mode without a terminal prints a fine-tune line every 10 s.
+    let mut said = Vec::new();
+    for line in lines.by_ref() {
+        let line = line.unwrap();
+        let tuning = line.starts_with("fine-tune it");
+        said.push(line);
+        if tuning {
+            break;
+        }
+    }
+    let pid = child.id().to_string();
+    let sent = std::process::Command::new("kill")
+        .args(["-INT", &pid])
+        .status();
+    assert!(sent.unwrap().success(), "{said:?}");
+    said.extend(lines.map(|l| l.unwrap()));
+    let code = child.wait().unwrap().code();
+    assert_eq!(code, Some(130), "{said:?}");
+    let info = common::scene_info(&out);
+    assert!(info["iteration"].as_u64().unwrap() > 0, "{info}");
+    assert!(info["train_config"]["masks"].is_null(), "{info}");
+    assert!(said.iter().any(|l| l.contains("(interrupted)")), "{said:?}");
+    let beside: Vec<String> = std::fs::read_dir(root)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(".stopped"))
+        .collect();
+    assert!(beside.is_empty(), "{beside:?}");
 }

@@ -9,6 +9,7 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use assist_core::{Obb, SceneNode};
 use assist_data::{LoadOptions, Split};
@@ -114,11 +115,29 @@ pub struct SplitOutcome {
 
 pub struct SplitJob {
     pub config: SplitConfig,
+    cancel: Arc<AtomicBool>,
 }
 
 impl SplitJob {
     pub fn new(config: SplitConfig) -> Self {
-        SplitJob { config }
+        SplitJob {
+            config,
+            cancel: Arc::new(AtomicBool::new(false)),
+        }
+    }
+
+    /// A handle that stops the split when set: before the fine-tune nothing is written
+    /// (the run ends with [`SessionError::Cancelled`]); during it, the scene fine-tuned
+    /// so far is saved, as a training run does.
+    pub fn cancel_handle(&self) -> Arc<AtomicBool> {
+        self.cancel.clone()
+    }
+
+    fn check_cancelled(&self) -> Result<()> {
+        if self.cancel.load(Ordering::SeqCst) {
+            return Err(SessionError::Cancelled);
+        }
+        Ok(())
     }
 
     /// Checks the outputs before any work: `out` (a scene) and `masks_out` are replaced
@@ -193,6 +212,7 @@ impl SplitJob {
                 })
             },
         )?;
+        self.check_cancelled()?;
         // The masks: kept in `masks_out`, or in a temporary folder beside `out`.
         let (masks_dir, staging) = match &c.masks_out {
             Some(m) => {
@@ -212,6 +232,7 @@ impl SplitJob {
             |p| on(SplitEvent::Masks(p)),
         )?;
         on(SplitEvent::MasksDone(masks.clone()));
+        self.check_cancelled()?;
         let masks_dir = match staging {
             Some(st) => {
                 st.commit().map_err(SessionError::Output)?;
@@ -245,7 +266,13 @@ impl SplitJob {
             kept.save(&c.out, &scene, info)?;
             None
         } else {
-            let job = TrainJob::new(record).starting_from(scene, kept);
+            self.check_cancelled()?;
+            let mut job = TrainJob::new(record).starting_from(scene, kept);
+            job.cancel = self.cancel.clone();
+            if c.masks_out.is_none() {
+                // The temporary masks are gone after the run: not recorded as its masks.
+                job.masks_recorded = false;
+            }
             Some(job.run(|e| on(SplitEvent::Train(e.clone())))?)
         };
         on(SplitEvent::Saved {
@@ -343,6 +370,7 @@ impl SplitJob {
                 label: b.label.clone(),
                 report,
             });
+            self.check_cancelled()?;
             scene.fields.insert(key, Arc::new(nf));
             scene.scene.nodes.push(node);
         }
