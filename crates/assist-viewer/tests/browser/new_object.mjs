@@ -1,6 +1,7 @@
 // New-object mode in headless chromium, on a scene trained without masks: `n` turns it
 // on; a click on an object (a projected centre given by the test) shows its proposed box
-// and mask; a name and "make the object" split it off (a short fine-tune); the node
+// and mask; its x handle moves the box and, with shift, widens it; a name and "make the
+// object" split it off (a short fine-tune); the node
 // appears in the list, selected, and its x axis handle drags it along x. Prints one JSON
 // object; exits 1 on the first failure.
 // Usage: node new_object.mjs URL SHOTS_DIR CHROMIUM CENTRES_JSON
@@ -36,6 +37,32 @@ try {
   if (await page.$eval("#proposal", (d) => d.hidden)) fail("the proposal panel is hidden");
   if (await page.$eval("#pmask", (d) => d.hidden)) fail("the proposal's mask is not shown");
   await shot("proposal");
+  // The box's handles: its x axis moves the box along x, shift+drag on it widens it; the
+  // server answers each with a new proposal (box and mask).
+  const handleDrag = async (shift) => {
+    const [before, count] = await page.evaluate(() => [window.__assist.proposal, window.__assist.proposals]);
+    const gx = (await page.evaluate(() => window.__assist.gizmo())).find((a) => a.axis === "x");
+    if (!gx) fail("no x axis handle drawn on the proposed box");
+    const len = Math.hypot(gx.tip[0] - gx.o[0], gx.tip[1] - gx.o[1]);
+    const dir = [(gx.tip[0] - gx.o[0]) / len, (gx.tip[1] - gx.o[1]) / len];
+    const hx = gx.o[0] + 0.85 * (gx.tip[0] - gx.o[0]), hy = gx.o[1] + 0.85 * (gx.tip[1] - gx.o[1]);
+    if (shift) await page.keyboard.down("Shift");
+    await page.mouse.move(hx, hy);
+    await page.mouse.down();
+    for (let k = 1; k <= 6; k++) await page.mouse.move(hx + 3 * k * dir[0], hy + 3 * k * dir[1], { steps: 1 });
+    await page.mouse.up();
+    if (shift) await page.keyboard.up("Shift");
+    await page.waitForFunction((n) => window.__assist.proposals > n || window.__assist.error, { timeout: 120000 }, count);
+    const after = await page.evaluate(() => window.__assist.proposal);
+    if (!after || (await page.evaluate(() => window.__assist.proposals)) === count) fail(`no new proposal after the handle drag: ${await page.evaluate(() => window.__assist.error)}`);
+    return { center: [0, 1, 2].map((i) => after.center[i] - before.center[i]), size: [0, 1, 2].map((i) => after.size[i] - before.size[i]) };
+  };
+  out.handle_move = await handleDrag(false);
+  const hm = out.handle_move;
+  if (!(hm.center[0] > 0.002 && Math.abs(hm.center[1]) < 1e-3 && Math.abs(hm.size[0]) < 1e-3)) fail(`the x handle changed the proposal by ${JSON.stringify(hm)}`);
+  out.handle_size = await handleDrag(true);
+  const hs = out.handle_size;
+  if (!(hs.size[0] > 0.002 && Math.abs(hs.center[0]) < 1e-3 && Math.abs(hs.size[1]) < 1e-3)) fail(`shift on the x handle changed the proposal by ${JSON.stringify(hs)}`);
   // Name it and make it (a short fine-tune).
   await page.click("#plabel");
   await page.keyboard.type("found object");
