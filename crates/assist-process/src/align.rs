@@ -160,7 +160,16 @@ pub fn align(
     })
 }
 
-/// The COLMAP point seen nearest a pixel of a frame (within 8 pixels).
+/// Pixels within which a COLMAP point is the point under a pixel.
+const SNAP_PX: f64 = 8.0;
+/// Pixels around a pixel whose COLMAP points place it when none is within [`SNAP_PX`].
+const NEAR_PX: f64 = 40.0;
+
+/// The 3D point under a pixel of a frame: the COLMAP point seen there (within
+/// [`SNAP_PX`]), else the pixel's viewing ray at the median depth of the points seen
+/// within [`NEAR_PX`] (at least three; the ray's direction interpolated from theirs, which
+/// carries the camera's intrinsics and distortion). A rerun of COLMAP triangulates other
+/// points, and a user's click rarely lands on one.
 fn known_point(
     model: &ColmapModel,
     images: &[&ColmapImage],
@@ -180,32 +189,121 @@ fn known_point(
             ))
         })?;
     let at = assist_core::DVec2::from_array(*px);
-    let nearest = image
+    let mut seen: Vec<(assist_core::DVec2, DVec3)> = image
         .points2d
         .iter()
-        .filter(|(_, id)| *id >= 0 && model.points.contains_key(&(*id as u64)))
-        .min_by(|a, b| a.0.distance(at).total_cmp(&b.0.distance(at)));
-    match nearest {
-        Some((q, id)) if q.distance(at) <= 8.0 => Ok(model.points[&(*id as u64)].xyz),
-        Some((q, _)) => Err(ProcessError::ScaleBy(format!(
-            "no COLMAP point within 8 pixels of ({}, {}) in {}: the nearest is at ({:.0}, {:.0}); pick a textured spot (the points are in {})",
+        .filter(|(_, id)| *id >= 0)
+        .filter_map(|(q, id)| Some((*q, model.points.get(&(*id as u64))?.xyz)))
+        .collect();
+    seen.sort_by(|a, b| a.0.distance(at).total_cmp(&b.0.distance(at)));
+    let Some(&(q, nearest)) = seen.first() else {
+        return Err(ProcessError::ScaleBy(format!(
+            "{} has no COLMAP points",
+            image.name
+        )));
+    };
+    if q.distance(at) <= SNAP_PX {
+        return Ok(nearest);
+    }
+    let near: Vec<_> = seen
+        .iter()
+        .take_while(|(q, _)| q.distance(at) <= NEAR_PX)
+        .copied()
+        .collect();
+    let (world_from_cam, centre) = camera(image);
+    near_ray_point(&near, at, world_from_cam, centre).ok_or_else(|| {
+        ProcessError::ScaleBy(format!(
+            "no COLMAP point within {SNAP_PX} pixels of ({}, {}) in {}, and too few within {NEAR_PX} to place it: the nearest is at ({:.0}, {:.0}); pick a textured spot (the points are in {})",
             px[0],
             px[1],
             image.name,
             q.x,
             q.y,
             model_dir.display()
-        ))),
-        None => Err(ProcessError::ScaleBy(format!(
-            "{} has no COLMAP points",
-            image.name
-        ))),
+        ))
+    })
+}
+
+/// The point on pixel `at`'s viewing ray at the median depth of the points `near` (their
+/// pixels and world positions): the ray's direction in the camera, as (x/z, y/z), is
+/// fitted as an affine function of the pixel over them by least squares. None with fewer
+/// than three points or when they lie on a line in the image.
+fn near_ray_point(
+    near: &[(assist_core::DVec2, DVec3)],
+    at: assist_core::DVec2,
+    world_from_cam: DMat3,
+    centre: DVec3,
+) -> Option<DVec3> {
+    if near.len() < 3 {
+        return None;
     }
+    let cam_from_world = world_from_cam.transpose();
+    let local: Vec<(assist_core::DVec2, DVec3)> = near
+        .iter()
+        .map(|(q, x)| (*q - at, cam_from_world * (*x - centre)))
+        .filter(|(_, c)| c.z > 0.0)
+        .collect();
+    if local.len() < 3 {
+        return None;
+    }
+    // Normal equations of [u v 1]·w = x/z (and y/z), pixels relative to `at`: the fitted
+    // value at `at` is the constant term.
+    let mut m = DMat3::ZERO;
+    let (mut bx, mut by) = (DVec3::ZERO, DVec3::ZERO);
+    for (d, c) in &local {
+        let row = DVec3::new(d.x, d.y, 1.0);
+        m += DMat3::from_cols(row * row.x, row * row.y, row * row.z);
+        bx += row * (c.x / c.z);
+        by += row * (c.y / c.z);
+    }
+    if m.determinant().abs() < 1e-9 * m.x_axis.x.max(1.0) * m.y_axis.y.max(1.0) {
+        return None;
+    }
+    let inv = m.inverse();
+    let (dx, dy) = ((inv * bx).z, (inv * by).z);
+    let mut depths: Vec<f64> = local.iter().map(|(_, c)| c.z).collect();
+    depths.sort_by(f64::total_cmp);
+    let z = depths[depths.len() / 2];
+    Some(centre + world_from_cam * DVec3::new(dx * z, dy * z, z))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A pixel with no COLMAP point under it is placed on its ray at the depth of the
+    /// points around it: exact for a pinhole camera facing a plane.
+    #[test]
+    fn a_pixel_between_points_lands_on_their_surface() {
+        let (f, cx, cy) = (500.0, 320.0, 240.0);
+        let world_from_cam = DMat3::from_quat(DQuat::from_rotation_y(0.3));
+        let centre = DVec3::new(0.5, -0.2, 1.0);
+        // Points of the plane z = 2 in front of the camera, seen at these pixels.
+        let on_plane = |u: f64, v: f64| {
+            let c = DVec3::new((u - cx) / f * 2.0, (v - cy) / f * 2.0, 2.0);
+            centre + world_from_cam * c
+        };
+        let pixels = [
+            (280.0, 200.0),
+            (350.0, 210.0),
+            (300.0, 270.0),
+            (345.0, 262.0),
+        ];
+        let near: Vec<_> = pixels
+            .iter()
+            .map(|&(u, v)| (assist_core::DVec2::new(u, v), on_plane(u, v)))
+            .collect();
+        let at = assist_core::DVec2::new(321.0, 236.0);
+        let p = near_ray_point(&near, at, world_from_cam, centre).unwrap();
+        assert!(p.distance(on_plane(321.0, 236.0)) < 1e-9, "{p}");
+        // Two points do not place it; nor do three on a line.
+        assert!(near_ray_point(&near[..2], at, world_from_cam, centre).is_none());
+        let line: Vec<_> = [(280.0, 200.0), (300.0, 220.0), (320.0, 240.0)]
+            .iter()
+            .map(|&(u, v)| (assist_core::DVec2::new(u, v), on_plane(u, v)))
+            .collect();
+        assert!(near_ray_point(&line, at, world_from_cam, centre).is_none());
+    }
 
     #[test]
     fn a_known_distance_parses_with_its_unit() {
