@@ -209,8 +209,17 @@ pub fn box_at_click(
         .collect();
     let mut obb = upright_box(&first, up, support);
     // An object is much smaller than the surface it stands on; a region as wide is that
-    // surface (its field not quite flat) or a wall.
-    let surface_points: Vec<DVec3> = surface.iter().filter_map(|&i| pts.at[i]).collect();
+    // surface (its field not quite flat) or a wall. The surface is all the view sees at
+    // the support's height, connected to the click or not: a floor seen at a grazing
+    // angle breaks into pieces the growth does not cross.
+    let surface_points: Vec<DVec3> = pts
+        .at
+        .iter()
+        .flatten()
+        .filter(|p| (p.dot(up) - support).abs() <= 2.0 * bin)
+        .copied()
+        .chain(surface.iter().filter_map(|&i| pts.at[i]))
+        .collect();
     let wide = |b: &Obb| b.size().x.max(b.size().y);
     if wide(&obb) > MAX_SHARE_OF_SURFACE * wide(&upright_box(&surface_points, up, support)) {
         return Err(nothing_there(
