@@ -399,7 +399,11 @@ fn an_interrupted_split_keeps_what_it_fine_tuned(plain: &Path, root: &Path, mug:
     let info = common::scene_info(&out);
     assert!(info["iteration"].as_u64().unwrap() > 0, "{info}");
     assert!(info["train_config"]["masks"].is_null(), "{info}");
-    assert!(said.iter().any(|l| l.contains("(interrupted)")), "{said:?}");
+    assert!(
+        said.iter()
+            .any(|l| l.contains("interrupted: stopping the split")),
+        "{said:?}"
+    );
     let beside: Vec<String> = std::fs::read_dir(root)
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
