@@ -126,9 +126,10 @@ impl SplitJob {
         }
     }
 
-    /// A handle that stops the split when set: before the fine-tune nothing is written
-    /// (the run ends with [`SessionError::Cancelled`]); during it, the scene fine-tuned
-    /// so far is saved, as a training run does.
+    /// A handle that stops the split when set: before the fine-tune no scene is written
+    /// (the run ends with [`SessionError::Cancelled`]; `masks_out` stays only once its
+    /// masks are complete); during it, the scene fine-tuned so far is saved, as a
+    /// training run does.
     pub fn cancel_handle(&self) -> Arc<AtomicBool> {
         self.cancel.clone()
     }
