@@ -116,17 +116,27 @@ fn grow(pts: &Points, cam: &Camera, seed: usize, keep: impl Fn(DVec3) -> bool) -
 }
 
 /// The height of the support under the click: the middle of the fullest layer (bins of
-/// `bin`) of the connected surface's heights below the clicked point's.
-fn support_height(heights: &[f64], clicked: f64, bin: f64) -> Option<f64> {
+/// `bin`) of the connected surface's heights below the clicked point's, when that layer
+/// holds at least `share` of them (a floor or table top seen around the object; an
+/// object's own side spreads evenly over its layers).
+fn support_height(heights: &[f64], clicked: f64, bin: f64, share: f64) -> Option<f64> {
     let mut count: HashMap<i64, usize> = HashMap::new();
+    let mut total = 0usize;
     for &h in heights.iter().filter(|&&h| h < clicked - 2.0 * bin) {
         *count.entry((h / bin).floor() as i64).or_default() += 1;
+        total += 1;
     }
     count
         .into_iter()
         .max_by_key(|&(k, n)| (n, -k))
+        .filter(|&(_, n)| n as f64 >= share * total as f64)
         .map(|(k, _)| (k as f64 + 0.5) * bin)
 }
+
+/// The share of the surface below a click its support's layer must hold. Below it the
+/// support is taken as unseen (a reflective or untextured floor the field put elsewhere)
+/// and the object's base is its lowest point.
+pub const SUPPORT_SHARE: f64 = 0.1;
 
 /// The box of the object under pixel `(u, v)` of `camera` (pixels of the camera's own
 /// size), fused over `others` (the capture's views).
@@ -181,21 +191,22 @@ pub fn box_at_click(
     let h0 = p0.dot(up);
     // On the connected surface's fullest layer (a table top, a floor): what objects
     // stand on, not an object.
-    if support_height(&heights, f64::INFINITY, bin).is_some_and(|d| (h0 - d).abs() < bin) {
+    if support_height(&heights, f64::INFINITY, bin, 0.0).is_some_and(|d| (h0 - d).abs() < bin) {
         return Err(nothing_there(
             u,
             v,
             "the click is on the surface objects stand on: click an object",
         ));
     }
-    let Some(support) = support_height(&heights, h0, bin) else {
+    let support = support_height(&heights, h0, bin, SUPPORT_SHARE);
+    if heights.iter().all(|&h| h >= h0 - 2.0 * bin) {
         return Err(nothing_there(
             u,
             v,
             "nothing below the clicked surface: click an object standing on something",
         ));
-    };
-    let floor = support + 2.0 * bin;
+    }
+    let floor = support.map_or(f64::NEG_INFINITY, |s| s + 2.0 * bin);
     if h0 <= floor {
         return Err(nothing_there(
             u,
@@ -211,12 +222,13 @@ pub fn box_at_click(
     // An object is much smaller than the surface it stands on; a region as wide is that
     // surface (its field not quite flat) or a wall. The surface is all the view sees at
     // the support's height, connected to the click or not: a floor seen at a grazing
-    // angle breaks into pieces the growth does not cross.
+    // angle breaks into pieces the growth does not cross. With no support seen, it is
+    // all the view sees.
     let surface_points: Vec<DVec3> = pts
         .at
         .iter()
         .flatten()
-        .filter(|p| (p.dot(up) - support).abs() <= 2.0 * bin)
+        .filter(|p| support.is_none_or(|s| (p.dot(up) - s).abs() <= 2.0 * bin))
         .copied()
         .chain(surface.iter().filter_map(|&i| pts.at[i]))
         .collect();
@@ -228,37 +240,65 @@ pub fn box_at_click(
             "the region there is about as wide as the surface under it (the surface itself, not an object on it)",
         ));
     }
-    // Two rounds: the other views' points in the box grown, the component through the
-    // click kept, the box fitted again.
-    for _ in 0..2 {
+    // Rounds until the box holds still: the other views' points in the box grown by
+    // half, the component through the click kept, the box fitted again. A noisy field
+    // breaks the clicked view's region into pieces; each round reaches further along
+    // the object. Views are rendered once and reused across rounds.
+    let mut rendered: HashMap<usize, Points> = HashMap::new();
+    // Voxels a few points across at the click's distance, finer for large objects; sized
+    // once, from the clicked view's region (voxels growing with the box would bridge
+    // the fog around a noisy object).
+    let cell = (obb.size().max_element() / 24.0).max(2.0 * bin);
+    for _ in 0..MAX_ROUNDS {
         let grown = Obb {
-            half_size: obb.half_size * DVec3::new(1.5, 1.5, 1.5),
+            half_size: obb.half_size * 1.5,
             ..obb
         };
-        let mut cloud = first.clone();
-        for c in spread(others, obb.center, opts.views) {
-            let (_, p) = render_points(session, &c, opts.render_downscale as f64)?;
+        // Points tagged with the view that saw them: the clicked view is 0.
+        let mut cloud: Vec<(DVec3, usize)> = first.iter().map(|p| (*p, 0)).collect();
+        let chosen = spread(others, obb.center, opts.views);
+        for &k in &chosen {
+            if !rendered.contains_key(&k) {
+                let (_, p) = render_points(session, &others[k], opts.render_downscale as f64)?;
+                rendered.insert(k, p);
+            }
             cloud.extend(
-                p.at.iter()
+                rendered[&k]
+                    .at
+                    .iter()
                     .flatten()
-                    .filter(|q| grown.contains(**q, 0.0) && q.dot(up) > floor),
+                    .filter(|q| grown.contains(**q, 0.0) && q.dot(up) > floor)
+                    .map(|q| (*q, k + 1)),
             );
         }
-        // Voxels a few points across at the click's distance, finer for large objects.
-        let cell = (obb.size().max_element() / 24.0).max(2.0 * bin);
-        let kept = component_through(&cloud, p0, cell);
-        obb = upright_box(&kept, up, support);
+        let min_views = MIN_VOXEL_VIEWS.min(chosen.len() + 1);
+        let kept = component_through(&cloud, p0, cell, min_views);
+        let next = upright_box(&kept, up, support);
+        let moved = (next.center - obb.center).abs().max_element()
+            + (next.half_size - obb.half_size).abs().max_element();
+        obb = next;
+        if moved < cell {
+            break;
+        }
     }
-    // A margin of two voxels around the sides and over the top: the masks decide what
-    // in the box is the object; a box cut at its trimmed edge would lose them.
-    let margin = 2.0 * (obb.size().max_element() / 24.0).max(2.0 * bin);
+    // A margin of two voxels around the sides and over the top (and under the base when
+    // no support was seen): the masks decide what in the box is the object; a box cut at
+    // its trimmed edge would lose them.
+    let margin = 2.0 * cell;
     let axis_up = obb.rotation.col(2);
+    let (lift, below) = match support {
+        Some(_) => (margin / 2.0, 0.0),
+        None => (0.0, margin / 2.0),
+    };
     Ok(Obb {
-        center: obb.center + axis_up * (margin / 2.0),
-        half_size: obb.half_size + DVec3::new(margin, margin, margin / 2.0),
+        center: obb.center + axis_up * lift,
+        half_size: obb.half_size + DVec3::new(margin, margin, margin / 2.0 + below),
         ..obb
     })
 }
+
+/// The most rounds of fusing other views into a click's box.
+pub const MAX_ROUNDS: usize = 5;
 
 fn nothing_there(u: f64, v: f64, why: &str) -> SessionError {
     request("click", format!("no object at ({u}, {v}): {why}"))
@@ -268,12 +308,13 @@ fn nothing_there(u: f64, v: f64, why: &str) -> SessionError {
 /// view).
 pub const MAX_SHARE_OF_SURFACE: f64 = 0.5;
 
-/// Up to `n` of `cams` that look at `target` from in front, spread over the directions
-/// they see it from (farthest-point order, starting anywhere).
-fn spread(cams: &[Camera], target: DVec3, n: usize) -> Vec<Camera> {
-    let seeing: Vec<(Camera, DVec3)> = cams
+/// Up to `n` of `cams` (their indices) that look at `target` from in front, spread over
+/// the directions they see it from (farthest-point order, starting anywhere).
+fn spread(cams: &[Camera], target: DVec3, n: usize) -> Vec<usize> {
+    let seeing: Vec<(usize, DVec3)> = cams
         .iter()
-        .filter(|c| {
+        .enumerate()
+        .filter(|(_, c)| {
             c.project(target).is_some_and(|(px, z)| {
                 z > 0.0
                     && px.x >= 0.0
@@ -282,7 +323,7 @@ fn spread(cams: &[Camera], target: DVec3, n: usize) -> Vec<Camera> {
                     && px.y < c.height() as f64
             })
         })
-        .map(|c| (*c, (c.pose.center() - target).normalize()))
+        .map(|(k, c)| (k, (c.pose.center() - target).normalize()))
         .collect();
     let mut chosen: Vec<usize> = Vec::new();
     let mut best = vec![f64::INFINITY; seeing.len()];
@@ -302,16 +343,27 @@ fn spread(cams: &[Camera], target: DVec3, n: usize) -> Vec<Camera> {
     chosen.into_iter().map(|k| seeing[k].0).collect()
 }
 
-/// The points of `cloud` in the 26-connected voxel component (voxels of `cell`) holding
-/// the voxel nearest `seed`; voxels of fewer than [`MIN_VOXEL_POINTS`] points (stray
-/// samples of fog) neither count nor connect.
-fn component_through(cloud: &[DVec3], seed: DVec3, cell: f64) -> Vec<DVec3> {
+/// The points of `cloud` (each with the view that saw it) in the 26-connected voxel
+/// component (voxels of `cell`) holding the voxel nearest `seed`; voxels of fewer than
+/// [`MIN_VOXEL_POINTS`] points, or seen by fewer than `min_views` views, neither count
+/// nor connect: a surface is where the views agree, fog is where one view alone puts it.
+fn component_through(
+    cloud: &[(DVec3, usize)],
+    seed: DVec3,
+    cell: f64,
+    min_views: usize,
+) -> Vec<DVec3> {
     let key = |p: DVec3| (p / cell).floor().as_i64vec3().to_array();
     let mut voxels: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
-    for (i, p) in cloud.iter().enumerate() {
+    for (i, (p, _)) in cloud.iter().enumerate() {
         voxels.entry(key(*p)).or_default().push(i);
     }
-    voxels.retain(|_, v| v.len() >= MIN_VOXEL_POINTS);
+    voxels.retain(|_, v| {
+        let mut views: Vec<usize> = v.iter().map(|&i| cloud[i].1).collect();
+        views.sort_unstable();
+        views.dedup();
+        v.len() >= MIN_VOXEL_POINTS && views.len() >= min_views
+    });
     let Some(start) = voxels
         .keys()
         .min_by(|a, b| {
@@ -328,7 +380,7 @@ fn component_through(cloud: &[DVec3], seed: DVec3, cell: f64) -> Vec<DVec3> {
     let mut queue = VecDeque::from([start]);
     let mut out = Vec::new();
     while let Some(k) = queue.pop_front() {
-        out.extend(voxels[&k].iter().map(|&i| cloud[i]));
+        out.extend(voxels[&k].iter().map(|&i| cloud[i].0));
         for dz in -1..=1 {
             for dy in -1..=1 {
                 for dx in -1..=1 {
@@ -346,13 +398,17 @@ fn component_through(cloud: &[DVec3], seed: DVec3, cell: f64) -> Vec<DVec3> {
 /// Points a voxel needs to be part of an object.
 pub const MIN_VOXEL_POINTS: usize = 3;
 
+/// Views that must see a surface in a voxel for it to be part of an object (fewer when
+/// fewer views are fused).
+pub const MIN_VOXEL_VIEWS: usize = 3;
+
 /// The share of the points left out at each end of each axis when boxing them (stray
 /// points do not stretch the box).
 pub const TRIM: f64 = 0.005;
 
 /// The smallest upright box (yaw in 2° steps) around `pts` (all but [`TRIM`] at each end
-/// of each axis), its base on the support.
-fn upright_box(pts: &[DVec3], up: DVec3, support: f64) -> Obb {
+/// of each axis), its base on the support (or at its lowest points when none was seen).
+fn upright_box(pts: &[DVec3], up: DVec3, support: Option<f64>) -> Obb {
     let [a, b] = assist_mesh::sim::horizontal_axes(up);
     let mut best: Option<(f64, Obb)> = None;
     let range = |mut v: Vec<f64>| -> (f64, f64) {
@@ -368,8 +424,8 @@ fn upright_box(pts: &[DVec3], up: DVec3, support: f64) -> Obb {
         let (x, y) = (a * yaw.cos() + b * yaw.sin(), b * yaw.cos() - a * yaw.sin());
         let (x0, x1) = range(pts.iter().map(|p| p.dot(x)).collect());
         let (y0, y1) = range(pts.iter().map(|p| p.dot(y)).collect());
-        let (_, z1) = range(pts.iter().map(|p| p.dot(up)).collect());
-        let lo = DVec3::new(x0, y0, support);
+        let (z0, z1) = range(pts.iter().map(|p| p.dot(up)).collect());
+        let lo = DVec3::new(x0, y0, support.unwrap_or(z0));
         let hi = DVec3::new(x1, y1, z1);
         let area = (hi.x - lo.x) * (hi.y - lo.y);
         if best.as_ref().is_none_or(|(b, _)| area < *b) {
@@ -392,22 +448,36 @@ mod tests {
         let mut h = vec![0.75; 500];
         h.extend(vec![0.9; 200]);
         h.extend((0..100).map(|k| 0.75 + 0.15 * k as f64 / 100.0));
-        let s = support_height(&h, 0.85, 0.005).unwrap();
+        let s = support_height(&h, 0.85, 0.005, SUPPORT_SHARE).unwrap();
         assert!((s - 0.7525).abs() < 0.0026, "{s}");
-        assert_eq!(support_height(&[0.9, 0.95], 0.85, 0.005), None);
+        assert_eq!(support_height(&[0.9, 0.95], 0.85, 0.005, 0.0), None);
+        // An object's side alone (no floor seen under it): no layer stands out.
+        let side: Vec<f64> = (0..1000).map(|k| 0.5 + 0.3 * k as f64 / 1000.0).collect();
+        assert_eq!(support_height(&side, 0.85, 0.005, SUPPORT_SHARE), None);
+        assert!(support_height(&side, 0.85, 0.005, 0.0).is_some());
     }
 
     #[test]
     fn voxel_components_split_what_is_apart() {
         // Two dense runs of points 0.4 apart, and a lone point between them.
-        let mut cloud: Vec<DVec3> = (0..40)
-            .map(|k| DVec3::new(k as f64 * 0.0025, 0.0, 0.0))
+        // Two dense runs of points 0.4 apart, seen by views 0–3, and a lone point between
+        // them; then a dense run between them seen by one view only (fog).
+        let mut cloud: Vec<(DVec3, usize)> = (0..40)
+            .map(|k| (DVec3::new(k as f64 * 0.0025, 0.0, 0.0), k % 4))
             .collect();
-        cloud.extend((0..40).map(|k| DVec3::new(0.5 + k as f64 * 0.0025, 0.0, 0.0)));
-        cloud.push(DVec3::new(0.3, 0.0, 0.0));
-        let got = component_through(&cloud, DVec3::new(0.02, 0.0, 0.0), 0.015);
+        cloud.extend((0..40).map(|k| (DVec3::new(0.5 + k as f64 * 0.0025, 0.0, 0.0), k % 4)));
+        cloud.push((DVec3::new(0.3, 0.0, 0.0), 1));
+        let got = component_through(&cloud, DVec3::new(0.02, 0.0, 0.0), 0.015, 3);
         assert_eq!(got.len(), 40);
         assert!(got.iter().all(|p| p.x < 0.2));
+        cloud.extend((0..200).map(|k| (DVec3::new(0.1 + k as f64 * 0.002, 0.0, 0.0), 2)));
+        let bridged = component_through(&cloud, DVec3::new(0.02, 0.0, 0.0), 0.015, 1);
+        assert!(
+            bridged.iter().any(|p| p.x > 0.45),
+            "one view's fog bridges the gap"
+        );
+        let got = component_through(&cloud, DVec3::new(0.02, 0.0, 0.0), 0.015, 3);
+        assert!(got.iter().all(|p| p.x < 0.2), "unless views must agree");
     }
 
     #[test]
@@ -427,7 +497,7 @@ mod tests {
         ] {
             pts.push(x * 0.1 * i + y * 0.05 * j + DVec3::new(1.0, 2.0, z));
         }
-        let b = upright_box(&pts, DVec3::Z, 0.0);
+        let b = upright_box(&pts, DVec3::Z, Some(0.0));
         let s = b.size();
         let (long, short) = (s.x.max(s.y), s.x.min(s.y));
         assert!(
@@ -439,6 +509,11 @@ mod tests {
             (b.center - DVec3::new(1.0, 2.0, 0.15)).length() < 1e-6,
             "{}",
             b.center
+        );
+        let free = upright_box(&pts, DVec3::Z, None);
+        assert!(
+            (free.size().z - 0.2).abs() < 1e-9,
+            "from the lowest point: {s}"
         );
     }
 }
