@@ -258,13 +258,14 @@ pub fn box_at_click(
         let mut cloud: Vec<(DVec3, usize)> = first.iter().map(|p| (*p, 0)).collect();
         let chosen = spread(others, obb.center, opts.views);
         for &k in &chosen {
-            if !rendered.contains_key(&k) {
-                let (_, p) = render_points(session, &others[k], opts.render_downscale as f64)?;
-                rendered.insert(k, p);
-            }
+            let seen = match rendered.entry(k) {
+                std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+                std::collections::hash_map::Entry::Vacant(e) => {
+                    e.insert(render_points(session, &others[k], opts.render_downscale as f64)?.1)
+                }
+            };
             cloud.extend(
-                rendered[&k]
-                    .at
+                seen.at
                     .iter()
                     .flatten()
                     .filter(|q| grown.contains(**q, 0.0) && q.dot(up) > floor)
