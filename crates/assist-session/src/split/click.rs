@@ -218,7 +218,7 @@ pub fn box_at_click(
         .into_iter()
         .filter_map(|i| pts.at[i])
         .collect();
-    let mut obb = upright_box(&first, up, support);
+    let obb = upright_box(&first, up, support);
     // An object is much smaller than the surface it stands on; a region as wide is that
     // surface (its field not quite flat) or a wall. The surface is all the view sees at
     // the support's height, connected to the click or not: a floor seen at a grazing
@@ -240,48 +240,18 @@ pub fn box_at_click(
             "the region there is about as wide as the surface under it (the surface itself, not an object on it)",
         ));
     }
-    // Rounds until the box holds still: the other views' points in the box grown by
-    // half, the component through the click kept, the box fitted again. A noisy field
-    // breaks the clicked view's region into pieces; each round reaches further along
-    // the object. Views are rendered once and reused across rounds.
-    let mut rendered: HashMap<usize, Points> = HashMap::new();
     // Voxels a few points across at the click's distance, finer for large objects; sized
     // once, from the clicked view's region (voxels growing with the box would bridge
     // the fog around a noisy object).
     let cell = (obb.size().max_element() / 24.0).max(2.0 * bin);
-    for _ in 0..MAX_ROUNDS {
-        let grown = Obb {
-            half_size: obb.half_size * 1.5,
-            ..obb
-        };
-        // Points tagged with the view that saw them: the clicked view is 0.
-        let mut cloud: Vec<(DVec3, usize)> = first.iter().map(|p| (*p, 0)).collect();
-        let chosen = spread(others, obb.center, opts.views);
-        for &k in &chosen {
-            let seen = match rendered.entry(k) {
-                std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
-                std::collections::hash_map::Entry::Vacant(e) => {
-                    e.insert(render_points(session, &others[k], opts.render_downscale as f64)?.1)
-                }
-            };
-            cloud.extend(
-                seen.at
-                    .iter()
-                    .flatten()
-                    .filter(|q| grown.contains(**q, 0.0) && q.dot(up) > floor)
-                    .map(|q| (*q, k + 1)),
-            );
-        }
-        let min_views = MIN_VOXEL_VIEWS.min(chosen.len() + 1);
-        let kept = component_through(&cloud, p0, cell, min_views);
-        let next = upright_box(&kept, up, support);
-        let moved = (next.center - obb.center).abs().max_element()
-            + (next.half_size - obb.half_size).abs().max_element();
-        obb = next;
-        if moved < cell {
-            break;
-        }
-    }
+    let clicked = Clicked {
+        first: &first,
+        p0,
+        up,
+        floor,
+        support,
+    };
+    let obb = fuse(session, others, opts, &clicked, obb, cell)?;
     // A margin of two voxels around the sides and over the top (and under the base when
     // no support was seen): the masks decide what in the box is the object; a box cut at
     // its trimmed edge would lose them.
@@ -296,6 +266,65 @@ pub fn box_at_click(
         half_size: obb.half_size + DVec3::new(margin, margin, margin / 2.0 + below),
         ..obb
     })
+}
+
+/// What the clicked view found: its region's points, the clicked point, the scene's up,
+/// the height objects start above (−∞ without a support) and the support's height.
+struct Clicked<'a> {
+    first: &'a [DVec3],
+    p0: DVec3,
+    up: DVec3,
+    floor: f64,
+    support: Option<f64>,
+}
+
+/// Rounds until the box holds still: the other views' points in the box grown by half,
+/// the component through the click kept (voxels of `cell`), the box fitted again. A noisy
+/// field breaks the clicked view's region into pieces; each round reaches further along
+/// the object. Views are rendered once and reused across rounds.
+fn fuse(
+    session: &Session,
+    others: &[Camera],
+    opts: &ClickOptions,
+    c: &Clicked,
+    mut obb: Obb,
+    cell: f64,
+) -> Result<Obb> {
+    let mut rendered: HashMap<usize, Points> = HashMap::new();
+    for _ in 0..MAX_ROUNDS {
+        let grown = Obb {
+            half_size: obb.half_size * 1.5,
+            ..obb
+        };
+        // Points tagged with the view that saw them: the clicked view is 0.
+        let mut cloud: Vec<(DVec3, usize)> = c.first.iter().map(|p| (*p, 0)).collect();
+        let chosen = spread(others, obb.center, opts.views);
+        for &k in &chosen {
+            let seen = match rendered.entry(k) {
+                std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+                std::collections::hash_map::Entry::Vacant(e) => {
+                    e.insert(render_points(session, &others[k], opts.render_downscale as f64)?.1)
+                }
+            };
+            cloud.extend(
+                seen.at
+                    .iter()
+                    .flatten()
+                    .filter(|q| grown.contains(**q, 0.0) && q.dot(c.up) > c.floor)
+                    .map(|q| (*q, k + 1)),
+            );
+        }
+        let min_views = MIN_VOXEL_VIEWS.min(chosen.len() + 1);
+        let kept = component_through(&cloud, c.p0, cell, min_views);
+        let next = upright_box(&kept, c.up, c.support);
+        let moved = (next.center - obb.center).abs().max_element()
+            + (next.half_size - obb.half_size).abs().max_element();
+        obb = next;
+        if moved < cell {
+            break;
+        }
+    }
+    Ok(obb)
 }
 
 /// The most rounds of fusing other views into a click's box.
