@@ -391,12 +391,15 @@ async fn client(mut socket: WebSocket, app: Arc<App>) {
     let data = app.data.clone();
     let gone = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     let worker_gone = gone.clone();
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let worker_stop = stop.clone();
     let worker = std::thread::Builder::new()
         .name("assist-view-client".into())
         .spawn(move || {
             worker::Worker::new(session, &scene, others)
                 .with_disk_stamp(stamp)
                 .with_gone_flag(worker_gone)
+                .with_stop_flag(worker_stop)
                 .with_data(data)
                 .run(in_rx, |o| out_tx.send(o).is_ok())
         });
@@ -449,6 +452,10 @@ async fn client(mut socket: WebSocket, app: Arc<App>) {
                 }
                 match protocol::parse_client(&text) {
                     Ok(m) => {
+                        // A stop acts at once: the worker may be busy with the split.
+                        if m == ClientMsg::Stop {
+                            stop.store(true, std::sync::atomic::Ordering::SeqCst);
+                        }
                         if in_tx.send(m).is_err() { break }
                     }
                     Err(message) => {
@@ -468,4 +475,5 @@ async fn client(mut socket: WebSocket, app: Arc<App>) {
     }
     // Dropping `in_tx` ends the worker; the flag stops a frame it is rendering.
     gone.store(true, std::sync::atomic::Ordering::Relaxed);
+    stop.store(true, std::sync::atomic::Ordering::SeqCst);
 }

@@ -160,6 +160,10 @@ pub enum ClientMsg {
         #[serde(default = "default_split_iters")]
         iters: usize,
     },
+    /// Stop a new object's split under way: before its fine-tune nothing is written;
+    /// during it, the scene fine-tuned so far is written and opened. Handled as soon as
+    /// it arrives, not after the split.
+    Stop,
     Undo,
     Redo,
     Output {
@@ -277,7 +281,7 @@ fn default_split_iters() -> usize {
 }
 
 /// The client messages that carry nothing but their type.
-const NO_FIELDS: &[&str] = &["delete", "replicate", "undo", "redo", "save_view"];
+const NO_FIELDS: &[&str] = &["delete", "replicate", "stop", "undo", "redo", "save_view"];
 
 /// Reads one client message: size, JSON, known type and fields, then values.
 pub fn parse_client(text: &str) -> Result<ClientMsg, String> {
@@ -406,6 +410,9 @@ mod tests {
             parse_client(r#"{"type":"undo"}"#),
             Ok(ClientMsg::Undo)
         ));
+        assert_eq!(parse_client(r#"{"type":"stop"}"#), Ok(ClientMsg::Stop));
+        let e = parse_client(r#"{"type":"stop","now":true}"#).unwrap_err();
+        assert!(e.contains("takes no fields"), "{e}");
         let e = parse_client(r#"{"type":"fly"}"#).unwrap_err();
         assert!(e.contains("unknown variant"), "{e}");
         let e = parse_client(&view_json(r#","extra":1"#)).unwrap_err();

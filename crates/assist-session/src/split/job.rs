@@ -134,6 +134,13 @@ impl SplitJob {
         self.cancel.clone()
     }
 
+    /// The job stopped by `flag` instead of its own handle (a front end's stop flag,
+    /// shared with what it watches).
+    pub fn with_cancel(mut self, flag: Arc<AtomicBool>) -> Self {
+        self.cancel = flag;
+        self
+    }
+
     fn check_cancelled(&self) -> Result<()> {
         if self.cancel.load(Ordering::SeqCst) {
             return Err(SessionError::Cancelled);

@@ -273,6 +273,12 @@ impl Worker {
         self
     }
 
+    /// The flag the socket sets on `stop`: a split under way stops.
+    pub fn with_stop_flag(mut self, stop: std::sync::Arc<std::sync::atomic::AtomicBool>) -> Self {
+        self.stop = stop;
+        self
+    }
+
     pub fn with_gone_flag(mut self, gone: std::sync::Arc<std::sync::atomic::AtomicBool>) -> Self {
         self.gone = Some(gone);
         self

@@ -181,6 +181,9 @@ pub struct Worker {
     gone: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
     /// The dataset the viewer was given (`--data`), for new objects.
     data: Option<PathBuf>,
+    /// Set by the socket when the client sends `stop` (or leaves): a split under way
+    /// stops. Cleared when the split ends and when the worker reads the `stop` itself.
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
 }
 
 /// A digest of a scene's `scene.json` (`None` when it cannot be read).
@@ -208,6 +211,7 @@ impl Worker {
             disk: None,
             gone: None,
             data: None,
+            stop: Default::default(),
         }
     }
 
@@ -346,6 +350,12 @@ impl Worker {
                 label,
                 iters,
             } => self.make_object((center, size, yaw), &label, iters, send),
+            ClientMsg::Stop => {
+                // Read after the split it stopped (or with none under way): cleared so
+                // that the next split starts.
+                self.stop.store(false, std::sync::atomic::Ordering::SeqCst);
+                Ok(Changed::NOTHING)
+            }
             ClientMsg::Undo => Ok(if self.session.undo() {
                 self.log.push("undo".into());
                 Changed::ALL

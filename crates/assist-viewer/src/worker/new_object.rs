@@ -140,38 +140,47 @@ impl Worker {
         let mut config = SplitConfig::new(self.scene_path.clone(), out.clone(), objects);
         config.data = Some(data);
         config.iters = iters;
-        let job = SplitJob::new(config);
+        let job = SplitJob::new(config).with_cancel(self.stop.clone());
         let progress = |task: &str, done: f64| {
             send(Outgoing::Json(ServerMsg::Progress {
                 task: task.to_string(),
                 done,
             }));
         };
-        let outcome = job
-            .run_on(&self.session, |e| match e {
-                SplitEvent::Masks(assist_session::split::MaskProgress::Rendering {
-                    done,
-                    total,
-                }) => progress("rendering views", done as f64 / total.max(1) as f64),
-                SplitEvent::Masks(assist_session::split::MaskProgress::Refining {
-                    done,
-                    total,
-                }) => progress("masks", done as f64 / total.max(1) as f64),
-                SplitEvent::Distilled { .. } => progress("field from the background", 1.0),
-                SplitEvent::Train(assist_session::TrainEvent::Step { stats, .. }) => {
-                    progress("fine-tune", stats.progress)
-                }
-                _ => {}
-            })
-            .map_err(Refused::from)?;
+        let outcome = job.run_on(&self.session, |e| match e {
+            SplitEvent::Masks(assist_session::split::MaskProgress::Rendering { done, total }) => {
+                progress("rendering views", done as f64 / total.max(1) as f64)
+            }
+            SplitEvent::Masks(assist_session::split::MaskProgress::Refining { done, total }) => {
+                progress("masks", done as f64 / total.max(1) as f64)
+            }
+            SplitEvent::Distilled { .. } => progress("field from the background", 1.0),
+            SplitEvent::Train(assist_session::TrainEvent::Step { stats, .. }) => {
+                progress("fine-tune", stats.progress)
+            }
+            _ => {}
+        });
+        self.stop.store(false, std::sync::atomic::Ordering::SeqCst);
+        let outcome = match outcome {
+            Err(assist_session::SessionError::Cancelled) => {
+                return Err("new object: stopped before its fine-tune; nothing was written".into());
+            }
+            r => r.map_err(Refused::from)?,
+        };
         self.session = Session::open(&out).map_err(Refused::from)?;
         self.scene_path = out.clone();
         self.disk = disk_stamp(&out);
         self.cache.clear();
         let id = outcome.objects.first().map(|b| b.id);
         self.session.select(id).map_err(Refused::from)?;
+        let stopped = match &outcome.trained {
+            Some(t) if t.report.cancelled => {
+                format!(" (fine-tune stopped after {} steps)", t.report.iterations)
+            }
+            _ => String::new(),
+        };
         self.log.push(format!(
-            "new object {} {:?}: scene written to {}",
+            "new object {} {:?}: scene written to {}{stopped}",
             id.unwrap_or(0),
             label.trim(),
             out.display()

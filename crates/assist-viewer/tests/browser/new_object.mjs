@@ -1,7 +1,8 @@
 // New-object mode in headless chromium, on a scene trained without masks: `n` turns it
 // on; a click on an object (a projected centre given by the test) shows its proposed box
 // and mask; its x handle moves the box and, with shift, widens it; a name and "make the
-// object" split it off (a short fine-tune); the node
+// object" split it off: cancel while its masks are made writes nothing, cancel during its
+// fine-tune keeps the scene fine-tuned so far; the node
 // appears in the list, selected, and its x axis handle drags it along x. Prints one JSON
 // object; exits 1 on the first failure.
 // Usage: node new_object.mjs URL SHOTS_DIR CHROMIUM CENTRES_JSON
@@ -63,14 +64,27 @@ try {
   out.handle_size = await handleDrag(true);
   const hs = out.handle_size;
   if (!(hs.size[0] > 0.002 && Math.abs(hs.center[0]) < 1e-3 && Math.abs(hs.size[1]) < 1e-3)) fail(`shift on the x handle changed the proposal by ${JSON.stringify(hs)}`);
-  // Name it and make it (a short fine-tune).
+  // Name it and make it; cancel while its masks are made stops it with nothing written.
   await page.click("#plabel");
   await page.keyboard.type("found object");
-  await page.$eval("#piters", (e) => { e.value = "20"; });
+  await page.$eval("#piters", (e) => { e.value = "100000"; });
   const undo0 = await page.evaluate(() => window.__assist.state.undo);
-  await page.evaluate(() => { window.__assist.error = null; });
+  await page.evaluate(() => { window.__assist.error = null; window.__assist.progress = null; });
   await page.click("#pconfirm");
+  await page.waitForFunction(() => window.__assist.progress || window.__assist.error, { timeout: 120000 });
+  await page.click("#pcancel");
+  await page.waitForFunction(() => window.__assist.error, { timeout: 120000 });
+  out.stopped_early = await page.evaluate(() => window.__assist.error);
+  if (!/nothing was written/.test(out.stopped_early)) fail(`cancel during the masks: ${out.stopped_early}`);
+  if (await page.evaluate(() => window.__assist.saved)) fail("a scene was written after cancel during the masks");
+  // Again: cancel during the fine-tune (100,000 steps asked) keeps what it trained.
+  await page.evaluate(() => { window.__assist.error = null; window.__assist.progress = null; });
+  await page.click("#pconfirm");
+  await page.waitForFunction(() => (window.__assist.progress && window.__assist.progress.task === "fine-tune") || window.__assist.error, { timeout: 300000 });
+  await page.click("#pcancel");
   await page.waitForFunction(() => window.__assist.state.nodes.some((x) => x.label === "found object") || window.__assist.error, { timeout: 600000 });
+  out.stopped_log = await page.evaluate(() => window.__assist.state.log.filter((l) => /new object/.test(l)));
+  if (!out.stopped_log.some((l) => /fine-tune stopped after/.test(l))) fail(`the log does not say the fine-tune was stopped: ${JSON.stringify(out.stopped_log)}`);
   const made = await page.evaluate(() => { const s = window.__assist.state; return { node: s.nodes.find((x) => x.label === "found object"), selected: s.selected, undo: s.undo }; });
   if (!made.node) fail(`no node made: ${await page.evaluate(() => window.__assist.error)}`);
   out.made = made.node.id; out.saved = await page.evaluate(() => window.__assist.saved);
