@@ -63,28 +63,33 @@ impl std::str::FromStr for ScaleBy {
             };
             Ok((frame.to_string(), [num(x)?, num(y)?]))
         };
-        let (value, unit) = d
-            .find(|c: char| c.is_ascii_alphabetic())
-            .map(|i| d.split_at(i))
-            .ok_or_else(|| format!("{d:?}: give the distance with its unit (m, cm or mm)"))?;
-        let factor = match unit {
-            "m" => 1.0,
-            "cm" => 0.01,
-            "mm" => 0.001,
-            _ => return Err(format!("{d:?}: unknown unit {unit:?} (m, cm or mm)")),
-        };
-        let meters = value
-            .parse::<f64>()
-            .ok()
-            .filter(|v| v.is_finite() && *v > 0.0)
-            .ok_or_else(|| format!("{d:?}: expected a positive distance"))?
-            * factor;
         Ok(ScaleBy {
             a: point(a)?,
             b: point(b)?,
-            meters,
+            meters: parse_distance(d)?,
         })
     }
+}
+
+/// A positive distance with its unit (`"0.30m"`, `"16cm"`, `"85mm"`) in metres.
+pub fn parse_distance(d: &str) -> Result<f64, String> {
+    let (value, unit) = d
+        .find(|c: char| c.is_ascii_alphabetic())
+        .map(|i| d.split_at(i))
+        .ok_or_else(|| format!("{d:?}: give the distance with its unit (m, cm or mm)"))?;
+    let factor = match unit {
+        "m" => 1.0,
+        "cm" => 0.01,
+        "mm" => 0.001,
+        _ => return Err(format!("{d:?}: unknown unit {unit:?} (m, cm or mm)")),
+    };
+    Ok(value
+        .trim()
+        .parse::<f64>()
+        .ok()
+        .filter(|v| v.is_finite() && *v > 0.0 && *v < 1e6)
+        .ok_or_else(|| format!("{d:?}: expected a positive distance"))?
+        * factor)
 }
 
 /// World-from-camera rotation (COLMAP's camera: +X right, +Y down, looking along +Z) and

@@ -260,7 +260,7 @@ impl ProcessJob {
             "colmap_model": model_dir.strip_prefix(&dir).unwrap_or(&model_dir),
             "unit": match aligned.meters_per_unit {
                 Some(_) => "metres (from --scale-by)",
-                None => "COLMAP's arbitrary unit: give --scale-by for metres",
+                None => "COLMAP's arbitrary unit: give --scale-by for metres, or later `assist scene scale` with an object's height",
             },
         });
         let path = dir.join("process.json");

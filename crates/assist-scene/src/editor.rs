@@ -26,6 +26,9 @@ pub enum EditError {
     /// A new label that cannot be given to node `id`.
     #[error("label of node {id}: {message}")]
     Label { id: u16, message: String },
+    /// Metres per unit out of range.
+    #[error("meters_per_unit: {0}")]
+    Unit(String),
 }
 
 pub use assist_core::scene::MAX_LABEL_CHARS;
@@ -322,6 +325,22 @@ impl Editor {
             Some(format!("rename node {id} {old:?} to {label:?}")),
             Vec::new(),
         );
+        Ok(())
+    }
+
+    /// Sets the scene's metres per world unit (a capture in COLMAP's arbitrary unit, sized
+    /// after training), one undo step; `why` is the history's note.
+    pub fn set_meters_per_unit(&mut self, mpu: f64, why: &str) -> Result<(), EditError> {
+        if !(mpu.is_finite() && (1e-9..=1e9).contains(&mpu)) {
+            return Err(EditError::Unit(format!(
+                "expected metres per unit between 1e-9 and 1e9, got {mpu}"
+            )));
+        }
+        let mut next = self.scene.scene.clone();
+        next.meters_per_unit = mpu;
+        let before = std::mem::replace(&mut self.scene.scene, next);
+        self.history
+            .record(before, Some(why.to_string()), Vec::new());
         Ok(())
     }
 

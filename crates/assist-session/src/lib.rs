@@ -17,6 +17,7 @@ mod frames;
 mod held_out;
 mod jobs;
 mod render_job;
+mod scale;
 pub mod split;
 mod train_config;
 mod train_job;

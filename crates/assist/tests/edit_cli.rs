@@ -768,3 +768,79 @@ fn scene_info_shows_whole_labels() {
     assert!(ok, "{err}");
     assert!(out.contains(long), "{out}");
 }
+
+#[test]
+fn scene_scale_sets_metres_from_an_objects_height_and_edits_follow() {
+    let tmp = assist_testkit::TempDir::new("cli-scale");
+    let scene = tmp.path().join("a.assist");
+    write_scene(&scene);
+    let out_scene = tmp.path().join("b.assist");
+    // The mug's box is 0.05 units tall and its grid fully occupied: 20 cm makes a unit 4 m.
+    let (ok, out, err) = assist(&[
+        "scene",
+        "scale",
+        s(&scene),
+        "--out",
+        s(&out_scene),
+        "--object",
+        "mug",
+        "--height",
+        "20cm",
+        "--json",
+    ]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let mpu = v["meters_per_unit"].as_f64().unwrap();
+    assert!((mpu - 4.0).abs() < 1e-9, "{v}");
+    assert_eq!(v["object"]["label"], "red ceramic mug");
+    // An edit in centimetres moves by the new unit (10 cm = 0.025 units); one undo step
+    // goes back to 1 m.
+    let moved = tmp.path().join("m.assist");
+    let (ok, _, err) = assist(&[
+        "edit",
+        s(&out_scene),
+        "--do",
+        "move the mug 10 cm left",
+        "--out",
+        s(&moved),
+        "--allow-overlap",
+    ]);
+    assert!(ok, "{err}");
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(moved.join("scene.json")).unwrap()).unwrap();
+    let mug = m["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["id"] == 3)
+        .unwrap();
+    let x = mug["world_from_local"]["translation"][0].as_f64().unwrap();
+    assert!((x - (-0.225)).abs() < 1e-9, "the mug at x = {x}");
+    let undone = tmp.path().join("c.assist");
+    let (ok, _, err) = assist(&["edit", s(&out_scene), "--undo", "1", "--out", s(&undone)]);
+    assert!(ok, "{err}");
+    let (ok, out, _) = assist(&["scene", "info", s(&undone), "--json"]);
+    assert!(ok);
+    let info: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(info["meters_per_unit"].as_f64(), Some(1.0), "{info}");
+    // Bad input names what is wrong and writes nothing.
+    let before = snapshot(tmp.path());
+    for (args, want) in [
+        (vec!["--object", "mug", "--height", "20"], "unit"),
+        (vec!["--object", "mug", "--height=-3cm"], "positive"),
+        (
+            vec!["--object", "background", "--height", "1m"],
+            "background",
+        ),
+        (vec!["--object", "teapot", "--height", "1m"], "teapot"),
+        (vec!["--meters-per-unit", "0"], "meters_per_unit"),
+    ] {
+        let mut a = vec!["scene", "scale", s(&scene), "--out"];
+        let dest = tmp.path().join("d.assist");
+        a.push(s(&dest));
+        a.extend(args);
+        let (ok, _, err) = assist(&a);
+        assert!(!ok && err.contains(want), "{a:?}: {err}");
+    }
+    assert_eq!(before, snapshot(tmp.path()), "nothing written");
+}
