@@ -92,6 +92,14 @@ class Scene:
         """What `apply` would do, without applying it."""
     def rename(self, id: int, label: str) -> None:
         """A new label for node `id`, as one undo step; its semantic class stays."""
+    def set_scale(
+        self,
+        node: Optional[str] = None,
+        height_m: Optional[float] = None,
+        meters_per_unit: Optional[float] = None,
+    ) -> float:
+        """Metres per world unit from `node` (id or name) being `height_m` metres tall
+        along the scene's up, or given directly; one undo step. Returns it."""
     def undo(self) -> bool: ...
     def redo(self) -> bool: ...
     def select(self, id: Optional[int] = None) -> None: ...

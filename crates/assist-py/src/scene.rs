@@ -194,6 +194,41 @@ impl Scene {
         self.lock(py)?.rename(id, label).map_err(err)
     }
 
+    /// Sets metres per world unit, one undo step: from `node` (an id or a name) being
+    /// `height_m` metres tall along the scene's up (what its field occupies), or to
+    /// `meters_per_unit`. A capture processed without `scale_by` is in COLMAP's arbitrary
+    /// unit. Returns the new metres per unit.
+    #[pyo3(signature = (node=None, height_m=None, meters_per_unit=None))]
+    fn set_scale(
+        &self,
+        py: Python<'_>,
+        node: Option<String>,
+        height_m: Option<f64>,
+        meters_per_unit: Option<f64>,
+    ) -> PyResult<f64> {
+        let mut s = self.lock(py)?;
+        let (mpu, why) = match (node, height_m, meters_per_unit) {
+            (Some(name), Some(h), None) => {
+                if !(h.is_finite() && h > 0.0) {
+                    return Err(AssistError::new_err(format!(
+                        "height_m: expected a positive number of metres, got {h}"
+                    )));
+                }
+                let id = s.node_named(&name).map_err(err)?;
+                let units = s.occupied_height(id).map_err(err)?;
+                (h / units, format!("scale: {name:?} is {h} m tall ({units:.4} units)"))
+            }
+            (None, None, Some(m)) => (m, format!("scale: {m} m per unit")),
+            _ => {
+                return Err(AssistError::new_err(
+                    "give node and height_m, or meters_per_unit alone",
+                ));
+            }
+        };
+        s.set_meters_per_unit(mpu, &why).map_err(err)?;
+        Ok(mpu)
+    }
+
     /// Undoes the last `apply`; False when there is nothing to undo.
     fn undo(&self, py: Python<'_>) -> PyResult<bool> {
         Ok(self.lock(py)?.undo())

@@ -304,6 +304,24 @@ def test_rename_is_one_undo_step_and_keeps_the_class(trained):
     assert next(n for n in scene.nodes if n["id"] == a["id"])["label"] == a["label"]
 
 
+def test_set_scale_from_an_objects_height_is_one_undo_step(trained):
+    _, scene_path, _ = trained
+    scene = assist.Scene.load(scene_path)
+    assert scene.meters_per_unit == 1.0
+    a = next(n for n in scene.nodes if not n["background"])
+    mpu = scene.set_scale(str(a["id"]), height_m=0.12)
+    assert mpu > 0 and scene.meters_per_unit == pytest.approx(mpu)
+    assert scene.undo()
+    assert scene.meters_per_unit == 1.0
+    assert scene.set_scale(meters_per_unit=0.5) == 0.5
+    with pytest.raises(assist.AssistError, match="height_m"):
+        scene.set_scale(str(a["id"]), height_m=-1.0)
+    with pytest.raises(assist.AssistError, match="meters_per_unit"):
+        scene.set_scale(meters_per_unit=0.0)
+    with pytest.raises(assist.AssistError, match="give node"):
+        scene.set_scale(str(a["id"]))
+
+
 def test_bad_numbers_raise_assist_error_naming_the_argument(trained):
     """Issue 47 items 17 and 18: negative sizes and ids raised OverflowError, and a NaN in
     a dict said "expected value at line 1 column 68"."""
