@@ -308,6 +308,28 @@ fn known_distance(
     if seen.len() < 10 {
         seen = observed(1);
     }
+    // Only points on smooth surfaces: the other points seen within 40 px (the radius
+    // `--scale-by` looks in) lie within 5% of its depth. A point at a depth edge is often
+    // another physical point in the second reconstruction, which set the scale wrong
+    // (0.56 once in CI).
+    let depth = |x: DVec3| {
+        let [w, qx, qy, qz] = first.qvec;
+        let r = assist_core::DMat3::from_quat(assist_core::DQuat::from_xyzw(qx, qy, qz, w));
+        (r * x + DVec3::from_array(first.tvec)).z
+    };
+    let smooth: Vec<(assist_core::DVec2, DVec3)> = seen
+        .iter()
+        .filter(|(px, x)| {
+            let d = depth(*x);
+            seen.iter()
+                .filter(|(q, _)| q.distance(*px) < 40.0)
+                .all(|(_, y)| (depth(*y) - d).abs() < 0.05 * d)
+        })
+        .copied()
+        .collect();
+    if smooth.len() >= 10 {
+        seen = smooth;
+    }
     let mut best = (0.0, 0, 0);
     for i in 0..seen.len() {
         for j in i + 1..seen.len() {
