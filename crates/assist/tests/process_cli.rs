@@ -160,14 +160,16 @@ fn a_video_and_photographs_become_posed_datasets() {
     let mean = errors.iter().sum::<f64>() / errors.len() as f64;
     eprintln!("camera centres: mean {mean:.4}, worst {worst:.4} of extent {extent:.3}");
     // COLMAP's reconstruction of this synthetic scene varies from run to run (its spread
-    // is in BENCHMARKS.md); these bounds still catch any error of assist's own (an axis, a
-    // frame given another's pose), and `assist bench process` measures real captures.
+    // is in BENCHMARKS.md: mean 0.4% to 6.9% of the extent, and once over 8%, even with
+    // one mapper thread); these bounds still catch any error of assist's own (an axis, a
+    // frame given another's pose: errors of half the extent), and `assist bench process`
+    // measures real captures.
     assert!(
-        mean < 0.08 * extent,
+        mean < 0.12 * extent,
         "mean centre error {mean} (extent {extent})"
     );
     assert!(
-        worst < 0.15 * extent,
+        worst < 0.25 * extent,
         "worst centre error {worst} (extent {extent})"
     );
     // Upright: the cameras' mean up is +Z in the written frame.
@@ -215,9 +217,9 @@ fn a_video_and_photographs_become_posed_datasets() {
         fit.scale
     );
     // One pair of COLMAP points sets the scale, each the point nearest a pixel in a second,
-    // different reconstruction: on this synthetic walk often another physical point at a
-    // depth edge. The bounds still catch --scale-by not applied (the unit is COLMAP's).
-    assert!(fit.scale > 0.6 && fit.scale < 1.6, "scale {}", fit.scale);
+    // different reconstruction, its distance known only through the first (0.56 to 1.09
+    // seen). The written unit is asserted above; this catches a scale far off.
+    assert!(fit.scale > 0.4 && fit.scale < 2.5, "scale {}", fit.scale);
 
     // Unrelated --out content is never replaced, and a re-run needs --force.
     refused(
