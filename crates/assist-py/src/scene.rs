@@ -206,27 +206,24 @@ impl Scene {
         height_m: Option<f64>,
         meters_per_unit: Option<f64>,
     ) -> PyResult<f64> {
-        let mut s = self.lock(py)?;
-        let (mpu, why) = match (node, height_m, meters_per_unit) {
-            (Some(name), Some(h), None) => {
-                if !(h.is_finite() && h > 0.0) {
+        let target = match (node, height_m, meters_per_unit) {
+            (Some(node), Some(meters), None) => {
+                if !(meters.is_finite() && meters > 0.0) {
                     return Err(AssistError::new_err(format!(
-                        "height_m: expected a positive number of metres, got {h}"
+                        "height_m: expected a positive number of metres, got {meters}"
                     )));
                 }
-                let id = s.node_named(&name).map_err(err)?;
-                let units = s.occupied_height(id).map_err(err)?;
-                (h / units, format!("scale: {name:?} is {h} m tall ({units:.4} units)"))
+                assist_session::ScaleTarget::Height { node, meters }
             }
-            (None, None, Some(m)) => (m, format!("scale: {m} m per unit")),
+            (None, None, Some(m)) => assist_session::ScaleTarget::MetersPerUnit(m),
             _ => {
                 return Err(AssistError::new_err(
                     "give node and height_m, or meters_per_unit alone",
                 ));
             }
         };
-        s.set_meters_per_unit(mpu, &why).map_err(err)?;
-        Ok(mpu)
+        let done = self.lock(py)?.scale_to(&target).map_err(err)?;
+        Ok(done.meters_per_unit)
     }
 
     /// Undoes the last `apply`; False when there is nothing to undo.

@@ -63,6 +63,7 @@ pub use jobs::{
 pub use render_job::{
     DatasetOutput, Highlight, RenderJob, RenderSummary, ViewDone, frame_layers, view_images,
 };
+pub use scale::{ScaleFlags, ScaleTarget, Scaled, ScaledObject};
 pub use train_config::{
     Appearance, DEFAULT_EVAL_VIEWS, Every, LambdaOverrides, MAX_BATCH_SAMPLES, MIN_BATCH_SAMPLES,
     OnOff, Shadows, TrainConfig, lambda_key, lambdas,

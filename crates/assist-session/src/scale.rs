@@ -64,6 +64,96 @@ impl Session {
     pub fn set_meters_per_unit(&mut self, mpu: f64, why: &str) -> Result<()> {
         Ok(self.editor.set_meters_per_unit(mpu, why)?)
     }
+
+    /// Sets metres per unit as `target` says (one undo step) and reports it.
+    pub fn scale_to(&mut self, target: &ScaleTarget) -> Result<Scaled> {
+        let before = self.description().meters_per_unit;
+        let (mpu, why, object) = match target {
+            ScaleTarget::Height { node, meters } => {
+                if !(meters.is_finite() && *meters > 0.0) {
+                    return Err(request(
+                        "height",
+                        format!("expected a positive number of metres, got {meters}"),
+                    ));
+                }
+                let id = self.node_named(node)?;
+                let units = self.occupied_height(id)?;
+                let label = self.node(id).map(|n| n.label.clone()).unwrap_or_default();
+                let why = format!("scale: {label:?} is {meters} m tall ({units:.4} units)");
+                let object = ScaledObject {
+                    id,
+                    label,
+                    height_units: units,
+                    height_m: *meters,
+                };
+                (meters / units, why, Some(object))
+            }
+            ScaleTarget::MetersPerUnit(m) => (*m, format!("scale: {m} m per unit"), None),
+        };
+        self.set_meters_per_unit(mpu, &why)?;
+        Ok(Scaled {
+            meters_per_unit: mpu,
+            before,
+            object,
+        })
+    }
+}
+
+/// What sets a scene's unit: an object's real height along the scene's up, or metres per
+/// unit given directly.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ScaleTarget {
+    Height { node: String, meters: f64 },
+    MetersPerUnit(f64),
+}
+
+/// `assist scene scale`'s choice of target (clap derives its flags from it).
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct ScaleFlags {
+    /// The object whose real height is known: an id or a name ("beer can").
+    #[arg(long, requires = "height", conflicts_with = "meters_per_unit")]
+    pub object: Option<String>,
+    /// Its real height along the scene's up, with the unit: 16cm, 0.16m, 160mm. Its
+    /// height in the scene is what its field occupies.
+    #[arg(long, requires = "object")]
+    pub height: Option<String>,
+    /// Or metres per unit given directly.
+    #[arg(long, required_unless_present = "object")]
+    pub meters_per_unit: Option<f64>,
+}
+
+impl ScaleFlags {
+    pub fn target(&self) -> Result<ScaleTarget> {
+        match (&self.object, &self.height, self.meters_per_unit) {
+            (Some(node), Some(h), None) => Ok(ScaleTarget::Height {
+                node: node.clone(),
+                meters: assist_process::align::parse_distance(h)
+                    .map_err(|e| request("height", e))?,
+            }),
+            (None, None, Some(m)) => Ok(ScaleTarget::MetersPerUnit(m)),
+            _ => Err(request(
+                "scale",
+                "give --object and --height, or --meters-per-unit alone".into(),
+            )),
+        }
+    }
+}
+
+/// What [`Session::scale_to`] did.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Scaled {
+    pub meters_per_unit: f64,
+    pub before: f64,
+    pub object: Option<ScaledObject>,
+}
+
+/// The object a scale was measured on.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ScaledObject {
+    pub id: InstanceId,
+    pub label: String,
+    pub height_units: f64,
+    pub height_m: f64,
 }
 
 #[cfg(test)]

@@ -38,16 +38,8 @@ pub struct ScaleArgs {
     /// Where to write the scene (may be the scene itself, with --force).
     #[arg(long)]
     pub out: PathBuf,
-    /// The object whose real height is known: an id or a name ("beer can").
-    #[arg(long, requires = "height", conflicts_with = "meters_per_unit")]
-    pub object: Option<String>,
-    /// Its real height along the scene's up, with the unit: 16cm, 0.16m, 160mm. Its
-    /// height in the scene is what its field occupies.
-    #[arg(long, requires = "object")]
-    pub height: Option<String>,
-    /// Or metres per unit given directly.
-    #[arg(long, required_unless_present = "object")]
-    pub meters_per_unit: Option<f64>,
+    #[command(flatten)]
+    pub target: assist_session::ScaleFlags,
     /// Replace --out if it exists.
     #[arg(long)]
     pub force: bool,
@@ -57,48 +49,25 @@ pub struct ScaleArgs {
 }
 
 fn scale(a: ScaleArgs) -> anyhow::Result<()> {
+    let target = a.target.target()?;
     let mut session = assist_session::Session::open(&a.scene)?;
-    let before = session.description().meters_per_unit;
-    let (mpu, why, measured) = match (&a.object, &a.height, a.meters_per_unit) {
-        (Some(name), Some(height), _) => {
-            let meters = assist_session::process::align::parse_distance(height)
-                .map_err(|e| anyhow::anyhow!("--height: {e}"))?;
-            let id = session.node_named(name)?;
-            let units = session.occupied_height(id)?;
-            let label = session
-                .node(id)
-                .map(|n| n.label.clone())
-                .unwrap_or_default();
-            (
-                meters / units,
-                format!("scale: {label:?} is {meters} m tall ({units:.4} units)"),
-                Some(json!({"id": id, "label": label, "height_units": units, "height_m": meters})),
-            )
-        }
-        (_, _, Some(mpu)) => (mpu, format!("scale: {mpu} m per unit"), None),
-        _ => anyhow::bail!("give --object and --height, or --meters-per-unit"),
-    };
-    session.set_meters_per_unit(mpu, &why)?;
+    let done = session.scale_to(&target)?;
     session.save(&a.out, a.force)?;
     if a.json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&json!({
-                "meters_per_unit": mpu,
-                "before": before,
-                "object": measured,
-                "out": a.out,
-            }))?
-        );
+        let mut v = serde_json::to_value(&done)?;
+        v["out"] = json!(a.out);
+        println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
-        if let Some(m) = &measured {
+        if let Some(m) = &done.object {
             println!(
-                "{} is {:.4} units tall: {} m",
-                m["label"], m["height_units"], m["height_m"]
+                "{:?} is {:.4} units tall: {} m",
+                m.label, m.height_units, m.height_m
             );
         }
         println!(
-            "{mpu:.6} m per unit (was {before}); saved {}",
+            "{:.6} m per unit (was {}); saved {}",
+            done.meters_per_unit,
+            done.before,
             a.out.display()
         );
     }
