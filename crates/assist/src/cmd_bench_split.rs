@@ -91,10 +91,7 @@ pub fn run(a: SplitBenchArgs) -> anyhow::Result<()> {
                 })
                 .collect();
             let size = |c: &assist_core::Camera| {
-                (
-                    (c.width() / a.render_downscale).max(1),
-                    (c.height() / a.render_downscale).max(1),
-                )
+                assist_session::split::click::render_size(c, a.render_downscale as f64)
             };
             let t0 = Instant::now();
             let masks =

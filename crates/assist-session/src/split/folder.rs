@@ -9,6 +9,7 @@ use assist_core::{InstanceId, Obb, SceneNode};
 use assist_data::{Dataset, image_io};
 use serde_json::json;
 
+use super::click::render_size;
 use super::{MaskOptions, SplitBox};
 use crate::{Result, Session, SessionError, request};
 
@@ -71,12 +72,7 @@ impl Session {
         let started = std::time::Instant::now();
         let opts = MaskOptions::default();
         let n = ds.frames.len();
-        let size = |c: &assist_core::Camera| {
-            Some((
-                (c.width() / render_downscale).max(1),
-                (c.height() / render_downscale).max(1),
-            ))
-        };
+        let size = |c: &assist_core::Camera| Some(render_size(c, render_downscale as f64));
         let mut seen = Vec::with_capacity(n);
         for (k, f) in ds.frames.iter().enumerate() {
             seen.push(self.boxes_in_view(&f.camera, boxes, size(&f.camera))?);
@@ -135,7 +131,7 @@ impl Session {
             .collect();
         let written = MasksWritten {
             images: n,
-            support_levels: levels,
+            support_levels: levels.iter().map(|l| l.cut).collect(),
             objects: boxes
                 .iter()
                 .zip(&owned)
