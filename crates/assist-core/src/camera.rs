@@ -315,6 +315,45 @@ impl Camera {
         let p_cam = d * (z / -d.z);
         Some(self.pose.world_from_camera.transform_point3(p_cam))
     }
+
+    /// Per pixel of a `w` × `h` depth map this camera saw (z-depths; `valid` says which
+    /// pixels hold a surface): its world point and unit surface normal, the normal from
+    /// the cross product of its four neighbours' differences (`None` at the border, next
+    /// to an invalid pixel, or where the neighbours are collinear).
+    pub fn depth_normals(
+        &self,
+        depth: &[f32],
+        w: usize,
+        h: usize,
+        valid: impl Fn(usize) -> bool,
+    ) -> Vec<Option<(DVec3, DVec3)>> {
+        let lift = |x: usize, y: usize| {
+            let i = y * w + x;
+            (depth[i] > 0.0 && valid(i))
+                .then(|| self.unproject(x as f64 + 0.5, y as f64 + 0.5, depth[i] as f64))
+                .flatten()
+        };
+        let mut out = vec![None; w * h];
+        for y in 1..h.saturating_sub(1) {
+            for x in 1..w.saturating_sub(1) {
+                let (Some(p), Some(l), Some(r), Some(u), Some(d)) = (
+                    lift(x, y),
+                    lift(x - 1, y),
+                    lift(x + 1, y),
+                    lift(x, y - 1),
+                    lift(x, y + 1),
+                ) else {
+                    continue;
+                };
+                let n = (r - l).cross(d - u);
+                let len = n.length();
+                if len > 0.0 {
+                    out[y * w + x] = Some((p, n / len));
+                }
+            }
+        }
+        out
+    }
 }
 
 #[cfg(test)]

@@ -167,35 +167,15 @@ pub fn survey(scene: &NeuralScene, views: &[Camera]) -> (Vec<SeenView>, Vec<DVec
         }
         let img = render_camera(&bg, cam, u32::MAX, &opts);
         let (w, h) = (img.width as usize, img.height as usize);
-        let lift = |i: usize, j: usize| -> Option<DVec3> {
-            let z = img.depth[j * w + i];
-            if z <= 0.0 || img.opacity[j * w + i] < 0.9 {
-                return None;
-            }
-            cam.unproject(i as f64 + 0.5, j as f64 + 0.5, z as f64)
-        };
-        for j in 1..h.saturating_sub(1) {
-            for i in 1..w.saturating_sub(1) {
-                let (Some(p), Some(l), Some(r), Some(u), Some(d)) = (
-                    lift(i, j),
-                    lift(i - 1, j),
-                    lift(i + 1, j),
-                    lift(i, j - 1),
-                    lift(i, j + 1),
-                ) else {
-                    continue;
-                };
-                let n = (r - l).cross(d - u);
-                let len = n.length();
-                if len <= 0.0 {
-                    continue;
-                }
-                let cos = (n / len).dot(up.up).abs();
-                if cos > 20f64.to_radians().cos() {
-                    points.push(p);
-                }
-            }
-        }
+        let flat = 20f64.to_radians().cos();
+        let normals = cam.depth_normals(&img.depth, w, h, |i| img.opacity[i] >= 0.9);
+        points.extend(
+            normals
+                .into_iter()
+                .flatten()
+                .filter(|(_, n)| n.dot(up.up).abs() > flat)
+                .map(|(p, _)| p),
+        );
     }
     (seen, points)
 }

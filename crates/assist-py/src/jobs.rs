@@ -292,7 +292,7 @@ pub(crate) fn process<'py>(
 /// "step"); returns the objects made (id, label, box), the masks' summary and the
 /// held-out figure of the fine-tune.
 #[pyfunction]
-#[pyo3(signature = (scene, out, boxes=Vec::new(), clicks=Vec::new(), labels=Vec::new(), iters=Whole::of(assist_session::split::SPLIT_ITERS as i64), max_time=None, data=None, masks_out=None, no_train=false, force=false, callback=None))]
+#[pyo3(signature = (scene, out, boxes=Vec::new(), clicks=Vec::new(), labels=Vec::new(), iters=Whole::of(assist_session::split::SPLIT_ITERS as i64), max_time=None, data=None, masks_out=None, no_train=false, force=false, sam=None, callback=None))]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn split<'py>(
     py: Python<'py>,
@@ -307,6 +307,7 @@ pub(crate) fn split<'py>(
     masks_out: Option<PathBuf>,
     no_train: bool,
     force: bool,
+    sam: Option<PathBuf>,
     callback: Option<Py<PyAny>>,
 ) -> PyResult<Bound<'py, PyAny>> {
     use assist_session::split::targets::Objects;
@@ -320,6 +321,7 @@ pub(crate) fn split<'py>(
         boxes,
         clicks,
         labels,
+        sam,
         ..Objects::default()
     };
     let mut config = SplitConfig::new(scene, out, objects);

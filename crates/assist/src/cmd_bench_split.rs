@@ -38,6 +38,10 @@ pub struct SplitBenchArgs {
     /// Support bands as shares of a box's height (comma-separated).
     #[arg(long, value_delimiter = ',', default_values_t = [MaskOptions::default().support_band])]
     pub band: Vec<f64>,
+    /// A Segment Anything checkpoint: each mask then sharpened by SAM as `--sam` of
+    /// `assist scene split` does (its time included).
+    #[arg(long, value_name = "CHECKPOINT")]
+    pub sam: Option<std::path::PathBuf>,
     /// Print the figures as JSON on stdout.
     #[arg(long)]
     pub json: bool,
@@ -45,6 +49,11 @@ pub struct SplitBenchArgs {
 
 pub fn run(a: SplitBenchArgs) -> anyhow::Result<()> {
     let session = Session::open(&a.scene)?;
+    let sam = a
+        .sam
+        .as_deref()
+        .map(assist_session::split::sam::SamRefine::load)
+        .transpose()?;
     let ds = assist_data::load(&a.data, &LoadOptions::default())
         .with_context(|| format!("reading {}", a.data.display()))?;
     let split = match a.split.as_str() {
@@ -96,6 +105,13 @@ pub fn run(a: SplitBenchArgs) -> anyhow::Result<()> {
             let t0 = Instant::now();
             let masks =
                 session.box_masks(&views, &boxes, Some(size(&frames[0].camera)), &opts, |_| {})?;
+            let mut masks = masks;
+            let mut replaced = 0;
+            if let Some(sam) = &sam {
+                for (m, p) in masks.iter_mut().zip(&photos) {
+                    replaced += sam.refine(p, m, &boxes)?.replaced;
+                }
+            }
             let seconds = t0.elapsed().as_secs_f64();
             let pairs: Vec<(Vec<u16>, Vec<u16>)> =
                 masks.into_iter().zip(truth.iter().cloned()).collect();
@@ -107,6 +123,7 @@ pub fn run(a: SplitBenchArgs) -> anyhow::Result<()> {
                 "miou": miou,
                 "iou": ious.iter().map(|(id, v)| json!({"id": id, "iou": v})).collect::<Vec<_>>(),
                 "seconds": seconds,
+                "sam_replaced": sam.as_ref().map(|_| replaced),
             }));
         }
     }

@@ -46,6 +46,12 @@ pub fn run(a: MasksArgs) -> anyhow::Result<()> {
     assist_fs::check_replaceable(&a.out, a.force)?;
     assist_fs::check_not_input(&a.out, &[&a.data, &a.scene])?;
     let session = Session::open(&a.scene)?;
+    let sam = a
+        .objects
+        .sam
+        .as_deref()
+        .map(assist_session::split::sam::SamRefine::load)
+        .transpose()?;
     let ds = assist_data::load(&a.data, &LoadOptions::default())
         .with_context(|| format!("reading {}", a.data.display()))?;
     let targets = a.objects.targets(session.description().up)?;
@@ -65,6 +71,7 @@ pub fn run(a: MasksArgs) -> anyhow::Result<()> {
         staging.dir(),
         a.objects.render_downscale,
         false,
+        sam.as_ref(),
         |p| {
             let (message, done, total) = match p {
                 MaskProgress::Rendering { done, total } => ("rendering views", done, total),
@@ -95,6 +102,12 @@ pub fn run(a: MasksArgs) -> anyhow::Result<()> {
             println!(
                 "{:>3}  {:<24} {} pixels over {n} images",
                 o.id, o.label, o.pixels
+            );
+        }
+        if let Some(c) = made.sam {
+            println!(
+                "SAM replaced {} of the {} object masks it was asked for (the rest disagreed with the geometry and were kept)",
+                c.replaced, c.prompted
             );
         }
         println!(

@@ -159,6 +159,8 @@ fn desk_without_masks_gets_its_objects_from_boxes_and_clicks() {
 
     // Refused, naming what to do, with nothing written.
     let bad = root.join("bad");
+    let (missing, junk) = (root.join("missing.pth"), root.join("junk.pth"));
+    std::fs::write(&junk, b"not a checkpoint").unwrap();
     for (extra, needles, on) in [
         (
             vec!["--box", "50,50,50,0.1,0.1,0.1"],
@@ -210,6 +212,17 @@ fn desk_without_masks_gets_its_objects_from_boxes_and_clicks() {
             vec!["overlaps the object 1"],
             &objects,
         ),
+        // A SAM checkpoint that is not there, or not a checkpoint.
+        (
+            vec!["--boxes-file", s(&boxes), "--sam", s(&missing)],
+            vec!["missing.pth", "no such file", "Segment Anything"],
+            &scene,
+        ),
+        (
+            vec!["--boxes-file", s(&boxes), "--sam", s(&junk)],
+            vec!["junk.pth", "PyTorch state dict"],
+            &scene,
+        ),
     ] {
         refused(&masks(&desk, on, &bad, &extra), &needles);
         assert!(!bad.exists(), "{extra:?} wrote {}", bad.display());
@@ -222,7 +235,47 @@ fn desk_without_masks_gets_its_objects_from_boxes_and_clicks() {
     );
     assert_eq!(before, std::fs::read(derived.join("r_000.png")).unwrap());
 
+    sam_sharpens_what_it_agrees_with(&desk, &root, &scene, &boxes);
     split_the_scene(&desk, &root, &scene, &truth, &test_views);
+}
+
+/// `--sam` with a checkpoint (a small random SAM built by segment_anything, in the
+/// Python of `ASSIST_PYTHON`): every object mask of every view is put to it, and a
+/// random SAM agrees with none, so the geometric masks stand, byte for byte.
+fn sam_sharpens_what_it_agrees_with(desk: &Path, root: &Path, scene: &Path, boxes: &Path) {
+    let model = root.join("sam-model");
+    std::fs::create_dir_all(&model).unwrap();
+    let made = common::python_check(
+        "../../assist-sam/tests/sam_reference.py",
+        &[model.as_os_str()],
+        "torch, torchvision, segment-anything and safetensors",
+    );
+    if made.is_none() {
+        return;
+    }
+    let (plain, with) = (root.join("masks-plain"), root.join("masks-sam"));
+    let base = ["--boxes-file", s(boxes), "--render-downscale", "8"];
+    ok(&masks(desk, scene, &plain, &base));
+    let mut args = base.to_vec();
+    let ckpt = model.join("sam.safetensors");
+    args.extend(["--sam", s(&ckpt), "--json"]);
+    let o = masks(desk, scene, &with, &args);
+    ok(&o);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(v["sam"]["prompted"].as_u64().unwrap() >= 100, "{v}");
+    assert_eq!(v["sam"]["replaced"], 0, "{v}");
+    assert_eq!(
+        std::fs::read(plain.join("r_003.png")).unwrap(),
+        std::fs::read(with.join("r_003.png")).unwrap()
+    );
+    let record: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(with.join("masks.json")).unwrap()).unwrap();
+    assert!(
+        record["sam_checkpoint"]
+            .as_str()
+            .unwrap()
+            .ends_with("sam.safetensors")
+    );
 }
 
 /// Held-out PSNR of `scene` on desk's test views.

@@ -10,6 +10,7 @@ use assist_data::{Dataset, image_io};
 use serde_json::json;
 
 use super::click::render_size;
+use super::sam::{SamCount, SamRefine};
 use super::{MaskOptions, SplitBox};
 use crate::{Result, Session, SessionError, request};
 
@@ -31,6 +32,8 @@ pub struct MasksWritten {
     pub support_levels: Vec<f64>,
     pub objects: Vec<Owned>,
     pub seconds: f64,
+    /// With a SAM checkpoint: the object masks it was asked for and those it replaced.
+    pub sam: Option<SamCount>,
 }
 
 /// A new object and the pixels it owns over all images.
@@ -67,6 +70,7 @@ impl Session {
         dir: &Path,
         render_downscale: u32,
         keep_existing: bool,
+        sam: Option<&SamRefine>,
         mut on: impl FnMut(MaskProgress),
     ) -> Result<MasksWritten> {
         let started = std::time::Instant::now();
@@ -83,12 +87,18 @@ impl Session {
         }
         let levels = self.support_levels(boxes, &seen, &opts);
         let mut owned = vec![0u64; boxes.len()];
+        let mut sam_count = SamCount::default();
         for (k, (f, view)) in ds.frames.iter().zip(&seen).enumerate() {
             // Photographs are read one at a time, as each mask is refined.
             let photo = image_io::read_rgb(&f.image_path, [0.0; 3])
                 .map_err(SessionError::Data)?
                 .0;
             let mut ids = view.mask(boxes, &levels, Some(&photo), &opts);
+            if let Some(sam) = sam {
+                let c = sam.refine(&photo, &mut ids, boxes)?;
+                sam_count.prompted += c.prompted;
+                sam_count.replaced += c.replaced;
+            }
             for (o, b) in owned.iter_mut().zip(boxes) {
                 *o += ids.iter().filter(|&&v| v == b.id).count() as u64;
             }
@@ -142,6 +152,7 @@ impl Session {
                 })
                 .collect(),
             seconds: started.elapsed().as_secs_f64(),
+            sam: sam.map(|_| sam_count),
         };
         let path = dir.join(assist_data::masks::INSTANCES_FILE);
         let text = serde_json::to_string_pretty(&json!({ "instances": instances }))
@@ -151,6 +162,9 @@ impl Session {
         let mut record = serde_json::to_value(&written).map_err(|e| io_error(&path, e))?;
         record["data"] = json!(ds.root);
         record["render_downscale"] = json!(render_downscale);
+        if let Some(sam) = sam {
+            record["sam_checkpoint"] = json!(sam.path);
+        }
         let text = serde_json::to_string_pretty(&record).map_err(|e| io_error(&path, e))?;
         std::fs::write(&path, text).map_err(|e| io_error(&path, e))?;
         Ok(written)

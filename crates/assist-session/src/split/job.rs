@@ -202,6 +202,13 @@ impl SplitJob {
                 })?,
         };
         self.check_outputs(&data)?;
+        // A SAM checkpoint is read before any work: a wrong file fails at once.
+        let sam = c
+            .objects
+            .sam
+            .as_deref()
+            .map(super::sam::SamRefine::load)
+            .transpose()?;
         let _lock = assist_fs::lock(&c.out, &format!("assist scene split {}", c.scene.display()))
             .map_err(SessionError::Output)?;
         let ds = assist_data::load(&data, &LoadOptions::default()).map_err(SessionError::Data)?;
@@ -237,6 +244,7 @@ impl SplitJob {
             &masks_dir,
             c.objects.render_downscale,
             true,
+            sam.as_ref(),
             |p| on(SplitEvent::Masks(p)),
         )?;
         on(SplitEvent::MasksDone(masks.clone()));

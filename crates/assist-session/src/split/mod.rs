@@ -7,6 +7,7 @@ pub mod click;
 mod folder;
 pub mod guided;
 mod job;
+pub mod sam;
 pub mod support;
 pub mod targets;
 

@@ -30,30 +30,12 @@ fn surface_points<'a>(
 /// neighbours, within [`FLAT`] of `up`): a table or floor, never an object's side.
 pub fn facing_up(frame: &Frame, camera: &Camera, up: DVec3) -> Vec<bool> {
     let (w, h) = (frame.width as usize, frame.height as usize);
-    let point = |x: usize, y: usize| {
-        let d = frame.depth[y * w + x];
-        (d > 0.0 && frame.opacity[y * w + x] >= 0.5)
-            .then(|| camera.unproject(x as f64 + 0.5, y as f64 + 0.5, d as f64))
-            .flatten()
-    };
     let cos = FLAT.to_radians().cos();
-    let mut out = vec![false; w * h];
-    for y in 1..h.saturating_sub(1) {
-        for x in 1..w.saturating_sub(1) {
-            let (Some(l), Some(r), Some(u), Some(d)) = (
-                point(x - 1, y),
-                point(x + 1, y),
-                point(x, y - 1),
-                point(x, y + 1),
-            ) else {
-                continue;
-            };
-            let n = (r - l).cross(d - u);
-            let len = n.length();
-            out[y * w + x] = len > 0.0 && (n.dot(up) / len).abs() >= cos;
-        }
-    }
-    out
+    camera
+        .depth_normals(&frame.depth, w, h, |i| frame.opacity[i] >= 0.5)
+        .into_iter()
+        .map(|pn| pn.is_some_and(|(_, n)| n.dot(up).abs() >= cos))
+        .collect()
 }
 
 /// How far from `up` a surface's normal may lean for it to face up, degrees (normals from

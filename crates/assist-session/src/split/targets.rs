@@ -117,6 +117,12 @@ pub struct Objects {
     /// then refined at full size).
     #[arg(long, default_value_t = RENDER_DOWNSCALE, value_parser = clap::value_parser!(u32).range(1..=16))]
     pub render_downscale: u32,
+    /// A Segment Anything checkpoint you supply (Meta's sam_vit_b_01ec64.pth or any
+    /// size, .pth or .safetensors): each photograph's object masks are prompted with
+    /// their box and innermost pixel, and SAM's mask replaces the geometric one where the
+    /// two agree (IoU ≥ 0.7). Slow on a CPU (seconds per photograph for ViT-B).
+    #[arg(long, value_name = "CHECKPOINT")]
+    pub sam: Option<std::path::PathBuf>,
 }
 
 impl Default for Objects {
@@ -127,6 +133,7 @@ impl Default for Objects {
             boxes_file: None,
             labels: Vec::new(),
             render_downscale: RENDER_DOWNSCALE,
+            sam: None,
         }
     }
 }
