@@ -72,6 +72,9 @@ pub struct ImageEncoder {
     pub img_size: usize,
     pub patch: usize,
     pub dim: usize,
+    /// Attention scores computed at once (floats); fewer heads or windows at a time
+    /// below it (a global block's scores are 4096² per head, 0.8 GB for ViT-B's twelve).
+    pub scores_per_chunk: usize,
 }
 
 impl ImageEncoder {
@@ -140,6 +143,7 @@ impl ImageEncoder {
             img_size: grid * patch,
             patch,
             dim,
+            scores_per_chunk: SCORES_PER_CHUNK,
         })
     }
 
@@ -156,7 +160,7 @@ impl ImageEncoder {
             .permute((0, 2, 3, 1))?;
         let mut x = x.broadcast_add(&self.pos)?;
         for b in &self.blocks {
-            x = b.forward(&x)?;
+            x = b.forward(&x, self.scores_per_chunk)?;
         }
         let x = x.permute((0, 3, 1, 2))?.contiguous()?;
         let x = layer_norm_2d(&x.conv2d(&self.neck0, 0, 1, 1, 1)?, &self.neck1)?;
@@ -169,7 +173,7 @@ impl ImageEncoder {
 }
 
 impl Block {
-    fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+    fn forward(&self, x: &Tensor, per_chunk: usize) -> candle_core::Result<Tensor> {
         let (_, h, w, c) = x.dims4()?;
         let y = layer_norm(x, &self.norm1, 1e-6)?;
         let y = if self.window > 0 {
@@ -184,14 +188,14 @@ impl Block {
                 .reshape((1, hp / ws, ws, wp / ws, ws, c))?
                 .permute((0, 1, 3, 2, 4, 5))?
                 .reshape(((), ws, ws, c))?;
-            let a = self.attention(&win)?;
+            let a = self.attention(&win, per_chunk)?;
             a.reshape((1, hp / ws, wp / ws, ws, ws, c))?
                 .permute((0, 1, 3, 2, 4, 5))?
                 .reshape((1, hp, wp, c))?
                 .narrow(1, 0, h)?
                 .narrow(2, 0, w)?
         } else {
-            self.attention(&y)?
+            self.attention(&y, per_chunk)?
         };
         let x = (x + y)?;
         let m = layer_norm(&x, &self.norm2, 1e-6)?;
@@ -201,7 +205,7 @@ impl Block {
 
     /// Multi-head attention over each `[B, H, W, C]` grid, with decomposed relative
     /// positions.
-    fn attention(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+    fn attention(&self, x: &Tensor, per_chunk: usize) -> candle_core::Result<Tensor> {
         let (b, h, w, c) = x.dims4()?;
         let nh = self.heads;
         let hd = c / nh;
@@ -210,40 +214,65 @@ impl Block {
             .permute((2, 0, 3, 1, 4))?
             .reshape((3, b * nh, h * w, hd))?;
         let (q, k, v) = (qkv.get(0)?, qkv.get(1)?, qkv.get(2)?);
-        let scale = (hd as f64).powf(-0.5);
-        let attn = (&q * scale)?.matmul(&k.t()?.contiguous()?)?;
-        let rh = rel_pos(h, &self.rel_h)?; // [H, H, hd]
-        let rw = rel_pos(w, &self.rel_w)?; // [W, W, hd]
+        let rh = rel_pos(h, &self.rel_h)?.t()?.contiguous()?; // [H, hd, H]
+        let rw = rel_pos(w, &self.rel_w)?.t()?.contiguous()?; // [W, hd, W]
         let bq = b * nh;
-        let rq = q.reshape((bq, h, w, hd))?;
-        // rel_h[b, y, x, k] = Σ_c q[b, y, x, c] · Rh[y, k, c]
-        let rel_h = rq
-            .permute((1, 0, 2, 3))?
-            .reshape((h, bq * w, hd))?
-            .matmul(&rh.t()?.contiguous()?)?
-            .reshape((h, bq, w, h))?
-            .permute((1, 0, 2, 3))?;
-        // rel_w[b, y, x, k] = Σ_c q[b, y, x, c] · Rw[x, k, c]
-        let rel_w = rq
-            .permute((2, 0, 1, 3))?
-            .reshape((w, bq * h, hd))?
-            .matmul(&rw.t()?.contiguous()?)?
-            .reshape((w, bq, h, w))?
-            .permute((1, 2, 0, 3))?;
-        let attn = attn
-            .reshape((bq, h, w, h, w))?
-            .broadcast_add(&rel_h.unsqueeze(4)?)?
-            .broadcast_add(&rel_w.unsqueeze(3)?)?
-            .reshape((bq, h * w, h * w))?;
-        let attn = candle_nn::ops::softmax_last_dim(&attn)?;
-        let out = attn
-            .matmul(&v.contiguous()?)?
+        let chunk = (per_chunk / (h * w * h * w)).clamp(1, bq);
+        let mut outs = Vec::new();
+        for start in (0..bq).step_by(chunk) {
+            let n = chunk.min(bq - start);
+            let q = q.narrow(0, start, n)?;
+            let (k, v) = (k.narrow(0, start, n)?, v.narrow(0, start, n)?);
+            outs.push(self.scores(&q, &k, &v, (&rh, &rw), (h, w))?);
+        }
+        let attn_v = Tensor::cat(&outs, 0)?;
+        let out = attn_v
             .reshape((b, nh, h, w, hd))?
             .permute((0, 2, 3, 1, 4))?
             .reshape((b, h, w, c))?;
         linear(&out, &self.proj)
     }
+
+    /// softmax(q·kᵀ/√d + relative positions)·v for `n` heads or windows of an `h` × `w`
+    /// grid: `[n, h·w, hd]`.
+    fn scores(
+        &self,
+        q: &Tensor,
+        k: &Tensor,
+        v: &Tensor,
+        (rh, rw): (&Tensor, &Tensor),
+        (h, w): (usize, usize),
+    ) -> candle_core::Result<Tensor> {
+        let (n, _, hd) = q.dims3()?;
+        let scale = (hd as f64).powf(-0.5);
+        let attn = (q * scale)?.matmul(&k.t()?.contiguous()?)?;
+        let rq = q.reshape((n, h, w, hd))?;
+        // rel_h[b, y, x, k] = Σ_c q[b, y, x, c] · Rh[y, k, c]
+        let rel_h = rq
+            .permute((1, 0, 2, 3))?
+            .reshape((h, n * w, hd))?
+            .matmul(rh)?
+            .reshape((h, n, w, h))?
+            .permute((1, 0, 2, 3))?;
+        // rel_w[b, y, x, k] = Σ_c q[b, y, x, c] · Rw[x, k, c]
+        let rel_w = rq
+            .permute((2, 0, 1, 3))?
+            .reshape((w, n * h, hd))?
+            .matmul(rw)?
+            .reshape((w, n, h, w))?
+            .permute((1, 2, 0, 3))?;
+        let attn = attn
+            .reshape((n, h, w, h, w))?
+            .broadcast_add(&rel_h.unsqueeze(4)?)?
+            .broadcast_add(&rel_w.unsqueeze(3)?)?
+            .reshape((n, h * w, h * w))?;
+        let attn = candle_nn::ops::softmax_last_dim(&attn)?;
+        attn.matmul(&v.contiguous()?)
+    }
 }
+
+/// Attention scores computed at once by default (floats): 16 M, 64 MB.
+pub const SCORES_PER_CHUNK: usize = 1 << 24;
 
 /// The relative-position table for a `size` × `size` grid: `[size (query), size (key),
 /// head_dim]`, entry `q − k + size − 1` of `table`.

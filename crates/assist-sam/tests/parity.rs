@@ -67,6 +67,15 @@ fn a_random_sam_matches_the_reference_code() {
     assert_eq!(sam.encoder.img_size, 128);
     let emb = sam.encoder.forward(&r["input"]).unwrap();
     close("embedding", &emb, &r["embedding"], 1e-4);
+    // One head or window at a time gives the same embedding.
+    let mut one = Sam::load(&dir.path().join("sam.safetensors")).unwrap();
+    one.encoder.scores_per_chunk = 1;
+    close(
+        "embedding, one head at a time",
+        &one.encoder.forward(&r["input"]).unwrap(),
+        &emb,
+        1e-6,
+    );
     let prompts: Vec<serde_like::P> = serde_like::read(&dir.path().join("prompts.json"));
     for (i, p) in prompts.iter().enumerate() {
         let prompt = Prompt {
