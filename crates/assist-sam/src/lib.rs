@@ -12,6 +12,7 @@
 mod decoder;
 mod encoder;
 mod image;
+pub mod random;
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};

@@ -30,6 +30,9 @@ pub enum BenchCommand {
     /// Masks derived from object boxes on a scene trained without masks, against the
     /// dataset's instance masks: IoU per object, mIoU, time.
     Split(crate::cmd_bench_split::SplitBenchArgs),
+    /// Segment Anything on this machine: load, embedding a photograph, one prompt's
+    /// masks (a random ViT-B unless --checkpoint).
+    Sam(crate::cmd_bench_sam::SamBenchArgs),
 }
 
 #[derive(Args, Debug)]
@@ -72,6 +75,7 @@ pub fn run(c: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Embed(a) => crate::cmd_bench_embed::run(a),
         BenchCommand::Process(a) => crate::cmd_bench_process::run(a),
         BenchCommand::Split(a) => crate::cmd_bench_split::run(a),
+        BenchCommand::Sam(a) => crate::cmd_bench_sam::run(a),
     }
 }
 

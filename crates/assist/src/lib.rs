@@ -14,6 +14,7 @@ mod cmd_bench;
 mod cmd_bench_embed;
 mod cmd_bench_mesh;
 mod cmd_bench_process;
+mod cmd_bench_sam;
 mod cmd_bench_split;
 mod cmd_bench_view;
 mod cmd_dataset;
