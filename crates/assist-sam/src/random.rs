@@ -54,42 +54,52 @@ impl Noise {
     }
 }
 
+/// The tensors being made.
+struct Maker {
+    t: HashMap<String, Tensor>,
+    rng: Noise,
+}
+
+impl Maker {
+    /// A tensor of `shape`, scaled by its fan-in.
+    fn put(&mut self, name: String, shape: &[usize]) -> candle_core::Result<()> {
+        let fan = shape.iter().skip(1).product::<usize>().max(1) as f32;
+        let v = self.rng.tensor(shape, 1.0 / fan.sqrt())?;
+        self.t.insert(name, v);
+        Ok(())
+    }
+
+    fn linear(&mut self, name: &str, i: usize, o: usize) -> candle_core::Result<()> {
+        self.put(format!("{name}.weight"), &[o, i])?;
+        self.put(format!("{name}.bias"), &[o])
+    }
+
+    fn norm(&mut self, name: &str, n: usize) -> candle_core::Result<()> {
+        self.put(format!("{name}.weight"), &[n])?;
+        self.put(format!("{name}.bias"), &[n])
+    }
+
+    /// The decoder's attention of width `p` with an inner width `inner`.
+    fn attn(&mut self, name: &str, p: usize, inner: usize) -> candle_core::Result<()> {
+        for q in ["q_proj", "k_proj", "v_proj"] {
+            self.linear(&format!("{name}.{q}"), p, inner)?;
+        }
+        self.linear(&format!("{name}.out_proj"), inner, p)
+    }
+}
+
 /// Writes a random SAM of `spec` to `path` (safetensors).
 pub fn write_random(path: &Path, spec: &RandomSpec, seed: u64) -> Result<()> {
-    let mut rng = Noise(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
-    let mut t: HashMap<String, Tensor> = HashMap::new();
-    let mut put = |name: String, shape: &[usize], rng: &mut Noise| -> candle_core::Result<()> {
-        let fan = shape.iter().skip(1).product::<usize>().max(1) as f32;
-        t.insert(name, rng.tensor(shape, 1.0 / fan.sqrt())?);
-        Ok(())
+    let mut m = Maker {
+        t: HashMap::new(),
+        rng: Noise(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1),
     };
     let (d, p) = (spec.embed_dim, spec.prompt_dim);
     let g = spec.img_size / 16;
     let e = "image_encoder";
-    put(
-        format!("{e}.patch_embed.proj.weight"),
-        &[d, 3, 16, 16],
-        &mut rng,
-    )?;
-    put(format!("{e}.patch_embed.proj.bias"), &[d], &mut rng)?;
-    put(format!("{e}.pos_embed"), &[1, g, g, d], &mut rng)?;
-    let linear = |put: &mut dyn FnMut(String, &[usize], &mut Noise) -> candle_core::Result<()>,
-                  rng: &mut Noise,
-                  name: &str,
-                  i: usize,
-                  o: usize|
-     -> candle_core::Result<()> {
-        put(format!("{name}.weight"), &[o, i], rng)?;
-        put(format!("{name}.bias"), &[o], rng)
-    };
-    let norm = |put: &mut dyn FnMut(String, &[usize], &mut Noise) -> candle_core::Result<()>,
-                rng: &mut Noise,
-                name: &str,
-                n: usize|
-     -> candle_core::Result<()> {
-        put(format!("{name}.weight"), &[n], rng)?;
-        put(format!("{name}.bias"), &[n], rng)
-    };
+    m.put(format!("{e}.patch_embed.proj.weight"), &[d, 3, 16, 16])?;
+    m.put(format!("{e}.patch_embed.proj.bias"), &[d])?;
+    m.put(format!("{e}.pos_embed"), &[1, g, g, d])?;
     for k in 0..spec.depth {
         let b = format!("{e}.blocks.{k}");
         let side = if spec.global.contains(&k) {
@@ -97,115 +107,71 @@ pub fn write_random(path: &Path, spec: &RandomSpec, seed: u64) -> Result<()> {
         } else {
             spec.window
         };
-        for n in ["norm1", "norm2"] {
-            norm(&mut put, &mut rng, &format!("{b}.{n}"), d)?;
-        }
-        linear(&mut put, &mut rng, &format!("{b}.attn.qkv"), d, 3 * d)?;
-        linear(&mut put, &mut rng, &format!("{b}.attn.proj"), d, d)?;
-        put(
+        m.norm(&format!("{b}.norm1"), d)?;
+        m.norm(&format!("{b}.norm2"), d)?;
+        m.linear(&format!("{b}.attn.qkv"), d, 3 * d)?;
+        m.linear(&format!("{b}.attn.proj"), d, d)?;
+        m.put(
             format!("{b}.attn.rel_pos_h"),
             &[2 * side - 1, d / spec.heads],
-            &mut rng,
         )?;
-        put(
+        m.put(
             format!("{b}.attn.rel_pos_w"),
             &[2 * side - 1, d / spec.heads],
-            &mut rng,
         )?;
-        linear(&mut put, &mut rng, &format!("{b}.mlp.lin1"), d, 4 * d)?;
-        linear(&mut put, &mut rng, &format!("{b}.mlp.lin2"), 4 * d, d)?;
+        m.linear(&format!("{b}.mlp.lin1"), d, 4 * d)?;
+        m.linear(&format!("{b}.mlp.lin2"), 4 * d, d)?;
     }
-    put(format!("{e}.neck.0.weight"), &[p, d, 1, 1], &mut rng)?;
-    put(format!("{e}.neck.2.weight"), &[p, p, 3, 3], &mut rng)?;
-    for n in ["neck.1", "neck.3"] {
-        norm(&mut put, &mut rng, &format!("{e}.{n}"), p)?;
-    }
+    m.put(format!("{e}.neck.0.weight"), &[p, d, 1, 1])?;
+    m.norm(&format!("{e}.neck.1"), p)?;
+    m.put(format!("{e}.neck.2.weight"), &[p, p, 3, 3])?;
+    m.norm(&format!("{e}.neck.3"), p)?;
     let pe = "prompt_encoder";
-    put(
+    m.put(
         format!("{pe}.pe_layer.positional_encoding_gaussian_matrix"),
         &[2, p / 2],
-        &mut rng,
     )?;
     for k in 0..4 {
-        put(
-            format!("{pe}.point_embeddings.{k}.weight"),
-            &[1, p],
-            &mut rng,
-        )?;
+        m.put(format!("{pe}.point_embeddings.{k}.weight"), &[1, p])?;
     }
-    put(format!("{pe}.not_a_point_embed.weight"), &[1, p], &mut rng)?;
-    put(format!("{pe}.no_mask_embed.weight"), &[1, p], &mut rng)?;
-    let m = "mask_decoder";
-    put(format!("{m}.iou_token.weight"), &[1, p], &mut rng)?;
-    put(format!("{m}.mask_tokens.weight"), &[4, p], &mut rng)?;
-    let attn = |put: &mut dyn FnMut(String, &[usize], &mut Noise) -> candle_core::Result<()>,
-                rng: &mut Noise,
-                name: &str,
-                inner: usize|
-     -> candle_core::Result<()> {
-        for q in ["q_proj", "k_proj", "v_proj"] {
-            linear(put, rng, &format!("{name}.{q}"), p, inner)?;
-        }
-        linear(put, rng, &format!("{name}.out_proj"), inner, p)
-    };
-    let tr = format!("{m}.transformer");
+    m.put(format!("{pe}.not_a_point_embed.weight"), &[1, p])?;
+    m.put(format!("{pe}.no_mask_embed.weight"), &[1, p])?;
+    let md = "mask_decoder";
+    m.put(format!("{md}.iou_token.weight"), &[1, p])?;
+    m.put(format!("{md}.mask_tokens.weight"), &[4, p])?;
+    let tr = format!("{md}.transformer");
     for k in 0..2 {
         let l = format!("{tr}.layers.{k}");
-        attn(&mut put, &mut rng, &format!("{l}.self_attn"), p)?;
-        attn(
-            &mut put,
-            &mut rng,
-            &format!("{l}.cross_attn_token_to_image"),
-            p / 2,
-        )?;
-        attn(
-            &mut put,
-            &mut rng,
-            &format!("{l}.cross_attn_image_to_token"),
-            p / 2,
-        )?;
+        m.attn(&format!("{l}.self_attn"), p, p)?;
+        m.attn(&format!("{l}.cross_attn_token_to_image"), p, p / 2)?;
+        m.attn(&format!("{l}.cross_attn_image_to_token"), p, p / 2)?;
         for n in ["norm1", "norm2", "norm3", "norm4"] {
-            norm(&mut put, &mut rng, &format!("{l}.{n}"), p)?;
+            m.norm(&format!("{l}.{n}"), p)?;
         }
-        linear(&mut put, &mut rng, &format!("{l}.mlp.lin1"), p, 2048)?;
-        linear(&mut put, &mut rng, &format!("{l}.mlp.lin2"), 2048, p)?;
+        m.linear(&format!("{l}.mlp.lin1"), p, 2048)?;
+        m.linear(&format!("{l}.mlp.lin2"), 2048, p)?;
     }
-    attn(
-        &mut put,
-        &mut rng,
-        &format!("{tr}.final_attn_token_to_image"),
-        p / 2,
-    )?;
-    norm(&mut put, &mut rng, &format!("{tr}.norm_final_attn"), p)?;
-    put(
-        format!("{m}.output_upscaling.0.weight"),
-        &[p, p / 4, 2, 2],
-        &mut rng,
-    )?;
-    put(format!("{m}.output_upscaling.0.bias"), &[p / 4], &mut rng)?;
-    norm(
-        &mut put,
-        &mut rng,
-        &format!("{m}.output_upscaling.1"),
-        p / 4,
-    )?;
-    put(
-        format!("{m}.output_upscaling.3.weight"),
+    m.attn(&format!("{tr}.final_attn_token_to_image"), p, p / 2)?;
+    m.norm(&format!("{tr}.norm_final_attn"), p)?;
+    m.put(format!("{md}.output_upscaling.0.weight"), &[p, p / 4, 2, 2])?;
+    m.put(format!("{md}.output_upscaling.0.bias"), &[p / 4])?;
+    m.norm(&format!("{md}.output_upscaling.1"), p / 4)?;
+    m.put(
+        format!("{md}.output_upscaling.3.weight"),
         &[p / 4, p / 8, 2, 2],
-        &mut rng,
     )?;
-    put(format!("{m}.output_upscaling.3.bias"), &[p / 8], &mut rng)?;
+    m.put(format!("{md}.output_upscaling.3.bias"), &[p / 8])?;
     for k in 0..4 {
-        let h = format!("{m}.output_hypernetworks_mlps.{k}");
-        linear(&mut put, &mut rng, &format!("{h}.layers.0"), p, p)?;
-        linear(&mut put, &mut rng, &format!("{h}.layers.1"), p, p)?;
-        linear(&mut put, &mut rng, &format!("{h}.layers.2"), p, p / 8)?;
+        let h = format!("{md}.output_hypernetworks_mlps.{k}");
+        m.linear(&format!("{h}.layers.0"), p, p)?;
+        m.linear(&format!("{h}.layers.1"), p, p)?;
+        m.linear(&format!("{h}.layers.2"), p, p / 8)?;
     }
-    let iou = format!("{m}.iou_prediction_head");
-    linear(&mut put, &mut rng, &format!("{iou}.layers.0"), p, 256)?;
-    linear(&mut put, &mut rng, &format!("{iou}.layers.1"), 256, 256)?;
-    linear(&mut put, &mut rng, &format!("{iou}.layers.2"), 256, 4)?;
-    candle_core::safetensors::save(&t, path)?;
+    let iou = format!("{md}.iou_prediction_head");
+    m.linear(&format!("{iou}.layers.0"), p, 256)?;
+    m.linear(&format!("{iou}.layers.1"), 256, 256)?;
+    m.linear(&format!("{iou}.layers.2"), 256, 4)?;
+    candle_core::safetensors::save(&m.t, path)?;
     Ok(())
 }
 
