@@ -341,3 +341,52 @@ fn bench_rejects_empty_batches_cleanly() {
         assert!(err.contains(args[0]) && !err.contains("panicked"), "{err}");
     }
 }
+
+/// `assist bench sam` on a small random checkpoint: every stage timed, its sizes read
+/// from the file; a bad size or checkpoint is refused by name.
+#[test]
+fn bench_sam_times_a_checkpoint() {
+    let tmp = TempDir::new("bench-sam");
+    let ckpt = tmp.path().join("small.safetensors");
+    let spec = assist_sam::random::RandomSpec {
+        img_size: 64,
+        embed_dim: 32,
+        depth: 2,
+        heads: 2,
+        window: 3,
+        global: vec![1],
+        prompt_dim: 64,
+    };
+    assist_sam::random::write_random(&ckpt, &spec, 3).unwrap();
+    let c = ckpt.to_str().unwrap();
+    let out = assist(&[
+        "bench",
+        "sam",
+        "--checkpoint",
+        c,
+        "--runs",
+        "1",
+        "--size",
+        "80x60",
+        "--json",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["encoder"]["img_size"], 64, "{v}");
+    assert!(v["embed_seconds"].as_f64().unwrap() > 0.0, "{v}");
+    for (args, needle) in [
+        (vec!["--checkpoint", c, "--size", "80by60"], "--size"),
+        (vec!["--checkpoint", "/nonexistent/sam.pth"], "sam.pth"),
+    ] {
+        let mut all = vec!["bench", "sam"];
+        all.extend(args);
+        let out = assist(&all);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(err.contains(needle) && !err.contains("panicked"), "{err}");
+    }
+}
