@@ -172,7 +172,9 @@ impl TrainJob {
         if !carved.is_empty() {
             on_event(&TrainEvent::Carved { nodes: carved });
         }
-        let held_shadows = self.shadows(&mut scene, &mut views, &mut on_event);
+        // `--shadows auto` learns them where every view has depth.
+        let depth = views.iter().all(|v| v.depth.is_some());
+        let held_shadows = self.shadows(&mut scene, &mut views, depth, &mut on_event);
         let lambdas = lambdas(c, views.iter().any(|v| v.inpaint.is_some()));
         if !c.resume && self.start.is_none() && views.iter().all(|v| v.ids.is_none()) {
             on_event(&TrainEvent::NoMasks {
@@ -202,7 +204,7 @@ impl TrainJob {
         let mut eval_error = None;
         let mut trainer = Trainer::new(scene, views, opts)?;
         trainer.kept = kept;
-        if c.shadows == Shadows::Fixed {
+        if c.shadows.resolve(depth) == Shadows::Fixed {
             // What the photographs show of each shadow stays as estimated, and what lies
             // nearer another object stays shadow-free; the rest (under the object) trains
             // with the scene.
@@ -313,19 +315,20 @@ impl TrainJob {
         &self,
         scene: &mut NeuralScene,
         views: &mut [assist_train::View],
+        depth: bool,
         on_event: &mut impl FnMut(&TrainEvent),
     ) -> std::collections::BTreeMap<String, Vec<bool>> {
         let c = &self.config;
         // Objects learn their shadows (a resumed scene's grids train on whatever the flag).
-        let objects = if c.learns_shadows() {
+        let objects = if c.learns_shadows(depth) {
             assist_train::add_shadow_grids(scene)
         } else {
             0
         };
         let st = assist_train::shadow_free_priors(scene, views);
         // New grids start from the photographs' darkening (trained ones are left as they are).
-        let est = if c.learns_shadows()
-            && (c.shadow_estimate == OnOff::On || c.shadows == Shadows::Fixed)
+        let est = if c.learns_shadows(depth)
+            && (c.shadow_estimate == OnOff::On || c.shadows.resolve(depth) == Shadows::Fixed)
         {
             assist_train::estimate_shadows(scene, views)
         } else {
