@@ -34,6 +34,20 @@ impl RandomSpec {
             prompt_dim: 256,
         }
     }
+
+    /// A SAM small enough for tests: a 64-pixel input, two blocks (one windowed with a
+    /// window that does not divide the grid, one global), 64-wide prompts.
+    pub fn tiny() -> Self {
+        RandomSpec {
+            img_size: 64,
+            embed_dim: 32,
+            depth: 2,
+            heads: 2,
+            window: 3,
+            global: vec![1],
+            prompt_dim: 64,
+        }
+    }
 }
 
 /// Uniform values in ±`scale` from a xorshift generator (no dependency for noise).
@@ -184,16 +198,7 @@ mod tests {
     fn a_random_checkpoint_loads_and_segments() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("sam.safetensors");
-        let spec = RandomSpec {
-            img_size: 64,
-            embed_dim: 32,
-            depth: 2,
-            heads: 2,
-            window: 3,
-            global: vec![1],
-            prompt_dim: 64,
-        };
-        write_random(&path, &spec, 7).unwrap();
+        write_random(&path, &RandomSpec::tiny(), 7).unwrap();
         let sam = Sam::load(&path).unwrap();
         assert_eq!((sam.encoder.img_size, sam.encoder.dim), (64, 32));
         let rgb = vec![0.5f32; 3 * 40 * 30];

@@ -348,16 +348,7 @@ fn bench_rejects_empty_batches_cleanly() {
 fn bench_sam_times_a_checkpoint() {
     let tmp = TempDir::new("bench-sam");
     let ckpt = tmp.path().join("small.safetensors");
-    let spec = assist_sam::random::RandomSpec {
-        img_size: 64,
-        embed_dim: 32,
-        depth: 2,
-        heads: 2,
-        window: 3,
-        global: vec![1],
-        prompt_dim: 64,
-    };
-    assist_sam::random::write_random(&ckpt, &spec, 3).unwrap();
+    assist_sam::random::write_random(&ckpt, &assist_sam::random::RandomSpec::tiny(), 3).unwrap();
     let c = ckpt.to_str().unwrap();
     let out = assist(&[
         "bench",
