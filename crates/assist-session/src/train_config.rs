@@ -30,8 +30,7 @@ pub enum Appearance {
 pub enum Shadows {
     /// `fixed` where every training view has depth (the estimate and the shadow-free
     /// region are placed by it), else `off`: without depth no shadow can be estimated, and
-    /// a learned one takes in whatever stands near the object (gold_cape's pole vanished
-    /// and its pedestal smeared: held-out 16.10 dB against 19.03 dB without; BENCHMARKS.md).
+    /// a learned one takes in whatever stands near the object (measured in BENCHMARKS.md).
     #[default]
     Auto,
     /// Estimated from the photographs, then trained with the scene.

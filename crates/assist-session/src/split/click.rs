@@ -25,8 +25,7 @@ pub const RENDER_DOWNSCALE: u32 = 4;
 
 /// Views are rendered no smaller than this on their longer side to find boxes and masks
 /// (unless the photograph is smaller): a 128-pixel capture rendered at a quarter is 32
-/// pixels across, too coarse for its objects (the built-in scene's boxes: mIoU 0.744 at
-/// a quarter, 0.900 at full size).
+/// pixels across, too coarse for its objects.
 pub const MIN_RENDER_SIDE: u32 = 256;
 
 /// `camera`'s size rendered `downscale` times smaller, its longer side kept at

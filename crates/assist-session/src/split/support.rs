@@ -243,8 +243,8 @@ fn support_around(hs: &[f32], height: f64, bin: f64) -> Option<(f64, f64)> {
 }
 
 /// The share of the surfaces around a box that must lie in one layer for it to be the
-/// box's support (measured: tables and floors 0.95–0.99; gold_cape's cape on its pole,
-/// in a cluttered room, 0.45–0.55).
+/// box's support: tables and floors put nearly all there, an object on a pole in clutter
+/// about half (docs/history.md, session 32).
 pub const SUPPORT_AROUND: f64 = 0.8;
 
 /// A support's surface reaches this many robust standard deviations above its median.
