@@ -213,8 +213,9 @@ impl Field {
     /// The first colour layer's bias for every appearance code, `out` floats each:
     /// `b + W_app · code` for each image, then the average code (novel views) last. The
     /// code is constant over the samples of an image, so its part of the product is folded
-    /// into the bias once per call instead of being multiplied per sample.
-    fn code_biases(&self) -> Vec<f32> {
+    /// into the bias once per call instead of being multiplied per sample. Public for other
+    /// backends of the same field (the GPU's), which fold the code the same way.
+    pub fn code_biases(&self) -> Vec<f32> {
         let l = &self.layout.color[0];
         let (a, k0) = (self.config.appearance_dim, self.code_col());
         let b = &self.params[l.b..l.b + l.out];

@@ -1,0 +1,136 @@
+//! assist-gpu: the node fields on a GPU through wgpu (Vulkan, Metal, DX12), in WGSL compute
+//! shaders. The CPU implementation in `assist-field` is the reference; every kernel here is
+//! tested against it (on Mesa's software Vulkan, lavapipe, where no GPU is present).
+//!
+//! What runs here so far: a field's inference (hash-grid encoding, density and colour
+//! nets) and its density alone (occupancy refresh), over batches resident in GPU memory.
+//! Backends are loaded at run time, so a binary with this crate starts on a machine with
+//! no GPU and no Vulkan loader; [`Gpu::open`] then finds no adapter.
+
+#![forbid(unsafe_code)]
+
+mod field;
+
+pub use field::GpuField;
+
+/// Which processor runs the fields (`--device`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum DeviceChoice {
+    /// A hardware GPU when one is present (software adapters such as lavapipe are passed
+    /// over: they are slower than the CPU path), else the CPU.
+    Auto,
+    /// The CPU path, the reference.
+    #[default]
+    Cpu,
+    /// A GPU adapter, software ones included; an error when there is none.
+    Gpu,
+}
+
+impl std::str::FromStr for DeviceChoice {
+    type Err = GpuError;
+    fn from_str(s: &str) -> Result<Self, GpuError> {
+        match s {
+            "auto" => Ok(DeviceChoice::Auto),
+            "cpu" => Ok(DeviceChoice::Cpu),
+            "gpu" => Ok(DeviceChoice::Gpu),
+            other => Err(GpuError::Choice(other.to_string())),
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    #[error("device: expected auto, cpu or gpu, got {0:?}")]
+    Choice(String),
+    #[error(
+        "--device gpu: no GPU adapter found (wgpu looked for Vulkan, Metal and DX12{}); use --device cpu or auto",
+        if cfg!(target_os = "linux") { "; on Linux a Vulkan driver and loader are needed, e.g. Debian's mesa-vulkan-drivers and libvulkan1" } else { "" }
+    )]
+    NoAdapter,
+    #[error("GPU adapter {adapter}: {message}")]
+    Device { adapter: String, message: String },
+    #[error("GPU: {0}")]
+    Run(String),
+}
+
+/// An opened GPU: the adapter's description, its device and queue.
+pub struct Gpu {
+    pub info: wgpu::AdapterInfo,
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub limits: wgpu::Limits,
+}
+
+impl std::fmt::Debug for Gpu {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Gpu({})", self.name())
+    }
+}
+
+impl Gpu {
+    /// Opens the device `choice` asks for: `Cpu` → `None`; `Auto` → the first hardware
+    /// adapter, or `None`; `Gpu` → the first adapter of any kind, or [`GpuError::NoAdapter`].
+    /// Hardware adapters are preferred (discrete, integrated, virtual, then software).
+    pub fn open(choice: DeviceChoice) -> Result<Option<Gpu>, GpuError> {
+        if choice == DeviceChoice::Cpu {
+            return Ok(None);
+        }
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+        desc.backends = wgpu::Backends::VULKAN | wgpu::Backends::METAL | wgpu::Backends::DX12;
+        desc.flags = wgpu::InstanceFlags::empty();
+        let instance = wgpu::Instance::new(desc);
+        let mut adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
+        let rank = |t: wgpu::DeviceType| match t {
+            wgpu::DeviceType::DiscreteGpu => 0,
+            wgpu::DeviceType::IntegratedGpu => 1,
+            wgpu::DeviceType::VirtualGpu => 2,
+            wgpu::DeviceType::Other => 3,
+            wgpu::DeviceType::Cpu => 4,
+        };
+        adapters.sort_by_key(|a| rank(a.get_info().device_type));
+        let hardware = |a: &wgpu::Adapter| a.get_info().device_type != wgpu::DeviceType::Cpu;
+        let Some(adapter) = adapters
+            .into_iter()
+            .find(|a| choice == DeviceChoice::Gpu || hardware(a))
+        else {
+            return match choice {
+                DeviceChoice::Gpu => Err(GpuError::NoAdapter),
+                _ => Ok(None),
+            };
+        };
+        let info = adapter.get_info();
+        let limits = adapter.limits();
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("assist"),
+            required_features: wgpu::Features::empty(),
+            required_limits: limits.clone(),
+            ..Default::default()
+        }))
+        .map_err(|e| GpuError::Device {
+            adapter: info.name.clone(),
+            message: e.to_string(),
+        })?;
+        Ok(Some(Gpu {
+            info,
+            device,
+            queue,
+            limits,
+        }))
+    }
+
+    /// "NAME (backend, kind)", for logs and `--json`.
+    pub fn name(&self) -> String {
+        format!(
+            "{} ({:?}, {:?})",
+            self.info.name, self.info.backend, self.info.device_type
+        )
+    }
+
+    /// Waits until everything submitted so far has run.
+    pub fn wait(&self) -> Result<(), GpuError> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| GpuError::Run(e.to_string()))
+    }
+}

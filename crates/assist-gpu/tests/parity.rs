@@ -1,0 +1,211 @@
+//! The GPU kernels against the CPU reference (`assist-field`), on whatever adapter is
+//! present: lavapipe (Mesa's software Vulkan) in CI, a real card elsewhere. Without any
+//! adapter the tests skip loudly, unless `ASSIST_REQUIRE_GPU=1` (CI sets it) makes that a
+//! failure.
+
+use assist_core::Rng;
+use assist_field::{Field, FieldConfig, Samples};
+use assist_gpu::{DeviceChoice, Gpu, GpuError, GpuField};
+
+fn gpu() -> Option<Gpu> {
+    match Gpu::open(DeviceChoice::Gpu) {
+        Ok(g) => {
+            eprintln!("GPU tests on {}", g.as_ref().expect("gpu").name());
+            g
+        }
+        Err(GpuError::NoAdapter) if std::env::var("ASSIST_REQUIRE_GPU").as_deref() != Ok("1") => {
+            eprintln!("SKIPPED: no GPU adapter (install mesa-vulkan-drivers for lavapipe)");
+            None
+        }
+        Err(e) => panic!("{e}"),
+    }
+}
+
+/// A field whose every parameter is random at a scale where each part matters: grid
+/// entries ±0.5 (so the encoding, not only the biases, drives the outputs), weights
+/// He-uniform, biases ±0.1, codes ±0.5.
+fn random_field(cfg: FieldConfig, seed: u64) -> Field {
+    let mut f = Field::new(cfg, seed).expect("config");
+    let mut rng = Rng::new(seed + 7);
+    let grid = f.layout.grid.param_count();
+    for p in &mut f.params[..grid] {
+        *p = rng.f32() - 0.5;
+    }
+    let layers: Vec<_> = f
+        .layout
+        .density
+        .iter()
+        .chain(&f.layout.color)
+        .copied()
+        .collect();
+    for l in layers {
+        for o in 0..l.out {
+            f.params[l.b + o] = (rng.f32() - 0.5) * 0.2;
+        }
+    }
+    for p in &mut f.params[f.layout.appearance..] {
+        *p = rng.f32() - 0.5;
+    }
+    f
+}
+
+struct Batch {
+    pos: [Vec<f32>; 3],
+    dir: [Vec<f32>; 3],
+    image: Vec<u32>,
+}
+
+/// `n` samples: positions mostly in [0, 1]³ with a few outside (clamped by both), unit
+/// directions, codes of every image and the average (`u32::MAX`).
+fn batch(n: usize, images: usize, seed: u64) -> Batch {
+    let mut rng = Rng::new(seed);
+    let mut b = Batch {
+        pos: Default::default(),
+        dir: Default::default(),
+        image: Vec::new(),
+    };
+    for i in 0..n {
+        for a in 0..3 {
+            b.pos[a].push(rng.f32() * 1.1 - 0.05);
+        }
+        let d = [rng.normal(), rng.normal(), rng.normal()];
+        let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        for a in 0..3 {
+            b.dir[a].push((d[a] / len) as f32);
+        }
+        b.image.push(if i % 5 == 0 {
+            u32::MAX
+        } else {
+            rng.below(images as u64) as u32
+        });
+    }
+    b
+}
+
+fn samples(b: &Batch) -> Samples<'_> {
+    Samples {
+        pos: [&b.pos[0], &b.pos[1], &b.pos[2]],
+        dir: [&b.dir[0], &b.dir[1], &b.dir[2]],
+        image: &b.image,
+    }
+}
+
+/// Largest |gpu − cpu| / (|cpu| + floor) over the outputs.
+fn worst(gpu: &[f32], cpu: &[f32], floor: f32) -> f32 {
+    assert_eq!(gpu.len(), cpu.len());
+    gpu.iter()
+        .zip(cpu)
+        .map(|(g, c)| {
+            assert!(g.is_finite(), "GPU output not finite: {g}");
+            (g - c).abs() / (c.abs() + floor)
+        })
+        .fold(0.0, f32::max)
+}
+
+fn configs() -> Vec<(&'static str, FieldConfig)> {
+    vec![
+        // Nerfacto's nets with a small table (dense and hashed levels both present).
+        (
+            "nerfacto nets, T = 2^14",
+            FieldConfig {
+                log2_table_size: 14,
+                ..FieldConfig::nerfacto(6)
+            },
+        ),
+        // Other widths: F = 4, one colour hidden layer, SH degree 3, no appearance codes.
+        (
+            "F 4, 1 colour layer, SH 3, no codes",
+            FieldConfig {
+                levels: 6,
+                features_per_level: 4,
+                log2_table_size: 12,
+                base_resolution: 4,
+                max_resolution: 64,
+                hidden: 32,
+                geo_features: 7,
+                color_hidden: 32,
+                color_layers: 1,
+                sh_degree: 3,
+                appearance_dim: 0,
+                num_images: 0,
+            },
+        ),
+    ]
+}
+
+#[test]
+fn forward_matches_cpu() {
+    let Some(gpu) = gpu() else { return };
+    for (seed, (name, cfg)) in configs().into_iter().enumerate() {
+        let images = cfg.num_images.max(1);
+        let field = random_field(cfg, seed as u64 + 1);
+        let b = batch(3001, images, 11 + seed as u64);
+        let s = samples(&b);
+        let n = s.len();
+        let (mut sig_c, mut rgb_c) = (vec![0.0; n], vec![0.0; 3 * n]);
+        field.forward(&s, &mut sig_c, &mut rgb_c);
+        let mut gf = GpuField::new(&gpu, &field).expect("upload");
+        let (mut sig_g, mut rgb_g) = (vec![0.0; n], vec![0.0; 3 * n]);
+        gf.forward(&gpu, &s, &mut sig_g, &mut rgb_g)
+            .expect("forward");
+        let (ws, wc) = (worst(&sig_g, &sig_c, 1e-3), worst(&rgb_g, &rgb_c, 1e-3));
+        eprintln!("{name}: worst relative difference σ {ws:.2e}, rgb {wc:.2e}");
+        // f32 sums in another order and another exp: a few ulp per layer.
+        assert!(ws < 1e-4 && wc < 1e-4, "{name}: σ {ws:e}, rgb {wc:e}");
+        // The outputs vary (a kernel that wrote constants would pass the bound above only
+        // if the CPU did too).
+        let spread = sig_c
+            .iter()
+            .fold(0.0f32, |m, &v| m.max((v - sig_c[0]).abs()));
+        assert!(spread > 1e-2, "{name}: σ barely varies ({spread})");
+
+        // Density alone, as the occupancy refresh asks for it.
+        let mut dens_c = vec![0.0; n];
+        field.density([&b.pos[0], &b.pos[1], &b.pos[2]], &mut dens_c);
+        let mut dens_g = vec![0.0; n];
+        gf.density(&gpu, [&b.pos[0], &b.pos[1], &b.pos[2]], &mut dens_g)
+            .expect("density");
+        let wd = worst(&dens_g, &dens_c, 1e-3);
+        assert!(wd < 1e-4, "{name}: density {wd:e}");
+        assert!(
+            worst(&dens_g, &sig_g, 1e-3) < 1e-6,
+            "{name}: density ≠ forward's σ"
+        );
+    }
+}
+
+#[test]
+fn new_parameters_are_used_after_upload() {
+    let Some(gpu) = gpu() else { return };
+    let (_, cfg) = configs().remove(0);
+    let mut field = random_field(cfg, 3);
+    let b = batch(500, field.config.num_images, 5);
+    let s = samples(&b);
+    let mut gf = GpuField::new(&gpu, &field).expect("upload");
+    // Change the grid, the nets and the codes, then upload.
+    for p in field.params.iter_mut().step_by(3) {
+        *p *= -0.7;
+    }
+    gf.upload(&gpu, &field).expect("upload");
+    let (mut sig_c, mut rgb_c) = (vec![0.0; 500], vec![0.0; 1500]);
+    field.forward(&s, &mut sig_c, &mut rgb_c);
+    let (mut sig_g, mut rgb_g) = (vec![0.0; 500], vec![0.0; 1500]);
+    gf.forward(&gpu, &s, &mut sig_g, &mut rgb_g)
+        .expect("forward");
+    assert!(worst(&sig_g, &sig_c, 1e-3) < 1e-4);
+    assert!(worst(&rgb_g, &rgb_c, 1e-3) < 1e-4);
+    // A field of another size is refused, not silently misread.
+    let other = Field::new(configs().remove(1).1, 1).expect("config");
+    assert!(gf.upload(&gpu, &other).is_err());
+}
+
+#[test]
+fn cpu_choice_opens_nothing_and_auto_skips_software_adapters() {
+    assert!(Gpu::open(DeviceChoice::Cpu).expect("cpu").is_none());
+    if let Some(g) = Gpu::open(DeviceChoice::Auto).expect("auto") {
+        assert_ne!(g.info.device_type, wgpu::DeviceType::Cpu, "{}", g.name());
+    }
+    assert!("gpu".parse::<DeviceChoice>().is_ok());
+    let e = "cuda".parse::<DeviceChoice>().unwrap_err().to_string();
+    assert!(e.contains("auto, cpu or gpu") && e.contains("cuda"), "{e}");
+}
