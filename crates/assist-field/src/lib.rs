@@ -29,5 +29,6 @@ pub use adam::Adam;
 pub use config::FieldConfig;
 pub use error::FieldError;
 pub use field::{Field, ParamLayout, PhaseTimes, Precision, Samples, Tape};
+pub use mlp::Linear;
 pub use occupancy::{OccupancyGrid, Step};
 pub use shade::ShadeGrid;

@@ -25,21 +25,73 @@ fn header(field: &Field) -> String {
     .into_iter()
     .max()
     .unwrap_or(1);
-    format!(
+    let mut h = format!(
         "const LEVELS: u32 = {}u;\nconst FEAT: u32 = {}u;\nconst ENC_W: u32 = {}u;\n\
-         const HIDDEN: u32 = {}u;\nconst GEO: u32 = {}u;\nconst SH_DEGREE: u32 = {}u;\n\
-         const COLOR_NETS: u32 = {}u;\nconst APPEARANCE: bool = {};\n\
-         const NUM_IMAGES: u32 = {}u;\nconst MAXW: u32 = {}u;\n",
+         const GEO: u32 = {}u;\nconst SH_DEGREE: u32 = {}u;\n\
+         const APPEARANCE: bool = {};\nconst NUM_IMAGES: u32 = {}u;\nconst MAXW: u32 = {}u;\n",
         c.levels,
         c.features_per_level,
         c.encoding_width(),
-        c.hidden,
         c.geo_features,
         c.sh_degree,
-        l.color.len(),
         c.appearance_dim > 0,
         c.num_images,
         maxw
+    );
+    let d = &l.density;
+    h += &layer_fn("layer0", &d[0], c.encoding_width(), Bias::Params, true);
+    h += &layer_fn("layer1", &d[1], c.hidden, Bias::Params, false);
+    // The colour net: its first layer over geometry + SH (the code acts through the bias).
+    let nets = l.color.len();
+    let cols0 = c.geo_features + c.sh_width();
+    h += &layer_fn("color0", &l.color[0], cols0, Bias::Code, nets > 1);
+    let mut body = String::from("    color0(slot, x, y);\n");
+    for (k, ly) in l.color.iter().enumerate().skip(1) {
+        let name = format!("color{k}");
+        h += &layer_fn(&name, ly, l.color[k - 1].out, Bias::Params, k + 1 < nets);
+        // Ping-pong: odd layers read y and write x, even ones the reverse.
+        let (from, to) = if k % 2 == 1 { ("y", "x") } else { ("x", "y") };
+        body += &format!("    {name}({from}, {to});\n");
+    }
+    let last = if nets % 2 == 0 { "x" } else { "y" };
+    h += &format!(
+        "// The colour net: input in x, result (pre-sigmoid rgb) returned; x and y are scratch.\n\
+         fn color_net(slot: u32, x: ptr<function, array<f32, MAXW>>, y: ptr<function, array<f32, MAXW>>) -> vec3<f32> {{\n\
+         {body}    return vec3<f32>((*{last})[0], (*{last})[1], (*{last})[2]);\n}}\n"
+    );
+    h
+}
+
+/// Where a layer's bias comes from: the parameters, or the per-code table (slot argument).
+#[derive(PartialEq)]
+enum Bias {
+    Params,
+    Code,
+}
+
+/// A WGSL function computing `y[..out] = act(W[:, ..cols] x + b)` for one layer, with its
+/// sizes and offsets as constants.
+fn layer_fn(name: &str, l: &assist_field::Linear, cols: usize, bias: Bias, relu: bool) -> String {
+    let (slot_arg, b) = match bias {
+        Bias::Params => (String::new(), format!("params[{}u + o]", l.b)),
+        Bias::Code => (
+            "slot: u32, ".into(),
+            format!("code_bias[slot * {}u + o]", l.out),
+        ),
+    };
+    let act = if relu { "max(acc, 0.0)" } else { "acc" };
+    format!(
+        "fn {name}({slot_arg}x: ptr<function, array<f32, MAXW>>, y: ptr<function, array<f32, MAXW>>) {{\n\
+         \x20   for (var o = 0u; o < {out}u; o++) {{\n\
+         \x20       var acc = {b};\n\
+         \x20       for (var i = 0u; i < {cols}u; i++) {{\n\
+         \x20           acc = fma(params[{w}u + o * {pad}u + i], (*x)[i], acc);\n\
+         \x20       }}\n\
+         \x20       (*y)[o] = {act};\n\
+         \x20   }}\n}}\n",
+        out = l.out,
+        w = l.w,
+        pad = l.inp_pad,
     )
 }
 
@@ -47,7 +99,6 @@ fn header(field: &Field) -> String {
 pub struct GpuField {
     params: wgpu::Buffer,
     levels: wgpu::Buffer,
-    layers: wgpu::Buffer,
     code_bias: wgpu::Buffer,
     call: wgpu::Buffer,
     forward: wgpu::ComputePipeline,
@@ -98,22 +149,32 @@ impl GpuField {
             .iter()
             .map(|l| [l.res, l.size, l.dense as u32, l.offset as u32])
             .collect();
-        let layers: Vec<[u32; 4]> = lay
-            .density
-            .iter()
-            .chain(&lay.color)
-            .map(|l| [l.w as u32, l.b as u32, l.out as u32, l.inp_pad as u32])
-            .collect();
-        let params = storage(gpu, "params", bytemuck::cast_slice(&field.params));
-        let levels = storage(gpu, "levels", bytemuck::cast_slice(&levels));
-        let layers = storage(gpu, "layers", bytemuck::cast_slice(&layers));
-        let code_bias = storage(gpu, "code_bias", bytemuck::cast_slice(&field.code_biases()));
-        let call = gpu.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("call"),
-            size: 16,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let (params, levels, code_bias, call) = gpu.checked("uploading the field", || {
+            (
+                storage(gpu, "params", bytemuck::cast_slice(&field.params)),
+                storage(gpu, "levels", bytemuck::cast_slice(&levels)),
+                storage(gpu, "code_bias", bytemuck::cast_slice(&field.code_biases())),
+                gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("call"),
+                    size: 16,
+                    usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                }),
+            )
+        })?;
+        gpu.checked("building the field's kernels", || {
+            Self::build(gpu, field, params, levels, code_bias, call)
+        })
+    }
+
+    fn build(
+        gpu: &Gpu,
+        field: &Field,
+        params: wgpu::Buffer,
+        levels: wgpu::Buffer,
+        code_bias: wgpu::Buffer,
+        call: wgpu::Buffer,
+    ) -> Self {
         let source = format!("{}{SHADER}", header(field));
         let module = gpu
             .device
@@ -132,12 +193,12 @@ impl GpuField {
             count: None,
         };
         let ro = wgpu::BufferBindingType::Storage { read_only: true };
-        let mut entries: Vec<_> = (0..6).map(|b| entry(b, ro)).collect();
+        let mut entries: Vec<_> = (0..5).map(|b| entry(b, ro)).collect();
         entries.push(entry(
-            6,
+            5,
             wgpu::BufferBindingType::Storage { read_only: false },
         ));
-        entries.push(entry(7, wgpu::BufferBindingType::Uniform));
+        entries.push(entry(6, wgpu::BufferBindingType::Uniform));
         let bind_layout = gpu
             .device
             .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -164,10 +225,9 @@ impl GpuField {
         };
         let forward = pipeline("forward");
         let density = pipeline("density");
-        Ok(GpuField {
+        GpuField {
             params,
             levels,
-            layers,
             code_bias,
             call,
             forward,
@@ -176,7 +236,7 @@ impl GpuField {
             io: None,
             n: 0,
             param_count: field.params.len(),
-        })
+        }
     }
 
     /// Replaces the parameters (same configuration) with `field`'s, e.g. after CPU steps.
@@ -211,48 +271,51 @@ impl GpuField {
                 6 * 4 * n
             )));
         }
-        let buffer = |label: &str, floats: usize, usage: wgpu::BufferUsages| {
-            gpu.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: 4 * floats as u64,
-                usage,
-                mapped_at_creation: false,
-            })
-        };
-        use wgpu::BufferUsages as U;
-        let samples = buffer("samples", 6 * capacity, U::STORAGE | U::COPY_DST);
-        let image = buffer("image", capacity, U::STORAGE | U::COPY_DST);
-        let out = buffer("out", 4 * capacity, U::STORAGE | U::COPY_SRC);
-        let readback = buffer("readback", 4 * capacity, U::MAP_READ | U::COPY_DST);
-        let bind = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("field"),
-            layout: &self.bind_layout,
-            entries: &[
-                &self.params,
-                &self.levels,
-                &self.layers,
-                &self.code_bias,
-                &samples,
-                &image,
-                &out,
-                &self.call,
-            ]
-            .iter()
-            .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry {
-                binding: i as u32,
-                resource: b.as_entire_binding(),
-            })
-            .collect::<Vec<_>>(),
-        });
-        self.io = Some(Io {
-            capacity,
-            samples,
-            image,
-            out,
-            readback,
-            bind,
-        });
+        let what = format!("allocating a batch of {n} samples");
+        let io = gpu.checked(&what, || {
+            let buffer = |label: &str, floats: usize, usage: wgpu::BufferUsages| {
+                gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some(label),
+                    size: 4 * floats as u64,
+                    usage,
+                    mapped_at_creation: false,
+                })
+            };
+            use wgpu::BufferUsages as U;
+            let samples = buffer("samples", 6 * capacity, U::STORAGE | U::COPY_DST);
+            let image = buffer("image", capacity, U::STORAGE | U::COPY_DST);
+            let out = buffer("out", 4 * capacity, U::STORAGE | U::COPY_SRC);
+            let readback = buffer("readback", 4 * capacity, U::MAP_READ | U::COPY_DST);
+            let bind = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("field"),
+                layout: &self.bind_layout,
+                entries: &[
+                    &self.params,
+                    &self.levels,
+                    &self.code_bias,
+                    &samples,
+                    &image,
+                    &out,
+                    &self.call,
+                ]
+                .iter()
+                .enumerate()
+                .map(|(i, b)| wgpu::BindGroupEntry {
+                    binding: i as u32,
+                    resource: b.as_entire_binding(),
+                })
+                .collect::<Vec<_>>(),
+            });
+            Io {
+                capacity,
+                samples,
+                image,
+                out,
+                readback,
+                bind,
+            }
+        })?;
+        self.io = Some(io);
         Ok(())
     }
 

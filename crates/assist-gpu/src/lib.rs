@@ -59,6 +59,9 @@ pub struct Gpu {
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
     pub limits: wgpu::Limits,
+    /// Errors the device raised outside [`Gpu::checked`] (wgpu's default is to panic);
+    /// [`Gpu::wait`] reports the first.
+    errors: std::sync::Arc<std::sync::Mutex<Vec<String>>>,
 }
 
 impl std::fmt::Debug for Gpu {
@@ -110,11 +113,19 @@ impl Gpu {
             adapter: info.name.clone(),
             message: e.to_string(),
         })?;
+        let errors = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+        let sink = errors.clone();
+        device.on_uncaptured_error(std::sync::Arc::new(move |e: wgpu::Error| {
+            if let Ok(mut v) = sink.lock() {
+                v.push(e.to_string());
+            }
+        }));
         Ok(Some(Gpu {
             info,
             device,
             queue,
             limits,
+            errors,
         }))
     }
 
@@ -126,11 +137,35 @@ impl Gpu {
         )
     }
 
+    /// Runs `f` with the device's validation and out-of-memory errors captured, so that a
+    /// kernel or buffer the adapter refuses becomes a [`GpuError`] naming `what`, not a
+    /// panic.
+    pub fn checked<T>(&self, what: &str, f: impl FnOnce() -> T) -> Result<T, GpuError> {
+        let memory = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let valid = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let v = f();
+        let errors = [
+            pollster::block_on(valid.pop()),
+            pollster::block_on(memory.pop()),
+        ];
+        match errors.into_iter().flatten().next() {
+            Some(e) => Err(GpuError::Device {
+                adapter: self.info.name.clone(),
+                message: format!("{what}: {e}"),
+            }),
+            None => Ok(v),
+        }
+    }
+
     /// Waits until everything submitted so far has run.
     pub fn wait(&self) -> Result<(), GpuError> {
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
-            .map(|_| ())
-            .map_err(|e| GpuError::Run(e.to_string()))
+            .map_err(|e| GpuError::Run(e.to_string()))?;
+        let first = self.errors.lock().ok().and_then(|mut v| v.drain(..).next());
+        match first {
+            Some(e) => Err(GpuError::Run(e)),
+            None => Ok(()),
+        }
     }
 }

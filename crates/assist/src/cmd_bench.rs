@@ -61,6 +61,10 @@ pub struct FieldBenchArgs {
     /// Only the Nerfacto-size field.
     #[arg(long)]
     pub nerfacto_only: bool,
+    /// Also time the field's inference on a GPU: auto (a hardware adapter if present),
+    /// gpu (any adapter, lavapipe included; an error without one) or cpu (none).
+    #[arg(long, default_value = "cpu")]
+    pub device: assist_gpu::DeviceChoice,
     /// Print the figures as JSON on stdout.
     #[arg(long)]
     pub json: bool,
@@ -128,6 +132,7 @@ fn bench_one(
     grid_res: u32,
     a: &FieldBenchArgs,
     show: bool,
+    gpu: Option<&assist_gpu::Gpu>,
 ) -> anyhow::Result<Value> {
     let mut rng = Rng::new(1);
     let images = cfg.num_images;
@@ -200,7 +205,12 @@ fn bench_one(
     let infer_sps = n as f64 / infer;
     let mlp_train_gflops =
         3.0 * 2.0 * macs * n as f64 / (phases.mlp_forward + phases.mlp_backward) / 1e9;
+    let gpu = match gpu {
+        Some(g) => crate::cmd_bench_gpu::field(g, &field, &s, a.steps, show)?,
+        None => Value::Null,
+    };
     let v = json!({
+        "gpu": gpu,
         "field": name,
         "params": field.param_count(),
         "batch_samples": n,
@@ -338,12 +348,23 @@ fn field(a: FieldBenchArgs) -> anyhow::Result<()> {
     }
     // The occupancy grids training builds for a background and for an object.
     let grids = assist_train::SetupOptions::default();
+    let gpu = assist_gpu::Gpu::open(a.device)?;
+    if show {
+        match &gpu {
+            Some(g) => eprintln!("GPU: {}", g.name()),
+            None if a.device == assist_gpu::DeviceChoice::Auto => {
+                eprintln!("GPU: none found (auto): CPU figures only")
+            }
+            None => {}
+        }
+    }
     let mut results = vec![bench_one(
         "nerfacto",
         FieldConfig::nerfacto(100),
         grids.background_grid,
         &a,
         show,
+        gpu.as_ref(),
     )?];
     if !a.nerfacto_only {
         results.push(bench_one(
@@ -352,6 +373,7 @@ fn field(a: FieldBenchArgs) -> anyhow::Result<()> {
             grids.object_grid,
             &a,
             show,
+            gpu.as_ref(),
         )?);
     }
     let nerf = &results[0];
@@ -359,6 +381,7 @@ fn field(a: FieldBenchArgs) -> anyhow::Result<()> {
         "train_samples_per_sec": nerf["train_samples_per_sec"],
         "infer_samples_per_sec": nerf["infer_samples_per_sec"],
         "simd": level.name(),
+        "device": gpu.as_ref().map(|g| g.name()),
         "threads": threads,
         "peak_gflops_per_core": peak_core,
         "peak_gflops_total": peak_core * threads as f64,

@@ -1,7 +1,9 @@
 // The node field on the GPU: hash-grid encoding, density net, colour net, one invocation
 // per sample, f32 throughout (the CPU reference's arithmetic, so the two agree to rounding).
-// The constants above this line (LEVELS, FEAT, ENC_W, HIDDEN, GEO, SH_DEGREE, COLOR_NETS,
-// APPEARANCE, NUM_IMAGES, MAXW) are written by `assist-gpu` per field.
+// The constants above this line (LEVELS, FEAT, ENC_W, GEO, SH_DEGREE, APPEARANCE,
+// NUM_IMAGES, MAXW) and the layer functions (`layer0`, `layer1`, `color_net`) are written by
+// `assist-gpu` per field, with every size and offset a constant: the driver then unrolls
+// the products and keeps the activations in registers rather than in local memory.
 
 struct Call {
     n: u32,
@@ -14,18 +16,15 @@ struct Call {
 @group(0) @binding(0) var<storage, read> params: array<f32>;
 // Per level: cells per axis, table entries, dense (1) or hashed (0), first entry.
 @group(0) @binding(1) var<storage, read> levels: array<vec4<u32>>;
-// Per linear layer (density 0, 1, colour 0…): weight offset, bias offset, outputs, row
-// stride (inputs padded to 16).
-@group(0) @binding(2) var<storage, read> layers: array<vec4<u32>>;
 // The first colour layer's bias per appearance code, average code last (`code_biases`).
-@group(0) @binding(3) var<storage, read> code_bias: array<f32>;
+@group(0) @binding(2) var<storage, read> code_bias: array<f32>;
 // Samples, structure of arrays: x, y, z (in [0, 1]), then dx, dy, dz (unit), n each.
-@group(0) @binding(4) var<storage, read> samples: array<f32>;
+@group(0) @binding(3) var<storage, read> samples: array<f32>;
 // Appearance code per sample (u32::MAX: the average code).
-@group(0) @binding(5) var<storage, read> image: array<u32>;
+@group(0) @binding(4) var<storage, read> image: array<u32>;
 // σ (n), then rgb interleaved (3n).
-@group(0) @binding(6) var<storage, read_write> out: array<f32>;
-@group(0) @binding(7) var<uniform> call: Call;
+@group(0) @binding(5) var<storage, read_write> out: array<f32>;
+@group(0) @binding(6) var<uniform> call: Call;
 
 const MAX_RAW_DENSITY: f32 = 15.0;
 
@@ -56,31 +55,6 @@ fn encode(p: vec3<f32>, enc: ptr<function, array<f32, MAXW>>) {
                 (*enc)[l * FEAT + j] += w * params[base + j];
             }
         }
-    }
-}
-
-// y[..out] = W[:, ..cols] x (no bias).
-fn product(li: u32, cols: u32, x: ptr<function, array<f32, MAXW>>, y: ptr<function, array<f32, MAXW>>) {
-    let ly = layers[li];
-    for (var o = 0u; o < ly.z; o++) {
-        let row = ly.x + o * ly.w;
-        var acc = 0.0;
-        for (var i = 0u; i < cols; i++) {
-            acc += params[row + i] * (*x)[i];
-        }
-        (*y)[o] = acc;
-    }
-}
-
-// y += b (from the parameters), then ReLU if asked.
-fn bias_act(li: u32, y: ptr<function, array<f32, MAXW>>, relu: bool) {
-    let ly = layers[li];
-    for (var o = 0u; o < ly.z; o++) {
-        var v = (*y)[o] + params[ly.y + o];
-        if (relu) {
-            v = max(v, 0.0);
-        }
-        (*y)[o] = v;
     }
 }
 
@@ -132,10 +106,8 @@ fn position(s: u32) -> vec3<f32> {
 // Encoding and density net; leaves raw density in a[0] and the geometry feature in a[1..].
 fn density_net(s: u32, a: ptr<function, array<f32, MAXW>>, b: ptr<function, array<f32, MAXW>>) {
     encode(position(s), a);
-    product(0u, ENC_W, a, b);
-    bias_act(0u, b, true);
-    product(1u, HIDDEN, b, a);
-    bias_act(1u, a, false);
+    layer0(a, b);
+    layer1(b, a);
 }
 
 @compute @workgroup_size(64)
@@ -154,35 +126,13 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     }
     let d = vec3<f32>(samples[3u * n + s], samples[4u * n + s], samples[5u * n + s]);
     sh(d, &b, GEO);
-    // First colour layer: geometry + SH through the product, the appearance code as a bias.
-    product(2u, GEO + SH_DEGREE * SH_DEGREE, &b, &a);
+    // The colour net: geometry + SH through the products, the appearance code as the
+    // first layer's bias.
     var slot = 0u;
     if (APPEARANCE) {
         slot = min(image[s], NUM_IMAGES);
     }
-    let out0 = layers[2u].z;
-    for (var o = 0u; o < out0; o++) {
-        let v = a[o] + code_bias[slot * out0 + o];
-        a[o] = select(v, max(v, 0.0), COLOR_NETS > 1u);
-    }
-    // The rest of the colour net, ping-ponging between a and b; result in a or b.
-    for (var li = 1u; li < COLOR_NETS; li++) {
-        let relu = li + 1u < COLOR_NETS;
-        let ly = 2u + li;
-        if (li % 2u == 1u) {
-            product(ly, layers[ly - 1u].z, &a, &b);
-            bias_act(ly, &b, relu);
-        } else {
-            product(ly, layers[ly - 1u].z, &b, &a);
-            bias_act(ly, &a, relu);
-        }
-    }
-    var rgb: vec3<f32>;
-    if (COLOR_NETS % 2u == 0u) {
-        rgb = vec3<f32>(b[0], b[1], b[2]);
-    } else {
-        rgb = vec3<f32>(a[0], a[1], a[2]);
-    }
+    let rgb = color_net(slot, &b, &a);
     out[s] = exp(min(raw, MAX_RAW_DENSITY));
     let c = 1.0 / (1.0 + exp(-rgb));
     out[n + 3u * s] = c.x;

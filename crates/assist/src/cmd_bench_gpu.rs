@@ -1,0 +1,78 @@
+//! `assist bench field --device gpu`: the GPU kernels' throughput on the batch the CPU
+//! figures use, beside them, with the largest difference from the CPU's outputs.
+
+use std::time::Instant;
+
+use assist_field::{Field, Samples};
+use assist_gpu::{Gpu, GpuField};
+use serde_json::{Value, json};
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Inference and density over `s` on `gpu`, `steps` timed runs each after one warm-up:
+/// resident (the batch already in GPU memory, as rendering and training will use it) and
+/// with the batch's upload and the outputs' read-back.
+pub fn field(
+    gpu: &Gpu,
+    field: &Field,
+    s: &Samples,
+    steps: usize,
+    show: bool,
+) -> anyhow::Result<Value> {
+    let n = s.len();
+    let t0 = Instant::now();
+    let mut gf = GpuField::new(gpu, field)?;
+    let (mut sig, mut rgb) = (vec![0.0f32; n], vec![0.0f32; 3 * n]);
+    gf.forward(gpu, s, &mut sig, &mut rgb)?;
+    let setup = t0.elapsed().as_secs_f64();
+    let (mut sig_c, mut rgb_c) = (vec![0.0f32; n], vec![0.0f32; 3 * n]);
+    field.forward(s, &mut sig_c, &mut rgb_c);
+    let diff = |g: &[f32], c: &[f32]| {
+        g.iter()
+            .zip(c)
+            .map(|(g, c)| (g - c).abs() / (c.abs() + 1e-3))
+            .fold(
+                0.0f32,
+                |m, d| if d.is_nan() { f32::INFINITY } else { m.max(d) },
+            )
+    };
+    let (d_sigma, d_rgb) = (diff(&sig, &sig_c), diff(&rgb, &rgb_c));
+    let timed = |f: &mut dyn FnMut() -> anyhow::Result<()>| -> anyhow::Result<f64> {
+        f()?;
+        let mut t = Vec::with_capacity(steps);
+        for _ in 0..steps {
+            let t0 = Instant::now();
+            f()?;
+            t.push(t0.elapsed().as_secs_f64());
+        }
+        Ok(median(t))
+    };
+    gf.load(gpu, s)?;
+    let infer = timed(&mut || Ok(gf.run_forward(gpu)?))?;
+    let density = timed(&mut || Ok(gf.run_density(gpu)?))?;
+    let round_trip = timed(&mut || Ok(gf.forward(gpu, s, &mut sig, &mut rgb)?))?;
+    let v = json!({
+        "adapter": gpu.name(),
+        "infer_samples_per_sec": n as f64 / infer,
+        "infer_seconds": infer,
+        "density_samples_per_sec": n as f64 / density,
+        "infer_with_transfers_samples_per_sec": n as f64 / round_trip,
+        "setup_seconds": setup,
+        "max_relative_difference": {"sigma": d_sigma, "rgb": d_rgb},
+    });
+    if show {
+        eprintln!(
+            "{:>9}  GPU {}: infer {:.1} M samples/s ({:.2} ms), density {:.1} M samples/s, infer with upload and read-back {:.1} M samples/s | largest relative difference from the CPU: σ {d_sigma:.1e}, rgb {d_rgb:.1e}",
+            "",
+            gpu.name(),
+            n as f64 / infer / 1e6,
+            infer * 1e3,
+            n as f64 / density / 1e6,
+            n as f64 / round_trip / 1e6,
+        );
+    }
+    Ok(v)
+}
