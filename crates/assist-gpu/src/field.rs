@@ -7,14 +7,11 @@ use wgpu::util::DeviceExt;
 use crate::{Gpu, GpuError};
 
 const SHADER: &str = include_str!("shaders/field.wgsl");
-/// Invocations per workgroup (the shader's `@workgroup_size`).
-const GROUP: u32 = 64;
 
-/// The WGSL constants of one field configuration, prepended to the shader.
-fn header(field: &Field) -> String {
+/// Rows of activations a field's nets need at most (the widest layer input or output).
+fn max_rows(field: &Field) -> usize {
     let c = &field.config;
-    let l = &field.layout;
-    let maxw = [
+    [
         c.encoding_width(),
         c.hidden,
         1 + c.geo_features,
@@ -24,11 +21,43 @@ fn header(field: &Field) -> String {
     ]
     .into_iter()
     .max()
-    .unwrap_or(1);
+    .unwrap_or(1)
+}
+
+/// Samples per workgroup: the largest of 64, 32, 16 whose two activation buffers fit the
+/// adapter's workgroup memory and invocation limits.
+fn tile(gpu: &Gpu, field: &Field) -> Result<u32, GpuError> {
+    let l = &gpu.limits;
+    let rows = max_rows(field) as u64;
+    [64u32, 32, 16]
+        .into_iter()
+        .find(|&t| {
+            2 * rows * t as u64 * 4 <= l.max_compute_workgroup_storage_size as u64
+                && t <= l.max_compute_invocations_per_workgroup
+                && t <= l.max_compute_workgroup_size_x
+        })
+        .ok_or_else(|| GpuError::Device {
+            adapter: gpu.info.name.clone(),
+            message: format!(
+                "a field {rows} features wide needs {} bytes of workgroup memory for 16 samples; the adapter has {}",
+                2 * rows * 16 * 4,
+                l.max_compute_workgroup_storage_size
+            ),
+        })
+}
+
+/// The WGSL constants and layer functions of one field configuration, prepended to the
+/// shader.
+fn header(field: &Field, tile: u32) -> String {
+    let c = &field.config;
+    let l = &field.layout;
+    let nets = l.color.len();
     let mut h = format!(
         "const LEVELS: u32 = {}u;\nconst FEAT: u32 = {}u;\nconst ENC_W: u32 = {}u;\n\
          const GEO: u32 = {}u;\nconst SH_DEGREE: u32 = {}u;\n\
-         const APPEARANCE: bool = {};\nconst NUM_IMAGES: u32 = {}u;\nconst MAXW: u32 = {}u;\n",
+         const APPEARANCE: bool = {};\nconst NUM_IMAGES: u32 = {}u;\n\
+         const COLOR0_OUT: u32 = {}u;\nconst COLOR_RELU: bool = {};\n\
+         const MAXW: u32 = {}u;\nconst TILE: u32 = {tile}u;\nconst Q: u32 = {}u;\n",
         c.levels,
         c.features_per_level,
         c.encoding_width(),
@@ -36,63 +65,131 @@ fn header(field: &Field) -> String {
         c.sh_degree,
         c.appearance_dim > 0,
         c.num_images,
-        maxw
+        l.color[0].out,
+        nets > 1,
+        max_rows(field),
+        tile / 4,
     );
     let d = &l.density;
-    h += &layer_fn("layer0", &d[0], c.encoding_width(), Bias::Params, true);
-    h += &layer_fn("layer1", &d[1], c.hidden, Bias::Params, false);
-    // The colour net: its first layer over geometry + SH (the code acts through the bias).
-    let nets = l.color.len();
+    let layer = |name: &str, ly: &assist_field::Linear, cols, src, dst, bias, relu| {
+        layer_fn(
+            &Layer {
+                name,
+                l: ly,
+                cols,
+                src,
+                dst,
+                bias,
+                relu,
+            },
+            tile,
+        )
+    };
+    h += &layer("layer0", &d[0], c.encoding_width(), "WA", "WB", true, true);
+    h += &layer("layer1", &d[1], c.hidden, "WB", "WA", true, false);
+    h +=
+        "fn density_layers(t: u32) {\n    layer0(t);\n    workgroupBarrier();\n    layer1(t);\n}\n";
+    // The colour net's first layer over geometry + SH (the code is added per sample).
     let cols0 = c.geo_features + c.sh_width();
-    h += &layer_fn("color0", &l.color[0], cols0, Bias::Code, nets > 1);
-    let mut body = String::from("    color0(slot, x, y);\n");
+    h += &layer("color0", &l.color[0], cols0, "WB", "WA", false, false);
+    let mut body = String::new();
     for (k, ly) in l.color.iter().enumerate().skip(1) {
         let name = format!("color{k}");
-        h += &layer_fn(&name, ly, l.color[k - 1].out, Bias::Params, k + 1 < nets);
-        // Ping-pong: odd layers read y and write x, even ones the reverse.
-        let (from, to) = if k % 2 == 1 { ("y", "x") } else { ("x", "y") };
-        body += &format!("    {name}({from}, {to});\n");
+        let (src, dst) = if k % 2 == 1 {
+            ("WA", "WB")
+        } else {
+            ("WB", "WA")
+        };
+        h += &layer(&name, ly, l.color[k - 1].out, src, dst, true, k + 1 < nets);
+        if k > 1 {
+            body += "    workgroupBarrier();\n";
+        }
+        body += &format!("    {name}(t);\n");
     }
-    let last = if nets % 2 == 0 { "x" } else { "y" };
+    let last = if nets % 2 == 0 { "WB" } else { "WA" };
     h += &format!(
-        "// The colour net: input in x, result (pre-sigmoid rgb) returned; x and y are scratch.\n\
-         fn color_net(slot: u32, x: ptr<function, array<f32, MAXW>>, y: ptr<function, array<f32, MAXW>>) -> vec3<f32> {{\n\
-         {body}    return vec3<f32>((*{last})[0], (*{last})[1], (*{last})[2]);\n}}\n"
+        "fn color_rest(t: u32) {{\n{body}}}\n\
+         fn rgb_row(r: u32, t: u32) -> f32 {{\n    return {last}[r * Q + t / 4u][t % 4u];\n}}\n"
     );
     h
 }
 
-/// Where a layer's bias comes from: the parameters, or the per-code table (slot argument).
-#[derive(PartialEq)]
-enum Bias {
-    Params,
-    Code,
+/// One linear layer as the shader runs it.
+struct Layer<'a> {
+    name: &'a str,
+    l: &'a assist_field::Linear,
+    /// Inputs through the product (the rest of the padded row is not read).
+    cols: usize,
+    /// Workgroup buffers read and written.
+    src: &'a str,
+    dst: &'a str,
+    /// Add the layer's bias from the parameters (the first colour layer's comes later).
+    bias: bool,
+    relu: bool,
 }
 
-/// A WGSL function computing `y[..out] = act(W[:, ..cols] x + b)` for one layer, with its
-/// sizes and offsets as constants.
-fn layer_fn(name: &str, l: &assist_field::Linear, cols: usize, bias: Bias, relu: bool) -> String {
-    let (slot_arg, b) = match bias {
-        Bias::Params => (String::new(), format!("params[{}u + o]", l.b)),
-        Bias::Code => (
-            "slot: u32, ".into(),
-            format!("code_bias[slot * {}u + o]", l.out),
-        ),
-    };
-    let act = if relu { "max(acc, 0.0)" } else { "acc" };
-    format!(
-        "fn {name}({slot_arg}x: ptr<function, array<f32, MAXW>>, y: ptr<function, array<f32, MAXW>>) {{\n\
-         \x20   for (var o = 0u; o < {out}u; o++) {{\n\
-         \x20       var acc = {b};\n\
-         \x20       for (var i = 0u; i < {cols}u; i++) {{\n\
-         \x20           acc = fma(params[{w}u + o * {pad}u + i], (*x)[i], acc);\n\
-         \x20       }}\n\
-         \x20       (*y)[o] = {act};\n\
-         \x20   }}\n}}\n",
-        out = l.out,
-        w = l.w,
-        pad = l.inp_pad,
-    )
+/// A WGSL function computing `dst[..out] = act(W[:, ..cols] src + b)` over the workgroup's
+/// samples: invocation t takes 4 outputs (row block `t / SB`, then every 16th) for 16
+/// samples (block `t % SB`), accumulating 16 vec4s (one per sample, over the 4 outputs).
+fn layer_fn(y: &Layer, tile: u32) -> String {
+    let l = y.l;
+    let sb = tile / 16;
+    let ob = l.out.div_ceil(4);
+    let (w, pad, om1) = (l.w, l.inp_pad, l.out - 1);
+    let mut f = format!("fn {}(t: u32) {{\n    let sb = t % {sb}u;\n", y.name);
+    f += &format!(
+        "    for (var ob = t / {sb}u; ob < {ob}u; ob += 16u) {{\n        let o0 = ob * 4u;\n"
+    );
+    for r in 0..4 {
+        f += &format!("        let r{r} = {w}u + min(o0 + {r}u, {om1}u) * {pad}u;\n");
+    }
+    for j in 0..16 {
+        f += &format!("        var a{j} = vec4<f32>(0.0);\n");
+    }
+    f += &format!("        for (var k = 0u; k < {}u; k++) {{\n", y.cols);
+    f += "            let wv = vec4<f32>(params[r0 + k], params[r1 + k], params[r2 + k], params[r3 + k]);\n";
+    f += "            let base = k * Q + sb * 4u;\n";
+    for q in 0..4 {
+        f += &format!("            let x{q} = {}[base + {q}u];\n", y.src);
+    }
+    for j in 0..16 {
+        let comp = ["x", "y", "z", "w"][j % 4];
+        f += &format!(
+            "            a{j} = fma(wv, vec4<f32>(x{}.{comp}), a{j});\n",
+            j / 4
+        );
+    }
+    f += "        }\n";
+    for r in 0..4 {
+        f += &format!("        if (o0 + {r}u < {}u) {{\n", l.out);
+        let b = if y.bias {
+            format!("params[{}u + o0 + {r}u]", l.b)
+        } else {
+            "0.0".into()
+        };
+        f += &format!(
+            "            let b = vec4<f32>({b});\n            let row = (o0 + {r}u) * Q + sb * 4u;\n"
+        );
+        let comp = ["x", "y", "z", "w"][r];
+        for q in 0..4 {
+            let v = format!(
+                "vec4<f32>(a{}.{comp}, a{}.{comp}, a{}.{comp}, a{}.{comp}) + b",
+                4 * q,
+                4 * q + 1,
+                4 * q + 2,
+                4 * q + 3
+            );
+            let v = if y.relu {
+                format!("max({v}, vec4<f32>(0.0))")
+            } else {
+                v
+            };
+            f += &format!("            {}[row + {q}u] = {v};\n", y.dst);
+        }
+        f += "        }\n";
+    }
+    f += "    }\n}\n";
+    f
 }
 
 /// A field's parameters and kernels on one GPU.
@@ -109,6 +206,8 @@ pub struct GpuField {
     /// Samples in the batch the buffers hold.
     n: usize,
     param_count: usize,
+    /// Samples per workgroup.
+    tile: u32,
 }
 
 struct Io {
@@ -132,6 +231,13 @@ fn storage(gpu: &Gpu, label: &str, bytes: &[u8]) -> wgpu::Buffer {
 impl GpuField {
     /// Uploads `field` and builds its kernels.
     pub fn new(gpu: &Gpu, field: &Field) -> Result<Self, GpuError> {
+        Self::with_tile(gpu, field, None)
+    }
+
+    /// [`new`](Self::new) with the samples per workgroup forced (16, 32 or 64), for the
+    /// tests of the smaller tiles that only narrow adapters or wide fields get.
+    #[doc(hidden)]
+    pub fn with_tile(gpu: &Gpu, field: &Field, force: Option<u32>) -> Result<Self, GpuError> {
         let bytes = std::mem::size_of_val(field.params.as_slice()) as u64;
         if bytes > gpu.limits.max_storage_buffer_binding_size as u64 {
             return Err(GpuError::Device {
@@ -162,20 +268,30 @@ impl GpuField {
                 }),
             )
         })?;
+        let tile = match force {
+            Some(t @ (16 | 32 | 64)) => t,
+            Some(t) => {
+                return Err(GpuError::Run(format!(
+                    "tile: expected 16, 32 or 64, got {t}"
+                )));
+            }
+            None => tile(gpu, field)?,
+        };
         gpu.checked("building the field's kernels", || {
-            Self::build(gpu, field, params, levels, code_bias, call)
+            Self::build(gpu, field, tile, params, levels, code_bias, call)
         })
     }
 
     fn build(
         gpu: &Gpu,
         field: &Field,
+        tile: u32,
         params: wgpu::Buffer,
         levels: wgpu::Buffer,
         code_bias: wgpu::Buffer,
         call: wgpu::Buffer,
     ) -> Self {
-        let source = format!("{}{SHADER}", header(field));
+        let source = format!("{}{SHADER}", header(field, tile));
         let module = gpu
             .device
             .create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -236,6 +352,7 @@ impl GpuField {
             io: None,
             n: 0,
             param_count: field.params.len(),
+            tile,
         }
     }
 
@@ -353,7 +470,7 @@ impl GpuField {
         let Some(io) = self.io.as_ref().filter(|_| self.n > 0) else {
             return;
         };
-        let groups = (self.n as u32).div_ceil(GROUP);
+        let groups = (self.n as u32).div_ceil(self.tile);
         let max = gpu.limits.max_compute_workgroups_per_dimension;
         let (x, y) = if groups <= max {
             (groups, 1)

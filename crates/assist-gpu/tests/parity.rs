@@ -175,6 +175,26 @@ fn forward_matches_cpu() {
 }
 
 #[test]
+fn every_tile_size_gives_the_same_outputs() {
+    let Some(gpu) = gpu() else { return };
+    let (_, cfg) = configs().remove(0);
+    let field = random_field(cfg, 4);
+    let b = batch(1000, field.config.num_images, 9);
+    let s = samples(&b);
+    let (mut sig_c, mut rgb_c) = (vec![0.0; 1000], vec![0.0; 3000]);
+    field.forward(&s, &mut sig_c, &mut rgb_c);
+    for tile in [16, 32, 64] {
+        let mut gf = GpuField::with_tile(&gpu, &field, Some(tile)).expect("upload");
+        let (mut sig_g, mut rgb_g) = (vec![0.0; 1000], vec![0.0; 3000]);
+        gf.forward(&gpu, &s, &mut sig_g, &mut rgb_g)
+            .expect("forward");
+        assert!(worst(&sig_g, &sig_c, 1e-3) < 1e-4, "tile {tile}");
+        assert!(worst(&rgb_g, &rgb_c, 1e-3) < 1e-4, "tile {tile}");
+    }
+    assert!(GpuField::with_tile(&gpu, &field, Some(48)).is_err());
+}
+
+#[test]
 fn new_parameters_are_used_after_upload() {
     let Some(gpu) = gpu() else { return };
     let (_, cfg) = configs().remove(0);

@@ -1,9 +1,15 @@
-// The node field on the GPU: hash-grid encoding, density net, colour net, one invocation
-// per sample, f32 throughout (the CPU reference's arithmetic, so the two agree to rounding).
-// The constants above this line (LEVELS, FEAT, ENC_W, GEO, SH_DEGREE, APPEARANCE,
-// NUM_IMAGES, MAXW) and the layer functions (`layer0`, `layer1`, `color_net`) are written by
-// `assist-gpu` per field, with every size and offset a constant: the driver then unrolls
-// the products and keeps the activations in registers rather than in local memory.
+// The node field on the GPU: hash-grid encoding, density net, colour net; f32 throughout
+// (the CPU reference's arithmetic, so the two agree to rounding).
+//
+// A workgroup takes TILE samples. Each invocation encodes one sample into workgroup
+// memory; the nets' products then run cooperatively, each invocation computing 4 outputs
+// × 16 samples in registers (64 multiply-adds per 4 weight and 4 vec4 activation loads),
+// with activations [feature][sample] ping-ponging between WA and WB.
+//
+// Written per field by `assist-gpu` above this line: the constants LEVELS, FEAT, ENC_W,
+// GEO, SH_DEGREE, APPEARANCE, NUM_IMAGES, COLOR0_OUT, COLOR_RELU, MAXW, TILE, Q (TILE / 4),
+// and the layer functions `density_layers`, `color0`, `color_rest` and `rgb_row`, with every
+// size and offset a constant.
 
 struct Call {
     n: u32,
@@ -26,18 +32,30 @@ struct Call {
 @group(0) @binding(5) var<storage, read_write> out: array<f32>;
 @group(0) @binding(6) var<uniform> call: Call;
 
+var<workgroup> WA: array<vec4<f32>, MAXW * Q>;
+var<workgroup> WB: array<vec4<f32>, MAXW * Q>;
+
 const MAX_RAW_DENSITY: f32 = 15.0;
 
-fn encode(p: vec3<f32>, enc: ptr<function, array<f32, MAXW>>) {
-    for (var i = 0u; i < ENC_W; i++) {
-        (*enc)[i] = 0.0;
-    }
+fn get_a(row: u32, t: u32) -> f32 {
+    return WA[row * Q + t / 4u][t % 4u];
+}
+fn set_a(row: u32, t: u32, v: f32) {
+    WA[row * Q + t / 4u][t % 4u] = v;
+}
+fn set_b(row: u32, t: u32, v: f32) {
+    WB[row * Q + t / 4u][t % 4u] = v;
+}
+
+// The hash-grid features of position p, written to WA's rows for lane t.
+fn encode(p: vec3<f32>, t: u32) {
     let pc = clamp(p, vec3<f32>(0.0), vec3<f32>(1.0));
     for (var l = 0u; l < LEVELS; l++) {
         let lv = levels[l];
         let x = pc * f32(lv.x);
         let c = min(vec3<u32>(floor(x)), vec3<u32>(lv.x - 1u));
         let f = x - vec3<f32>(c);
+        var acc: array<f32, FEAT>;
         for (var k = 0u; k < 8u; k++) {
             let d = vec3<u32>(k & 1u, (k >> 1u) & 1u, (k >> 2u) & 1u);
             let q = c + d;
@@ -52,50 +70,55 @@ fn encode(p: vec3<f32>, enc: ptr<function, array<f32, MAXW>>) {
             let w = wv.x * wv.y * wv.z;
             let base = (lv.w + idx) * FEAT;
             for (var j = 0u; j < FEAT; j++) {
-                (*enc)[l * FEAT + j] += w * params[base + j];
+                acc[j] += w * params[base + j];
             }
+        }
+        for (var j = 0u; j < FEAT; j++) {
+            set_a(l * FEAT + j, t, acc[j]);
         }
     }
 }
 
 // Real spherical harmonics of a unit direction (tiny-cuda-nn's constants, as the CPU's
-// `sh_encode`), written at y[at..].
-fn sh(d: vec3<f32>, y: ptr<function, array<f32, MAXW>>, at: u32) {
+// `sh_encode`), written to WB's rows from `at` for lane t.
+fn sh(d: vec3<f32>, t: u32, at: u32) {
     let x = d.x;
-    let yy_ = d.y;
+    let y = d.y;
     let z = d.z;
-    (*y)[at] = 0.2820948;
+    set_b(at, t, 0.2820948);
     if (SH_DEGREE <= 1u) {
         return;
     }
-    (*y)[at + 1u] = -0.4886025 * yy_;
-    (*y)[at + 2u] = 0.4886025 * z;
-    (*y)[at + 3u] = -0.4886025 * x;
+    set_b(at + 1u, t, -0.4886025 * y);
+    set_b(at + 2u, t, 0.4886025 * z);
+    set_b(at + 3u, t, -0.4886025 * x);
     if (SH_DEGREE <= 2u) {
         return;
     }
     let xx = x * x;
-    let yy = yy_ * yy_;
+    let yy = y * y;
     let zz = z * z;
-    (*y)[at + 4u] = 1.0925484 * x * yy_;
-    (*y)[at + 5u] = -1.0925484 * yy_ * z;
-    (*y)[at + 6u] = 0.9461747 * zz - 0.31539157;
-    (*y)[at + 7u] = -1.0925484 * x * z;
-    (*y)[at + 8u] = 0.5462742 * (xx - yy);
+    set_b(at + 4u, t, 1.0925484 * x * y);
+    set_b(at + 5u, t, -1.0925484 * y * z);
+    set_b(at + 6u, t, 0.9461747 * zz - 0.31539157);
+    set_b(at + 7u, t, -1.0925484 * x * z);
+    set_b(at + 8u, t, 0.5462742 * (xx - yy));
     if (SH_DEGREE <= 3u) {
         return;
     }
-    (*y)[at + 9u] = 0.5900436 * yy_ * (-3.0 * xx + yy);
-    (*y)[at + 10u] = 2.8906114 * x * yy_ * z;
-    (*y)[at + 11u] = 0.4570458 * yy_ * (1.0 - 5.0 * zz);
-    (*y)[at + 12u] = 0.37317633 * z * (5.0 * zz - 3.0);
-    (*y)[at + 13u] = 0.4570458 * x * (1.0 - 5.0 * zz);
-    (*y)[at + 14u] = 1.4453057 * z * (xx - yy);
-    (*y)[at + 15u] = 0.5900436 * x * (-xx + 3.0 * yy);
+    set_b(at + 9u, t, 0.5900436 * y * (-3.0 * xx + yy));
+    set_b(at + 10u, t, 2.8906114 * x * y * z);
+    set_b(at + 11u, t, 0.4570458 * y * (1.0 - 5.0 * zz));
+    set_b(at + 12u, t, 0.37317633 * z * (5.0 * zz - 3.0));
+    set_b(at + 13u, t, 0.4570458 * x * (1.0 - 5.0 * zz));
+    set_b(at + 14u, t, 1.4453057 * z * (xx - yy));
+    set_b(at + 15u, t, 0.5900436 * x * (-xx + 3.0 * yy));
 }
 
-fn sample_index(gid: vec3<u32>, nw: vec3<u32>) -> u32 {
-    return gid.x + gid.y * nw.x * 64u;
+// This invocation's sample (clamped to the last for the tail of the batch, whose results
+// are not written: every invocation takes part in the barriers).
+fn sample_of(wid: vec3<u32>, nw: vec3<u32>, t: u32) -> u32 {
+    return (wid.x + wid.y * nw.x) * TILE + t;
 }
 
 fn position(s: u32) -> vec3<f32> {
@@ -103,51 +126,63 @@ fn position(s: u32) -> vec3<f32> {
     return vec3<f32>(samples[s], samples[n + s], samples[2u * n + s]);
 }
 
-// Encoding and density net; leaves raw density in a[0] and the geometry feature in a[1..].
-fn density_net(s: u32, a: ptr<function, array<f32, MAXW>>, b: ptr<function, array<f32, MAXW>>) {
-    encode(position(s), a);
-    layer0(a, b);
-    layer1(b, a);
-}
-
-@compute @workgroup_size(64)
-fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nw: vec3<u32>) {
-    let s = sample_index(gid, nw);
+@compute @workgroup_size(TILE)
+fn forward(
+    @builtin(local_invocation_index) t: u32,
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nw: vec3<u32>,
+) {
     let n = call.n;
-    if (s >= n) {
-        return;
-    }
-    var a: array<f32, MAXW>;
-    var b: array<f32, MAXW>;
-    density_net(s, &a, &b);
-    let raw = a[0];
+    let s_out = sample_of(wid, nw, t);
+    let s = min(s_out, n - 1u);
+    encode(position(s), t);
+    workgroupBarrier();
+    density_layers(t);
+    workgroupBarrier();
+    // Raw density in WA row 0, the geometry feature in rows 1…; the colour input to WB.
+    let raw = get_a(0u, t);
     for (var g = 0u; g < GEO; g++) {
-        b[g] = a[1u + g];
+        set_b(g, t, get_a(1u + g, t));
     }
-    let d = vec3<f32>(samples[3u * n + s], samples[4u * n + s], samples[5u * n + s]);
-    sh(d, &b, GEO);
-    // The colour net: geometry + SH through the products, the appearance code as the
-    // first layer's bias.
+    sh(vec3<f32>(samples[3u * n + s], samples[4u * n + s], samples[5u * n + s]), t, GEO);
+    workgroupBarrier();
+    color0(t);
+    workgroupBarrier();
+    // The appearance code acts as the first colour layer's bias, per sample.
     var slot = 0u;
     if (APPEARANCE) {
         slot = min(image[s], NUM_IMAGES);
     }
-    let rgb = color_net(slot, &b, &a);
-    out[s] = exp(min(raw, MAX_RAW_DENSITY));
-    let c = 1.0 / (1.0 + exp(-rgb));
-    out[n + 3u * s] = c.x;
-    out[n + 3u * s + 1u] = c.y;
-    out[n + 3u * s + 2u] = c.z;
+    for (var o = 0u; o < COLOR0_OUT; o++) {
+        let v = get_a(o, t) + code_bias[slot * COLOR0_OUT + o];
+        set_a(o, t, select(v, max(v, 0.0), COLOR_RELU));
+    }
+    workgroupBarrier();
+    color_rest(t);
+    workgroupBarrier();
+    if (s_out < n) {
+        out[s_out] = exp(min(raw, MAX_RAW_DENSITY));
+        let rgb = vec3<f32>(rgb_row(0u, t), rgb_row(1u, t), rgb_row(2u, t));
+        let c = 1.0 / (1.0 + exp(-rgb));
+        out[n + 3u * s_out] = c.x;
+        out[n + 3u * s_out + 1u] = c.y;
+        out[n + 3u * s_out + 2u] = c.z;
+    }
 }
 
-@compute @workgroup_size(64)
-fn density(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nw: vec3<u32>) {
-    let s = sample_index(gid, nw);
-    if (s >= call.n) {
-        return;
+@compute @workgroup_size(TILE)
+fn density(
+    @builtin(local_invocation_index) t: u32,
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nw: vec3<u32>,
+) {
+    let n = call.n;
+    let s_out = sample_of(wid, nw, t);
+    encode(position(min(s_out, n - 1u)), t);
+    workgroupBarrier();
+    density_layers(t);
+    workgroupBarrier();
+    if (s_out < n) {
+        out[s_out] = exp(min(get_a(0u, t), MAX_RAW_DENSITY));
     }
-    var a: array<f32, MAXW>;
-    var b: array<f32, MAXW>;
-    density_net(s, &a, &b);
-    out[s] = exp(min(a[0], MAX_RAW_DENSITY));
 }
