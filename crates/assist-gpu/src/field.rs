@@ -198,6 +198,7 @@ pub struct GpuField {
     levels: wgpu::Buffer,
     code_bias: wgpu::Buffer,
     call: wgpu::Buffer,
+    encode: wgpu::ComputePipeline,
     forward: wgpu::ComputePipeline,
     density: wgpu::ComputePipeline,
     bind_layout: wgpu::BindGroupLayout,
@@ -206,8 +207,10 @@ pub struct GpuField {
     /// Samples in the batch the buffers hold.
     n: usize,
     param_count: usize,
-    /// Samples per workgroup.
+    /// Samples per workgroup of the nets' kernels.
     tile: u32,
+    /// Features per sample (levels × features per level).
+    enc_width: usize,
 }
 
 struct Io {
@@ -216,6 +219,8 @@ struct Io {
     image: wgpu::Buffer,
     out: wgpu::Buffer,
     readback: wgpu::Buffer,
+    /// The encoded features between the two kernels (held by the bind group too).
+    _enc: wgpu::Buffer,
     bind: wgpu::BindGroup,
 }
 
@@ -315,6 +320,10 @@ impl GpuField {
             wgpu::BufferBindingType::Storage { read_only: false },
         ));
         entries.push(entry(6, wgpu::BufferBindingType::Uniform));
+        entries.push(entry(
+            7,
+            wgpu::BufferBindingType::Storage { read_only: false },
+        ));
         let bind_layout = gpu
             .device
             .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -339,13 +348,15 @@ impl GpuField {
                     cache: None,
                 })
         };
-        let forward = pipeline("forward");
-        let density = pipeline("density");
+        let encode = pipeline("encode");
+        let forward = pipeline("forward_nets");
+        let density = pipeline("density_nets");
         GpuField {
             params,
             levels,
             code_bias,
             call,
+            encode,
             forward,
             density,
             bind_layout,
@@ -353,6 +364,7 @@ impl GpuField {
             n: 0,
             param_count: field.params.len(),
             tile,
+            enc_width: field.config.encoding_width(),
         }
     }
 
@@ -403,6 +415,8 @@ impl GpuField {
             let image = buffer("image", capacity, U::STORAGE | U::COPY_DST);
             let out = buffer("out", 4 * capacity, U::STORAGE | U::COPY_SRC);
             let readback = buffer("readback", 4 * capacity, U::MAP_READ | U::COPY_DST);
+            let tiles = capacity.div_ceil(self.tile as usize) * self.tile as usize;
+            let enc = buffer("enc", tiles * self.enc_width, U::STORAGE);
             let bind = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("field"),
                 layout: &self.bind_layout,
@@ -414,6 +428,7 @@ impl GpuField {
                     &image,
                     &out,
                     &self.call,
+                    &enc,
                 ]
                 .iter()
                 .enumerate()
@@ -429,6 +444,7 @@ impl GpuField {
                 image,
                 out,
                 readback,
+                _enc: enc,
                 bind,
             }
         })?;
@@ -465,39 +481,52 @@ impl GpuField {
         Ok(())
     }
 
-    /// Runs one kernel over the loaded batch (submitted, not waited for).
-    fn dispatch(&self, gpu: &Gpu, pipeline: &wgpu::ComputePipeline) {
-        let Some(io) = self.io.as_ref().filter(|_| self.n > 0) else {
-            return;
-        };
-        let groups = (self.n as u32).div_ceil(self.tile);
+    /// Workgroups of a dispatch over the loaded batch, `per` samples each (x, y: past the
+    /// adapter's largest x, the rest goes to y).
+    fn groups(&self, gpu: &Gpu, per: u32) -> (u32, u32) {
+        let groups = (self.n as u32).div_ceil(per);
         let max = gpu.limits.max_compute_workgroups_per_dimension;
-        let (x, y) = if groups <= max {
+        if groups <= max {
             (groups, 1)
         } else {
             (max, groups.div_ceil(max))
+        }
+    }
+
+    /// Submits `reps` runs of the encoding then `nets` over the loaded batch, back to back
+    /// in one command buffer, and returns without waiting.
+    fn submit(&self, gpu: &Gpu, nets: &wgpu::ComputePipeline, reps: usize) {
+        let Some(io) = self.io.as_ref().filter(|_| self.n > 0) else {
+            return;
         };
+        let (ex, ey) = self.groups(gpu, 64);
+        let (nx, ny) = self.groups(gpu, self.tile);
         let mut enc = gpu
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
         {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-            pass.set_pipeline(pipeline);
             pass.set_bind_group(0, &io.bind, &[]);
-            pass.dispatch_workgroups(x, y, 1);
+            for _ in 0..reps {
+                pass.set_pipeline(&self.encode);
+                pass.dispatch_workgroups(ex, ey, 1);
+                pass.set_pipeline(nets);
+                pass.dispatch_workgroups(nx, ny, 1);
+            }
         }
         gpu.queue.submit([enc.finish()]);
     }
 
-    /// Inference over the loaded batch, waited for; the results stay on the GPU.
-    pub fn run_forward(&self, gpu: &Gpu) -> Result<(), GpuError> {
-        self.dispatch(gpu, &self.forward);
+    /// Inference over the loaded batch, `reps` times back to back, waited for; the results
+    /// stay on the GPU.
+    pub fn run_forward(&self, gpu: &Gpu, reps: usize) -> Result<(), GpuError> {
+        self.submit(gpu, &self.forward, reps);
         gpu.wait()
     }
 
-    /// Density over the loaded batch, waited for; the results stay on the GPU.
-    pub fn run_density(&self, gpu: &Gpu) -> Result<(), GpuError> {
-        self.dispatch(gpu, &self.density);
+    /// Density over the loaded batch, `reps` times back to back, waited for.
+    pub fn run_density(&self, gpu: &Gpu, reps: usize) -> Result<(), GpuError> {
+        self.submit(gpu, &self.density, reps);
         gpu.wait()
     }
 
@@ -542,7 +571,7 @@ impl GpuField {
             return Ok(());
         }
         self.load(gpu, s)?;
-        self.run_forward(gpu)?;
+        self.run_forward(gpu, 1)?;
         let v = self.read(gpu, 4 * n)?;
         sigma[..n].copy_from_slice(&v[..n]);
         rgb[..3 * n].copy_from_slice(&v[n..4 * n]);
@@ -566,7 +595,7 @@ impl GpuField {
             image: &[],
         };
         self.load(gpu, &s)?;
-        self.run_density(gpu)?;
+        self.run_density(gpu, 1)?;
         let v = self.read(gpu, n)?;
         sigma[..n].copy_from_slice(&v);
         Ok(())

@@ -7,14 +7,19 @@ use assist_field::{Field, Samples};
 use assist_gpu::{Gpu, GpuField};
 use serde_json::{Value, json};
 
+/// Runs queued back to back per resident timing.
+const QUEUED: usize = 8;
+
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
 }
 
-/// Inference and density over `s` on `gpu`, `steps` timed runs each after one warm-up:
-/// resident (the batch already in GPU memory, as rendering and training will use it) and
-/// with the batch's upload and the outputs' read-back.
+/// Inference and density over `s` on `gpu`, the median of `steps` timings after one
+/// warm-up: resident (the batch already in GPU memory, as rendering and training use it;
+/// `QUEUED` runs back to back per timing, so that one submission's latency is spread),
+/// one run waited for alone (what a single frame's batch sees), and with the batch's
+/// upload and the outputs' read-back.
 pub fn field(
     gpu: &Gpu,
     field: &Field,
@@ -51,25 +56,29 @@ pub fn field(
         Ok(median(t))
     };
     gf.load(gpu, s)?;
-    let infer = timed(&mut || Ok(gf.run_forward(gpu)?))?;
-    let density = timed(&mut || Ok(gf.run_density(gpu)?))?;
+    let q = QUEUED as f64;
+    let infer = timed(&mut || Ok(gf.run_forward(gpu, QUEUED)?))? / q;
+    let density = timed(&mut || Ok(gf.run_density(gpu, QUEUED)?))? / q;
+    let single = timed(&mut || Ok(gf.run_forward(gpu, 1)?))?;
     let round_trip = timed(&mut || Ok(gf.forward(gpu, s, &mut sig, &mut rgb)?))?;
     let v = json!({
         "adapter": gpu.name(),
         "infer_samples_per_sec": n as f64 / infer,
         "infer_seconds": infer,
         "density_samples_per_sec": n as f64 / density,
+        "infer_single_seconds": single,
         "infer_with_transfers_samples_per_sec": n as f64 / round_trip,
         "setup_seconds": setup,
         "max_relative_difference": {"sigma": d_sigma, "rgb": d_rgb},
     });
     if show {
         eprintln!(
-            "{:>9}  GPU {}: infer {:.1} M samples/s ({:.2} ms), density {:.1} M samples/s, infer with upload and read-back {:.1} M samples/s | largest relative difference from the CPU: σ {d_sigma:.1e}, rgb {d_rgb:.1e}",
+            "{:>9}  GPU {}: infer {:.1} M samples/s ({:.2} ms; {:.2} ms waited for alone), density {:.1} M samples/s, infer with upload and read-back {:.1} M samples/s | largest relative difference from the CPU: σ {d_sigma:.1e}, rgb {d_rgb:.1e}",
             "",
             gpu.name(),
             n as f64 / infer / 1e6,
             infer * 1e3,
+            single * 1e3,
             n as f64 / density / 1e6,
             n as f64 / round_trip / 1e6,
         );

@@ -1,10 +1,12 @@
 // The node field on the GPU: hash-grid encoding, density net, colour net; f32 throughout
 // (the CPU reference's arithmetic, so the two agree to rounding).
 //
-// A workgroup takes TILE samples. Each invocation encodes one sample into workgroup
-// memory; the nets' products then run cooperatively, each invocation computing 4 outputs
-// × 16 samples in registers (64 multiply-adds per 4 weight and 4 vec4 activation loads),
-// with activations [feature][sample] ping-ponging between WA and WB.
+// Two kernels per call. `encode` runs one invocation per sample with no workgroup memory
+// (so that many are in flight to hide the table gathers' latency) and writes the features
+// tile-blocked to `enc`. The nets then take TILE samples per workgroup: the features are
+// loaded into workgroup memory and the products run cooperatively, each invocation
+// computing 4 outputs × 16 samples in registers (64 multiply-adds per 4 weight and 4 vec4
+// activation loads), activations [feature][sample] ping-ponging between WA and WB.
 //
 // Written per field by `assist-gpu` above this line: the constants LEVELS, FEAT, ENC_W,
 // GEO, SH_DEGREE, APPEARANCE, NUM_IMAGES, COLOR0_OUT, COLOR_RELU, MAXW, TILE, Q (TILE / 4),
@@ -31,6 +33,9 @@ struct Call {
 // σ (n), then rgb interleaved (3n).
 @group(0) @binding(5) var<storage, read_write> out: array<f32>;
 @group(0) @binding(6) var<uniform> call: Call;
+// The encoded features, tile-blocked: sample s's feature f at
+// (s / TILE) · ENC_W · TILE + f · TILE + s % TILE.
+@group(0) @binding(7) var<storage, read_write> enc: array<f32>;
 
 var<workgroup> WA: array<vec4<f32>, MAXW * Q>;
 var<workgroup> WB: array<vec4<f32>, MAXW * Q>;
@@ -47,8 +52,10 @@ fn set_b(row: u32, t: u32, v: f32) {
     WB[row * Q + t / 4u][t % 4u] = v;
 }
 
-// The hash-grid features of position p, written to WA's rows for lane t.
-fn encode(p: vec3<f32>, t: u32) {
+// The hash-grid features of sample s, written to `enc`.
+fn encode_one(s: u32) {
+    let p = position(s);
+    let at = (s / TILE) * ENC_W * TILE + s % TILE;
     let pc = clamp(p, vec3<f32>(0.0), vec3<f32>(1.0));
     for (var l = 0u; l < LEVELS; l++) {
         let lv = levels[l];
@@ -74,7 +81,7 @@ fn encode(p: vec3<f32>, t: u32) {
             }
         }
         for (var j = 0u; j < FEAT; j++) {
-            set_a(l * FEAT + j, t, acc[j]);
+            enc[at + (l * FEAT + j) * TILE] = acc[j];
         }
     }
 }
@@ -126,8 +133,25 @@ fn position(s: u32) -> vec3<f32> {
     return vec3<f32>(samples[s], samples[n + s], samples[2u * n + s]);
 }
 
+@compute @workgroup_size(64)
+fn encode(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nw: vec3<u32>) {
+    let s = gid.x + gid.y * nw.x * 64u;
+    if (s < call.n) {
+        encode_one(s);
+    }
+}
+
+// The features of this workgroup's samples into WA (tail lanes past the batch read
+// whatever `enc` holds there; their results are never written).
+fn load_features(wid: vec3<u32>, nw: vec3<u32>, t: u32) {
+    let base = (wid.x + wid.y * nw.x) * ENC_W * TILE + t;
+    for (var f = 0u; f < ENC_W; f++) {
+        set_a(f, t, enc[base + f * TILE]);
+    }
+}
+
 @compute @workgroup_size(TILE)
-fn forward(
+fn forward_nets(
     @builtin(local_invocation_index) t: u32,
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(num_workgroups) nw: vec3<u32>,
@@ -135,7 +159,7 @@ fn forward(
     let n = call.n;
     let s_out = sample_of(wid, nw, t);
     let s = min(s_out, n - 1u);
-    encode(position(s), t);
+    load_features(wid, nw, t);
     workgroupBarrier();
     density_layers(t);
     workgroupBarrier();
@@ -171,14 +195,14 @@ fn forward(
 }
 
 @compute @workgroup_size(TILE)
-fn density(
+fn density_nets(
     @builtin(local_invocation_index) t: u32,
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(num_workgroups) nw: vec3<u32>,
 ) {
     let n = call.n;
     let s_out = sample_of(wid, nw, t);
-    encode(position(min(s_out, n - 1u)), t);
+    load_features(wid, nw, t);
     workgroupBarrier();
     density_layers(t);
     workgroupBarrier();
