@@ -4,224 +4,41 @@
 use assist_field::{Field, Samples};
 use wgpu::util::DeviceExt;
 
+use crate::codegen::{header, tile};
 use crate::{Gpu, GpuError};
 
 const SHADER: &str = include_str!("shaders/field.wgsl");
 
-/// Rows of activations a field's nets need at most (the widest layer input or output).
-fn max_rows(field: &Field) -> usize {
-    let c = &field.config;
-    [
-        c.encoding_width(),
-        c.hidden,
-        1 + c.geo_features,
-        c.geo_features + c.sh_width(),
-        c.color_hidden,
-        3,
-    ]
-    .into_iter()
-    .max()
-    .unwrap_or(1)
-}
-
-/// Samples per workgroup: the largest of 64, 32, 16 whose two activation buffers fit the
-/// adapter's workgroup memory and invocation limits.
-fn tile(gpu: &Gpu, field: &Field) -> Result<u32, GpuError> {
-    let l = &gpu.limits;
-    let rows = max_rows(field) as u64;
-    [64u32, 32, 16]
-        .into_iter()
-        .find(|&t| {
-            2 * rows * t as u64 * 4 <= l.max_compute_workgroup_storage_size as u64
-                && t <= l.max_compute_invocations_per_workgroup
-                && t <= l.max_compute_workgroup_size_x
-        })
-        .ok_or_else(|| GpuError::Device {
-            adapter: gpu.info.name.clone(),
-            message: format!(
-                "a field {rows} features wide needs {} bytes of workgroup memory for 16 samples; the adapter has {}",
-                2 * rows * 16 * 4,
-                l.max_compute_workgroup_storage_size
-            ),
-        })
-}
-
-/// The WGSL constants and layer functions of one field configuration, prepended to the
-/// shader.
-fn header(field: &Field, tile: u32) -> String {
-    let c = &field.config;
-    let l = &field.layout;
-    let nets = l.color.len();
-    let mut h = format!(
-        "const LEVELS: u32 = {}u;\nconst FEAT: u32 = {}u;\nconst ENC_W: u32 = {}u;\n\
-         const GEO: u32 = {}u;\nconst SH_DEGREE: u32 = {}u;\n\
-         const APPEARANCE: bool = {};\nconst NUM_IMAGES: u32 = {}u;\n\
-         const COLOR0_OUT: u32 = {}u;\nconst COLOR_RELU: bool = {};\n\
-         const MAXW: u32 = {}u;\nconst TILE: u32 = {tile}u;\nconst Q: u32 = {}u;\n",
-        c.levels,
-        c.features_per_level,
-        c.encoding_width(),
-        c.geo_features,
-        c.sh_degree,
-        c.appearance_dim > 0,
-        c.num_images,
-        l.color[0].out,
-        nets > 1,
-        max_rows(field),
-        tile / 4,
-    );
-    let d = &l.density;
-    let layer = |name: &str, ly: &assist_field::Linear, cols, src, dst, bias, relu| {
-        layer_fn(
-            &Layer {
-                name,
-                l: ly,
-                cols,
-                src,
-                dst,
-                bias,
-                relu,
-            },
-            tile,
-        )
-    };
-    h += &layer("layer0", &d[0], c.encoding_width(), "WA", "WB", true, true);
-    h += &layer("layer1", &d[1], c.hidden, "WB", "WA", true, false);
-    h +=
-        "fn density_layers(t: u32) {\n    layer0(t);\n    workgroupBarrier();\n    layer1(t);\n}\n";
-    // The colour net's first layer over geometry + SH (the code is added per sample).
-    let cols0 = c.geo_features + c.sh_width();
-    h += &layer("color0", &l.color[0], cols0, "WB", "WA", false, false);
-    let mut body = String::new();
-    for (k, ly) in l.color.iter().enumerate().skip(1) {
-        let name = format!("color{k}");
-        let (src, dst) = if k % 2 == 1 {
-            ("WA", "WB")
-        } else {
-            ("WB", "WA")
-        };
-        h += &layer(&name, ly, l.color[k - 1].out, src, dst, true, k + 1 < nets);
-        if k > 1 {
-            body += "    workgroupBarrier();\n";
-        }
-        body += &format!("    {name}(t);\n");
-    }
-    let last = if nets % 2 == 0 { "WB" } else { "WA" };
-    h += &format!(
-        "fn color_rest(t: u32) {{\n{body}}}\n\
-         fn rgb_row(r: u32, t: u32) -> f32 {{\n    return {last}[r * Q + t / 4u][t % 4u];\n}}\n"
-    );
-    h
-}
-
-/// One linear layer as the shader runs it.
-struct Layer<'a> {
-    name: &'a str,
-    l: &'a assist_field::Linear,
-    /// Inputs through the product (the rest of the padded row is not read).
-    cols: usize,
-    /// Workgroup buffers read and written.
-    src: &'a str,
-    dst: &'a str,
-    /// Add the layer's bias from the parameters (the first colour layer's comes later).
-    bias: bool,
-    relu: bool,
-}
-
-/// A WGSL function computing `dst[..out] = act(W[:, ..cols] src + b)` over the workgroup's
-/// samples: invocation t takes 4 outputs (row block `t / SB`, then every 16th) for 16
-/// samples (block `t % SB`), accumulating 16 vec4s (one per sample, over the 4 outputs).
-fn layer_fn(y: &Layer, tile: u32) -> String {
-    let l = y.l;
-    let sb = tile / 16;
-    let ob = l.out.div_ceil(4);
-    let (w, pad, om1) = (l.w, l.inp_pad, l.out - 1);
-    let mut f = format!("fn {}(t: u32) {{\n    let sb = t % {sb}u;\n", y.name);
-    f += &format!(
-        "    for (var ob = t / {sb}u; ob < {ob}u; ob += 16u) {{\n        let o0 = ob * 4u;\n"
-    );
-    for r in 0..4 {
-        f += &format!("        let r{r} = {w}u + min(o0 + {r}u, {om1}u) * {pad}u;\n");
-    }
-    for j in 0..16 {
-        f += &format!("        var a{j} = vec4<f32>(0.0);\n");
-    }
-    f += &format!("        for (var k = 0u; k < {}u; k++) {{\n", y.cols);
-    f += "            let wv = vec4<f32>(params[r0 + k], params[r1 + k], params[r2 + k], params[r3 + k]);\n";
-    f += "            let base = k * Q + sb * 4u;\n";
-    for q in 0..4 {
-        f += &format!("            let x{q} = {}[base + {q}u];\n", y.src);
-    }
-    for j in 0..16 {
-        let comp = ["x", "y", "z", "w"][j % 4];
-        f += &format!(
-            "            a{j} = fma(wv, vec4<f32>(x{}.{comp}), a{j});\n",
-            j / 4
-        );
-    }
-    f += "        }\n";
-    for r in 0..4 {
-        f += &format!("        if (o0 + {r}u < {}u) {{\n", l.out);
-        let b = if y.bias {
-            format!("params[{}u + o0 + {r}u]", l.b)
-        } else {
-            "0.0".into()
-        };
-        f += &format!(
-            "            let b = vec4<f32>({b});\n            let row = (o0 + {r}u) * Q + sb * 4u;\n"
-        );
-        let comp = ["x", "y", "z", "w"][r];
-        for q in 0..4 {
-            let v = format!(
-                "vec4<f32>(a{}.{comp}, a{}.{comp}, a{}.{comp}, a{}.{comp}) + b",
-                4 * q,
-                4 * q + 1,
-                4 * q + 2,
-                4 * q + 3
-            );
-            let v = if y.relu {
-                format!("max({v}, vec4<f32>(0.0))")
-            } else {
-                v
-            };
-            f += &format!("            {}[row + {q}u] = {v};\n", y.dst);
-        }
-        f += "        }\n";
-    }
-    f += "    }\n}\n";
-    f
-}
-
 /// A field's parameters and kernels on one GPU.
 pub struct GpuField {
-    params: wgpu::Buffer,
+    pub(crate) params: wgpu::Buffer,
     levels: wgpu::Buffer,
-    code_bias: wgpu::Buffer,
+    pub(crate) code_bias: wgpu::Buffer,
     call: wgpu::Buffer,
-    encode: wgpu::ComputePipeline,
+    pub(crate) encode: wgpu::ComputePipeline,
     forward: wgpu::ComputePipeline,
     density: wgpu::ComputePipeline,
-    bind_layout: wgpu::BindGroupLayout,
+    pub(crate) bind_layout: wgpu::BindGroupLayout,
     /// Sample, image and output buffers for up to `capacity` samples.
-    io: Option<Io>,
+    pub(crate) io: Option<Io>,
     /// Samples in the batch the buffers hold.
-    n: usize,
-    param_count: usize,
+    pub(crate) n: usize,
+    pub(crate) param_count: usize,
     /// Samples per workgroup of the nets' kernels.
-    tile: u32,
+    pub(crate) tile: u32,
     /// Features per sample (levels × features per level).
     enc_width: usize,
 }
 
-struct Io {
-    capacity: usize,
+pub(crate) struct Io {
+    pub(crate) capacity: usize,
     samples: wgpu::Buffer,
     image: wgpu::Buffer,
-    out: wgpu::Buffer,
+    pub(crate) out: wgpu::Buffer,
     readback: wgpu::Buffer,
-    /// The encoded features between the two kernels (held by the bind group too).
+    /// The encoded features between the encoding and the nets.
     _enc: wgpu::Buffer,
-    bind: wgpu::BindGroup,
+    pub(crate) bind: wgpu::BindGroup,
 }
 
 fn storage(gpu: &Gpu, label: &str, bytes: &[u8]) -> wgpu::Buffer {
@@ -229,7 +46,9 @@ fn storage(gpu: &Gpu, label: &str, bytes: &[u8]) -> wgpu::Buffer {
         .create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some(label),
             contents: bytes,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_DST
+                | wgpu::BufferUsages::COPY_SRC,
         })
 }
 
@@ -296,7 +115,7 @@ impl GpuField {
         code_bias: wgpu::Buffer,
         call: wgpu::Buffer,
     ) -> Self {
-        let source = format!("{}{SHADER}", header(field, tile));
+        let source = format!("{}{SHADER}", header(field, tile, false));
         let module = gpu
             .device
             .create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -483,7 +302,7 @@ impl GpuField {
 
     /// Workgroups of a dispatch over the loaded batch, `per` samples each (x, y: past the
     /// adapter's largest x, the rest goes to y).
-    fn groups(&self, gpu: &Gpu, per: u32) -> (u32, u32) {
+    pub(crate) fn groups(&self, gpu: &Gpu, per: u32) -> (u32, u32) {
         let groups = (self.n as u32).div_ceil(per);
         let max = gpu.limits.max_compute_workgroups_per_dimension;
         if groups <= max {
@@ -531,7 +350,7 @@ impl GpuField {
     }
 
     /// The first `floats` outputs of the last run (σ, then rgb interleaved).
-    fn read(&self, gpu: &Gpu, floats: usize) -> Result<Vec<f32>, GpuError> {
+    pub(crate) fn read(&self, gpu: &Gpu, floats: usize) -> Result<Vec<f32>, GpuError> {
         let io = self.io.as_ref().expect("a batch was loaded");
         let bytes = 4 * floats as u64;
         let mut enc = gpu

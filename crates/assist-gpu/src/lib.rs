@@ -9,9 +9,12 @@
 
 #![forbid(unsafe_code)]
 
+mod codegen;
 mod field;
+mod train;
 
 pub use field::GpuField;
+pub use train::GpuTrainer;
 
 /// Which processor runs the fields (`--device`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -51,6 +54,39 @@ pub enum GpuError {
     Device { adapter: String, message: String },
     #[error("GPU: {0}")]
     Run(String),
+}
+
+/// The first `floats` values of a buffer (made with `COPY_SRC`), through a staging
+/// buffer; waits for the work submitted so far.
+pub(crate) fn read_f32(gpu: &Gpu, buf: &wgpu::Buffer, floats: usize) -> Result<Vec<f32>, GpuError> {
+    let bytes = 4 * floats as u64;
+    let staging = gpu.checked("reading back", || {
+        let staging = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("staging"),
+            size: bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        enc.copy_buffer_to_buffer(buf, 0, &staging, 0, bytes);
+        gpu.queue.submit([enc.finish()]);
+        staging
+    })?;
+    let slice = staging.slice(..);
+    let (tx, rx) = std::sync::mpsc::channel();
+    slice.map_async(wgpu::MapMode::Read, move |r| {
+        let _ = tx.send(r);
+    });
+    gpu.wait()?;
+    rx.recv()
+        .map_err(|e| GpuError::Run(e.to_string()))?
+        .map_err(|e| GpuError::Run(format!("reading back: {e}")))?;
+    let view = slice
+        .get_mapped_range()
+        .map_err(|e| GpuError::Run(format!("reading back: {e}")))?;
+    Ok(bytemuck::cast_slice(&view).to_vec())
 }
 
 /// An opened GPU: the adapter's description, its device and queue.
@@ -105,7 +141,9 @@ impl Gpu {
         let limits = adapter.limits();
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("assist"),
-            required_features: wgpu::Features::empty(),
+            // Float atomics sum the gradients where the adapter has them (Vulkan's
+            // VK_EXT_shader_atomic_float: NVIDIA, AMD, lavapipe); a slower loop elsewhere.
+            required_features: adapter.features() & wgpu::Features::SHADER_FLOAT32_ATOMIC,
             required_limits: limits.clone(),
             ..Default::default()
         }))

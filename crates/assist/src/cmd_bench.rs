@@ -206,7 +206,7 @@ fn bench_one(
     let mlp_train_gflops =
         3.0 * 2.0 * macs * n as f64 / (phases.mlp_forward + phases.mlp_backward) / 1e9;
     let gpu = match gpu {
-        Some(g) => crate::cmd_bench_gpu::field(g, &field, &s, a.steps, show)?,
+        Some(g) => crate::cmd_bench_gpu::field(g, &field, &s, (&d_sigma, &d_rgb), a.steps, show)?,
         None => Value::Null,
     };
     let v = json!({

@@ -3,8 +3,8 @@
 
 use std::time::Instant;
 
-use assist_field::{Field, Samples};
-use assist_gpu::{Gpu, GpuField};
+use assist_field::{Adam, Field, Samples};
+use assist_gpu::{Gpu, GpuField, GpuTrainer};
 use serde_json::{Value, json};
 
 /// Runs queued back to back per resident timing.
@@ -24,6 +24,7 @@ pub fn field(
     gpu: &Gpu,
     field: &Field,
     s: &Samples,
+    loss: (&[f32], &[f32]),
     steps: usize,
     show: bool,
 ) -> anyhow::Result<Value> {
@@ -60,6 +61,21 @@ pub fn field(
     let infer = timed(&mut || Ok(gf.run_forward(gpu, QUEUED)?))? / q;
     let density = timed(&mut || Ok(gf.run_density(gpu, QUEUED)?))? / q;
     let single = timed(&mut || Ok(gf.run_forward(gpu, 1)?))?;
+    // Training steps as the CPU figure counts them: forward with its record, backward,
+    // Adam; the loss's gradients are the CPU bench's.
+    let mut tr = GpuTrainer::new(gpu, &gf, field, &Adam::for_field(field))?;
+    tr.set_loss_grads(gpu, &gf, field, loss.0, loss.1)?;
+    let train = timed(&mut || {
+        for _ in 0..QUEUED {
+            tr.submit_step(gpu, &gf, 1)?;
+            tr.submit_adam(gpu, 1e-2);
+        }
+        Ok(gpu.wait()?)
+    })? / q;
+    let backward = timed(&mut || {
+        tr.submit_step(gpu, &gf, QUEUED)?;
+        Ok(gpu.wait()?)
+    })? / q;
     let round_trip = timed(&mut || Ok(gf.forward(gpu, s, &mut sig, &mut rgb)?))?;
     let v = json!({
         "adapter": gpu.name(),
@@ -67,15 +83,21 @@ pub fn field(
         "infer_seconds": infer,
         "density_samples_per_sec": n as f64 / density,
         "infer_single_seconds": single,
+        "train_samples_per_sec": n as f64 / train,
+        "train_step_seconds": train,
+        "forward_backward_seconds": backward,
         "infer_with_transfers_samples_per_sec": n as f64 / round_trip,
         "setup_seconds": setup,
         "max_relative_difference": {"sigma": d_sigma, "rgb": d_rgb},
     });
     if show {
         eprintln!(
-            "{:>9}  GPU {}: infer {:.1} M samples/s ({:.2} ms; {:.2} ms waited for alone), density {:.1} M samples/s, infer with upload and read-back {:.1} M samples/s | largest relative difference from the CPU: σ {d_sigma:.1e}, rgb {d_rgb:.1e}",
+            "{:>9}  GPU {}: train {:.1} M samples/s ({:.2} ms/step; forward + backward {:.2} ms), infer {:.1} M samples/s ({:.2} ms; {:.2} ms waited for alone), density {:.1} M samples/s, infer with upload and read-back {:.1} M samples/s | largest relative difference from the CPU: σ {d_sigma:.1e}, rgb {d_rgb:.1e}",
             "",
             gpu.name(),
+            n as f64 / train / 1e6,
+            train * 1e3,
+            backward * 1e3,
             n as f64 / infer / 1e6,
             infer * 1e3,
             single * 1e3,

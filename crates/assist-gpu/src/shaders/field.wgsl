@@ -39,6 +39,23 @@ struct Call {
 
 var<workgroup> WA: array<vec4<f32>, MAXW * Q>;
 var<workgroup> WB: array<vec4<f32>, MAXW * Q>;
+const WA_ID: u32 = 0u;
+const WB_ID: u32 = 1u;
+
+// Lane t's value of a row of WA (id 0) or WB (id 1).
+fn get_buf(id: u32, row: u32, t: u32) -> f32 {
+    if (id == WA_ID) {
+        return WA[row * Q + t / 4u][t % 4u];
+    }
+    return WB[row * Q + t / 4u][t % 4u];
+}
+fn set_buf(id: u32, row: u32, t: u32, v: f32) {
+    if (id == WA_ID) {
+        WA[row * Q + t / 4u][t % 4u] = v;
+    } else {
+        WB[row * Q + t / 4u][t % 4u] = v;
+    }
+}
 
 const MAX_RAW_DENSITY: f32 = 15.0;
 
@@ -157,18 +174,22 @@ fn forward_nets(
     @builtin(num_workgroups) nw: vec3<u32>,
 ) {
     let n = call.n;
+    let tile = wid.x + wid.y * nw.x;
     let s_out = sample_of(wid, nw, t);
     let s = min(s_out, n - 1u);
     load_features(wid, nw, t);
     workgroupBarrier();
     density_layers(t);
     workgroupBarrier();
+    record_rows(WB_ID, HIDDEN, T_HIDDEN, tile, t);
+    record_rows(WA_ID, 1u + GEO, T_DENS, tile, t);
     // Raw density in WA row 0, the geometry feature in rows 1…; the colour input to WB.
     let raw = get_a(0u, t);
     for (var g = 0u; g < GEO; g++) {
         set_b(g, t, get_a(1u + g, t));
     }
     sh(vec3<f32>(samples[3u * n + s], samples[4u * n + s], samples[5u * n + s]), t, GEO);
+    record_rows(WB_ID, GEO + SH_DEGREE * SH_DEGREE, T_CIN, tile, t);
     workgroupBarrier();
     color0(t);
     workgroupBarrier();
@@ -181,13 +202,18 @@ fn forward_nets(
         let v = get_a(o, t) + code_bias[slot * COLOR0_OUT + o];
         set_a(o, t, select(v, max(v, 0.0), COLOR_RELU));
     }
+    if (COLOR_RELU) {
+        record_rows(WA_ID, COLOR0_OUT, T_COLOR0, tile, t);
+    }
     workgroupBarrier();
-    color_rest(t);
+    color_rest(tile, t);
     workgroupBarrier();
+    let rgb = vec3<f32>(rgb_row(0u, t), rgb_row(1u, t), rgb_row(2u, t));
+    let c = 1.0 / (1.0 + exp(-rgb));
+    let sigma = exp(min(raw, MAX_RAW_DENSITY));
+    record_out(tile, t, c, sigma);
     if (s_out < n) {
-        out[s_out] = exp(min(raw, MAX_RAW_DENSITY));
-        let rgb = vec3<f32>(rgb_row(0u, t), rgb_row(1u, t), rgb_row(2u, t));
-        let c = 1.0 / (1.0 + exp(-rgb));
+        out[s_out] = sigma;
         out[n + 3u * s_out] = c.x;
         out[n + 3u * s_out + 1u] = c.y;
         out[n + 3u * s_out + 2u] = c.z;

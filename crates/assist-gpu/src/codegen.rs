@@ -1,0 +1,570 @@
+//! The per-field parts of the WGSL: every size and offset of a field's nets written as a
+//! constant, so that the driver unrolls the products and keeps partial sums in registers.
+
+use assist_field::{Field, Linear};
+
+use crate::{Gpu, GpuError};
+
+/// Rows of activations a field's nets need at most (the widest layer input or output).
+pub(crate) fn max_rows(field: &Field) -> usize {
+    let c = &field.config;
+    [
+        c.encoding_width(),
+        c.hidden,
+        1 + c.geo_features,
+        c.geo_features + c.sh_width(),
+        c.color_hidden,
+        3,
+    ]
+    .into_iter()
+    .max()
+    .unwrap_or(1)
+}
+
+/// Samples per workgroup: the largest of 64, 32, 16 whose two activation buffers fit the
+/// adapter's workgroup memory and invocation limits.
+pub(crate) fn tile(gpu: &Gpu, field: &Field) -> Result<u32, GpuError> {
+    let l = &gpu.limits;
+    let rows = max_rows(field) as u64;
+    [64u32, 32, 16]
+        .into_iter()
+        .find(|&t| {
+            2 * rows * t as u64 * 4 <= l.max_compute_workgroup_storage_size as u64
+                && t <= l.max_compute_invocations_per_workgroup
+                && t <= l.max_compute_workgroup_size_x
+        })
+        .ok_or_else(|| GpuError::Device {
+            adapter: gpu.info.name.clone(),
+            message: format!(
+                "a field {rows} features wide needs {} bytes of workgroup memory for 16 samples; the adapter has {}",
+                2 * rows * 16 * 4,
+                l.max_compute_workgroup_storage_size
+            ),
+        })
+}
+
+/// Rows of a training record per sample (tile-blocked like the features): what the
+/// forward pass keeps for the backward pass, and the gradients the backward pass keeps for
+/// the weight gradients.
+#[derive(Debug, Clone)]
+pub(crate) struct TapeRows {
+    /// Density net hidden layer (post-ReLU), density net output (raw σ, geometry).
+    pub hidden: usize,
+    pub dens: usize,
+    /// The colour net's product inputs (geometry + SH).
+    pub cin: usize,
+    /// The colour net's hidden outputs (post-ReLU), one per hidden layer.
+    pub color: Vec<usize>,
+    /// rgb after the sigmoid, σ after the exponential.
+    pub rgb: usize,
+    pub sigma: usize,
+    pub total: usize,
+    /// Gradients at the pre-activations: colour layers (last: rgb), density 1, density 0.
+    pub d_color: Vec<usize>,
+    pub d_dens: usize,
+    pub d_hidden: usize,
+    pub d_total: usize,
+}
+
+impl TapeRows {
+    pub(crate) fn new(field: &Field) -> Self {
+        let c = &field.config;
+        let l = &field.layout;
+        let mut r = 0;
+        let mut take = |n: usize| {
+            r += n;
+            r - n
+        };
+        let hidden = take(c.hidden);
+        let dens = take(1 + c.geo_features);
+        let cin = take(c.geo_features + c.sh_width());
+        let color = l.color[..l.color.len() - 1]
+            .iter()
+            .map(|ly| take(ly.out))
+            .collect();
+        let rgb = take(3);
+        let sigma = take(1);
+        let total = r;
+        let mut r = 0;
+        let mut take = |n: usize| {
+            r += n;
+            r - n
+        };
+        let d_color = l.color.iter().map(|ly| take(ly.out)).collect();
+        let d_dens = take(1 + c.geo_features);
+        let d_hidden = take(c.hidden);
+        TapeRows {
+            hidden,
+            dens,
+            cin,
+            color,
+            rgb,
+            sigma,
+            total,
+            d_color,
+            d_dens,
+            d_hidden,
+            d_total: r,
+        }
+    }
+}
+
+/// The WGSL constants and layer functions of one field configuration, prepended to the
+/// shader. With `record`, the forward pass keeps a training record (`TapeRows`).
+pub(crate) fn header(field: &Field, tile: u32, record: bool) -> String {
+    let c = &field.config;
+    let l = &field.layout;
+    let nets = l.color.len();
+    let t = TapeRows::new(field);
+    let mut h = format!(
+        "const LEVELS: u32 = {}u;\nconst FEAT: u32 = {}u;\nconst ENC_W: u32 = {}u;\n\
+         const GEO: u32 = {}u;\nconst SH_DEGREE: u32 = {}u;\n\
+         const APPEARANCE: bool = {};\nconst NUM_IMAGES: u32 = {}u;\n\
+         const COLOR0_OUT: u32 = {}u;\nconst COLOR_RELU: bool = {};\n\
+         const MAXW: u32 = {}u;\nconst TILE: u32 = {tile}u;\nconst Q: u32 = {}u;\n\
+         const T_HIDDEN: u32 = {}u;\nconst T_DENS: u32 = {}u;\nconst T_CIN: u32 = {}u;\n\
+         const T_RGB: u32 = {}u;\nconst T_SIGMA: u32 = {}u;\nconst T_ROWS: u32 = {}u;\n\
+         const D_DENS: u32 = {}u;\nconst D_HIDDEN: u32 = {}u;\nconst D_ROWS: u32 = {}u;\n\
+         const D_RGB: u32 = {}u;\nconst D_C0: u32 = {}u;\nconst HIDDEN: u32 = {}u;\n",
+        c.levels,
+        c.features_per_level,
+        c.encoding_width(),
+        c.geo_features,
+        c.sh_degree,
+        c.appearance_dim > 0,
+        c.num_images,
+        l.color[0].out,
+        nets > 1,
+        max_rows(field),
+        tile / 4,
+        t.hidden,
+        t.dens,
+        t.cin,
+        t.rgb,
+        t.sigma,
+        t.total,
+        t.d_dens,
+        t.d_hidden,
+        t.d_total,
+        t.d_color[nets - 1],
+        t.d_color[0],
+        c.hidden,
+    );
+    h += if record {
+        "fn record_rows(id: u32, rows: u32, at: u32, tile: u32, t: u32) {\n\
+         \x20   let base = tile * T_ROWS * TILE + t;\n\
+         \x20   for (var r = 0u; r < rows; r++) {\n\
+         \x20       tape[base + (at + r) * TILE] = get_buf(id, r, t);\n\
+         \x20   }\n}\n\
+         fn record_out(tile: u32, t: u32, rgb: vec3<f32>, sigma: f32) {\n\
+         \x20   let base = tile * T_ROWS * TILE + t;\n\
+         \x20   tape[base + T_RGB * TILE] = rgb.x;\n\
+         \x20   tape[base + (T_RGB + 1u) * TILE] = rgb.y;\n\
+         \x20   tape[base + (T_RGB + 2u) * TILE] = rgb.z;\n\
+         \x20   tape[base + T_SIGMA * TILE] = sigma;\n}\n"
+    } else {
+        "fn record_rows(id: u32, rows: u32, at: u32, tile: u32, t: u32) {}\n\
+         fn record_out(tile: u32, t: u32, rgb: vec3<f32>, sigma: f32) {}\n"
+    };
+    let d = &l.density;
+    let fwd = |name: &str, ly: &Linear, cols, src, dst, bias: bool, relu| {
+        layer_fn(
+            &Layer {
+                name,
+                rows: ly.out,
+                cols,
+                w: ly.w,
+                rs: ly.inp_pad,
+                cs: 1,
+                bias: bias.then_some(ly.b),
+                src,
+                dst,
+                relu,
+            },
+            tile,
+        )
+    };
+    h += &fwd("layer0", &d[0], c.encoding_width(), "WA", "WB", true, true);
+    h += &fwd("layer1", &d[1], c.hidden, "WB", "WA", true, false);
+    h +=
+        "fn density_layers(t: u32) {\n    layer0(t);\n    workgroupBarrier();\n    layer1(t);\n}\n";
+    // The colour net's first layer over geometry + SH (the code is added per sample).
+    let cols0 = c.geo_features + c.sh_width();
+    h += &fwd("color0", &l.color[0], cols0, "WB", "WA", false, false);
+    let mut body = String::new();
+    for (k, ly) in l.color.iter().enumerate().skip(1) {
+        let name = format!("color{k}");
+        let (src, dst) = if k % 2 == 1 {
+            ("WA", "WB")
+        } else {
+            ("WB", "WA")
+        };
+        h += &fwd(&name, ly, l.color[k - 1].out, src, dst, true, k + 1 < nets);
+        if k > 1 {
+            // The previous layer's output is complete; keep it for training.
+            body += "    workgroupBarrier();\n";
+            body += &format!(
+                "    record_rows({src}_ID, {}u, {}u, tile, t);\n",
+                l.color[k - 1].out,
+                t.color[k - 1]
+            );
+        }
+        body += &format!("    {name}(t);\n");
+    }
+    let last = if nets % 2 == 0 { "WB" } else { "WA" };
+    h += &format!(
+        "fn color_rest(tile: u32, t: u32) {{\n{body}}}\n\
+         fn rgb_row(r: u32, t: u32) -> f32 {{\n    return {last}[r * Q + t / 4u][t % 4u];\n}}\n\
+         const T_COLOR0: u32 = {}u;\n",
+        t.color.first().copied().unwrap_or(0)
+    );
+    h
+}
+
+/// One product as the shader runs it: `dst[r] = act(Σ_k A[r][k] src[k] + b[r])` for
+/// `r < rows`, `k < cols`, with `A[r][k] = params[w + r·rs + k·cs]` (a layer's weights, or
+/// their transpose for the backward pass).
+pub(crate) struct Layer<'a> {
+    pub name: &'a str,
+    pub rows: usize,
+    pub cols: usize,
+    pub w: usize,
+    pub rs: usize,
+    pub cs: usize,
+    /// The bias's offset in the parameters, if one is added here.
+    pub bias: Option<usize>,
+    /// Workgroup buffers read and written.
+    pub src: &'a str,
+    pub dst: &'a str,
+    pub relu: bool,
+}
+
+/// A WGSL function computing a [`Layer`] over the workgroup's samples: invocation t takes
+/// 4 rows (row block `t / SB`, then every 16th) for 16 samples (block `t % SB`),
+/// accumulating 16 vec4s (one per sample, over the 4 rows).
+pub(crate) fn layer_fn(y: &Layer, tile: u32) -> String {
+    let sb = tile / 16;
+    let ob = y.rows.div_ceil(4);
+    let (w, rs, cs, om1) = (y.w, y.rs, y.cs, y.rows - 1);
+    let mut f = format!("fn {}(t: u32) {{\n    let sb = t % {sb}u;\n", y.name);
+    f += &format!(
+        "    for (var ob = t / {sb}u; ob < {ob}u; ob += 16u) {{\n        let o0 = ob * 4u;\n"
+    );
+    for r in 0..4 {
+        f += &format!("        let r{r} = {w}u + min(o0 + {r}u, {om1}u) * {rs}u;\n");
+    }
+    for j in 0..16 {
+        f += &format!("        var a{j} = vec4<f32>(0.0);\n");
+    }
+    f += &format!("        for (var k = 0u; k < {}u; k++) {{\n", y.cols);
+    f += &format!("            let kc = k * {cs}u;\n");
+    f += "            let wv = vec4<f32>(params[r0 + kc], params[r1 + kc], params[r2 + kc], params[r3 + kc]);\n";
+    f += "            let base = k * Q + sb * 4u;\n";
+    for q in 0..4 {
+        f += &format!("            let x{q} = {}[base + {q}u];\n", y.src);
+    }
+    for j in 0..16 {
+        let comp = ["x", "y", "z", "w"][j % 4];
+        f += &format!(
+            "            a{j} = fma(wv, vec4<f32>(x{}.{comp}), a{j});\n",
+            j / 4
+        );
+    }
+    f += "        }\n";
+    for r in 0..4 {
+        f += &format!("        if (o0 + {r}u < {}u) {{\n", y.rows);
+        let b = match y.bias {
+            Some(b) => format!("params[{b}u + o0 + {r}u]"),
+            None => "0.0".into(),
+        };
+        f += &format!(
+            "            let b = vec4<f32>({b});\n            let row = (o0 + {r}u) * Q + sb * 4u;\n"
+        );
+        let comp = ["x", "y", "z", "w"][r];
+        for q in 0..4 {
+            let v = format!(
+                "vec4<f32>(a{}.{comp}, a{}.{comp}, a{}.{comp}, a{}.{comp}) + b",
+                4 * q,
+                4 * q + 1,
+                4 * q + 2,
+                4 * q + 3
+            );
+            let v = if y.relu {
+                format!("max({v}, vec4<f32>(0.0))")
+            } else {
+                v
+            };
+            f += &format!("            {}[row + {q}u] = {v};\n", y.dst);
+        }
+        f += "        }\n";
+    }
+    f += "    }\n}\n";
+    f
+}
+
+/// Layers whose weight gradient a `dw_*` kernel computes: name, layer, where its inputs
+/// are (`enc` rows, or tape rows from an offset), how many, and its gradient's dtape rows.
+pub(crate) struct DwLayer {
+    pub name: String,
+    pub l: Linear,
+    /// Tape row of the inputs, or `None` for the encoded features.
+    pub x_at: Option<usize>,
+    pub inputs: usize,
+    pub d_at: usize,
+}
+
+/// The layers of a field in the order their weight gradients are computed.
+pub(crate) fn dw_layers(field: &Field) -> Vec<DwLayer> {
+    let c = &field.config;
+    let l = &field.layout;
+    let t = TapeRows::new(field);
+    let mut v = vec![
+        DwLayer {
+            name: "dw_density0".into(),
+            l: l.density[0],
+            x_at: None,
+            inputs: c.encoding_width(),
+            d_at: t.d_hidden,
+        },
+        DwLayer {
+            name: "dw_density1".into(),
+            l: l.density[1],
+            x_at: Some(t.hidden),
+            inputs: c.hidden,
+            d_at: t.d_dens,
+        },
+        DwLayer {
+            name: "dw_color0".into(),
+            l: l.color[0],
+            x_at: Some(t.cin),
+            inputs: c.geo_features + c.sh_width(),
+            d_at: t.d_color[0],
+        },
+    ];
+    for (k, ly) in l.color.iter().enumerate().skip(1) {
+        v.push(DwLayer {
+            name: format!("dw_color{k}"),
+            l: *ly,
+            x_at: Some(t.color[k - 1]),
+            inputs: l.color[k - 1].out,
+            d_at: t.d_color[k],
+        });
+    }
+    v
+}
+
+/// Tiles per workgroup of the weight-gradient kernels.
+pub(crate) const DW_TILES: u32 = 16;
+
+/// The training part's per-field WGSL: atomics, constants, `backward_nets` and `dw_*`.
+/// Layers must give at most 64 blocks of 4 outputs × 16 inputs (64-wide nets).
+pub(crate) fn train_header(
+    field: &Field,
+    tile: u32,
+    float_atomics: bool,
+) -> Result<String, String> {
+    let c = &field.config;
+    let l = &field.layout;
+    let t = TapeRows::new(field);
+    let nets = l.color.len();
+    let mut h = if float_atomics {
+        "alias GRAD_T = atomic<f32>;\n\
+         fn grad_add(i: u32, v: f32) {\n    atomicAdd(&grad[i], v);\n}\n\
+         fn sums_add(i: u32, v: f32) {\n    atomicAdd(&code_sums[i], v);\n}\n\
+         fn sums_get(i: u32) -> f32 {\n    return atomicLoad(&code_sums[i]);\n}\n"
+            .to_string()
+    } else {
+        // A compare-exchange loop on the float's bits, for adapters without float atomics.
+        let add = |name: &str, buf: &str| {
+            format!(
+                "fn {name}(i: u32, v: f32) {{\n\
+                 \x20   var old = atomicLoad(&{buf}[i]);\n\
+                 \x20   loop {{\n\
+                 \x20       let r = atomicCompareExchangeWeak(&{buf}[i], old, bitcast<u32>(bitcast<f32>(old) + v));\n\
+                 \x20       if (r.exchanged) {{\n            break;\n        }}\n\
+                 \x20       old = r.old_value;\n\
+                 \x20   }}\n}}\n"
+            )
+        };
+        format!(
+            "alias GRAD_T = atomic<u32>;\n{}{}\
+             fn sums_get(i: u32) -> f32 {{\n    return bitcast<f32>(atomicLoad(&code_sums[i]));\n}}\n",
+            add("grad_add", "grad"),
+            add("sums_add", "code_sums")
+        )
+    };
+    let c0 = &l.color[0];
+    h += &format!(
+        "const APP_DIM: u32 = {}u;\nconst APP: u32 = {}u;\nconst C0_W: u32 = {}u;\n\
+         const C0_PAD: u32 = {}u;\nconst K0: u32 = {}u;\nconst DW_TILES: u32 = {DW_TILES}u;\n",
+        c.appearance_dim,
+        l.appearance,
+        c0.w,
+        c0.inp_pad,
+        c.geo_features + c.sh_width(),
+    );
+    // Backward through the nets: transposed products, ReLU masks from the record.
+    let tr = |name: &str, ly: &Linear, rows: usize, src, dst| {
+        layer_fn(
+            &Layer {
+                name,
+                rows,
+                cols: ly.out,
+                w: ly.w,
+                rs: 1,
+                cs: ly.inp_pad,
+                bias: None,
+                src,
+                dst,
+                relu: false,
+            },
+            tile,
+        )
+    };
+    let other = |b: &'static str| if b == "WA" { "WB" } else { "WA" };
+    let mut cur = "WA";
+    let mut body = String::from(
+        "    let n = call.n;\n    let tile = wid.x + wid.y * nw.x;\n    let s_out = tile * TILE + t;\n\
+         \x20   let valid = s_out < n;\n    let s = min(s_out, n - 1u);\n\
+         \x20   let tb = tile * T_ROWS * TILE + t;\n\
+         \x20   for (var k = 0u; k < 3u; k++) {\n\
+         \x20       let y = tape[tb + (T_RGB + k) * TILE];\n\
+         \x20       set_buf(WA_ID, k, t, select(0.0, d_out[n + 3u * s + k] * y * (1.0 - y), valid));\n\
+         \x20   }\n",
+    );
+    for li in (1..nets).rev() {
+        let ly = &l.color[li];
+        let name = format!("tcolor{li}");
+        let rows = l.color[li - 1].out;
+        h += &tr(&name, ly, rows, cur, other(cur));
+        body += &format!(
+            "    keep_d({cur}_ID, {}u, {}u, tile, t);\n    workgroupBarrier();\n    {name}(t);\n\
+             \x20   workgroupBarrier();\n    relu_mask({}_ID, {rows}u, {}u, tile, t);\n",
+            ly.out,
+            t.d_color[li],
+            other(cur),
+            t.color[li - 1],
+        );
+        cur = other(cur);
+    }
+    h += &tr("tcolor0", c0, c.geo_features, cur, other(cur));
+    body += &format!(
+        "    keep_d({cur}_ID, {}u, {}u, tile, t);\n    workgroupBarrier();\n    tcolor0(t);\n\
+         \x20   workgroupBarrier();\n\
+         \x20   set_buf({cur}_ID, 0u, t, select(0.0, d_out[s] * tape[tb + T_SIGMA * TILE], valid));\n\
+         \x20   for (var g = 0u; g < GEO; g++) {{\n\
+         \x20       set_buf({cur}_ID, 1u + g, t, get_buf({o}_ID, g, t));\n    }}\n\
+         \x20   keep_d({cur}_ID, 1u + GEO, D_DENS, tile, t);\n    workgroupBarrier();\n",
+        c0.out,
+        t.d_color[0],
+        o = other(cur),
+    );
+    let d = &l.density;
+    h += &tr("tdensity1", &d[1], c.hidden, cur, other(cur));
+    h += &tr("tdensity0", &d[0], c.encoding_width(), other(cur), cur);
+    body += &format!(
+        "    tdensity1(t);\n    workgroupBarrier();\n\
+         \x20   relu_mask({o}_ID, HIDDEN, T_HIDDEN, tile, t);\n\
+         \x20   keep_d({o}_ID, HIDDEN, D_HIDDEN, tile, t);\n    workgroupBarrier();\n\
+         \x20   tdensity0(t);\n    workgroupBarrier();\n\
+         \x20   let eb = tile * ENC_W * TILE + t;\n\
+         \x20   for (var f = 0u; f < ENC_W; f++) {{\n\
+         \x20       d_enc[eb + f * TILE] = get_buf({cur}_ID, f, t);\n    }}\n",
+        o = other(cur),
+    );
+    h += &format!(
+        "@compute @workgroup_size(TILE)\nfn backward_nets(\n\
+         \x20   @builtin(local_invocation_index) t: u32,\n\
+         \x20   @builtin(workgroup_id) wid: vec3<u32>,\n\
+         \x20   @builtin(num_workgroups) nw: vec3<u32>,\n) {{\n{body}}}\n"
+    );
+    for y in dw_layers(field) {
+        h += &dw_fn(&y)?;
+    }
+    Ok(h)
+}
+
+/// A weight-gradient kernel: `dW[o][i] += Σ_s d[o][s] x[i][s]`, `db[o] += Σ_s d[o][s]`
+/// over DW_TILES tiles per workgroup, staged through workgroup memory; invocation t takes
+/// a block of 4 outputs × 16 inputs.
+fn dw_fn(y: &DwLayer) -> Result<String, String> {
+    let (out, inp) = (y.l.out, y.inputs);
+    let (ob, ib) = (out.div_ceil(4), inp.div_ceil(16));
+    if ob * ib > 64 {
+        return Err(format!(
+            "{}: {out} × {inp} is wider than the GPU training kernels take (at most 64 blocks of 4 × 16)",
+            y.name
+        ));
+    }
+    let x = match y.x_at {
+        Some(at) => format!("tape[tile * T_ROWS * TILE + ({at}u + row) * TILE + lane]"),
+        None => "enc[tile * ENC_W * TILE + row * TILE + lane]".into(),
+    };
+    let mut f = format!(
+        "@compute @workgroup_size(64)\nfn {}(\n\
+         \x20   @builtin(local_invocation_index) t: u32,\n\
+         \x20   @builtin(workgroup_id) wid: vec3<u32>,\n\
+         \x20   @builtin(num_workgroups) nw: vec3<u32>,\n) {{\n\
+         \x20   let g = wid.x + wid.y * nw.x;\n\
+         \x20   let tiles = (call.n + TILE - 1u) / TILE;\n\
+         \x20   let ob = t / {ib}u;\n    let o0 = ob * 4u;\n    let i0 = (t % {ib}u) * 16u;\n\
+         \x20   var bs = 0.0;\n",
+        y.name
+    );
+    for j in 0..16 {
+        f += &format!("    var a{j} = vec4<f32>(0.0);\n");
+    }
+    f += &format!(
+        "    for (var tt = 0u; tt < DW_TILES; tt++) {{\n\
+         \x20       let tile = g * DW_TILES + tt;\n\
+         \x20       if (tile >= tiles) {{\n            break;\n        }}\n\
+         \x20       let lanes = min(TILE, call.n - tile * TILE);\n\
+         \x20       for (var e = t; e < {out}u * TILE; e += 64u) {{\n\
+         \x20           let row = e / TILE;\n            let lane = e % TILE;\n\
+         \x20           DS[e] = select(0.0, dtape[tile * D_ROWS * TILE + ({}u + row) * TILE + lane], lane < lanes);\n\
+         \x20       }}\n\
+         \x20       for (var e = t; e < {inp}u * TILE; e += 64u) {{\n\
+         \x20           let row = e / TILE;\n            let lane = e % TILE;\n\
+         \x20           XS[e] = select(0.0, {x}, lane < lanes);\n\
+         \x20       }}\n\
+         \x20       workgroupBarrier();\n\
+         \x20       if (ob < {ob}u) {{\n\
+         \x20           for (var s = 0u; s < TILE; s++) {{\n",
+        y.d_at
+    );
+    let om1 = out - 1;
+    f += &format!(
+        "                let dv = vec4<f32>(DS[min(o0, {om1}u) * TILE + s], DS[min(o0 + 1u, {om1}u) * TILE + s], DS[min(o0 + 2u, {om1}u) * TILE + s], DS[min(o0 + 3u, {om1}u) * TILE + s]);\n"
+    );
+    for j in 0..16 {
+        f += &format!(
+            "                a{j} = fma(dv, vec4<f32>(XS[min(i0 + {j}u, {}u) * TILE + s]), a{j});\n",
+            inp - 1
+        );
+    }
+    f += &format!(
+        "            }}\n        }}\n\
+         \x20       if (t < {out}u) {{\n\
+         \x20           for (var s = 0u; s < TILE; s++) {{\n                bs += DS[t * TILE + s];\n            }}\n\
+         \x20       }}\n        workgroupBarrier();\n    }}\n\
+         \x20   if (ob < {ob}u) {{\n"
+    );
+    for r in 0..4 {
+        let comp = ["x", "y", "z", "w"][r];
+        f += &format!(
+            "        if (o0 + {r}u < {out}u) {{\n            let row = {}u + (o0 + {r}u) * {}u;\n",
+            y.l.w, y.l.inp_pad
+        );
+        for j in 0..16 {
+            f += &format!(
+                "            if (i0 + {j}u < {inp}u) {{\n                grad_add(row + i0 + {j}u, a{j}.{comp});\n            }}\n"
+            );
+        }
+        f += "        }\n";
+    }
+    f += &format!(
+        "    }}\n    if (t < {out}u) {{\n        grad_add({}u + t, bs);\n    }}\n}}\n",
+        y.l.b
+    );
+    Ok(f)
+}

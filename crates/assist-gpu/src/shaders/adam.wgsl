@@ -1,0 +1,93 @@
+// One Adam step over the flat parameter vector, as `assist_field::Adam::update`: moments
+// flushed below 1e-30, gradients below 1e-17 counted as zero, entries of the sparse range
+// (hash tables) with a zero gradient left alone, L2 decay over the decay range; the
+// gradient is zeroed for the next step. Then `refresh_codes` recomputes the first colour
+// layer's per-code biases from the updated weights and codes.
+
+struct Hyper {
+    b1: f32,
+    b2: f32,
+    eps: f32,
+    step_size: f32,
+    inv_sqrt_c2: f32,
+    weight_decay: f32,
+    n: u32,
+    decay_start: u32,
+    decay_end: u32,
+    sparse_start: u32,
+    sparse_end: u32,
+    // The first colour layer and the appearance codes (see `Field::code_biases`).
+    c0_w: u32,
+    c0_b: u32,
+    c0_pad: u32,
+    c0_out: u32,
+    k0: u32,
+    app: u32,
+    app_dim: u32,
+    images: u32,
+    _pad0: u32,
+}
+
+@group(0) @binding(0) var<storage, read_write> p: array<f32>;
+@group(0) @binding(1) var<storage, read_write> g: array<f32>;
+@group(0) @binding(2) var<storage, read_write> m: array<f32>;
+@group(0) @binding(3) var<storage, read_write> v: array<f32>;
+@group(0) @binding(4) var<uniform> h: Hyper;
+@group(0) @binding(5) var<storage, read_write> code_bias: array<f32>;
+
+fn flush(x: f32) -> f32 {
+    return select(x, 0.0, abs(x) < 1e-30);
+}
+
+@compute @workgroup_size(256)
+fn adam(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nw: vec3<u32>) {
+    let i = gid.x + gid.y * nw.x * 256u;
+    if (i >= h.n) {
+        return;
+    }
+    var gi = g[i];
+    if (abs(gi) < 1e-17) {
+        gi = 0.0;
+    }
+    g[i] = 0.0;
+    if (gi == 0.0 && i >= h.sparse_start && i < h.sparse_end) {
+        m[i] = flush(m[i]);
+        v[i] = flush(v[i]);
+        return;
+    }
+    if (h.weight_decay != 0.0 && i >= h.decay_start && i < h.decay_end) {
+        gi += h.weight_decay * p[i];
+    }
+    let mi = flush(h.b1 * m[i] + (1.0 - h.b1) * gi);
+    let vi = flush(h.b2 * v[i] + (1.0 - h.b2) * gi * gi);
+    m[i] = mi;
+    v[i] = vi;
+    p[i] -= h.step_size * mi / (sqrt(vi) * h.inv_sqrt_c2 + h.eps);
+}
+
+// code_bias[slot][o] = b[o] + W_app[o] · code(slot), the average code last.
+@compute @workgroup_size(64)
+fn refresh_codes(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let slots = select(1u, h.images + 1u, h.app_dim > 0u);
+    let i = gid.x;
+    if (i >= slots * h.c0_out) {
+        return;
+    }
+    let slot = i / h.c0_out;
+    let o = i % h.c0_out;
+    var v = p[h.c0_b + o];
+    let row = h.c0_w + o * h.c0_pad + h.k0;
+    for (var k = 0u; k < h.app_dim; k++) {
+        var code = 0.0;
+        if (slot < h.images) {
+            code = p[h.app + slot * h.app_dim + k];
+        } else {
+            for (var j = 0u; j < h.images; j++) {
+                code += p[h.app + j * h.app_dim + k];
+            }
+            code /= f32(max(h.images, 1u));
+        }
+        v += p[row + k] * code;
+    }
+    code_bias[i] = v;
+}

@@ -1,0 +1,453 @@
+//! Training a field on the GPU: the forward pass with its record, the backward pass
+//! through the nets, the weight, appearance and hash-grid gradients, and Adam, all on
+//! buffers resident in GPU memory. Gradients are summed with float atomics where the
+//! adapter has them (a compare-exchange loop elsewhere), so their last bits depend on the
+//! order the adapter runs them in; the CPU path is the bit-reproducible reference.
+
+use assist_field::{Adam, Field};
+use wgpu::util::DeviceExt;
+
+use crate::codegen::{DW_TILES, TapeRows, dw_layers, header, train_header};
+use crate::{Gpu, GpuError, GpuField};
+
+const FIELD: &str = include_str!("shaders/field.wgsl");
+const TRAIN: &str = include_str!("shaders/train.wgsl");
+const ADAM: &str = include_str!("shaders/adam.wgsl");
+
+/// Adam's settings and step count, mirrored from [`assist_field::Adam`].
+struct AdamState {
+    beta1: f32,
+    beta2: f32,
+    eps: f32,
+    weight_decay: f32,
+    decay: std::ops::Range<usize>,
+    sparse: std::ops::Range<usize>,
+    step: u32,
+}
+
+/// A field's training state on one GPU, beside its [`GpuField`] (which holds the
+/// parameters and the batch).
+pub struct GpuTrainer {
+    grad: wgpu::Buffer,
+    code_sums: wgpu::Buffer,
+    forward: wgpu::ComputePipeline,
+    backward: wgpu::ComputePipeline,
+    dw: Vec<wgpu::ComputePipeline>,
+    code_sums_k: wgpu::ComputePipeline,
+    code_backward: wgpu::ComputePipeline,
+    encode_backward: wgpu::ComputePipeline,
+    layout1: wgpu::BindGroupLayout,
+    /// Per-batch buffers (tape, gradients at the layers, loss gradients), for up to
+    /// `capacity` samples, with their bind group.
+    batch: Option<Batch>,
+    adam: wgpu::ComputePipeline,
+    /// Recomputes the per-code biases after Adam (they fold weights and codes).
+    refresh: wgpu::ComputePipeline,
+    /// The hyper-parameter block's layout words for `refresh_codes`.
+    code_layout: [u32; 9],
+    adam_bind: wgpu::BindGroup,
+    hyper: wgpu::Buffer,
+    state: AdamState,
+    appearance: bool,
+    code_threads: u32,
+    param_count: usize,
+}
+
+struct Batch {
+    capacity: usize,
+    d_out: wgpu::Buffer,
+    bind: wgpu::BindGroup,
+}
+
+/// `n` read-write storage bindings, for the compute stage.
+fn entries(n: u32) -> Vec<wgpu::BindGroupLayoutEntry> {
+    (0..n)
+        .map(|binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only: false },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        })
+        .collect()
+}
+
+/// `refresh_codes`' words of the hyper-parameter block: the first colour layer's weight,
+/// bias, row stride, outputs, first code column; the codes' offset, width and count.
+fn code_layout(field: &Field) -> [u32; 9] {
+    let (c, l) = (&field.config, &field.layout);
+    let c0 = &l.color[0];
+    [
+        c0.w,
+        c0.b,
+        c0.inp_pad,
+        c0.out,
+        c.geo_features + c.sh_width(),
+        l.appearance,
+        c.appearance_dim,
+        c.num_images,
+        0,
+    ]
+    .map(|v| v as u32)
+}
+
+impl GpuTrainer {
+    /// Builds the training kernels of `field` (uploaded as `gf`) with `adam`'s settings
+    /// and moments.
+    pub fn new(gpu: &Gpu, gf: &GpuField, field: &Field, adam: &Adam) -> Result<Self, GpuError> {
+        let float_atomics = gpu
+            .device
+            .features()
+            .contains(wgpu::Features::SHADER_FLOAT32_ATOMIC);
+        Self::with_atomics(gpu, gf, field, adam, float_atomics)
+    }
+
+    /// [`new`](Self::new) with float atomics forced off (`false`: the compare-exchange
+    /// path), for the tests of adapters that lack them.
+    #[doc(hidden)]
+    pub fn with_atomics(
+        gpu: &Gpu,
+        gf: &GpuField,
+        field: &Field,
+        adam: &Adam,
+        float_atomics: bool,
+    ) -> Result<Self, GpuError> {
+        let err = |message: String| GpuError::Device {
+            adapter: gpu.info.name.clone(),
+            message,
+        };
+        let limit = gpu.limits.max_storage_buffers_per_shader_stage;
+        if limit < 14 {
+            return Err(err(format!(
+                "training needs 14 storage buffers per kernel; the adapter allows {limit}"
+            )));
+        }
+        let float_atomics = float_atomics
+            && gpu
+                .device
+                .features()
+                .contains(wgpu::Features::SHADER_FLOAT32_ATOMIC);
+        let extra = train_header(field, gf.tile, float_atomics).map_err(err)?;
+        let source = format!("{}{extra}{FIELD}{TRAIN}", header(field, gf.tile, true));
+        let n = field.params.len();
+        let state = AdamState {
+            beta1: adam.beta1,
+            beta2: adam.beta2,
+            eps: adam.eps,
+            weight_decay: adam.weight_decay,
+            decay: adam.decay_range.clone(),
+            sparse: adam.sparse_range.clone(),
+            step: adam.step,
+        };
+        if adam.m.len() != n {
+            return Err(GpuError::Run(format!(
+                "adam: moments for {} parameters, the field has {n}",
+                adam.m.len()
+            )));
+        }
+        gpu.checked("building the training kernels", || {
+            let storage = |label: &str, bytes: &[u8]| {
+                gpu.device
+                    .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                        label: Some(label),
+                        contents: bytes,
+                        usage: wgpu::BufferUsages::STORAGE
+                            | wgpu::BufferUsages::COPY_DST
+                            | wgpu::BufferUsages::COPY_SRC,
+                    })
+            };
+            let grad = storage("grad", bytemuck::cast_slice(&vec![0f32; n]));
+            let m = storage("adam.m", bytemuck::cast_slice(&adam.m));
+            let v = storage("adam.v", bytemuck::cast_slice(&adam.v));
+            let code_rows = (field.config.num_images + 1) * field.layout.color[0].out;
+            let code_sums = storage("code_sums", bytemuck::cast_slice(&vec![0f32; code_rows]));
+            let layout1 = gpu
+                .device
+                .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                    label: Some("train"),
+                    entries: &entries(6),
+                });
+            let module = gpu
+                .device
+                .create_shader_module(wgpu::ShaderModuleDescriptor {
+                    label: Some("train.wgsl"),
+                    source: wgpu::ShaderSource::Wgsl(source.into()),
+                });
+            let layout = gpu
+                .device
+                .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                    label: Some("train"),
+                    bind_group_layouts: &[Some(&gf.bind_layout), Some(&layout1)],
+                    immediate_size: 0,
+                });
+            let pipeline = |name: &str| {
+                gpu.device
+                    .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                        label: Some(name),
+                        layout: Some(&layout),
+                        module: &module,
+                        entry_point: Some(name),
+                        compilation_options: Default::default(),
+                        cache: None,
+                    })
+            };
+            let dw = dw_layers(field).iter().map(|y| pipeline(&y.name)).collect();
+            // Adam: its own module over the same parameter and gradient buffers.
+            let adam_module = gpu
+                .device
+                .create_shader_module(wgpu::ShaderModuleDescriptor {
+                    label: Some("adam.wgsl"),
+                    source: wgpu::ShaderSource::Wgsl(ADAM.into()),
+                });
+            let mut adam_entries = entries(6);
+            adam_entries[4].ty = wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            };
+            let adam_layout =
+                gpu.device
+                    .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                        label: Some("adam"),
+                        entries: &adam_entries,
+                    });
+            let adam_pl = gpu
+                .device
+                .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                    label: Some("adam"),
+                    bind_group_layouts: &[Some(&adam_layout)],
+                    immediate_size: 0,
+                });
+            let adam_pipeline = |name: &str| {
+                gpu.device
+                    .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                        label: Some(name),
+                        layout: Some(&adam_pl),
+                        module: &adam_module,
+                        entry_point: Some(name),
+                        compilation_options: Default::default(),
+                        cache: None,
+                    })
+            };
+            let hyper = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("adam.hyper"),
+                size: 80,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let adam_bind = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("adam"),
+                layout: &adam_layout,
+                entries: &[&gf.params, &grad, &m, &v, &hyper, &gf.code_bias]
+                    .iter()
+                    .enumerate()
+                    .map(|(i, b)| wgpu::BindGroupEntry {
+                        binding: i as u32,
+                        resource: b.as_entire_binding(),
+                    })
+                    .collect::<Vec<_>>(),
+            });
+            let cfg = &field.config;
+            GpuTrainer {
+                forward: pipeline("forward_nets"),
+                backward: pipeline("backward_nets"),
+                dw,
+                code_sums_k: pipeline("code_sums_of_tile"),
+                code_backward: pipeline("code_backward"),
+                encode_backward: pipeline("encode_backward"),
+                grad,
+                code_sums,
+                layout1,
+                batch: None,
+                adam: adam_pipeline("adam"),
+                refresh: adam_pipeline("refresh_codes"),
+                code_layout: code_layout(field),
+                adam_bind,
+                hyper,
+                state,
+                appearance: cfg.appearance_dim > 0,
+                code_threads: ((cfg.num_images + field.layout.color[0].out) * cfg.appearance_dim)
+                    as u32,
+                param_count: n,
+            }
+        })
+    }
+
+    /// Sets the loss's gradients for the batch loaded in `gf`: dL/dσ per sample and
+    /// dL/drgb interleaved.
+    pub fn set_loss_grads(
+        &mut self,
+        gpu: &Gpu,
+        gf: &GpuField,
+        field: &Field,
+        d_sigma: &[f32],
+        d_rgb: &[f32],
+    ) -> Result<(), GpuError> {
+        let n = gf.n;
+        if d_sigma.len() != n || d_rgb.len() != 3 * n {
+            return Err(GpuError::Run(format!(
+                "loss gradients: expected {n} and {} values for the loaded batch, got {} and {}",
+                3 * n,
+                d_sigma.len(),
+                d_rgb.len()
+            )));
+        }
+        let io = gf
+            .io
+            .as_ref()
+            .ok_or_else(|| GpuError::Run("no batch loaded".into()))?;
+        if self.batch.as_ref().is_none_or(|b| b.capacity < io.capacity) {
+            let capacity = io.capacity;
+            let tiles = capacity.div_ceil(gf.tile as usize) * gf.tile as usize;
+            let rows = TapeRows::new(field);
+            let what = format!("allocating the training record of {capacity} samples");
+            let batch = gpu.checked(&what, || {
+                let buffer = |label: &str, floats: usize| {
+                    gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                        label: Some(label),
+                        size: 4 * floats as u64,
+                        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                        mapped_at_creation: false,
+                    })
+                };
+                let tape = buffer("tape", tiles * rows.total);
+                let dtape = buffer("dtape", tiles * rows.d_total);
+                let d_enc = buffer("d_enc", tiles * field.config.encoding_width());
+                let d_out = buffer("d_out", 4 * capacity);
+                let bind = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("train"),
+                    layout: &self.layout1,
+                    entries: &[&tape, &dtape, &d_enc, &d_out, &self.grad, &self.code_sums]
+                        .iter()
+                        .enumerate()
+                        .map(|(i, b)| wgpu::BindGroupEntry {
+                            binding: i as u32,
+                            resource: b.as_entire_binding(),
+                        })
+                        .collect::<Vec<_>>(),
+                });
+                Batch {
+                    capacity,
+                    d_out,
+                    bind,
+                }
+            })?;
+            self.batch = Some(batch);
+        }
+        let b = self.batch.as_ref().expect("allocated");
+        let mut v = Vec::with_capacity(4 * n);
+        v.extend_from_slice(d_sigma);
+        v.extend_from_slice(d_rgb);
+        gpu.queue
+            .write_buffer(&b.d_out, 0, bytemuck::cast_slice(&v));
+        Ok(())
+    }
+
+    /// Submits `reps` forward + backward passes over the loaded batch (gradients summed
+    /// into the gradient buffer, as `Field::backward` sums into `grad`), without waiting.
+    pub fn submit_step(&self, gpu: &Gpu, gf: &GpuField, reps: usize) -> Result<(), GpuError> {
+        let (Some(io), Some(b)) = (gf.io.as_ref(), self.batch.as_ref()) else {
+            return Err(GpuError::Run("no batch or loss gradients loaded".into()));
+        };
+        if gf.n == 0 {
+            return Ok(());
+        }
+        let (ex, ey) = gf.groups(gpu, 64);
+        let (tx, ty) = gf.groups(gpu, gf.tile);
+        let (wx, wy) = gf.groups(gpu, gf.tile * DW_TILES);
+        let mut enc = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        for _ in 0..reps {
+            if self.appearance {
+                enc.clear_buffer(&self.code_sums, 0, None);
+            }
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+            pass.set_bind_group(0, &io.bind, &[]);
+            pass.set_bind_group(1, &b.bind, &[]);
+            pass.set_pipeline(&gf.encode);
+            pass.dispatch_workgroups(ex, ey, 1);
+            pass.set_pipeline(&self.forward);
+            pass.dispatch_workgroups(tx, ty, 1);
+            pass.set_pipeline(&self.backward);
+            pass.dispatch_workgroups(tx, ty, 1);
+            for p in &self.dw {
+                pass.set_pipeline(p);
+                pass.dispatch_workgroups(wx, wy, 1);
+            }
+            if self.appearance {
+                pass.set_pipeline(&self.code_sums_k);
+                pass.dispatch_workgroups(tx, ty, 1);
+                pass.set_pipeline(&self.code_backward);
+                pass.dispatch_workgroups(self.code_threads.div_ceil(64).max(1), 1, 1);
+            }
+            pass.set_pipeline(&self.encode_backward);
+            pass.dispatch_workgroups(ex, ey, 1);
+        }
+        gpu.queue.submit([enc.finish()]);
+        Ok(())
+    }
+
+    /// One Adam step with learning rate `lr` (zeroes the gradient), submitted.
+    pub fn submit_adam(&mut self, gpu: &Gpu, lr: f32) {
+        let s = &mut self.state;
+        s.step += 1;
+        let c1 = 1.0 - s.beta1.powi(s.step as i32);
+        let c2 = 1.0 - s.beta2.powi(s.step as i32);
+        let f = [
+            s.beta1,
+            s.beta2,
+            s.eps,
+            lr / c1,
+            1.0 / c2.sqrt(),
+            s.weight_decay,
+        ];
+        let u = [
+            self.param_count as u32,
+            s.decay.start as u32,
+            s.decay.end as u32,
+            s.sparse.start as u32,
+            s.sparse.end as u32,
+        ];
+        let mut bytes = Vec::with_capacity(80);
+        bytes.extend_from_slice(bytemuck::cast_slice(&f));
+        bytes.extend_from_slice(bytemuck::cast_slice(&u));
+        bytes.extend_from_slice(bytemuck::cast_slice(&self.code_layout));
+        gpu.queue.write_buffer(&self.hyper, 0, &bytes);
+        let groups = (self.param_count as u32).div_ceil(256);
+        let max = gpu.limits.max_compute_workgroups_per_dimension;
+        let (x, y) = if groups <= max {
+            (groups, 1)
+        } else {
+            (max, groups.div_ceil(max))
+        };
+        let mut enc = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+            pass.set_pipeline(&self.adam);
+            pass.set_bind_group(0, &self.adam_bind, &[]);
+            pass.dispatch_workgroups(x, y, 1);
+            pass.set_pipeline(&self.refresh);
+            let [_, _, _, out, .., images, _] = self.code_layout;
+            pass.dispatch_workgroups(((images + 1) * out).div_ceil(64), 1, 1);
+        }
+        gpu.queue.submit([enc.finish()]);
+    }
+
+    /// The summed gradient (waits for the work submitted so far).
+    pub fn read_grad(&self, gpu: &Gpu) -> Result<Vec<f32>, GpuError> {
+        crate::read_f32(gpu, &self.grad, self.param_count)
+    }
+}
+
+impl GpuField {
+    /// The parameters as they are on the GPU (after training steps there).
+    pub fn read_params(&self, gpu: &Gpu) -> Result<Vec<f32>, GpuError> {
+        crate::read_f32(gpu, &self.params, self.param_count)
+    }
+}
