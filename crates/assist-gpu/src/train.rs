@@ -75,6 +75,38 @@ fn entries(n: u32) -> Vec<wgpu::BindGroupLayoutEntry> {
         .collect()
 }
 
+/// The kernels of a training step, in order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Stage {
+    Encode,
+    Forward,
+    Backward,
+    WeightGrads,
+    Codes,
+    GridGrads,
+}
+
+impl Stage {
+    const ALL: [Stage; 6] = [
+        Stage::Encode,
+        Stage::Forward,
+        Stage::Backward,
+        Stage::WeightGrads,
+        Stage::Codes,
+        Stage::GridGrads,
+    ];
+    fn name(self) -> &'static str {
+        match self {
+            Stage::Encode => "encode",
+            Stage::Forward => "forward_nets",
+            Stage::Backward => "backward_nets",
+            Stage::WeightGrads => "weight_grads",
+            Stage::Codes => "code_grads",
+            Stage::GridGrads => "grid_grads",
+        }
+    }
+}
+
 /// `refresh_codes`' words of the hyper-parameter block: the first colour layer's weight,
 /// bias, row stride, outputs, first code column; the codes' offset, width and count.
 fn code_layout(field: &Field) -> [u32; 9] {
@@ -349,6 +381,17 @@ impl GpuTrainer {
     /// Submits `reps` forward + backward passes over the loaded batch (gradients summed
     /// into the gradient buffer, as `Field::backward` sums into `grad`), without waiting.
     pub fn submit_step(&self, gpu: &Gpu, gf: &GpuField, reps: usize) -> Result<(), GpuError> {
+        self.submit_stages(gpu, gf, reps, &Stage::ALL)
+    }
+
+    /// Submits `reps` runs of the given stages, in their order.
+    fn submit_stages(
+        &self,
+        gpu: &Gpu,
+        gf: &GpuField,
+        reps: usize,
+        stages: &[Stage],
+    ) -> Result<(), GpuError> {
         let (Some(io), Some(b)) = (gf.io.as_ref(), self.batch.as_ref()) else {
             return Err(GpuError::Run("no batch or loss gradients loaded".into()));
         };
@@ -362,33 +405,79 @@ impl GpuTrainer {
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
         for _ in 0..reps {
-            if self.appearance {
+            let codes = self.appearance && stages.contains(&Stage::Codes);
+            if codes {
                 enc.clear_buffer(&self.code_sums, 0, None);
             }
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
             pass.set_bind_group(0, &io.bind, &[]);
             pass.set_bind_group(1, &b.bind, &[]);
-            pass.set_pipeline(&gf.encode);
-            pass.dispatch_workgroups(ex, ey, 1);
-            pass.set_pipeline(&self.forward);
-            pass.dispatch_workgroups(tx, ty, 1);
-            pass.set_pipeline(&self.backward);
-            pass.dispatch_workgroups(tx, ty, 1);
-            for p in &self.dw {
-                pass.set_pipeline(p);
-                pass.dispatch_workgroups(wx, wy, 1);
+            for stage in stages {
+                match stage {
+                    Stage::Encode => {
+                        pass.set_pipeline(&gf.encode);
+                        pass.dispatch_workgroups(ex, ey, 1);
+                    }
+                    Stage::Forward => {
+                        pass.set_pipeline(&self.forward);
+                        pass.dispatch_workgroups(tx, ty, 1);
+                    }
+                    Stage::Backward => {
+                        pass.set_pipeline(&self.backward);
+                        pass.dispatch_workgroups(tx, ty, 1);
+                    }
+                    Stage::WeightGrads => {
+                        for p in &self.dw {
+                            pass.set_pipeline(p);
+                            pass.dispatch_workgroups(wx, wy, 1);
+                        }
+                    }
+                    Stage::Codes if codes => {
+                        pass.set_pipeline(&self.code_sums_k);
+                        pass.dispatch_workgroups(tx, ty, 1);
+                        pass.set_pipeline(&self.code_backward);
+                        pass.dispatch_workgroups(self.code_threads.div_ceil(64).max(1), 1, 1);
+                    }
+                    Stage::Codes => {}
+                    Stage::GridGrads => {
+                        pass.set_pipeline(&self.encode_backward);
+                        pass.dispatch_workgroups(ex, ey, 1);
+                    }
+                }
             }
-            if self.appearance {
-                pass.set_pipeline(&self.code_sums_k);
-                pass.dispatch_workgroups(tx, ty, 1);
-                pass.set_pipeline(&self.code_backward);
-                pass.dispatch_workgroups(self.code_threads.div_ceil(64).max(1), 1, 1);
-            }
-            pass.set_pipeline(&self.encode_backward);
-            pass.dispatch_workgroups(ex, ey, 1);
         }
         gpu.queue.submit([enc.finish()]);
         Ok(())
+    }
+
+    /// Seconds per run of each stage of a training step over the loaded batch, each
+    /// timed alone (`reps` runs queued, one wait), for benchmarks: where a step's time
+    /// goes. Leaves gradients summed in the gradient buffer (run before real steps, or
+    /// zero them with an Adam step).
+    pub fn time_stages(
+        &mut self,
+        gpu: &Gpu,
+        gf: &GpuField,
+        reps: usize,
+    ) -> Result<Vec<(&'static str, f64)>, GpuError> {
+        let reps = reps.max(1);
+        let mut out = Vec::new();
+        // Fill the record once so that every stage reads what a step would.
+        self.submit_step(gpu, gf, 1)?;
+        gpu.wait()?;
+        for stage in Stage::ALL {
+            let t0 = std::time::Instant::now();
+            self.submit_stages(gpu, gf, reps, &[stage])?;
+            gpu.wait()?;
+            out.push((stage.name(), t0.elapsed().as_secs_f64() / reps as f64));
+        }
+        let t0 = std::time::Instant::now();
+        for _ in 0..reps {
+            self.submit_adam(gpu, 0.0);
+        }
+        gpu.wait()?;
+        out.push(("adam", t0.elapsed().as_secs_f64() / reps as f64));
+        Ok(out)
     }
 
     /// One Adam step with learning rate `lr` (zeroes the gradient), submitted.

@@ -65,6 +65,7 @@ pub fn field(
     // Adam; the loss's gradients are the CPU bench's.
     let mut tr = GpuTrainer::new(gpu, &gf, field, &Adam::for_field(field))?;
     tr.set_loss_grads(gpu, &gf, field, loss.0, loss.1)?;
+    let stages = tr.time_stages(gpu, &gf, QUEUED)?;
     let train = timed(&mut || {
         for _ in 0..QUEUED {
             tr.submit_step(gpu, &gf, 1)?;
@@ -86,6 +87,7 @@ pub fn field(
         "train_samples_per_sec": n as f64 / train,
         "train_step_seconds": train,
         "forward_backward_seconds": backward,
+        "train_stage_seconds": stages.iter().map(|(k, v)| (k.to_string(), json!(v))).collect::<serde_json::Map<_, _>>(),
         "infer_with_transfers_samples_per_sec": n as f64 / round_trip,
         "setup_seconds": setup,
         "max_relative_difference": {"sigma": d_sigma, "rgb": d_rgb},
@@ -103,6 +105,15 @@ pub fn field(
             single * 1e3,
             n as f64 / density / 1e6,
             n as f64 / round_trip / 1e6,
+        );
+        let parts: Vec<String> = stages
+            .iter()
+            .map(|(k, v)| format!("{k} {:.2} ms", v * 1e3))
+            .collect();
+        eprintln!(
+            "{:>9}  GPU training step by stage: {}",
+            "",
+            parts.join(", ")
         );
     }
     Ok(v)
