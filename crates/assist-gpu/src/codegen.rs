@@ -21,15 +21,16 @@ pub(crate) fn max_rows(field: &Field) -> usize {
     .unwrap_or(1)
 }
 
-/// Samples per workgroup: the largest of 64, 32, 16 whose two activation buffers fit the
-/// adapter's workgroup memory and invocation limits.
+/// Samples per workgroup: the largest of 64, 32, 16 whose two activation buffers (rows
+/// of TILE + 1 floats in the weight-gradient kernels) fit the adapter's workgroup memory
+/// and invocation limits.
 pub(crate) fn tile(gpu: &Gpu, field: &Field) -> Result<u32, GpuError> {
     let l = &gpu.limits;
     let rows = max_rows(field) as u64;
     [64u32, 32, 16]
         .into_iter()
         .find(|&t| {
-            2 * rows * t as u64 * 4 <= l.max_compute_workgroup_storage_size as u64
+            2 * rows * (t as u64 + 1) * 4 <= l.max_compute_workgroup_storage_size as u64
                 && t <= l.max_compute_invocations_per_workgroup
                 && t <= l.max_compute_workgroup_size_x
         })
@@ -37,7 +38,7 @@ pub(crate) fn tile(gpu: &Gpu, field: &Field) -> Result<u32, GpuError> {
             adapter: gpu.info.name.clone(),
             message: format!(
                 "a field {rows} features wide needs {} bytes of workgroup memory for 16 samples; the adapter has {}",
-                2 * rows * 16 * 4,
+                2 * rows * 17 * 4,
                 l.max_compute_workgroup_storage_size
             ),
         })
@@ -354,7 +355,7 @@ pub(crate) fn dw_layers(field: &Field) -> Vec<DwLayer> {
 }
 
 /// Tiles per workgroup of the weight-gradient kernels.
-pub(crate) const DW_TILES: u32 = 16;
+pub(crate) const DW_TILES: u32 = 8;
 
 /// The training part's per-field WGSL: atomics, constants, `backward_nets` and `dw_*`.
 /// Layers must give at most 64 blocks of 4 outputs × 16 inputs (64-wide nets).
@@ -521,11 +522,11 @@ fn dw_fn(y: &DwLayer) -> Result<String, String> {
          \x20       let lanes = min(TILE, call.n - tile * TILE);\n\
          \x20       for (var e = t; e < {out}u * TILE; e += 64u) {{\n\
          \x20           let row = e / TILE;\n            let lane = e % TILE;\n\
-         \x20           DS[e] = select(0.0, dtape[tile * D_ROWS * TILE + ({}u + row) * TILE + lane], lane < lanes);\n\
+         \x20           DS[row * ROW + lane] = select(0.0, dtape[tile * D_ROWS * TILE + ({}u + row) * TILE + lane], lane < lanes);\n\
          \x20       }}\n\
          \x20       for (var e = t; e < {inp}u * TILE; e += 64u) {{\n\
          \x20           let row = e / TILE;\n            let lane = e % TILE;\n\
-         \x20           XS[e] = select(0.0, {x}, lane < lanes);\n\
+         \x20           XS[row * ROW + lane] = select(0.0, {x}, lane < lanes);\n\
          \x20       }}\n\
          \x20       workgroupBarrier();\n\
          \x20       if (ob < {ob}u) {{\n\
@@ -534,18 +535,18 @@ fn dw_fn(y: &DwLayer) -> Result<String, String> {
     );
     let om1 = out - 1;
     f += &format!(
-        "                let dv = vec4<f32>(DS[min(o0, {om1}u) * TILE + s], DS[min(o0 + 1u, {om1}u) * TILE + s], DS[min(o0 + 2u, {om1}u) * TILE + s], DS[min(o0 + 3u, {om1}u) * TILE + s]);\n"
+        "                let dv = vec4<f32>(DS[min(o0, {om1}u) * ROW + s], DS[min(o0 + 1u, {om1}u) * ROW + s], DS[min(o0 + 2u, {om1}u) * ROW + s], DS[min(o0 + 3u, {om1}u) * ROW + s]);\n"
     );
     for j in 0..16 {
         f += &format!(
-            "                a{j} = fma(dv, vec4<f32>(XS[min(i0 + {j}u, {}u) * TILE + s]), a{j});\n",
+            "                a{j} = fma(dv, vec4<f32>(XS[min(i0 + {j}u, {}u) * ROW + s]), a{j});\n",
             inp - 1
         );
     }
     f += &format!(
         "            }}\n        }}\n\
          \x20       if (t < {out}u) {{\n\
-         \x20           for (var s = 0u; s < TILE; s++) {{\n                bs += DS[t * TILE + s];\n            }}\n\
+         \x20           for (var s = 0u; s < TILE; s++) {{\n                bs += DS[t * ROW + s];\n            }}\n\
          \x20       }}\n        workgroupBarrier();\n    }}\n\
          \x20   if (ob < {ob}u) {{\n"
     );

@@ -17,8 +17,11 @@
 // pre-activation).
 @group(1) @binding(5) var<storage, read_write> code_sums: array<GRAD_T>;
 
-var<workgroup> DS: array<f32, MAXW * TILE>;
-var<workgroup> XS: array<f32, MAXW * TILE>;
+// Rows of TILE + 1 (not TILE): invocations of a warp read one column of several rows at
+// once, and a stride of TILE floats would put them all in the same memory bank.
+const ROW: u32 = TILE + 1u;
+var<workgroup> DS: array<f32, MAXW * ROW>;
+var<workgroup> XS: array<f32, MAXW * ROW>;
 
 // Keeps rows of WA/WB (lane t) as pre-activation gradients at dtape rows from `at`.
 fn keep_d(id: u32, rows: u32, at: u32, tile: u32, t: u32) {
