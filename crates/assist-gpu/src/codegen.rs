@@ -212,7 +212,7 @@ pub(crate) fn header(field: &Field, tile: u32, record: bool) -> String {
         }
         body += &format!("    {name}(t);\n");
     }
-    let last = if nets % 2 == 0 { "WB" } else { "WA" };
+    let last = if nets.is_multiple_of(2) { "WB" } else { "WA" };
     h += &format!(
         "fn color_rest(tile: u32, t: u32) {{\n{body}}}\n\
          fn rgb_row(r: u32, t: u32) -> f32 {{\n    return {last}[r * Q + t / 4u][t % 4u];\n}}\n\

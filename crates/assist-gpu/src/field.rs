@@ -63,7 +63,7 @@ impl GpuField {
     #[doc(hidden)]
     pub fn with_tile(gpu: &Gpu, field: &Field, force: Option<u32>) -> Result<Self, GpuError> {
         let bytes = std::mem::size_of_val(field.params.as_slice()) as u64;
-        if bytes > gpu.limits.max_storage_buffer_binding_size as u64 {
+        if bytes > gpu.limits.max_storage_buffer_binding_size {
             return Err(GpuError::Device {
                 adapter: gpu.info.name.clone(),
                 message: format!(
@@ -212,7 +212,7 @@ impl GpuField {
             return Ok(());
         }
         let capacity = n.max(1).next_power_of_two();
-        let largest = gpu.limits.max_storage_buffer_binding_size as u64;
+        let largest = gpu.limits.max_storage_buffer_binding_size;
         if 6 * 4 * capacity as u64 > largest {
             return Err(GpuError::Run(format!(
                 "a batch of {n} samples needs {} bytes of positions and directions, more than the adapter's largest storage binding ({largest} bytes)",

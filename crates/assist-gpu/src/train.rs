@@ -75,6 +75,81 @@ fn entries(n: u32) -> Vec<wgpu::BindGroupLayoutEntry> {
         .collect()
 }
 
+/// Adam and the per-code bias refresh: their own module over the field's parameters and
+/// the trainer's gradient and moments (`[grad, m, v]`); returns both kernels, their bind
+/// group and the hyper-parameter block.
+fn adam_kernels(
+    gpu: &Gpu,
+    gf: &GpuField,
+    [grad, m, v]: [&wgpu::Buffer; 3],
+) -> (
+    wgpu::ComputePipeline,
+    wgpu::ComputePipeline,
+    wgpu::BindGroup,
+    wgpu::Buffer,
+) {
+    let adam_module = gpu
+        .device
+        .create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("adam.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(ADAM.into()),
+        });
+    let mut adam_entries = entries(6);
+    adam_entries[4].ty = wgpu::BindingType::Buffer {
+        ty: wgpu::BufferBindingType::Uniform,
+        has_dynamic_offset: false,
+        min_binding_size: None,
+    };
+    let adam_layout = gpu
+        .device
+        .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("adam"),
+            entries: &adam_entries,
+        });
+    let adam_pl = gpu
+        .device
+        .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("adam"),
+            bind_group_layouts: &[Some(&adam_layout)],
+            immediate_size: 0,
+        });
+    let adam_pipeline = |name: &str| {
+        gpu.device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(name),
+                layout: Some(&adam_pl),
+                module: &adam_module,
+                entry_point: Some(name),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+    };
+    let hyper = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("adam.hyper"),
+        size: 80,
+        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let adam_bind = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("adam"),
+        layout: &adam_layout,
+        entries: &[&gf.params, grad, m, v, &hyper, &gf.code_bias]
+            .iter()
+            .enumerate()
+            .map(|(i, b)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: b.as_entire_binding(),
+            })
+            .collect::<Vec<_>>(),
+    });
+    (
+        adam_pipeline("adam"),
+        adam_pipeline("refresh_codes"),
+        adam_bind,
+        hyper,
+    )
+}
+
 /// The kernels of a training step, in order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Stage {
@@ -227,61 +302,7 @@ impl GpuTrainer {
                     })
             };
             let dw = dw_layers(field).iter().map(|y| pipeline(&y.name)).collect();
-            // Adam: its own module over the same parameter and gradient buffers.
-            let adam_module = gpu
-                .device
-                .create_shader_module(wgpu::ShaderModuleDescriptor {
-                    label: Some("adam.wgsl"),
-                    source: wgpu::ShaderSource::Wgsl(ADAM.into()),
-                });
-            let mut adam_entries = entries(6);
-            adam_entries[4].ty = wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Uniform,
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            };
-            let adam_layout =
-                gpu.device
-                    .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                        label: Some("adam"),
-                        entries: &adam_entries,
-                    });
-            let adam_pl = gpu
-                .device
-                .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                    label: Some("adam"),
-                    bind_group_layouts: &[Some(&adam_layout)],
-                    immediate_size: 0,
-                });
-            let adam_pipeline = |name: &str| {
-                gpu.device
-                    .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                        label: Some(name),
-                        layout: Some(&adam_pl),
-                        module: &adam_module,
-                        entry_point: Some(name),
-                        compilation_options: Default::default(),
-                        cache: None,
-                    })
-            };
-            let hyper = gpu.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("adam.hyper"),
-                size: 80,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            let adam_bind = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("adam"),
-                layout: &adam_layout,
-                entries: &[&gf.params, &grad, &m, &v, &hyper, &gf.code_bias]
-                    .iter()
-                    .enumerate()
-                    .map(|(i, b)| wgpu::BindGroupEntry {
-                        binding: i as u32,
-                        resource: b.as_entire_binding(),
-                    })
-                    .collect::<Vec<_>>(),
-            });
+            let (adam_p, refresh, adam_bind, hyper) = adam_kernels(gpu, gf, [&grad, &m, &v]);
             let cfg = &field.config;
             GpuTrainer {
                 forward: pipeline("forward_nets"),
@@ -294,8 +315,8 @@ impl GpuTrainer {
                 code_sums,
                 layout1,
                 batch: None,
-                adam: adam_pipeline("adam"),
-                refresh: adam_pipeline("refresh_codes"),
+                adam: adam_p,
+                refresh,
                 code_layout: code_layout(field),
                 adam_bind,
                 hyper,
