@@ -211,14 +211,10 @@ impl GpuField {
         if self.io.as_ref().is_some_and(|io| io.capacity >= n) {
             return Ok(());
         }
-        let capacity = n.max(1).next_power_of_two();
-        let largest = gpu.limits.max_storage_buffer_binding_size;
-        if 6 * 4 * capacity as u64 > largest {
-            return Err(GpuError::Run(format!(
-                "a batch of {n} samples needs {} bytes of positions and directions, more than the adapter's largest storage binding ({largest} bytes)",
-                6 * 4 * n
-            )));
-        }
+        // The widest per-sample buffer: the features (or positions and directions).
+        let per_sample = 4 * self.enc_width.max(6);
+        crate::check_batch(gpu, n, per_sample, "features")?;
+        let capacity = crate::capacity(gpu, n, per_sample);
         let what = format!("allocating a batch of {n} samples");
         let io = gpu.checked(&what, || {
             let buffer = |label: &str, floats: usize, usage: wgpu::BufferUsages| {

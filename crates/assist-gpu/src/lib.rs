@@ -56,6 +56,39 @@ pub enum GpuError {
     Run(String),
 }
 
+/// An error unless `n` samples of `per_sample` bytes fit one storage binding.
+pub(crate) fn check_batch(
+    gpu: &Gpu,
+    n: usize,
+    per_sample: usize,
+    what: &str,
+) -> Result<(), GpuError> {
+    let largest = gpu.limits.max_storage_buffer_binding_size;
+    // Buffers hold whole tiles of 64 samples.
+    let need = (n.next_multiple_of(64) as u64).saturating_mul(per_sample as u64);
+    if need > largest || n > u32::MAX as usize / 8 {
+        return Err(GpuError::Device {
+            adapter: gpu.info.name.clone(),
+            message: format!(
+                "a batch of {n} samples needs {need} bytes of {what}, more than the adapter's largest storage binding ({largest} bytes): use a smaller batch (at most {} samples)",
+                largest / per_sample as u64
+            ),
+        });
+    }
+    Ok(())
+}
+
+/// Samples to allocate for a batch of `n` (checked with `check_batch`): a quarter more
+/// room, so that slowly growing batches do not reallocate each time, rounded to 4,096, no
+/// more than fits; always whole tiles of 64.
+pub(crate) fn capacity(gpu: &Gpu, n: usize, per_sample: usize) -> usize {
+    let fits = (gpu.limits.max_storage_buffer_binding_size / per_sample as u64) as usize / 64 * 64;
+    (n + n / 4)
+        .next_multiple_of(4096)
+        .min(fits)
+        .max(n.next_multiple_of(64))
+}
+
 /// The first `floats` values of a buffer (made with `COPY_SRC`), through a staging
 /// buffer; waits for the work submitted so far.
 pub(crate) fn read_f32(gpu: &Gpu, buf: &wgpu::Buffer, floats: usize) -> Result<Vec<f32>, GpuError> {

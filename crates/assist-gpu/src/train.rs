@@ -348,14 +348,15 @@ impl GpuTrainer {
                 d_rgb.len()
             )));
         }
-        let io = gf
-            .io
-            .as_ref()
-            .ok_or_else(|| GpuError::Run("no batch loaded".into()))?;
-        if self.batch.as_ref().is_none_or(|b| b.capacity < io.capacity) {
-            let capacity = io.capacity;
-            let tiles = capacity.div_ceil(gf.tile as usize) * gf.tile as usize;
-            let rows = TapeRows::new(field);
+        if gf.io.is_none() {
+            return Err(GpuError::Run("no batch loaded".into()));
+        }
+        let rows = TapeRows::new(field);
+        let per_sample = 4 * rows.total.max(rows.d_total);
+        crate::check_batch(gpu, n, per_sample, "training record")?;
+        if self.batch.as_ref().is_none_or(|b| b.capacity < n) {
+            let capacity = crate::capacity(gpu, n, per_sample);
+            let tiles = capacity;
             let what = format!("allocating the training record of {capacity} samples");
             let batch = gpu.checked(&what, || {
                 let buffer = |label: &str, floats: usize| {

@@ -229,3 +229,37 @@ fn cpu_choice_opens_nothing_and_auto_skips_software_adapters() {
     let e = "cuda".parse::<DeviceChoice>().unwrap_err().to_string();
     assert!(e.contains("auto, cpu or gpu") && e.contains("cuda"), "{e}");
 }
+
+#[test]
+fn a_batch_larger_than_a_binding_is_refused_by_size() {
+    let Some(gpu) = gpu() else { return };
+    let field = Field::new(configs().remove(0).1, 1).expect("config");
+    // Features take 4 · L · F bytes per sample, the widest per-sample buffer here.
+    let per = 4 * field.config.encoding_width() as u64;
+    let n = (gpu.limits.max_storage_buffer_binding_size / per) as usize + 1;
+    if n > 1 << 23 {
+        eprintln!("SKIPPED: this adapter's bindings take {n} samples; too many to make here");
+        return;
+    }
+    let zeros = vec![0.5f32; n];
+    let s = Samples {
+        pos: [&zeros, &zeros, &zeros],
+        dir: [&[], &[], &[]],
+        image: &[],
+    };
+    let mut gf = GpuField::new(&gpu, &field).expect("upload");
+    let e = gf.load(&gpu, &s).unwrap_err().to_string();
+    assert!(
+        e.contains(&format!("{n} samples")) && e.contains("smaller batch"),
+        "{e}"
+    );
+    // The field still works at a size that fits.
+    let few = Samples {
+        pos: [&zeros[..100], &zeros[..100], &zeros[..100]],
+        dir: [&[], &[], &[]],
+        image: &[],
+    };
+    let mut sigma = vec![0.0; 100];
+    gf.density(&gpu, few.pos, &mut sigma).expect("density");
+    assert!(sigma.iter().all(|v| v.is_finite() && *v > 0.0));
+}
