@@ -2,9 +2,9 @@
 //! per-code biases, and sample/output buffers that grow with the largest batch seen.
 
 use assist_field::{Field, Samples};
-use wgpu::util::DeviceExt;
 
 use crate::codegen::{header, tile};
+use crate::kernels::{Kernels, RO, RW, UNIFORM, bind, bind_layout, storage};
 use crate::{Gpu, GpuError};
 
 const SHADER: &str = include_str!("shaders/field.wgsl");
@@ -35,21 +35,9 @@ pub(crate) struct Io {
     samples: wgpu::Buffer,
     image: wgpu::Buffer,
     pub(crate) out: wgpu::Buffer,
-    readback: wgpu::Buffer,
     /// The encoded features between the encoding and the nets.
     _enc: wgpu::Buffer,
     pub(crate) bind: wgpu::BindGroup,
-}
-
-fn storage(gpu: &Gpu, label: &str, bytes: &[u8]) -> wgpu::Buffer {
-    gpu.device
-        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(label),
-            contents: bytes,
-            usage: wgpu::BufferUsages::STORAGE
-                | wgpu::BufferUsages::COPY_DST
-                | wgpu::BufferUsages::COPY_SRC,
-        })
 }
 
 impl GpuField {
@@ -116,57 +104,9 @@ impl GpuField {
         call: wgpu::Buffer,
     ) -> Self {
         let source = format!("{}{SHADER}", header(field, tile, false));
-        let module = gpu
-            .device
-            .create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some("field.wgsl"),
-                source: wgpu::ShaderSource::Wgsl(source.into()),
-            });
-        let entry = |binding: u32, ty: wgpu::BufferBindingType| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty,
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
-        let ro = wgpu::BufferBindingType::Storage { read_only: true };
-        let mut entries: Vec<_> = (0..5).map(|b| entry(b, ro)).collect();
-        entries.push(entry(
-            5,
-            wgpu::BufferBindingType::Storage { read_only: false },
-        ));
-        entries.push(entry(6, wgpu::BufferBindingType::Uniform));
-        entries.push(entry(
-            7,
-            wgpu::BufferBindingType::Storage { read_only: false },
-        ));
-        let bind_layout = gpu
-            .device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("field"),
-                entries: &entries,
-            });
-        let pipeline_layout = gpu
-            .device
-            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some("field"),
-                bind_group_layouts: &[Some(&bind_layout)],
-                immediate_size: 0,
-            });
-        let pipeline = |name: &str| {
-            gpu.device
-                .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some(name),
-                    layout: Some(&pipeline_layout),
-                    module: &module,
-                    entry_point: Some(name),
-                    compilation_options: Default::default(),
-                    cache: None,
-                })
-        };
+        let bind_layout = bind_layout(gpu, "field", &[RO, RO, RO, RO, RO, RW, UNIFORM, RW]);
+        let kernels = Kernels::new(gpu, "field.wgsl", source, &[&bind_layout]);
+        let pipeline = |name: &str| kernels.pipeline(gpu, name);
         let encode = pipeline("encode");
         let forward = pipeline("forward_nets");
         let density = pipeline("density_nets");
@@ -229,13 +169,13 @@ impl GpuField {
             let samples = buffer("samples", 6 * capacity, U::STORAGE | U::COPY_DST);
             let image = buffer("image", capacity, U::STORAGE | U::COPY_DST);
             let out = buffer("out", 4 * capacity, U::STORAGE | U::COPY_SRC);
-            let readback = buffer("readback", 4 * capacity, U::MAP_READ | U::COPY_DST);
             let tiles = capacity.div_ceil(self.tile as usize) * self.tile as usize;
             let enc = buffer("enc", tiles * self.enc_width, U::STORAGE);
-            let bind = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("field"),
-                layout: &self.bind_layout,
-                entries: &[
+            let bind = bind(
+                gpu,
+                "field",
+                &self.bind_layout,
+                &[
                     &self.params,
                     &self.levels,
                     &self.code_bias,
@@ -244,21 +184,13 @@ impl GpuField {
                     &out,
                     &self.call,
                     &enc,
-                ]
-                .iter()
-                .enumerate()
-                .map(|(i, b)| wgpu::BindGroupEntry {
-                    binding: i as u32,
-                    resource: b.as_entire_binding(),
-                })
-                .collect::<Vec<_>>(),
-            });
+                ],
+            );
             Io {
                 capacity,
                 samples,
                 image,
                 out,
-                readback,
                 _enc: enc,
                 bind,
             }
@@ -346,31 +278,9 @@ impl GpuField {
     }
 
     /// The first `floats` outputs of the last run (σ, then rgb interleaved).
-    pub(crate) fn read(&self, gpu: &Gpu, floats: usize) -> Result<Vec<f32>, GpuError> {
+    fn read(&self, gpu: &Gpu, floats: usize) -> Result<Vec<f32>, GpuError> {
         let io = self.io.as_ref().expect("a batch was loaded");
-        let bytes = 4 * floats as u64;
-        let mut enc = gpu
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        enc.copy_buffer_to_buffer(&io.out, 0, &io.readback, 0, bytes);
-        gpu.queue.submit([enc.finish()]);
-        let slice = io.readback.slice(..bytes);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        gpu.wait()?;
-        rx.recv()
-            .map_err(|e| GpuError::Run(e.to_string()))?
-            .map_err(|e| GpuError::Run(format!("reading results back: {e}")))?;
-        let v = {
-            let view = slice
-                .get_mapped_range()
-                .map_err(|e| GpuError::Run(format!("reading results back: {e}")))?;
-            bytemuck::cast_slice(&view).to_vec()
-        };
-        io.readback.unmap();
-        Ok(v)
+        crate::read_f32(gpu, &io.out, floats)
     }
 
     /// Inference, as `Field::forward`: σ per sample and rgb interleaved.

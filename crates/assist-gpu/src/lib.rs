@@ -11,6 +11,7 @@
 
 mod codegen;
 mod field;
+mod kernels;
 mod train;
 
 pub use field::GpuField;

@@ -5,9 +5,9 @@
 //! order the adapter runs them in; the CPU path is the bit-reproducible reference.
 
 use assist_field::{Adam, Field};
-use wgpu::util::DeviceExt;
 
 use crate::codegen::{DW_TILES, TapeRows, dw_layers, header, train_header};
+use crate::kernels::{Kernels, RW, UNIFORM, bind, bind_layout, storage};
 use crate::{Gpu, GpuError, GpuField};
 
 const FIELD: &str = include_str!("shaders/field.wgsl");
@@ -59,22 +59,6 @@ struct Batch {
     bind: wgpu::BindGroup,
 }
 
-/// `n` read-write storage bindings, for the compute stage.
-fn entries(n: u32) -> Vec<wgpu::BindGroupLayoutEntry> {
-    (0..n)
-        .map(|binding| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only: false },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        })
-        .collect()
-}
-
 /// Adam and the per-code bias refresh: their own module over the field's parameters and
 /// the trainer's gradient and moments (`[grad, m, v]`); returns both kernels, their bind
 /// group and the hyper-parameter block.
@@ -88,63 +72,23 @@ fn adam_kernels(
     wgpu::BindGroup,
     wgpu::Buffer,
 ) {
-    let adam_module = gpu
-        .device
-        .create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("adam.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(ADAM.into()),
-        });
-    let mut adam_entries = entries(6);
-    adam_entries[4].ty = wgpu::BindingType::Buffer {
-        ty: wgpu::BufferBindingType::Uniform,
-        has_dynamic_offset: false,
-        min_binding_size: None,
-    };
-    let adam_layout = gpu
-        .device
-        .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("adam"),
-            entries: &adam_entries,
-        });
-    let adam_pl = gpu
-        .device
-        .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("adam"),
-            bind_group_layouts: &[Some(&adam_layout)],
-            immediate_size: 0,
-        });
-    let adam_pipeline = |name: &str| {
-        gpu.device
-            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(name),
-                layout: Some(&adam_pl),
-                module: &adam_module,
-                entry_point: Some(name),
-                compilation_options: Default::default(),
-                cache: None,
-            })
-    };
+    let adam_layout = bind_layout(gpu, "adam", &[RW, RW, RW, RW, UNIFORM, RW]);
+    let kernels = Kernels::new(gpu, "adam.wgsl", ADAM.into(), &[&adam_layout]);
     let hyper = gpu.device.create_buffer(&wgpu::BufferDescriptor {
         label: Some("adam.hyper"),
         size: 80,
         usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
         mapped_at_creation: false,
     });
-    let adam_bind = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("adam"),
-        layout: &adam_layout,
-        entries: &[&gf.params, grad, m, v, &hyper, &gf.code_bias]
-            .iter()
-            .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry {
-                binding: i as u32,
-                resource: b.as_entire_binding(),
-            })
-            .collect::<Vec<_>>(),
-    });
+    let adam_bind = bind(
+        gpu,
+        "adam",
+        &adam_layout,
+        &[&gf.params, grad, m, v, &hyper, &gf.code_bias],
+    );
     (
-        adam_pipeline("adam"),
-        adam_pipeline("refresh_codes"),
+        kernels.pipeline(gpu, "adam"),
+        kernels.pipeline(gpu, "refresh_codes"),
         adam_bind,
         hyper,
     )
@@ -256,51 +200,15 @@ impl GpuTrainer {
             )));
         }
         gpu.checked("building the training kernels", || {
-            let storage = |label: &str, bytes: &[u8]| {
-                gpu.device
-                    .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                        label: Some(label),
-                        contents: bytes,
-                        usage: wgpu::BufferUsages::STORAGE
-                            | wgpu::BufferUsages::COPY_DST
-                            | wgpu::BufferUsages::COPY_SRC,
-                    })
-            };
+            let storage = |label: &str, bytes: &[u8]| storage(gpu, label, bytes);
             let grad = storage("grad", bytemuck::cast_slice(&vec![0f32; n]));
             let m = storage("adam.m", bytemuck::cast_slice(&adam.m));
             let v = storage("adam.v", bytemuck::cast_slice(&adam.v));
             let code_rows = (field.config.num_images + 1) * field.layout.color[0].out;
             let code_sums = storage("code_sums", bytemuck::cast_slice(&vec![0f32; code_rows]));
-            let layout1 = gpu
-                .device
-                .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                    label: Some("train"),
-                    entries: &entries(6),
-                });
-            let module = gpu
-                .device
-                .create_shader_module(wgpu::ShaderModuleDescriptor {
-                    label: Some("train.wgsl"),
-                    source: wgpu::ShaderSource::Wgsl(source.into()),
-                });
-            let layout = gpu
-                .device
-                .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                    label: Some("train"),
-                    bind_group_layouts: &[Some(&gf.bind_layout), Some(&layout1)],
-                    immediate_size: 0,
-                });
-            let pipeline = |name: &str| {
-                gpu.device
-                    .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                        label: Some(name),
-                        layout: Some(&layout),
-                        module: &module,
-                        entry_point: Some(name),
-                        compilation_options: Default::default(),
-                        cache: None,
-                    })
-            };
+            let layout1 = bind_layout(gpu, "train", &[RW; 6]);
+            let kernels = Kernels::new(gpu, "train.wgsl", source, &[&gf.bind_layout, &layout1]);
+            let pipeline = |name: &str| kernels.pipeline(gpu, name);
             let dw = dw_layers(field).iter().map(|y| pipeline(&y.name)).collect();
             let (adam_p, refresh, adam_bind, hyper) = adam_kernels(gpu, gf, [&grad, &m, &v]);
             let cfg = &field.config;
@@ -371,18 +279,12 @@ impl GpuTrainer {
                 let dtape = buffer("dtape", tiles * rows.d_total);
                 let d_enc = buffer("d_enc", tiles * field.config.encoding_width());
                 let d_out = buffer("d_out", 4 * capacity);
-                let bind = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("train"),
-                    layout: &self.layout1,
-                    entries: &[&tape, &dtape, &d_enc, &d_out, &self.grad, &self.code_sums]
-                        .iter()
-                        .enumerate()
-                        .map(|(i, b)| wgpu::BindGroupEntry {
-                            binding: i as u32,
-                            resource: b.as_entire_binding(),
-                        })
-                        .collect::<Vec<_>>(),
-                });
+                let bind = bind(
+                    gpu,
+                    "train",
+                    &self.layout1,
+                    &[&tape, &dtape, &d_enc, &d_out, &self.grad, &self.code_sums],
+                );
                 Batch {
                     capacity,
                     d_out,

@@ -2,33 +2,12 @@
 //! after forward + backward, and the parameters after Adam steps. On lavapipe in CI (with
 //! `ASSIST_REQUIRE_GPU=1`), skipped loudly without any adapter elsewhere.
 
+mod common;
+
 use assist_core::Rng;
-use assist_field::{Adam, Field, FieldConfig, Samples, Tape};
-use assist_gpu::{DeviceChoice, Gpu, GpuError, GpuField, GpuTrainer};
-
-fn gpu() -> Option<Gpu> {
-    match Gpu::open(DeviceChoice::Gpu) {
-        Ok(g) => g,
-        Err(GpuError::NoAdapter) if std::env::var("ASSIST_REQUIRE_GPU").as_deref() != Ok("1") => {
-            eprintln!("SKIPPED: no GPU adapter (install mesa-vulkan-drivers for lavapipe)");
-            None
-        }
-        Err(e) => panic!("{e}"),
-    }
-}
-
-fn random_field(cfg: FieldConfig, seed: u64) -> Field {
-    let mut f = Field::new(cfg, seed).expect("config");
-    let mut rng = Rng::new(seed + 7);
-    let grid = f.layout.grid.param_count();
-    for p in &mut f.params[..grid] {
-        *p = rng.f32() - 0.5;
-    }
-    for p in &mut f.params[f.layout.appearance..] {
-        *p = rng.f32() - 0.5;
-    }
-    f
-}
+use assist_field::{Adam, Samples, Tape};
+use assist_gpu::{GpuField, GpuTrainer};
+use common::{configs, gpu, random_field};
 
 struct Batch {
     pos: [Vec<f32>; 3],
@@ -78,35 +57,6 @@ fn samples(b: &Batch) -> Samples<'_> {
         dir: [&b.dir[0], &b.dir[1], &b.dir[2]],
         image: &b.image,
     }
-}
-
-fn configs() -> Vec<(&'static str, FieldConfig)> {
-    vec![
-        (
-            "nerfacto nets, T = 2^14",
-            FieldConfig {
-                log2_table_size: 14,
-                ..FieldConfig::nerfacto(5)
-            },
-        ),
-        (
-            "F 4, 1 colour layer, SH 3, no codes",
-            FieldConfig {
-                levels: 6,
-                features_per_level: 4,
-                log2_table_size: 12,
-                base_resolution: 4,
-                max_resolution: 64,
-                hidden: 32,
-                geo_features: 7,
-                color_hidden: 32,
-                color_layers: 1,
-                sh_degree: 3,
-                appearance_dim: 0,
-                num_images: 0,
-            },
-        ),
-    ]
 }
 
 /// ‖a − b‖ / ‖b‖ over a range.

@@ -69,32 +69,53 @@ fn set_b(row: u32, t: u32, v: f32) {
     WB[row * Q + t / 4u][t % 4u] = v;
 }
 
+// A position's cell at one level (lv: cells per axis, entries, dense, first entry) and
+// its trilinear fractions within it; pc is in [0, 1]³.
+struct Cell {
+    c: vec3<u32>,
+    f: vec3<f32>,
+}
+
+fn cell(lv: vec4<u32>, pc: vec3<f32>) -> Cell {
+    let x = pc * f32(lv.x);
+    let c = min(vec3<u32>(floor(x)), vec3<u32>(lv.x - 1u));
+    return Cell(c, x - vec3<f32>(c));
+}
+
+// Corner k of a cell (bit 0: +x, 1: +y, 2: +z): its entry in the level's table (dense
+// index, or the spatial hash `x·1 ⊕ y·2654435761 ⊕ z·805459861 mod T`) and its weight.
+struct Corner {
+    idx: u32,
+    w: f32,
+}
+
+fn corner(lv: vec4<u32>, cl: Cell, k: u32) -> Corner {
+    let d = vec3<u32>(k & 1u, (k >> 1u) & 1u, (k >> 2u) & 1u);
+    let q = cl.c + d;
+    var idx: u32;
+    if (lv.z != 0u) {
+        let side = lv.x + 1u;
+        idx = q.x + side * (q.y + side * q.z);
+    } else {
+        idx = (q.x ^ (q.y * 2654435761u) ^ (q.z * 805459861u)) & (lv.y - 1u);
+    }
+    let wv = select(vec3<f32>(1.0) - cl.f, cl.f, d == vec3<u32>(1u));
+    return Corner(idx, wv.x * wv.y * wv.z);
+}
+
 // The hash-grid features of sample s, written to `enc`.
 fn encode_one(s: u32) {
-    let p = position(s);
+    let pc = clamp(position(s), vec3<f32>(0.0), vec3<f32>(1.0));
     let at = (s / TILE) * ENC_W * TILE + s % TILE;
-    let pc = clamp(p, vec3<f32>(0.0), vec3<f32>(1.0));
     for (var l = 0u; l < LEVELS; l++) {
         let lv = levels[l];
-        let x = pc * f32(lv.x);
-        let c = min(vec3<u32>(floor(x)), vec3<u32>(lv.x - 1u));
-        let f = x - vec3<f32>(c);
+        let cl = cell(lv, pc);
         var acc: array<f32, FEAT>;
         for (var k = 0u; k < 8u; k++) {
-            let d = vec3<u32>(k & 1u, (k >> 1u) & 1u, (k >> 2u) & 1u);
-            let q = c + d;
-            var idx: u32;
-            if (lv.z != 0u) {
-                let s = lv.x + 1u;
-                idx = q.x + s * (q.y + s * q.z);
-            } else {
-                idx = (q.x ^ (q.y * 2654435761u) ^ (q.z * 805459861u)) & (lv.y - 1u);
-            }
-            let wv = select(vec3<f32>(1.0) - f, f, d == vec3<u32>(1u));
-            let w = wv.x * wv.y * wv.z;
-            let base = (lv.w + idx) * FEAT;
+            let cn = corner(lv, cl, k);
+            let base = (lv.w + cn.idx) * FEAT;
             for (var j = 0u; j < FEAT; j++) {
-                acc[j] += w * params[base + j];
+                acc[j] += cn.w * params[base + j];
             }
         }
         for (var j = 0u; j < FEAT; j++) {

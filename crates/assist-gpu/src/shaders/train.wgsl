@@ -61,24 +61,12 @@ fn encode_backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_w
         if (!any) {
             continue;
         }
-        let x = pc * f32(lv.x);
-        let c = min(vec3<u32>(floor(x)), vec3<u32>(lv.x - 1u));
-        let f = x - vec3<f32>(c);
+        let cl = cell(lv, pc);
         for (var k = 0u; k < 8u; k++) {
-            let d = vec3<u32>(k & 1u, (k >> 1u) & 1u, (k >> 2u) & 1u);
-            let q = c + d;
-            var idx: u32;
-            if (lv.z != 0u) {
-                let side = lv.x + 1u;
-                idx = q.x + side * (q.y + side * q.z);
-            } else {
-                idx = (q.x ^ (q.y * 2654435761u) ^ (q.z * 805459861u)) & (lv.y - 1u);
-            }
-            let wv = select(vec3<f32>(1.0) - f, f, d == vec3<u32>(1u));
-            let w = wv.x * wv.y * wv.z;
-            let base = (lv.w + idx) * FEAT;
+            let cn = corner(lv, cl, k);
+            let base = (lv.w + cn.idx) * FEAT;
             for (var j = 0u; j < FEAT; j++) {
-                grad_add(base + j, w * de[j]);
+                grad_add(base + j, cn.w * de[j]);
             }
         }
     }
