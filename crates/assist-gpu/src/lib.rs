@@ -2,8 +2,10 @@
 //! shaders. The CPU implementation in `assist-field` is the reference; every kernel here is
 //! tested against it (on Mesa's software Vulkan, lavapipe, where no GPU is present).
 //!
-//! What runs here so far: a field's inference (hash-grid encoding, density and colour
-//! nets) and its density alone (occupancy refresh), over batches resident in GPU memory.
+//! What runs here so far: a field's inference and its density alone ([`GpuField`]), and
+//! its whole training step — forward with a record, backward, every parameter's gradient,
+//! Adam ([`GpuTrainer`]) — over batches resident in GPU memory. Sampling and compositing
+//! still run on the CPU.
 //! Backends are loaded at run time, so a binary with this crate starts on a machine with
 //! no GPU and no Vulkan loader; [`Gpu::open`] then finds no adapter.
 
