@@ -26,6 +26,9 @@ pub struct Aligned {
     pub points: Vec<(DVec3, [u8; 3])>,
     /// Metres per unit: `Some(1.0)` when a known distance scaled the capture.
     pub meters_per_unit: Option<f64>,
+    /// The two points `--scale-by` found under its pixels, in the new frame (so the
+    /// user, and the tests, can see what was measured): `meters` apart.
+    pub known: Option<[DVec3; 2]>,
 }
 
 /// One known distance: two pixels, each in a frame (index in capture order or file
@@ -120,7 +123,7 @@ pub fn align(
         .normalize_or(DVec3::Z);
     let turn = DQuat::from_rotation_arc(up, DVec3::Z);
     let centre = cams.iter().map(|(_, c)| *c).sum::<DVec3>() / cams.len().max(1) as f64;
-    let s = match scale {
+    let (s, known) = match scale {
         Some(by) => {
             let a = known_point(model, &images, &by.a, model_dir)?;
             let b = known_point(model, &images, &by.b, model_dir)?;
@@ -130,11 +133,12 @@ pub fn align(
                     "both pixels show the same COLMAP point; pick two ends of the distance".into(),
                 ));
             }
-            by.meters / d
+            (by.meters / d, Some([a, b]))
         }
-        None => 1.0,
+        None => (1.0, None),
     };
     let place = |p: DVec3| turn * (p - centre) * s;
+    let known = known.map(|k| k.map(place));
     let frames = images
         .iter()
         .zip(&cams)
@@ -162,6 +166,7 @@ pub fn align(
         frames,
         points,
         meters_per_unit: scale.map(|_| 1.0),
+        known,
     })
 }
 

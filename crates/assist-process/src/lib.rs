@@ -262,6 +262,11 @@ impl ProcessJob {
                 Some(_) => "metres (from --scale-by)",
                 None => "COLMAP's arbitrary unit: give --scale-by for metres, or later `assist scene scale` with an object's height",
             },
+            "scale_by": self.scale_by.as_ref().zip(aligned.known).map(|(by, [a, b])| serde_json::json!({
+                "a": { "frame": by.a.0, "pixel": by.a.1, "point": a.to_array() },
+                "b": { "frame": by.b.0, "pixel": by.b.1, "point": b.to_array() },
+                "meters": by.meters,
+            })),
         });
         let path = dir.join("process.json");
         std::fs::write(

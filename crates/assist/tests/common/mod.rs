@@ -73,9 +73,18 @@ pub fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_assist"))
 }
 
-/// Runs the built binary and returns its output.
+/// Runs the built binary and returns its output; says how long it took (seen with
+/// `--nocapture` or when the test fails: where a slow test spends its time).
 pub fn run(args: &[&str]) -> std::process::Output {
-    bin().args(args).output().expect("run assist")
+    let t = std::time::Instant::now();
+    let out = bin().args(args).output().expect("run assist");
+    let head: Vec<&str> = args.iter().take(3).copied().collect();
+    eprintln!(
+        "[{:.1} s] assist {}",
+        t.elapsed().as_secs_f64(),
+        head.join(" ")
+    );
+    out
 }
 
 /// Succeeds (or fails the test with its stderr); returns stderr.
