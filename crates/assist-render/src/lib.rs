@@ -24,10 +24,12 @@ mod shade;
 pub use batch::{BatchOutput, Behind, CompositeGrad, GradFn, RayOutputs, composite_batch};
 pub use composite::{Composite, RaySample, composite, composite_backward};
 pub use drag::{DragCache, render_camera_moving};
-pub use prune::{PRUNE_EPS, PRUNE_MIN_PER_RAY, PruneScratch, PruneStats, prune_occluded};
+pub use prune::{
+    PRUNE_EPS, PRUNE_MIN_PER_RAY, PruneScratch, PruneStats, prune_occluded, query_pruned,
+};
 pub use render::{
-    HIGHLIGHT, NodeLayer, Query, RenderOptions, RenderScratch, RenderedImage, query_fields,
-    query_node, render_camera, render_rays,
+    HIGHLIGHT, NodeLayer, Query, RenderOptions, RenderScratch, RenderStats, RenderedImage,
+    query_fields, query_node, render_camera, render_camera_timed, render_rays, render_rays_timed,
 };
 pub use sample::{
     HiddenStop, NodeSamples, RayBatch, SampleOptions, Traced, sample_rays, sample_rays_node,

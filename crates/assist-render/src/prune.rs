@@ -25,6 +25,7 @@ pub struct PruneScratch {
     sigma: Vec<f32>,
     enc: Vec<f32>,
     keep: Vec<u32>,
+    kept: Vec<u32>,
 }
 
 /// Drops, in every node of `traced` with at least [`PRUNE_MIN_PER_RAY`] samples per ray
@@ -39,14 +40,10 @@ pub fn prune_occluded(
 ) -> PruneStats {
     let mut stats = PruneStats::default();
     for ns in traced.nodes.iter_mut() {
-        if ns.is_empty() {
+        if !worth_pruning(ns) {
             continue;
         }
         let n = ns.len();
-        let reached = ns.start.windows(2).filter(|w| w[1] > w[0]).count().max(1);
-        if (n as f32) < PRUNE_MIN_PER_RAY * reached as f32 {
-            continue;
-        }
         stats.queried += n;
         let nf = scene.field_of(ns.node);
         sc.sigma.resize(n, 0.0);
@@ -55,25 +52,7 @@ pub fn prune_occluded(
             &mut sc.sigma[..n],
             &mut sc.enc,
         );
-        let limit = -eps.ln();
-        // Per ray: the number of leading samples to keep.
-        let rays = ns.start.len() - 1;
-        sc.keep.resize(rays, 0);
-        let (start, dt, sigma) = (&ns.start, &ns.dt, &sc.sigma);
-        sc.keep.par_iter_mut().enumerate().for_each(|(r, k)| {
-            let (a, b) = (start[r] as usize, start[r + 1] as usize);
-            let mut tau = 0.0f32;
-            let mut m = b - a;
-            for i in a..b {
-                if tau > limit {
-                    m = i - a;
-                    break;
-                }
-                tau += sigma[i] * dt[i];
-            }
-            *k = m as u32;
-        });
-        let total: usize = sc.keep.iter().map(|&k| k as usize).sum();
+        let total = keep_counts(ns, &sc.sigma, eps, &mut sc.keep);
         if total < n {
             compact(ns, &sc.keep);
             stats.dropped += n - total;
@@ -82,13 +61,95 @@ pub fn prune_occluded(
     stats
 }
 
+/// Rendering's pruned query: for each node worth it, the density pass encodes the
+/// samples once, the samples behind the node's opaque point are dropped, and the nets run
+/// on the kept ones from that same encoding (a kept sample is encoded once, a dropped one
+/// never meets the colour net); other nodes are queried as they are.
+pub fn query_pruned(
+    scene: &NeuralScene,
+    traced: &mut Traced,
+    eps: f32,
+    sc: &mut PruneScratch,
+    tapes: &mut Vec<assist_field::Tape>,
+    q: crate::render::Query,
+) -> PruneStats {
+    let mut stats = PruneStats::default();
+    tapes.resize_with(traced.nodes.len(), Default::default);
+    for (ns, tape) in traced.nodes.iter_mut().zip(tapes.iter_mut()) {
+        if !worth_pruning(ns) {
+            crate::render::query_node(scene, ns, tape, q);
+            continue;
+        }
+        let t = std::time::Instant::now();
+        let n = ns.len();
+        stats.queried += n;
+        let field = &scene.field_of(ns.node).field;
+        sc.sigma.resize(n, 0.0);
+        field.density_encoded(
+            [&ns.pos[0], &ns.pos[1], &ns.pos[2]],
+            &mut sc.sigma[..n],
+            tape,
+        );
+        let total = keep_counts(ns, &sc.sigma, eps, &mut sc.keep);
+        if total < n {
+            // The kept samples' indices, in order, for the encoding.
+            sc.kept.clear();
+            for (r, &k) in sc.keep.iter().enumerate() {
+                let a = ns.start[r];
+                sc.kept.extend(a..a + k);
+            }
+            compact(ns, &sc.keep);
+            field.keep_encoded(tape, &sc.kept);
+            stats.dropped += n - total;
+        }
+        stats.density_s += t.elapsed().as_secs_f64();
+        crate::render::query_node_with(scene, ns, tape, q, true);
+    }
+    stats
+}
+
+/// Whether node samples `ns` have enough samples per ray reaching the node for the
+/// density pass to pay ([`PRUNE_MIN_PER_RAY`]).
+fn worth_pruning(ns: &NodeSamples) -> bool {
+    if ns.is_empty() {
+        return false;
+    }
+    let reached = ns.start.windows(2).filter(|w| w[1] > w[0]).count().max(1);
+    ns.len() as f32 >= PRUNE_MIN_PER_RAY * reached as f32
+}
+
+/// Per ray of `ns`, how many leading samples to keep: those before the node's own
+/// transmittance (from densities `sigma`) falls below `eps`. Returns the total kept.
+fn keep_counts(ns: &NodeSamples, sigma: &[f32], eps: f32, keep: &mut Vec<u32>) -> usize {
+    let limit = -eps.ln();
+    let rays = ns.start.len() - 1;
+    keep.resize(rays, 0);
+    let (start, dt) = (&ns.start, &ns.dt);
+    keep.par_iter_mut().enumerate().for_each(|(r, k)| {
+        let (a, b) = (start[r] as usize, start[r + 1] as usize);
+        let mut tau = 0.0f32;
+        let mut m = b - a;
+        for i in a..b {
+            if tau > limit {
+                m = i - a;
+                break;
+            }
+            tau += sigma[i] * dt[i];
+        }
+        *k = m as u32;
+    });
+    keep.iter().map(|&k| k as usize).sum()
+}
+
 /// What [`prune_occluded`] did.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct PruneStats {
     /// Samples that went through the density pass.
     pub queried: usize,
     /// Of those, the samples dropped.
     pub dropped: usize,
+    /// Seconds in the density pass and the choice of samples ([`query_pruned`]).
+    pub density_s: f64,
 }
 
 /// Keeps the first `keep[r]` samples of each ray `r`.

@@ -158,6 +158,18 @@ pub fn query_fields(scene: &NeuralScene, traced: &mut Traced, tapes: &mut Vec<Ta
 
 /// Queries one node's samples (see [`query_fields`]).
 pub fn query_node(scene: &NeuralScene, ns: &mut NodeSamples, tape: &mut Tape, q: Query) {
+    query_node_with(scene, ns, tape, q, false)
+}
+
+/// [`query_node`]; `encoded`: a render query whose samples' encoding is in `tape.enc`
+/// already (a pruning pass's, see [`crate::prune::query_pruned`]).
+pub(crate) fn query_node_with(
+    scene: &NeuralScene,
+    ns: &mut NodeSamples,
+    tape: &mut Tape,
+    q: Query,
+    encoded: bool,
+) {
     ns.prepare_outputs(matches!(q, Query::Train));
     if ns.is_empty() {
         return;
@@ -174,8 +186,13 @@ pub fn query_node(scene: &NeuralScene, ns: &mut NodeSamples, tape: &mut Tape, q:
             precision,
             highlight,
         } => {
-            nf.field
-                .forward_at(precision, &ns.samples(), tape, &mut sigma, &mut rgb);
+            if encoded {
+                nf.field
+                    .forward_at_encoded(precision, &ns.samples(), tape, &mut sigma, &mut rgb);
+            } else {
+                nf.field
+                    .forward_at(precision, &ns.samples(), tape, &mut sigma, &mut rgb);
+            }
             if let Some((id, add)) = highlight
                 && scene.scene.nodes[ns.node].id == id
             {
@@ -201,22 +218,81 @@ pub struct RenderScratch {
     pub prune: crate::prune::PruneScratch,
 }
 
+/// Where a render's time went and how many samples it queried (`assist bench render`).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct RenderStats {
+    pub rays: usize,
+    /// Samples marched (every node, before pruning).
+    pub marched: usize,
+    /// Samples whose fields were queried in full (after pruning).
+    pub queried: usize,
+    /// Seconds: marching, the pruning density pass (with the choice of samples kept),
+    /// the field queries (the nets where pruning encoded already), shading and
+    /// compositing.
+    pub sample_s: f64,
+    pub prune_s: f64,
+    pub query_s: f64,
+    pub composite_s: f64,
+}
+
+impl RenderStats {
+    fn add(&mut self, o: &RenderStats) {
+        self.rays += o.rays;
+        self.marched += o.marched;
+        self.queried += o.queried;
+        self.sample_s += o.sample_s;
+        self.prune_s += o.prune_s;
+        self.query_s += o.query_s;
+        self.composite_s += o.composite_s;
+    }
+}
+
 /// Renders a batch of rays (inference).
 pub fn render_rays(scene: &NeuralScene, opts: &RenderOptions, sc: &mut RenderScratch) {
+    render_rays_timed(scene, opts, sc);
+}
+
+/// [`render_rays`], saying where the time went.
+pub fn render_rays_timed(
+    scene: &NeuralScene,
+    opts: &RenderOptions,
+    sc: &mut RenderScratch,
+) -> RenderStats {
     let so = SampleOptions {
         jitter: false,
         seed: 0,
         max_per_node: opts.max_per_node,
     };
+    let count = |t: &Traced| t.nodes.iter().map(|n| n.len()).sum::<usize>();
+    let mut st = RenderStats {
+        rays: sc.rays.len(),
+        ..Default::default()
+    };
+    let t = std::time::Instant::now();
     sample_rays(scene, &sc.rays, &so, &mut sc.traced);
-    if opts.prune_eps > 0.0 {
-        crate::prune::prune_occluded(scene, &mut sc.traced, opts.prune_eps, &mut sc.prune);
-    }
+    st.marched = count(&sc.traced);
+    st.sample_s = t.elapsed().as_secs_f64();
     let q = Query::Render {
         precision: opts.precision,
         highlight: opts.highlight,
     };
-    query_fields(scene, &mut sc.traced, &mut sc.tapes, q);
+    let t = std::time::Instant::now();
+    if opts.prune_eps > 0.0 {
+        let s = crate::prune::query_pruned(
+            scene,
+            &mut sc.traced,
+            opts.prune_eps,
+            &mut sc.prune,
+            &mut sc.tapes,
+            q,
+        );
+        st.prune_s = s.density_s;
+    } else {
+        query_fields(scene, &mut sc.traced, &mut sc.tapes, q);
+    }
+    st.queried = count(&sc.traced);
+    st.query_s = t.elapsed().as_secs_f64() - st.prune_s;
+    let t = std::time::Instant::now();
     crate::shade::shade_background(scene, &sc.rays, &mut sc.traced);
     composite_batch(
         &mut sc.traced,
@@ -224,6 +300,8 @@ pub fn render_rays(scene: &NeuralScene, opts: &RenderOptions, sc: &mut RenderScr
         &mut sc.out,
         None,
     );
+    st.composite_s = t.elapsed().as_secs_f64();
+    st
 }
 
 /// Renders a whole camera; `image` selects the appearance code (`u32::MAX` = average).
@@ -233,6 +311,17 @@ pub fn render_camera(
     image: u32,
     opts: &RenderOptions,
 ) -> RenderedImage {
+    render_camera_timed(scene, camera, image, opts).0
+}
+
+/// [`render_camera`], saying where the time went.
+pub fn render_camera_timed(
+    scene: &NeuralScene,
+    camera: &Camera,
+    image: u32,
+    opts: &RenderOptions,
+) -> (RenderedImage, RenderStats) {
+    let mut stats = RenderStats::default();
     let mut img = RenderedImage::empty(scene, camera, opts.layers);
     let mut sc = RenderScratch::default();
     sc.rays.near = scene.scene.near as f32;
@@ -243,11 +332,11 @@ pub fn render_camera(
         if opts.cancelled() {
             break;
         }
-        render_rays(scene, opts, &mut sc);
+        stats.add(&render_rays_timed(scene, opts, &mut sc));
         img.write_batch(scene, &sc.out, &pixels, &cos);
         p = end;
     }
-    img
+    (img, stats)
 }
 
 /// Fills `rays` with the camera rays of pixels `p..` (at most `opts.rays_per_batch`),

@@ -149,3 +149,116 @@ fn pruning_changes_renders_by_less_than_its_threshold() {
     assert!(worst < 2.0 * eps + 1e-5, "largest change {worst}");
     assert_eq!(full.panoptic, pruned.panoptic);
 }
+
+/// A field whose output depends on where a sample is: random hash-table entries (±1) and
+/// nets, its density raised by `ln_sigma` so rays turn opaque.
+fn textured_field(seed: u64, ln_sigma: f32) -> assist_field::Field {
+    let mut cfg = assist_field::FieldConfig::object(0);
+    cfg.appearance_dim = 0;
+    cfg.log2_table_size = 12;
+    cfg.levels = 4;
+    let mut f = assist_field::Field::new(cfg, seed).unwrap();
+    let mut rng = Rng::new(seed + 100);
+    let grid = f.layout.grid.param_count();
+    for p in &mut f.params[..grid] {
+        *p = rng.f32() * 2.0 - 1.0;
+    }
+    let d2 = f.layout.density[1];
+    f.params[d2.b] += ln_sigma;
+    f
+}
+
+#[test]
+fn the_pruned_query_reuses_the_density_pass_encoding_exactly() {
+    use assist_field::Precision;
+    use assist_render::{PruneScratch, Query, prune_occluded, query_fields, query_pruned};
+    let mut bg = node(0, "bg", 1.0, Similarity3::IDENTITY);
+    bg.space = NodeSpace::Contracted;
+    let obj = node(
+        1,
+        "obj",
+        0.3,
+        Similarity3::from_translation(DVec3::new(0.2, 0.0, 0.0)),
+    );
+    let s = scene(
+        vec![bg, obj],
+        vec![
+            ("bg", textured_field(1, 3.0)),
+            ("obj", textured_field(2, 5.0)),
+        ],
+        1.0 / 256.0,
+    );
+    let camera = Camera {
+        intrinsics: Intrinsics::from_fov_x(24, 18, 1.0),
+        pose: Pose::look_at(
+            DVec3::new(0.0, -0.8, 0.1),
+            DVec3::new(0.2, 0.0, 0.0),
+            DVec3::Z,
+        )
+        .unwrap(),
+    };
+    let mut rays = RayBatch::default();
+    for j in 0..camera.height() {
+        for i in 0..camera.width() {
+            rays.push(&camera.pixel_ray(i, j).unwrap(), u32::MAX);
+        }
+    }
+    rays.near = 0.01;
+    let so = SampleOptions {
+        jitter: false,
+        seed: 0,
+        max_per_node: 1024,
+    };
+    let mut traced = Traced::default();
+    sample_rays(&s, &rays, &so, &mut traced);
+    let mut two_pass = traced.clone();
+    let q = Query::Render {
+        precision: Precision::F32,
+        highlight: None,
+    };
+    let (mut sc, mut tapes) = (PruneScratch::default(), Vec::new());
+    let before = prune_occluded(&s, &mut two_pass, 1e-4, &mut sc);
+    query_fields(&s, &mut two_pass, &mut tapes, q);
+    let (mut sc, mut tapes) = (PruneScratch::default(), Vec::new());
+    let fused = query_pruned(&s, &mut traced, 1e-4, &mut sc, &mut tapes, q);
+    assert!(
+        fused.dropped > 0 && fused.dropped < fused.queried,
+        "{fused:?}"
+    );
+    assert_eq!(
+        (fused.queried, fused.dropped),
+        (before.queried, before.dropped)
+    );
+    for (a, b) in traced.nodes.iter().zip(&two_pass.nodes) {
+        assert_eq!(a.start, b.start);
+        assert_eq!(a.t, b.t);
+        assert_eq!(a.sigma.len(), b.sigma.len());
+        // Equal but for the last bits: the encoding's vector body and its scalar tail
+        // (the last samples of a batch) round differently, and a sample can be in the
+        // body of one batch and the tail of the other.
+        let close = |x: f32, y: f32| (x - y).abs() <= 1e-5 * x.abs().max(y.abs()).max(1.0);
+        let bad: Vec<(usize, f32, f32)> = (0..a.sigma.len())
+            .filter(|&i| {
+                !close(a.sigma[i], b.sigma[i])
+                    || (0..3).any(|c| !close(a.rgb[3 * i + c], b.rgb[3 * i + c]))
+            })
+            .map(|i| (i, a.sigma[i], b.sigma[i]))
+            .collect();
+        assert!(
+            bad.is_empty(),
+            "node {}: {} of {} differ, first {:?}",
+            a.node,
+            bad.len(),
+            a.sigma.len(),
+            &bad[..bad.len().min(5)]
+        );
+        let same = (0..a.sigma.len())
+            .filter(|&i| a.sigma[i] == b.sigma[i])
+            .count();
+        assert!(
+            same + 64 >= a.sigma.len(),
+            "node {}: {same} bit-equal",
+            a.node
+        );
+    }
+}

@@ -19,6 +19,9 @@ pub enum BenchCommand {
     /// The viewer's latency on a trained scene: preview frame, full frame, drag update
     /// (with the drag cache), and preview frames/s with 1, 2 and 4 clients.
     View(crate::cmd_bench_view::ViewBenchArgs),
+    /// A rendered frame's cost on a scene's held-out views: samples per ray marched and
+    /// queried, time per stage, and the PSNR each renderer setting costs.
+    Render(crate::cmd_bench_render::RenderBenchArgs),
     /// Exported meshes against a dataset's ground truth (instance masks with depth,
     /// back-projected): Chamfer distance both ways and extraction time per node.
     Mesh(crate::cmd_bench_mesh::MeshBenchArgs),
@@ -75,6 +78,7 @@ pub fn run(c: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Field(a) => field(a),
         BenchCommand::Prior(a) => prior(a),
         BenchCommand::View(a) => crate::cmd_bench_view::run(a),
+        BenchCommand::Render(a) => crate::cmd_bench_render::run(a),
         BenchCommand::Mesh(a) => crate::cmd_bench_mesh::run(a),
         BenchCommand::Embed(a) => crate::cmd_bench_embed::run(a),
         BenchCommand::Process(a) => crate::cmd_bench_process::run(a),

@@ -15,6 +15,7 @@ mod cmd_bench_embed;
 mod cmd_bench_gpu;
 mod cmd_bench_mesh;
 mod cmd_bench_process;
+mod cmd_bench_render;
 mod cmd_bench_sam;
 mod cmd_bench_split;
 mod cmd_bench_view;

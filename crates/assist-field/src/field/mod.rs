@@ -419,15 +419,33 @@ impl Field {
         rgb: &mut [f32],
     ) {
         let n = s.len();
-        assert!(sigma.len() >= n && rgb.len() >= 3 * n);
         let width = self.config.encoding_rows();
         let need = Layout { width }.len(n);
         if scratch.enc.len() < need {
             scratch.enc.resize(need, 0.0);
         }
+        self.encode(s, &mut scratch.enc[..need]);
+        self.forward_at_encoded(precision, s, scratch, sigma, rgb)
+    }
+
+    /// [`forward_at`](Self::forward_at) with the samples' encoding already in `scratch`
+    /// (from [`density_encoded`](Self::density_encoded), then
+    /// [`keep_encoded`](Self::keep_encoded)): the nets alone.
+    pub fn forward_at_encoded(
+        &self,
+        precision: Precision,
+        s: &Samples,
+        scratch: &mut Tape,
+        sigma: &mut [f32],
+        rgb: &mut [f32],
+    ) {
+        let n = s.len();
+        assert!(sigma.len() >= n && rgb.len() >= 3 * n);
+        let width = self.config.encoding_rows();
+        let need = Layout { width }.len(n);
+        assert!(scratch.enc.len() >= need, "the encoding of {n} samples");
         scratch.n = 0;
-        let enc = &mut scratch.enc[..need];
-        self.encode(s, enc);
+        let enc = &scratch.enc[..need];
         let rows = self.rows();
         let biases = self.code_biases();
         let packed =
@@ -506,6 +524,41 @@ impl Field {
                 }
             },
         );
+    }
+
+    /// [`density_with`](Self::density_with), keeping the samples' encoding in `tape` for
+    /// [`forward_at_encoded`](Self::forward_at_encoded).
+    pub fn density_encoded(&self, pos: [&[f32]; 3], sigma: &mut [f32], tape: &mut Tape) {
+        self.density_with(pos, sigma, &mut tape.enc);
+    }
+
+    /// Keeps in `tape`'s encoding (from [`density_encoded`](Self::density_encoded)) only
+    /// the samples `kept` (ascending indices), in that order, as if only they had been
+    /// encoded: a pruning pass's encoding reused for the full query.
+    pub fn keep_encoded(&self, tape: &mut Tape, kept: &[u32]) {
+        let lay = Layout {
+            width: self.config.encoding_rows(),
+        };
+        let enc = &mut tape.enc;
+        // Ascending sources, each at or after its destination: in place, front to back.
+        for (j, &i) in kept.iter().enumerate() {
+            let i = i as usize;
+            debug_assert!(i >= j);
+            if i != j {
+                for f in 0..lay.width {
+                    enc[lay.at(j, f)] = enc[lay.at(i, f)];
+                }
+            }
+        }
+        // Lanes past the last kept sample in its chunk: zero, so they stay finite.
+        let n = kept.len();
+        if !n.is_multiple_of(CHUNK) {
+            for j in n..n.div_ceil(CHUNK) * CHUNK {
+                for f in 0..lay.width {
+                    enc[lay.at(j, f)] = 0.0;
+                }
+            }
+        }
     }
 
     fn encode(&self, s: &Samples, enc: &mut [f32]) {

@@ -1,0 +1,192 @@
+//! `assist bench render SCENE --data DATA`: what a rendered frame costs and where its time
+//! goes — samples marched and queried per ray, seconds per stage (marching, the pruning
+//! density pass, the field queries, shading and compositing) — for each renderer setting
+//! asked for, on the same held-out views; and what each setting costs in PSNR, against the
+//! photographs and against the first setting's render.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
+use assist_render::{RenderOptions, RenderStats, render_camera_timed};
+use clap::Args;
+use serde_json::json;
+
+#[derive(Args, Debug)]
+pub struct RenderBenchArgs {
+    /// Trained scene (NAME.assist).
+    pub scene: PathBuf,
+    /// Dataset with the cameras and photographs.
+    #[arg(long)]
+    pub data: PathBuf,
+    /// The split whose views are rendered: test, val, train or all.
+    #[arg(long, default_value = "test")]
+    pub split: String,
+    /// Views rendered, spread evenly over the split.
+    #[arg(long, default_value_t = 3)]
+    pub views: usize,
+    /// Images N times smaller (default: as the scene was trained).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub downscale: Option<u32>,
+    /// Render at this width instead (height by the aspect; no PSNR against the
+    /// photographs then, only between settings): e.g. 1080 for a phone's 1080×1920.
+    #[arg(long)]
+    pub width: Option<u32>,
+    /// Pruning thresholds to compare (the transmittance below which a node's samples are
+    /// dropped after a density pass; 0 = off), comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "0,1e-4")]
+    pub prune_eps: Vec<f32>,
+    /// Renders per view and setting (the median time is reported).
+    #[arg(long, default_value_t = 3)]
+    pub runs: usize,
+    /// One JSON object with every setting's figures.
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// PSNR between two images in [0, 1] (values clamped as written).
+fn psnr(a: &[f32], b: &[f32]) -> f64 {
+    let se: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| (x.clamp(0.0, 1.0) as f64 - y.clamp(0.0, 1.0) as f64).powi(2))
+        .sum();
+    assist_train::metrics::mse_to_psnr(se / a.len().max(1) as f64)
+}
+
+pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
+    if a.runs == 0 || a.views == 0 || a.prune_eps.is_empty() {
+        bail!("--runs, --views and --prune-eps need at least one each");
+    }
+    if let Some(e) = a.prune_eps.iter().find(|e| !(0.0..1.0).contains(*e)) {
+        bail!("--prune-eps: expected values in [0, 1), got {e}");
+    }
+    let (scene, info) = assist_scene::scene_file::load(&a.scene)
+        .with_context(|| format!("reading {}", a.scene.display()))?;
+    let split = crate::cmd_eval::parse_split(&a.split)?;
+    let opts = assist_data::LoadOptions {
+        downscale: a
+            .downscale
+            .unwrap_or_else(|| assist_session::trained_downscale(&info)),
+        ..Default::default()
+    };
+    let ds = assist_data::load(&a.data, &opts)?;
+    let frames: Vec<_> = ds
+        .frames
+        .iter()
+        .filter(|f| split.is_none_or(|s| f.split == s))
+        .collect();
+    if frames.is_empty() {
+        bail!("{}: no frames in split {}", a.data.display(), a.split);
+    }
+    let n = a.views.min(frames.len());
+    let picked: Vec<_> = (0..n).map(|i| frames[i * frames.len() / n]).collect();
+    let say = |m: String| {
+        if !a.json {
+            eprintln!("{m}");
+        }
+    };
+    let bg = scene.scene.background_color;
+    let mut settings = Vec::new();
+    let mut first: Vec<Vec<f32>> = Vec::new();
+    for (si, &eps) in a.prune_eps.iter().enumerate() {
+        let ro = RenderOptions {
+            prune_eps: eps,
+            ..RenderOptions::default()
+        };
+        let (mut times, mut truth_psnr, mut vs_first) = (Vec::new(), Vec::new(), Vec::new());
+        let mut stats = RenderStats::default();
+        for (vi, f) in picked.iter().enumerate() {
+            let mut cam = f.camera;
+            if let Some(w) = a.width {
+                let k = f.camera.width() as f64 / w.max(1) as f64;
+                let h = ((f.camera.height() as f64 / k).round() as u32).max(1);
+                cam.intrinsics = f.camera.intrinsics.downscaled(k, w.max(1), h);
+            }
+            let mut per = Vec::new();
+            let mut last = None;
+            for _ in 0..a.runs {
+                let (img, st) = render_camera_timed(&scene, &cam, u32::MAX, &ro);
+                per.push(st);
+                last = Some(img);
+            }
+            let img = last.expect("runs ≥ 1");
+            let total = |s: &RenderStats| s.sample_s + s.prune_s + s.query_s + s.composite_s;
+            per.sort_by(|x, y| total(x).total_cmp(&total(y)));
+            let mid = per[per.len() / 2];
+            times.push(total(&mid));
+            stats.rays += mid.rays;
+            stats.marched += mid.marched;
+            stats.queried += mid.queried;
+            stats.sample_s += mid.sample_s;
+            stats.prune_s += mid.prune_s;
+            stats.query_s += mid.query_s;
+            stats.composite_s += mid.composite_s;
+            if a.width.is_none() {
+                let v = assist_train::load_view(f, u32::MAX, bg)?;
+                truth_psnr.push(psnr(&img.rgb, &v.rgb));
+            }
+            if si == 0 {
+                first.push(img.rgb);
+            } else {
+                vs_first.push(psnr(&img.rgb, &first[vi]));
+            }
+        }
+        let rays = stats.rays.max(1) as f64;
+        let mean = |v: &[f64]| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
+        let (w, h) = (picked[0].camera.width(), picked[0].camera.height());
+        let (w, h) = a.width.map_or((w, h), |w2| {
+            (w2, (h as f64 * w2 as f64 / w as f64).round() as u32)
+        });
+        let frame_s = median(times.clone());
+        let s = json!({
+            "prune_eps": eps,
+            "frame_s": frame_s,
+            "frame_s_each": times,
+            "marched_per_ray": stats.marched as f64 / rays,
+            "queried_per_ray": stats.queried as f64 / rays,
+            "seconds": {
+                "sample": stats.sample_s / n as f64,
+                "prune": stats.prune_s / n as f64,
+                "query": stats.query_s / n as f64,
+                "composite": stats.composite_s / n as f64,
+            },
+            "psnr": mean(&truth_psnr),
+            "psnr_vs_first": mean(&vs_first),
+        });
+        say(format!(
+            "prune_eps {eps}: {frame_s:.2} s per {w}×{h} frame (median of {n} views); \
+             samples per ray {:.1} marched, {:.1} queried; per frame: sample {:.2} s, prune {:.2} s, query {:.2} s, composite {:.2} s{}{}",
+            stats.marched as f64 / rays,
+            stats.queried as f64 / rays,
+            stats.sample_s / n as f64,
+            stats.prune_s / n as f64,
+            stats.query_s / n as f64,
+            stats.composite_s / n as f64,
+            mean(&truth_psnr).map_or(String::new(), |p| format!("; PSNR {p:.3} dB")),
+            mean(&vs_first).map_or(String::new(), |p| format!(
+                " ({p:.1} dB against the first setting)"
+            )),
+        ));
+        settings.push(s);
+    }
+    if a.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&json!({
+                "scene": a.scene.display().to_string(),
+                "data": a.data.display().to_string(),
+                "views": picked.iter().map(|f| f.name.clone()).collect::<Vec<_>>(),
+                "runs": a.runs,
+                "threads": rayon::current_num_threads(),
+                "simd": assist_simd::level().name(),
+                "settings": settings,
+            }))?
+        );
+    }
+    Ok(())
+}
