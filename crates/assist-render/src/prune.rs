@@ -61,10 +61,11 @@ pub fn prune_occluded(
     stats
 }
 
-/// Rendering's pruned query: for each node worth it, the density pass encodes the
-/// samples once, the samples behind the node's opaque point are dropped, and the nets run
-/// on the kept ones from that same encoding (a kept sample is encoded once, a dropped one
-/// never meets the colour net); other nodes are queried as they are.
+/// Rendering's pruned query: for each node worth it, a density pass (encoding and density
+/// net) over every sample, then the samples behind the node's opaque point are dropped
+/// and the colour net runs on the kept ones from the density net's stored outputs. No
+/// sample is encoded twice, and a dropped one never meets the colour net; other nodes
+/// are queried as they are.
 pub fn query_pruned(
     scene: &NeuralScene,
     traced: &mut Traced,
@@ -85,7 +86,7 @@ pub fn query_pruned(
         stats.queried += n;
         let field = &scene.field_of(ns.node).field;
         sc.sigma.resize(n, 0.0);
-        field.density_encoded(
+        field.density_features(
             [&ns.pos[0], &ns.pos[1], &ns.pos[2]],
             &mut sc.sigma[..n],
             tape,
@@ -99,7 +100,7 @@ pub fn query_pruned(
                 sc.kept.extend(a..a + k);
             }
             compact(ns, &sc.keep);
-            field.keep_encoded(tape, &sc.kept);
+            field.keep_features(tape, &sc.kept);
             stats.dropped += n - total;
         }
         stats.density_s += t.elapsed().as_secs_f64();

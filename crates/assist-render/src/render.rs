@@ -161,8 +161,8 @@ pub fn query_node(scene: &NeuralScene, ns: &mut NodeSamples, tape: &mut Tape, q:
     query_node_with(scene, ns, tape, q, false)
 }
 
-/// [`query_node`]; `encoded`: a render query whose samples' encoding is in `tape.enc`
-/// already (a pruning pass's, see [`crate::prune::query_pruned`]).
+/// [`query_node`]; `encoded`: a render query whose samples' density-net outputs are in
+/// `tape` already (a pruning pass's, see [`crate::prune::query_pruned`]).
 pub(crate) fn query_node_with(
     scene: &NeuralScene,
     ns: &mut NodeSamples,
@@ -187,8 +187,13 @@ pub(crate) fn query_node_with(
             highlight,
         } => {
             if encoded {
-                nf.field
-                    .forward_at_encoded(precision, &ns.samples(), tape, &mut sigma, &mut rgb);
+                nf.field.forward_from_features(
+                    precision,
+                    &ns.samples(),
+                    tape,
+                    &mut sigma,
+                    &mut rgb,
+                );
             } else {
                 nf.field
                     .forward_at(precision, &ns.samples(), tape, &mut sigma, &mut rgb);

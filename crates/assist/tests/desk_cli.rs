@@ -21,6 +21,57 @@ fn desk_trained_briefly() {
     generates_on_the_table(&desk, &scene, &root);
     meshes_are_true_and_rest_in_mujoco(&scene, &root);
     a_moved_object_leaves_no_stain(&desk, &scene, &root);
+    the_render_benches_run(&desk, &scene);
+}
+
+/// `bench render` and `bench view` on the trained scene at small sizes, so the benchmarks
+/// BENCHMARKS.md quotes cannot rot: every figure there, pruning dropping samples and
+/// changing the render by little.
+fn the_render_benches_run(desk: &Path, scene: &Path) {
+    let o = run(&[
+        "bench",
+        "render",
+        s(scene),
+        "--data",
+        s(desk),
+        "--views",
+        "1",
+        "--runs",
+        "1",
+        "--json",
+    ]);
+    ok(&o);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let set = v["settings"].as_array().unwrap();
+    assert_eq!(set.len(), 2, "{v}");
+    let f = |k: usize, key: &str| set[k][key].as_f64().unwrap_or(f64::NAN);
+    for k in 0..2 {
+        assert!(f(k, "frame_s") > 0.0, "{v}");
+        assert!(f(k, "psnr") > 20.0, "{v}");
+        assert!(f(k, "marched_per_ray") >= f(k, "queried_per_ray"), "{v}");
+    }
+    assert_eq!(f(0, "marched_per_ray"), f(0, "queried_per_ray"), "{v}");
+    assert!(f(1, "queried_per_ray") < f(1, "marched_per_ray"), "{v}");
+    assert!(f(1, "psnr_vs_first") > 45.0, "{v}");
+    let o = run(&[
+        "bench",
+        "view",
+        s(scene),
+        "--data",
+        s(desk),
+        "--width",
+        "120",
+        "--height",
+        "90",
+        "--frames",
+        "3",
+        "--json",
+    ]);
+    ok(&o);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    for key in ["preview_ms", "full_ms", "drag_ms"] {
+        assert!(v[key].as_f64().unwrap() > 0.0, "{v}");
+    }
 }
 
 /// 100 samples whose COCO masks pycocotools reads back, with every placed object on

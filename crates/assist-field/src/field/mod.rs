@@ -280,6 +280,7 @@ impl Field {
         rows: &Rows,
         biases: &[f32],
         fast: Option<(&[PackedA], &mut [u32])>,
+        from_dens: bool,
     ) {
         let lay = &self.layout;
         let p = &self.params;
@@ -297,11 +298,14 @@ impl Field {
             };
         let (h, rest) = act.split_at_mut(rows.dens * CHUNK);
         let (d0, d1) = (&lay.density[0], &lay.density[1]);
-        product(0, d0, enc, h, d0.inp_pad);
-        bias_act(&mut h[..d0.out * CHUNK], &p[d0.b..d0.b + d0.out], true);
         let (dens, rest) = rest.split_at_mut((rows.cin - rows.dens) * CHUNK);
-        product(1, d1, h, dens, d1.inp_pad);
-        bias_act(&mut dens[..d1.out * CHUNK], &p[d1.b..d1.b + d1.out], false);
+        // `from_dens`: the density rows are in place already (a pruning pass's).
+        if !from_dens {
+            product(0, d0, enc, h, d0.inp_pad);
+            bias_act(&mut h[..d0.out * CHUNK], &p[d0.b..d0.b + d0.out], true);
+            product(1, d1, h, dens, d1.inp_pad);
+            bias_act(&mut dens[..d1.out * CHUNK], &p[d1.b..d1.b + d1.out], false);
+        }
         let (cin, rest) = rest.split_at_mut((rows.color[0] - rows.cin) * CHUNK);
         self.color_input(s, c0, dens, cin);
         // Colour layers: cin → hidden… → rgb (pre-activation into the rgb rows).
@@ -366,7 +370,7 @@ impl Field {
         col: &mut [f32],
     ) {
         assist_simd::simd(|| {
-            self.chunk_forward(s, c * CHUNK, enc, act, rows, biases, fast);
+            self.chunk_forward(s, c * CHUNK, enc, act, rows, biases, fast, false);
             write_outputs(act, rows, sig, col);
         })
     }
@@ -419,33 +423,32 @@ impl Field {
         rgb: &mut [f32],
     ) {
         let n = s.len();
+        assert!(sigma.len() >= n && rgb.len() >= 3 * n);
         let width = self.config.encoding_rows();
         let need = Layout { width }.len(n);
         if scratch.enc.len() < need {
             scratch.enc.resize(need, 0.0);
         }
-        self.encode(s, &mut scratch.enc[..need]);
-        self.forward_at_encoded(precision, s, scratch, sigma, rgb)
+        scratch.n = 0;
+        let enc = &mut scratch.enc[..need];
+        self.encode(s, enc);
+        self.nets(precision, s, &*enc, width, false, sigma, rgb);
     }
 
-    /// [`forward_at`](Self::forward_at) with the samples' encoding already in `scratch`
-    /// (from [`density_encoded`](Self::density_encoded), then
-    /// [`keep_encoded`](Self::keep_encoded)): the nets alone.
-    pub fn forward_at_encoded(
+    /// The nets over every chunk of `s`: from the encoding (`width` rows per chunk) or,
+    /// `from_dens`, from the density net's stored outputs (`width` = its rows).
+    #[allow(clippy::too_many_arguments)]
+    fn nets(
         &self,
         precision: Precision,
         s: &Samples,
-        scratch: &mut Tape,
+        input: &[f32],
+        width: usize,
+        from_dens: bool,
         sigma: &mut [f32],
         rgb: &mut [f32],
     ) {
         let n = s.len();
-        assert!(sigma.len() >= n && rgb.len() >= 3 * n);
-        let width = self.config.encoding_rows();
-        let need = Layout { width }.len(n);
-        assert!(scratch.enc.len() >= need, "the encoding of {n} samples");
-        scratch.n = 0;
-        let enc = &scratch.enc[..need];
         let rows = self.rows();
         let biases = self.code_biases();
         let packed =
@@ -466,19 +469,115 @@ impl Field {
                     (vec![0.0f32; rows.total * CHUNK], vec![0u32; bp])
                 },
                 |(act, bp), (c, (sig, col))| {
-                    self.chunk_outputs(
-                        s,
-                        c,
-                        &enc[c * block..(c + 1) * block],
-                        act,
-                        &rows,
-                        &biases,
-                        packed.as_deref().map(|p| (p, bp.as_mut_slice())),
-                        sig,
-                        col,
-                    )
+                    let input = &input[c * block..(c + 1) * block];
+                    assist_simd::simd(|| {
+                        if from_dens {
+                            act[rows.dens * CHUNK..rows.cin * CHUNK].copy_from_slice(input);
+                        }
+                        let fast = packed.as_deref().map(|p| (p, bp.as_mut_slice()));
+                        self.chunk_forward(
+                            s,
+                            c * CHUNK,
+                            input,
+                            act,
+                            &rows,
+                            &biases,
+                            fast,
+                            from_dens,
+                        );
+                        write_outputs(act, &rows, sig, col);
+                    })
                 },
             );
+    }
+
+    /// Inference in two passes, for rendering's pruning: [`density_features`] gives every
+    /// sample's density and keeps the density net's outputs in `tape`; the caller drops
+    /// samples ([`keep_features`]); this runs the colour net on the rest. A sample's
+    /// outputs are [`forward_at`]'s (the density net in f32 whatever `precision`).
+    ///
+    /// [`density_features`]: Self::density_features
+    /// [`keep_features`]: Self::keep_features
+    /// [`forward_at`]: Self::forward_at
+    pub fn forward_from_features(
+        &self,
+        precision: Precision,
+        s: &Samples,
+        tape: &Tape,
+        sigma: &mut [f32],
+        rgb: &mut [f32],
+    ) {
+        let n = s.len();
+        assert!(sigma.len() >= n && rgb.len() >= 3 * n);
+        let fw = self.density_rows();
+        assert!(
+            tape.act.len() >= Layout { width: fw }.len(n),
+            "features of {n} samples"
+        );
+        self.nets(precision, s, &tape.act, fw, true, sigma, rgb);
+    }
+
+    /// Rows of the density net's output: raw density, then the geometry features.
+    fn density_rows(&self) -> usize {
+        self.layout.density[1].out
+    }
+
+    /// [`density_with`](Self::density_with), keeping every sample's density-net output
+    /// (chunk-blocked) in `tape` for [`forward_from_features`](Self::forward_from_features).
+    pub fn density_features(&self, pos: [&[f32]; 3], sigma: &mut [f32], tape: &mut Tape) {
+        let n = pos[0].len();
+        let fw = self.density_rows();
+        let len = Layout { width: fw }.len(n);
+        if tape.act.len() < len {
+            tape.act.resize(len, 0.0);
+        }
+        tape.n = 0;
+        let feats = &mut tape.act[..len];
+        let enc = self.encode_blocked(pos, &mut tape.enc);
+        let width = self.config.encoding_rows();
+        let d1 = self.layout.density[0];
+        let d2 = self.layout.density[1];
+        sigma[..n]
+            .par_chunks_mut(CHUNK)
+            .zip(feats.par_chunks_mut(fw * CHUNK))
+            .enumerate()
+            .for_each_init(
+                || vec![0.0f32; d1.out * CHUNK],
+                |h, (c, (sig, o))| {
+                    let e = &enc[c * width * CHUNK..(c + 1) * width * CHUNK];
+                    d1.forward(&self.params, e, h, true);
+                    d2.forward(&self.params, h, o, false);
+                    for l in 0..sig.len() {
+                        sig[l] = assist_simd::math::exp(o[l].min(MAX_RAW_DENSITY));
+                    }
+                },
+            );
+    }
+
+    /// Keeps in `tape` (from [`density_features`](Self::density_features)) only the
+    /// samples `kept` (ascending indices), in that order, as if only they had been queried.
+    pub fn keep_features(&self, tape: &mut Tape, kept: &[u32]) {
+        let lay = Layout {
+            width: self.density_rows(),
+        };
+        let buf = &mut tape.act;
+        // Ascending sources, each at or after its destination: in place, front to back.
+        for (j, &i) in kept.iter().enumerate() {
+            let i = i as usize;
+            debug_assert!(i >= j);
+            if i != j {
+                for f in 0..lay.width {
+                    buf[lay.at(j, f)] = buf[lay.at(i, f)];
+                }
+            }
+        }
+        // Lanes past the last kept sample in its chunk: zero, so they stay finite.
+        let n = kept.len();
+        for j in n..n.div_ceil(CHUNK) * CHUNK {
+            for f in 0..lay.width {
+                buf[lay.at(j, f)] = 0.0;
+            }
+        }
     }
 
     /// The widest layer input (padded).
@@ -502,17 +601,8 @@ impl Field {
     pub fn density_with(&self, pos: [&[f32]; 3], sigma: &mut [f32], scratch: &mut Vec<f32>) {
         let n = pos[0].len();
         let width = self.config.encoding_rows();
-        let len = Layout { width }.len(n);
-        if scratch.len() < len {
-            scratch.resize(len, 0.0);
-        }
-        let enc = &mut scratch[..len];
         let block = width * CHUNK;
-        // Lanes past the end of the last chunk are zeroed so they stay finite.
-        if !n.is_multiple_of(CHUNK) {
-            enc[len - block..].fill(0.0);
-        }
-        encode(&self.layout.grid, &self.params, pos, width, enc);
+        let enc = self.encode_blocked(pos, scratch);
         let (d1, d2) = (self.layout.density[0], self.layout.density[1]);
         sigma[..n].par_chunks_mut(CHUNK).enumerate().for_each_init(
             || (vec![0.0f32; d1.out * CHUNK], vec![0.0f32; d2.out * CHUNK]),
@@ -526,39 +616,21 @@ impl Field {
         );
     }
 
-    /// [`density_with`](Self::density_with), keeping the samples' encoding in `tape` for
-    /// [`forward_at_encoded`](Self::forward_at_encoded).
-    pub fn density_encoded(&self, pos: [&[f32]; 3], sigma: &mut [f32], tape: &mut Tape) {
-        self.density_with(pos, sigma, &mut tape.enc);
-    }
-
-    /// Keeps in `tape`'s encoding (from [`density_encoded`](Self::density_encoded)) only
-    /// the samples `kept` (ascending indices), in that order, as if only they had been
-    /// encoded: a pruning pass's encoding reused for the full query.
-    pub fn keep_encoded(&self, tape: &mut Tape, kept: &[u32]) {
-        let lay = Layout {
-            width: self.config.encoding_rows(),
-        };
-        let enc = &mut tape.enc;
-        // Ascending sources, each at or after its destination: in place, front to back.
-        for (j, &i) in kept.iter().enumerate() {
-            let i = i as usize;
-            debug_assert!(i >= j);
-            if i != j {
-                for f in 0..lay.width {
-                    enc[lay.at(j, f)] = enc[lay.at(i, f)];
-                }
-            }
+    /// The encoding of `pos` in `scratch` (grown as needed), chunk-blocked, the lanes
+    /// past the end of the last chunk zero so they stay finite.
+    fn encode_blocked<'a>(&self, pos: [&[f32]; 3], scratch: &'a mut Vec<f32>) -> &'a [f32] {
+        let n = pos[0].len();
+        let width = self.config.encoding_rows();
+        let len = Layout { width }.len(n);
+        if scratch.len() < len {
+            scratch.resize(len, 0.0);
         }
-        // Lanes past the last kept sample in its chunk: zero, so they stay finite.
-        let n = kept.len();
+        let enc = &mut scratch[..len];
         if !n.is_multiple_of(CHUNK) {
-            for j in n..n.div_ceil(CHUNK) * CHUNK {
-                for f in 0..lay.width {
-                    enc[lay.at(j, f)] = 0.0;
-                }
-            }
+            enc[len - width * CHUNK..].fill(0.0);
         }
+        encode(&self.layout.grid, &self.params, pos, width, enc);
+        enc
     }
 
     fn encode(&self, s: &Samples, enc: &mut [f32]) {
