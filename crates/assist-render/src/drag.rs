@@ -12,6 +12,7 @@ use assist_field::{Precision, Tape};
 use assist_scene::NeuralScene;
 
 use crate::batch::{BatchOutput, Behind, composite_batch};
+use crate::prune::{PruneScratch, query_node_pruned, query_pruned};
 use crate::render::{
     Query, RenderOptions, RenderedImage, camera_batch, query_fields, query_node, render_camera,
 };
@@ -26,6 +27,7 @@ struct Key {
     highlight: Option<(InstanceId, [f32; 3])>,
     precision: Precision,
     max_per_node: usize,
+    prune_eps: f32,
     rays_per_batch: usize,
     layers: bool,
     near: f64,
@@ -63,6 +65,7 @@ pub struct DragCache {
     sub: Traced,
     pixels: Vec<usize>,
     cos: Vec<f32>,
+    prune: PruneScratch,
 }
 
 impl DragCache {
@@ -95,6 +98,7 @@ fn key(
         highlight: opts.highlight,
         precision: opts.precision,
         max_per_node: opts.max_per_node,
+        prune_eps: opts.prune_eps,
         rays_per_batch: opts.rays_per_batch,
         layers: opts.layers,
         near: scene.scene.near,
@@ -129,11 +133,6 @@ pub fn render_camera_moving(
         cache.clear();
         return render_camera(scene, camera, image, opts);
     };
-    if opts.prune_eps > 0.0 {
-        // Pruning depends on every node's density along the ray: nothing can be kept.
-        cache.clear();
-        return render_camera(scene, camera, image, opts);
-    }
     let so = SampleOptions {
         jitter: false,
         seed: 0,
@@ -207,7 +206,21 @@ pub fn render_camera_moving(
                 for (j, ns) in b.traced.nodes.iter().enumerate() {
                     if j == k {
                         c.fresh.gather_rays(&c.affected, false, &mut c.sub.nodes[j]);
-                        query_node(scene, &mut c.sub.nodes[j], &mut c.tape, q);
+                        // Pruning (each ray by the node's own density) keeps for these
+                        // rays what a full render keeps.
+                        if opts.prune_eps > 0.0 {
+                            let sub = &mut c.sub.nodes[j];
+                            query_node_pruned(
+                                scene,
+                                sub,
+                                opts.prune_eps,
+                                &mut c.prune,
+                                &mut c.tape,
+                                q,
+                            );
+                        } else {
+                            query_node(scene, &mut c.sub.nodes[j], &mut c.tape, q);
+                        }
                     } else {
                         ns.gather_rays(&c.affected, true, &mut c.sub.nodes[j]);
                     }
@@ -253,7 +266,18 @@ pub fn render_camera_moving(
             break;
         };
         sample_rays(scene, &b.rays, &so, &mut b.traced);
-        query_fields(scene, &mut b.traced, &mut tapes, q);
+        if opts.prune_eps > 0.0 {
+            query_pruned(
+                scene,
+                &mut b.traced,
+                opts.prune_eps,
+                &mut cache.prune,
+                &mut tapes,
+                q,
+            );
+        } else {
+            query_fields(scene, &mut b.traced, &mut tapes, q);
+        }
         crate::shade::shade_background(scene, &b.rays, &mut b.traced);
         composite_batch(&mut b.traced, behind, &mut cache.out, None);
         img.write_batch(scene, &cache.out, &b.pixels, &b.cos);

@@ -61,11 +61,7 @@ pub fn prune_occluded(
     stats
 }
 
-/// Rendering's pruned query: for each node worth it, a density pass (encoding and density
-/// net) over every sample, then the samples behind the node's opaque point are dropped
-/// and the colour net runs on the kept ones from the density net's stored outputs. No
-/// sample is encoded twice, and a dropped one never meets the colour net; other nodes
-/// are queried as they are.
+/// Rendering's pruned query of every node ([`query_node_pruned`]).
 pub fn query_pruned(
     scene: &NeuralScene,
     traced: &mut Traced,
@@ -77,35 +73,58 @@ pub fn query_pruned(
     let mut stats = PruneStats::default();
     tapes.resize_with(traced.nodes.len(), Default::default);
     for (ns, tape) in traced.nodes.iter_mut().zip(tapes.iter_mut()) {
-        if !worth_pruning(ns) {
-            crate::render::query_node(scene, ns, tape, q);
-            continue;
-        }
-        let t = std::time::Instant::now();
-        let n = ns.len();
-        stats.queried += n;
-        let field = &scene.field_of(ns.node).field;
-        sc.sigma.resize(n, 0.0);
-        field.density_features(
-            [&ns.pos[0], &ns.pos[1], &ns.pos[2]],
-            &mut sc.sigma[..n],
-            tape,
-        );
-        let total = keep_counts(ns, &sc.sigma, eps, &mut sc.keep);
-        if total < n {
-            // The kept samples' indices, in order, for the encoding.
-            sc.kept.clear();
-            for (r, &k) in sc.keep.iter().enumerate() {
-                let a = ns.start[r];
-                sc.kept.extend(a..a + k);
-            }
-            compact(ns, &sc.keep);
-            field.keep_features(tape, &sc.kept);
-            stats.dropped += n - total;
-        }
-        stats.density_s += t.elapsed().as_secs_f64();
-        crate::render::query_node_with(scene, ns, tape, q, true);
+        let s = query_node_pruned(scene, ns, eps, sc, tape, q);
+        stats.queried += s.queried;
+        stats.dropped += s.dropped;
+        stats.density_s += s.density_s;
     }
+    stats
+}
+
+/// Rendering's pruned query of one node: a density pass (encoding and density net) over
+/// its samples, then each ray's samples behind the point where the node's own
+/// transmittance falls below `eps` are dropped and the colour net runs on the kept ones
+/// from the density net's stored outputs. No sample is encoded twice and a dropped one
+/// never meets the colour net, so this costs no more than the plain query whatever it
+/// drops; and what a ray keeps depends on that ray alone (a drag's re-rendered rays match
+/// a full render's).
+pub fn query_node_pruned(
+    scene: &NeuralScene,
+    ns: &mut NodeSamples,
+    eps: f32,
+    sc: &mut PruneScratch,
+    tape: &mut assist_field::Tape,
+    q: crate::render::Query,
+) -> PruneStats {
+    let mut stats = PruneStats::default();
+    if ns.is_empty() {
+        crate::render::query_node(scene, ns, tape, q);
+        return stats;
+    }
+    let t = std::time::Instant::now();
+    let n = ns.len();
+    stats.queried = n;
+    let field = &scene.field_of(ns.node).field;
+    sc.sigma.resize(n, 0.0);
+    field.density_features(
+        [&ns.pos[0], &ns.pos[1], &ns.pos[2]],
+        &mut sc.sigma[..n],
+        tape,
+    );
+    let total = keep_counts(ns, &sc.sigma, eps, &mut sc.keep);
+    if total < n {
+        // The kept samples' indices, in order, for the stored outputs.
+        sc.kept.clear();
+        for (r, &k) in sc.keep.iter().enumerate() {
+            let a = ns.start[r];
+            sc.kept.extend(a..a + k);
+        }
+        compact(ns, &sc.keep);
+        field.keep_features(tape, &sc.kept);
+        stats.dropped = n - total;
+    }
+    stats.density_s = t.elapsed().as_secs_f64();
+    crate::render::query_node_with(scene, ns, tape, q, true);
     stats
 }
 

@@ -428,6 +428,13 @@ fn a_drag_rerenders_the_moving_node_alone_and_bit_for_bit() {
 }
 
 fn drag_bit_for_bit(shadow: bool, lit: bool) {
+    // Without pruning, and with it (each ray pruned by each node's own density).
+    for eps in [0.0, 1e-4] {
+        drag_bit_for_bit_at(shadow, lit, eps);
+    }
+}
+
+fn drag_bit_for_bit_at(shadow: bool, lit: bool, prune_eps: f32) {
     use assist_render::{DragCache, render_camera_moving};
     let mut s = base();
     if shadow {
@@ -453,6 +460,7 @@ fn drag_bit_for_bit(shadow: bool, lit: bool) {
     let cam = camera();
     let opts = RenderOptions {
         rays_per_batch: 4096,
+        prune_eps,
         ..RenderOptions::default()
     };
     let mut cache = DragCache::default();

@@ -35,6 +35,11 @@ pub struct RenderBenchArgs {
     /// dropped after a density pass; 0 = off), comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "0,1e-4")]
     pub prune_eps: Vec<f32>,
+    /// Occupancy thresholds to compare, each as the opacity one smallest step through a
+    /// cell must reach for the cell to be marched (the grid's own rule caps it by the
+    /// mean density; these do not), comma-separated; each a setting without pruning.
+    #[arg(long, value_delimiter = ',')]
+    pub occupancy: Vec<f32>,
     /// Renders per view and setting (the median time is reported).
     #[arg(long, default_value_t = 3)]
     pub runs: usize,
@@ -93,11 +98,26 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
     let bg = scene.scene.background_color;
     let mut settings = Vec::new();
     let mut first: Vec<Vec<f32>> = Vec::new();
-    for (si, &eps) in a.prune_eps.iter().enumerate() {
+    let runs: Vec<(f32, Option<f32>)> = a
+        .prune_eps
+        .iter()
+        .map(|&e| (e, None))
+        .chain(a.occupancy.iter().map(|&o| (0.0, Some(o))))
+        .collect();
+    for (si, &(eps, occ)) in runs.iter().enumerate() {
         let ro = RenderOptions {
             prune_eps: eps,
             ..RenderOptions::default()
         };
+        let mut scene = scene.clone();
+        if let Some(o) = occ {
+            for nf in scene.fields.values_mut() {
+                let nf = std::sync::Arc::make_mut(nf);
+                let thr = nf.occupancy.threshold * o / 0.01;
+                nf.occupancy.refresh_bits_above(thr);
+            }
+        }
+        let scene = &scene;
         let (mut times, mut truth_psnr, mut vs_first) = (Vec::new(), Vec::new(), Vec::new());
         let mut stats = RenderStats::default();
         for (vi, f) in picked.iter().enumerate() {
@@ -110,7 +130,7 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
             let mut per = Vec::new();
             let mut last = None;
             for _ in 0..a.runs {
-                let (img, st) = render_camera_timed(&scene, &cam, u32::MAX, &ro);
+                let (img, st) = render_camera_timed(scene, &cam, u32::MAX, &ro);
                 per.push(st);
                 last = Some(img);
             }
@@ -145,6 +165,7 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
         let frame_s = median(times.clone());
         let s = json!({
             "prune_eps": eps,
+            "occupancy": occ,
             "frame_s": frame_s,
             "frame_s_each": times,
             "marched_per_ray": stats.marched as f64 / rays,
@@ -158,8 +179,9 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
             "psnr": mean(&truth_psnr),
             "psnr_vs_first": mean(&vs_first),
         });
+        let name = occ.map_or(format!("prune_eps {eps}"), |o| format!("occupancy {o}"));
         say(format!(
-            "prune_eps {eps}: {frame_s:.2} s per {w}×{h} frame (median of {n} views); \
+            "{name}: {frame_s:.2} s per {w}×{h} frame (median of {n} views); \
              samples per ray {:.1} marched, {:.1} queried; per frame: sample {:.2} s, prune {:.2} s, query {:.2} s, composite {:.2} s{}{}",
             stats.marched as f64 / rays,
             stats.queried as f64 / rays,

@@ -545,11 +545,13 @@ impl Field {
                 || vec![0.0f32; d1.out * CHUNK],
                 |h, (c, (sig, o))| {
                     let e = &enc[c * width * CHUNK..(c + 1) * width * CHUNK];
-                    d1.forward(&self.params, e, h, true);
-                    d2.forward(&self.params, h, o, false);
-                    for l in 0..sig.len() {
-                        sig[l] = assist_simd::math::exp(o[l].min(MAX_RAW_DENSITY));
-                    }
+                    assist_simd::simd(|| {
+                        d1.forward(&self.params, e, h, true);
+                        d2.forward(&self.params, h, o, false);
+                        for l in 0..sig.len() {
+                            sig[l] = assist_simd::math::exp(o[l].min(MAX_RAW_DENSITY));
+                        }
+                    })
                 },
             );
     }

@@ -406,6 +406,16 @@ impl OccupancyGrid {
             })
             .sum();
         let thr = self.threshold.min((sum / self.density.len() as f64) as f32);
+        self.refresh_bits_above(thr);
+    }
+
+    /// The bitfield with every cell whose (step-weighted) density estimate is at most
+    /// `thr` empty (cells in warm-up or known to hold a surface stay occupied).
+    pub fn refresh_bits_above(&mut self, thr: f32) {
+        let weighted = !self.step_factor.is_empty();
+        let factor = |c: usize| {
+            if weighted { self.step_factor[c] } else { 1.0 }
+        };
         let (warm, empty, kept) = (&self.warmup, &self.empty, &self.kept);
         self.bits
             .par_iter_mut()
