@@ -84,6 +84,20 @@ impl DragCache {
     }
 }
 
+/// How a render with `opts` samples (no jitter) and queries its fields.
+fn sampling_and_query(opts: &RenderOptions) -> (SampleOptions, Query) {
+    let so = SampleOptions {
+        jitter: false,
+        seed: 0,
+        max_per_node: opts.max_per_node,
+    };
+    let q = Query::Render {
+        precision: opts.precision,
+        highlight: opts.highlight,
+    };
+    (so, q)
+}
+
 fn key(
     scene: &NeuralScene,
     camera: &Camera,
@@ -133,15 +147,7 @@ pub fn render_camera_moving(
         cache.clear();
         return render_camera(scene, camera, image, opts);
     };
-    let so = SampleOptions {
-        jitter: false,
-        seed: 0,
-        max_per_node: opts.max_per_node,
-    };
-    let q = Query::Render {
-        precision: opts.precision,
-        highlight: opts.highlight,
-    };
+    let (so, q) = sampling_and_query(opts);
     let behind = Behind::of(&scene.scene);
     let key = key(scene, camera, image, opts, k);
     if cache.key.as_ref() == Some(&key)
@@ -241,6 +247,23 @@ pub fn render_camera_moving(
         return img;
     }
     cache.clear();
+    let img = render_and_keep(scene, camera, image, opts, cache);
+    cache.key = Some(key);
+    cache.moved = Some(scene.scene.nodes[k].clone());
+    cache.image = Some(img.clone());
+    img
+}
+
+/// A whole render of `camera` whose batches (samples and field outputs) `cache` keeps.
+fn render_and_keep(
+    scene: &NeuralScene,
+    camera: &Camera,
+    image: u32,
+    opts: &RenderOptions,
+    cache: &mut DragCache,
+) -> RenderedImage {
+    let (so, q) = sampling_and_query(opts);
+    let behind = Behind::of(&scene.scene);
     let mut img = RenderedImage::empty(scene, camera, opts.layers);
     let mut tapes = Vec::new();
     let mut p = 0usize;
@@ -284,8 +307,5 @@ pub fn render_camera_moving(
         cache.batches.push(b);
         p = end;
     }
-    cache.key = Some(key);
-    cache.moved = Some(scene.scene.nodes[k].clone());
-    cache.image = Some(img.clone());
     img
 }

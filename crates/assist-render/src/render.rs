@@ -241,7 +241,8 @@ pub struct RenderStats {
 }
 
 impl RenderStats {
-    fn add(&mut self, o: &RenderStats) {
+    /// Adds `o`'s counts and seconds to these.
+    pub fn add(&mut self, o: &RenderStats) {
         self.rays += o.rays;
         self.marched += o.marched;
         self.queried += o.queried;

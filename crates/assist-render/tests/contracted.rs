@@ -7,6 +7,7 @@ mod common;
 use assist_core::{Camera, DQuat, DVec3, Intrinsics, NodeSpace, Pose, Ray, Rng, Similarity3};
 use assist_field::contraction::{FAR_RADIUS, contract_to_unit};
 use assist_render::{RayBatch, RenderOptions, SampleOptions, Traced, render_camera, sample_rays};
+use assist_scene::NeuralScene;
 use common::{constant_field, node, scene};
 
 #[test]
@@ -91,9 +92,8 @@ fn contracted_samples_are_the_contracted_ray_points() {
     }
 }
 
-#[test]
-fn pruning_changes_renders_by_less_than_its_threshold() {
-    // A dense contracted background and a dense object in front of part of it.
+/// A contracted background node and an object node in front of part of it.
+fn bg_and_object(bg_field: assist_field::Field, obj_field: assist_field::Field) -> NeuralScene {
     let mut bg = node(0, "bg", 1.0, Similarity3::IDENTITY);
     bg.space = NodeSpace::Contracted;
     let obj = node(
@@ -102,13 +102,19 @@ fn pruning_changes_renders_by_less_than_its_threshold() {
         0.3,
         Similarity3::from_translation(DVec3::new(0.2, 0.0, 0.0)),
     );
-    let s = scene(
+    scene(
         vec![bg, obj],
-        vec![
-            ("bg", constant_field(40.0, [0.2, 0.6, 0.3], true, 1)),
-            ("obj", constant_field(200.0, [0.9, 0.1, 0.1], true, 2)),
-        ],
+        vec![("bg", bg_field), ("obj", obj_field)],
         1.0 / 256.0,
+    )
+}
+
+#[test]
+fn pruning_changes_renders_by_less_than_its_threshold() {
+    // A dense contracted background and a dense object in front of part of it.
+    let s = bg_and_object(
+        constant_field(40.0, [0.2, 0.6, 0.3], true, 1),
+        constant_field(200.0, [0.9, 0.1, 0.1], true, 2),
     );
     let camera = Camera {
         intrinsics: Intrinsics::from_fov_x(32, 24, 1.0),
@@ -172,22 +178,7 @@ fn textured_field(seed: u64, ln_sigma: f32) -> assist_field::Field {
 fn the_pruned_query_reuses_the_density_pass_encoding_exactly() {
     use assist_field::Precision;
     use assist_render::{PruneScratch, Query, prune_occluded, query_fields, query_pruned};
-    let mut bg = node(0, "bg", 1.0, Similarity3::IDENTITY);
-    bg.space = NodeSpace::Contracted;
-    let obj = node(
-        1,
-        "obj",
-        0.3,
-        Similarity3::from_translation(DVec3::new(0.2, 0.0, 0.0)),
-    );
-    let s = scene(
-        vec![bg, obj],
-        vec![
-            ("bg", textured_field(1, 3.0)),
-            ("obj", textured_field(2, 5.0)),
-        ],
-        1.0 / 256.0,
-    );
+    let s = bg_and_object(textured_field(1, 3.0), textured_field(2, 5.0));
     let camera = Camera {
         intrinsics: Intrinsics::from_fov_x(24, 18, 1.0),
         pose: Pose::look_at(

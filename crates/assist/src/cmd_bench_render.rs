@@ -29,7 +29,7 @@ pub struct RenderBenchArgs {
     pub downscale: Option<u32>,
     /// Render at this width instead (height by the aspect; no PSNR against the
     /// photographs then, only between settings): e.g. 1080 for a phone's 1080×1920.
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u32).range(16..=16384))]
     pub width: Option<u32>,
     /// Pruning thresholds to compare (the transmittance below which a node's samples are
     /// dropped after a density pass; 0 = off), comma-separated.
@@ -123,9 +123,9 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
         for (vi, f) in picked.iter().enumerate() {
             let mut cam = f.camera;
             if let Some(w) = a.width {
-                let k = f.camera.width() as f64 / w.max(1) as f64;
+                let k = f.camera.width() as f64 / w as f64;
                 let h = ((f.camera.height() as f64 / k).round() as u32).max(1);
-                cam.intrinsics = f.camera.intrinsics.downscaled(k, w.max(1), h);
+                cam.intrinsics = f.camera.intrinsics.downscaled(k, w, h);
             }
             let mut per = Vec::new();
             let mut last = None;
@@ -139,13 +139,7 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
             per.sort_by(|x, y| total(x).total_cmp(&total(y)));
             let mid = per[per.len() / 2];
             times.push(total(&mid));
-            stats.rays += mid.rays;
-            stats.marched += mid.marched;
-            stats.queried += mid.queried;
-            stats.sample_s += mid.sample_s;
-            stats.prune_s += mid.prune_s;
-            stats.query_s += mid.query_s;
-            stats.composite_s += mid.composite_s;
+            stats.add(&mid);
             if a.width.is_none() {
                 let v = assist_train::load_view(f, u32::MAX, bg)?;
                 truth_psnr.push(psnr(&img.rgb, &v.rgb));
