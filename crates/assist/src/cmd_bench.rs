@@ -130,6 +130,11 @@ fn median(v: &mut [f64]) -> f64 {
     v[v.len() / 2]
 }
 
+/// The median (the upper one of an even count) of timings; the benches quote medians.
+pub(crate) fn median_of(mut v: Vec<f64>) -> f64 {
+    median(&mut v)
+}
+
 fn bench_one(
     name: &str,
     cfg: FieldConfig,

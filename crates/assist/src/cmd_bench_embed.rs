@@ -44,10 +44,7 @@ const PHRASES: &[&str] = &[
     "scale the squeaky companion by 2",
 ];
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
+use crate::cmd_bench::median_of as median;
 
 pub fn run(a: EmbedBenchArgs) -> anyhow::Result<()> {
     let tmp;

@@ -10,10 +10,7 @@ use serde_json::{Value, json};
 /// Runs queued back to back per resident timing.
 const QUEUED: usize = 8;
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
+use crate::cmd_bench::median_of as median;
 
 /// Inference and density over `s` on `gpu`, the median of `steps` timings after one
 /// warm-up: resident (the batch already in GPU memory, as rendering and training use it;

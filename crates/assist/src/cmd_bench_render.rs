@@ -48,10 +48,7 @@ pub struct RenderBenchArgs {
     pub json: bool,
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
+use crate::cmd_bench::median_of as median;
 
 /// PSNR between two images in [0, 1] (values clamped as written).
 fn psnr(a: &[f32], b: &[f32]) -> f64 {

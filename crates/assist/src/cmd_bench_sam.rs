@@ -31,10 +31,7 @@ pub struct SamBenchArgs {
     pub json: bool,
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
+use crate::cmd_bench::median_of as median;
 
 pub fn run(a: SamBenchArgs) -> anyhow::Result<()> {
     let (w, h) = a

@@ -33,10 +33,7 @@ pub struct ViewBenchArgs {
     pub json: bool,
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
+use crate::cmd_bench::median_of as median;
 
 /// Milliseconds of a render plus its JPEG.
 fn timed(f: impl FnOnce() -> anyhow::Result<assist_session::Frame>) -> anyhow::Result<f64> {
