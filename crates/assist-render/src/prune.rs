@@ -85,9 +85,9 @@ pub fn query_pruned(
 /// its samples, then each ray's samples behind the point where the node's own
 /// transmittance falls below `eps` are dropped and the colour net runs on the kept ones
 /// from the density net's stored outputs. No sample is encoded twice and a dropped one
-/// never meets the colour net, so this costs no more than the plain query whatever it
-/// drops; and what a ray keeps depends on that ray alone (a drag's re-rendered rays match
-/// a full render's).
+/// never meets the colour net; the compaction is the extra work, so it pays only where
+/// many samples lie behind surfaces (BENCHMARKS.md). What a ray keeps depends on that ray
+/// alone (a drag's re-rendered rays match a full render's).
 pub fn query_node_pruned(
     scene: &NeuralScene,
     ns: &mut NodeSamples,
