@@ -171,12 +171,33 @@ pub fn encode(grid: &GridLayout, params: &[f32], pos: [&[f32]; 3], width: usize,
 /// F = 2 (Nerfacto's), through the vectorised interpolation kernel; same order of work as
 /// `encode_f`.
 fn encode2(grid: &GridLayout, params: &[f32], pos: [&[f32]; 3], width: usize, out: &mut [f32]) {
+    let (table_all, _) = params.as_chunks::<2>();
+    encode2_from(grid, table_all, grid::interp2, pos, width, out);
+}
+
+/// One F = 2 interpolation kernel over a level's table (f32 pairs or packed bf16 pairs).
+pub(crate) type Interp2<T> =
+    fn(assist_simd::Level, &GridLevel, &[T], [&[f32]; 3], &mut [f32], &mut [f32]);
+
+/// F = 2 encoding from `table_all` (every level's entries, in the parameters' order)
+/// through `interp`, level-major over chunk-blocked rows.
+pub(crate) fn encode2_from<T: Sync>(
+    grid: &GridLayout,
+    table_all: &[T],
+    interp: Interp2<T>,
+    pos: [&[f32]; 3],
+    width: usize,
+    out: &mut [f32],
+) {
     let n = pos[0].len();
     assert!(width >= grid.levels.len() * 2 && pos[1].len() == n && pos[2].len() == n);
+    assert!(
+        table_all.len() >= grid.entries,
+        "grid: table shorter than the layout"
+    );
     let block = width * CHUNK;
     let nc = n.div_ceil(CHUNK);
     assert!(out.len() >= nc * block);
-    let (table_all, _) = params.as_chunks::<2>();
     let simd = assist_simd::level();
     let chunks_per_task = 16;
     for (li, lv) in grid.levels.iter().enumerate() {
@@ -192,7 +213,7 @@ fn encode2(grid: &GridLayout, params: &[f32], pos: [&[f32]; 3], width: usize, ou
                     let (f0, rest) =
                         chunk[li * 2 * CHUNK..(li + 1) * 2 * CHUNK].split_at_mut(CHUNK);
                     let p = [&pos[0][s0..s1], &pos[1][s0..s1], &pos[2][s0..s1]];
-                    grid::interp2(simd, &glv, table, p, f0, rest);
+                    interp(simd, &glv, table, p, f0, rest);
                 }
             });
     }

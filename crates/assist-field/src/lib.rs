@@ -28,7 +28,7 @@ pub mod shade;
 pub use adam::Adam;
 pub use config::FieldConfig;
 pub use error::FieldError;
-pub use field::{Field, ParamLayout, PhaseTimes, Precision, Samples, Tape};
+pub use field::{Field, PackedTables, ParamLayout, PhaseTimes, Precision, Samples, Tape};
 pub use mlp::Linear;
 pub use occupancy::{OccupancyGrid, Step};
 pub use shade::ShadeGrid;

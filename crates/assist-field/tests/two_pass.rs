@@ -52,7 +52,7 @@ fn the_colour_pass_on_kept_samples_is_the_full_query_of_them() {
 
     let mut tape = Tape::default();
     let mut sigma_all = vec![0.0; n];
-    field.density_features([&pos[0], &pos[1], &pos[2]], &mut sigma_all, &mut tape);
+    field.density_features([&pos[0], &pos[1], &pos[2]], None, &mut sigma_all, &mut tape);
     field.keep_features(&mut tape, &kept);
     let pick = |v: &[f32]| kept.iter().map(|&i| v[i as usize]).collect::<Vec<f32>>();
     let (kp, kd) = (pos.clone().map(|v| pick(&v)), dir.clone().map(|v| pick(&v)));
@@ -68,6 +68,7 @@ fn the_colour_pass_on_kept_samples_is_the_full_query_of_them() {
     let (mut sig1, mut rgb1) = (vec![0.0; m], vec![0.0; 3 * m]);
     field.forward_at(
         Precision::F32,
+        None,
         &s,
         &mut Tape::default(),
         &mut sig1,

@@ -352,17 +352,16 @@ impl Generator {
             layers: true,
             ..Default::default()
         };
+        // The background alone shares the scene's fields, so their packed tables too.
+        let bg_opts = assist_session::RenderOptions {
+            tables: session.packed_tables(),
+            ..Default::default()
+        };
         for c in cameras {
             let frame = session.render(&c.camera, &req)?;
-            let bg = background.as_ref().map(|b| {
-                assist_session::render_camera(
-                    b,
-                    &c.camera,
-                    u32::MAX,
-                    &assist_session::RenderOptions::default(),
-                )
-                .rgb
-            });
+            let bg = background
+                .as_ref()
+                .map(|b| assist_session::render_camera(b, &c.camera, u32::MAX, &bg_opts).rgb);
             let (annotations, unobserved, coco_panoptic) =
                 self.annotate(base, session, &c.name, &c.camera, &frame);
             views_json.push(annotations);

@@ -28,6 +28,8 @@ struct Key {
     precision: Precision,
     max_per_node: usize,
     prune_eps: f32,
+    /// The packed tables read, by identity (their contents follow from `fields`).
+    tables: Option<usize>,
     rays_per_batch: usize,
     layers: bool,
     near: f64,
@@ -85,7 +87,7 @@ impl DragCache {
 }
 
 /// How a render with `opts` samples (no jitter) and queries its fields.
-fn sampling_and_query(opts: &RenderOptions) -> (SampleOptions, Query) {
+fn sampling_and_query(opts: &RenderOptions) -> (SampleOptions, Query<'_>) {
     let so = SampleOptions {
         jitter: false,
         seed: 0,
@@ -94,6 +96,7 @@ fn sampling_and_query(opts: &RenderOptions) -> (SampleOptions, Query) {
     let q = Query::Render {
         precision: opts.precision,
         highlight: opts.highlight,
+        tables: opts.tables.as_deref(),
     };
     (so, q)
 }
@@ -113,6 +116,10 @@ fn key(
         precision: opts.precision,
         max_per_node: opts.max_per_node,
         prune_eps: opts.prune_eps,
+        tables: opts
+            .tables
+            .as_ref()
+            .map(|t| std::sync::Arc::as_ptr(t) as usize),
         rays_per_batch: opts.rays_per_batch,
         layers: opts.layers,
         near: scene.scene.near,

@@ -20,7 +20,9 @@ mod prune;
 mod render;
 mod sample;
 mod shade;
+mod tables;
 
+pub use assist_field::Precision;
 pub use batch::{BatchOutput, Behind, CompositeGrad, GradFn, RayOutputs, composite_batch};
 pub use composite::{Composite, RaySample, composite, composite_backward};
 pub use drag::{DragCache, render_camera_moving};
@@ -36,3 +38,4 @@ pub use sample::{
     HiddenStop, NodeSamples, RayBatch, SampleOptions, Traced, sample_rays, sample_rays_node,
 };
 pub use shade::{Caster, CasterGrid, casters, casts_shadows, shade_background, shade_backward};
+pub use tables::SceneTables;

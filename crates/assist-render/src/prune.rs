@@ -108,6 +108,7 @@ pub fn query_node_pruned(
     sc.sigma.resize(n, 0.0);
     field.density_features(
         [&ns.pos[0], &ns.pos[1], &ns.pos[2]],
+        crate::tables::for_node(scene, ns.node, &q),
         &mut sc.sigma[..n],
         tape,
     );

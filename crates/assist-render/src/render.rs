@@ -7,6 +7,7 @@ use assist_field::{Precision, Tape};
 
 use crate::batch::{BatchOutput, composite_batch};
 use crate::sample::{NodeSamples, RayBatch, SampleOptions, Traced, sample_rays};
+use crate::tables::SceneTables;
 use assist_scene::NeuralScene;
 
 #[derive(Debug, Clone)]
@@ -18,12 +19,16 @@ pub struct RenderOptions {
     pub rays_per_batch: usize,
     /// Also produce each node's own colour and opacity.
     pub layers: bool,
-    /// Arithmetic of the fields' MLP products (default: the fastest this CPU runs).
+    /// Arithmetic of the field queries (default `Bf16`: the packed `tables` where given,
+    /// bf16 MLP products where the CPU has AVX-512 BF16; `ASSIST_PRECISION=f32` for f32).
     pub precision: Precision,
     /// Samples behind the point where their node's transmittance falls below this are
     /// dropped after a density-only pass (0 = keep all, the default: see [`crate::prune_occluded`]
     /// for when it pays).
     pub prune_eps: f32,
+    /// Packed hash tables of the scene's fields (see [`SceneTables`]), read at
+    /// `Precision::Bf16`; `None`: every field is encoded from its f32 parameters.
+    pub tables: Option<std::sync::Arc<SceneTables>>,
     /// When set (from another thread), a whole-camera render stops after the batch in
     /// hand; the caller that set it discards the partial image.
     pub cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
@@ -46,6 +51,7 @@ impl Default for RenderOptions {
             layers: false,
             precision: Precision::fastest(),
             prune_eps: 0.0,
+            tables: None,
             cancel: None,
         }
     }
@@ -136,11 +142,13 @@ impl RenderedImage {
 
 /// How fields are queried.
 #[derive(Debug, Clone, Copy)]
-pub enum Query {
-    /// For an image: at `precision`, adding `highlight`'s colour to that node's samples.
+pub enum Query<'a> {
+    /// For an image: at `precision`, adding `highlight`'s colour to that node's samples;
+    /// at `Precision::Bf16`, encoding from `tables` where they hold the node's field.
     Render {
         precision: Precision,
         highlight: Option<(InstanceId, [f32; 3])>,
+        tables: Option<&'a SceneTables>,
     },
     /// For a training step: in f32, keeping each node's tape for the backward pass and
     /// leaving room for the gradients.
@@ -185,7 +193,9 @@ pub(crate) fn query_node_with(
         Query::Render {
             precision,
             highlight,
+            ..
         } => {
+            let tables = crate::tables::for_node(scene, ns.node, &q);
             if encoded {
                 nf.field.forward_from_features(
                     precision,
@@ -196,7 +206,7 @@ pub(crate) fn query_node_with(
                 );
             } else {
                 nf.field
-                    .forward_at(precision, &ns.samples(), tape, &mut sigma, &mut rgb);
+                    .forward_at(precision, tables, &ns.samples(), tape, &mut sigma, &mut rgb);
             }
             if let Some((id, add)) = highlight
                 && scene.scene.nodes[ns.node].id == id
@@ -281,6 +291,7 @@ pub fn render_rays_timed(
     let q = Query::Render {
         precision: opts.precision,
         highlight: opts.highlight,
+        tables: opts.tables.as_deref(),
     };
     let t = std::time::Instant::now();
     if opts.prune_eps > 0.0 {

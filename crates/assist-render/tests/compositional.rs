@@ -230,6 +230,7 @@ fn batch_backward_matches_finite_differences() {
     let q = assist_render::Query::Render {
         precision: assist_field::Precision::F32,
         highlight: None,
+        tables: None,
     };
     assist_render::query_fields(&s, &mut traced, &mut tapes, q);
     let bg = s.scene.background_color;

@@ -206,6 +206,7 @@ fn the_pruned_query_reuses_the_density_pass_encoding_exactly() {
     let q = Query::Render {
         precision: Precision::F32,
         highlight: None,
+        tables: None,
     };
     let (mut sc, mut tapes) = (PruneScratch::default(), Vec::new());
     let before = prune_occluded(&s, &mut two_pass, 1e-4, &mut sc);
@@ -252,4 +253,89 @@ fn the_pruned_query_reuses_the_density_pass_encoding_exactly() {
             a.node
         );
     }
+}
+
+/// The packed (bf16) hash tables a render reads at `Precision::Bf16`: a frame within the
+/// rounding of bf16 of the f32 one; pruning on them as without them; and tables of a
+/// field changed since they were packed (a training step's `Arc::make_mut`) never read.
+#[test]
+fn packed_tables_render_close_to_f32_and_are_never_stale() {
+    use assist_field::Precision;
+    use assist_render::SceneTables;
+    use std::sync::Arc;
+    let s = bg_and_object(textured_field(1, 3.0), textured_field(2, 5.0));
+    let camera = Camera {
+        intrinsics: Intrinsics::from_fov_x(32, 24, 1.0),
+        pose: Pose::look_at(
+            DVec3::new(0.0, -0.8, 0.1),
+            DVec3::new(0.2, 0.0, 0.0),
+            DVec3::Z,
+        )
+        .unwrap(),
+    };
+    let tables = Arc::new(SceneTables::of(&s));
+    assert!(tables.covers(&s));
+    assert!(tables.bytes() > 0);
+    let at = |scene: &NeuralScene, precision, tables: Option<&Arc<SceneTables>>, eps| {
+        render_camera(
+            scene,
+            &camera,
+            u32::MAX,
+            &RenderOptions {
+                precision,
+                tables: tables.cloned(),
+                prune_eps: eps,
+                ..Default::default()
+            },
+        )
+    };
+    let diff = |a: &[f32], b: &[f32]| {
+        let worst = a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0f32, f32::max);
+        let mean = a.iter().zip(b).map(|(x, y)| (x - y).abs()).sum::<f32>() / a.len() as f32;
+        (worst, mean)
+    };
+    let exact = at(&s, Precision::F32, Some(&tables), 0.0);
+    let packed = at(&s, Precision::Bf16, Some(&tables), 0.0);
+    let (worst, mean) = diff(&exact.rgb, &packed.rgb);
+    eprintln!("packed tables against f32: largest colour change {worst}, mean {mean}");
+    assert!(worst > 0.0, "the packed tables were not read");
+    assert!(worst < 0.02 && mean < 2e-3, "{worst} {mean}");
+    assert_eq!(exact.panoptic, packed.panoptic);
+    // Without tables given, Bf16 reads the f32 parameters (its products are f32 here
+    // unless the CPU has AVX-512 BF16).
+    if !assist_simd::bf16::available() {
+        assert_eq!(at(&s, Precision::Bf16, None, 0.0).rgb, exact.rgb);
+    }
+    let pruned = at(&s, Precision::Bf16, Some(&tables), 1e-4);
+    let (worst, _) = diff(&packed.rgb, &pruned.rgb);
+    assert!(
+        worst < 2e-4 + 1e-5,
+        "pruning on packed tables changed {worst}"
+    );
+
+    // The object's field changed after packing: its tables are not found (it is read in
+    // f32), the background's still are; a refresh packs the new field alone.
+    let mut changed = s.clone();
+    let obj = Arc::make_mut(changed.fields.get_mut("obj").unwrap());
+    let grid = obj.field.layout.grid.param_count();
+    for p in &mut obj.field.params[..grid] {
+        *p = -*p;
+    }
+    assert!(!tables.covers(&changed));
+    assert!(tables.get(&changed, 1).is_none() && tables.get(&changed, 0).is_some());
+    let stale = at(&changed, Precision::Bf16, Some(&tables), 0.0);
+    let truth = at(&changed, Precision::F32, None, 0.0);
+    let (now, _) = diff(&stale.rgb, &truth.rgb);
+    let (before, _) = diff(&exact.rgb, &truth.rgb);
+    assert!(
+        now < 2e-3 && before > 1e-2,
+        "stale tables read? {now} vs {before}"
+    );
+    let mut fresh = (*tables).clone();
+    assert_eq!(fresh.refresh(&changed), 1);
+    assert!(fresh.covers(&changed));
 }

@@ -428,13 +428,14 @@ fn a_drag_rerenders_the_moving_node_alone_and_bit_for_bit() {
 }
 
 fn drag_bit_for_bit(shadow: bool, lit: bool) {
-    // Without pruning, and with it (each ray pruned by each node's own density).
-    for eps in [0.0, 1e-4] {
-        drag_bit_for_bit_at(shadow, lit, eps);
+    // f32 without pruning; and pruned (each ray by each node's own density) on the packed
+    // tables a session renders with.
+    for (eps, packed) in [(0.0, false), (1e-4, true)] {
+        drag_bit_for_bit_at(shadow, lit, eps, packed);
     }
 }
 
-fn drag_bit_for_bit_at(shadow: bool, lit: bool, prune_eps: f32) {
+fn drag_bit_for_bit_at(shadow: bool, lit: bool, prune_eps: f32, packed: bool) {
     use assist_render::{DragCache, render_camera_moving};
     let mut s = base();
     if shadow {
@@ -461,6 +462,8 @@ fn drag_bit_for_bit_at(shadow: bool, lit: bool, prune_eps: f32) {
     let opts = RenderOptions {
         rays_per_batch: 4096,
         prune_eps,
+        precision: assist_field::Precision::Bf16,
+        tables: packed.then(|| Arc::new(assist_render::SceneTables::of(&s))),
         ..RenderOptions::default()
     };
     let mut cache = DragCache::default();

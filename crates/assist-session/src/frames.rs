@@ -8,8 +8,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use assist_core::{Camera, DVec3, InstanceId};
 use assist_render::{
-    DragCache, HIGHLIGHT, RenderOptions, RenderScratch, render_camera, render_camera_moving,
-    render_rays,
+    DragCache, HIGHLIGHT, RenderOptions, RenderScratch, SceneTables, render_camera,
+    render_camera_moving, render_rays,
 };
 
 use crate::{Frame, Result, Session, SessionError, request};
@@ -37,6 +37,7 @@ pub struct RenderRequest {
 impl Session {
     fn options(&self, req: &RenderRequest) -> RenderOptions {
         RenderOptions {
+            tables: self.packed_tables(),
             cancel: req.cancel.clone(),
             layers: req.layers,
             highlight: if req.highlight {
@@ -46,6 +47,23 @@ impl Session {
             },
             ..RenderOptions::default()
         }
+    }
+
+    /// The packed hash tables of the scene's fields as they are now, packing those new or
+    /// changed since the last render (`None` under `ASSIST_PRECISION=f32`, which reads
+    /// the f32 parameters).
+    pub fn packed_tables(&self) -> Option<Arc<SceneTables>> {
+        if RenderOptions::default().precision != assist_render::Precision::Bf16 {
+            return None;
+        }
+        let scene = &self.editor.scene;
+        let mut held = self.tables.lock().unwrap_or_else(|e| e.into_inner());
+        if !held.covers(scene) {
+            let mut t = (**held).clone();
+            t.refresh(scene);
+            *held = Arc::new(t);
+        }
+        Some(held.clone())
     }
 
     /// `camera` with its intrinsics scaled to `size`.

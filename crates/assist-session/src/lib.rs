@@ -121,6 +121,8 @@ pub enum Steps {
 pub struct Session {
     editor: Editor,
     clip: ClipSlot,
+    /// Packed hash tables of the fields rendered so far (see `frames.rs`), shared by forks.
+    tables: Arc<std::sync::Mutex<Arc<assist_render::SceneTables>>>,
 }
 
 /// The session's CLIP model: where it comes from (`ASSIST_CLIP` by default), loaded on
@@ -196,6 +198,7 @@ impl Session {
         Ok(Session {
             editor: Editor::open(path)?,
             clip: ClipSlot::from_env(),
+            tables: Arc::default(),
         })
     }
 
@@ -204,6 +207,7 @@ impl Session {
         Session {
             editor: Editor::new(scene),
             clip: ClipSlot::from_env(),
+            tables: Arc::default(),
         }
     }
 
@@ -214,6 +218,7 @@ impl Session {
         Session {
             editor: self.editor.fork(),
             clip: self.clip.clone(),
+            tables: self.tables.clone(),
         }
     }
 

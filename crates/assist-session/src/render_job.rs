@@ -128,6 +128,11 @@ impl Session {
         let opts = RenderOptions {
             highlight: highlight.map(|id| (id, HIGHLIGHT)),
             layers: layers || writer.wants(Output::Objects),
+            tables: self.packed_tables(),
+            ..Default::default()
+        };
+        let bg_opts = RenderOptions {
+            tables: opts.tables.clone(),
             ..Default::default()
         };
         for c in cameras {
@@ -139,7 +144,7 @@ impl Session {
             let img = render_camera(scene, &c.camera, u32::MAX, &opts);
             let bg = background
                 .as_ref()
-                .map(|s| render_camera(s, &c.camera, u32::MAX, &RenderOptions::default()));
+                .map(|s| render_camera(s, &c.camera, u32::MAX, &bg_opts));
             let layers = frame_layers(&img);
             let v = view_images(
                 &img,

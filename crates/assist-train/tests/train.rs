@@ -185,6 +185,7 @@ fn haze_in_front_of_surfaces(scene: &assist_scene::NeuralScene, ds: &Dataset) ->
         let q = assist_render::Query::Render {
             precision: assist_field::Precision::F32,
             highlight: None,
+            tables: None,
         };
         assist_render::query_fields(scene, &mut traced, &mut Vec::new(), q);
         let mut out = BatchOutput::default();

@@ -179,13 +179,18 @@ fn bench_one(
             phases.encode_backward += t.encode_backward / a.steps as f64;
         }
     }
-    // Inference as `assist render` runs it (the fastest precision here), and in f32.
+    // Inference as `assist render` runs it (the fastest precision here, the hash tables
+    // packed as bf16 pairs), and in f32 from the parameters.
+    let tables = field.pack_tables();
     let mut infer_at = |precision: Precision| {
+        let packed = (precision == Precision::Bf16)
+            .then_some(tables.as_ref())
+            .flatten();
         let mut times = Vec::new();
         let mut scratch = Tape::default();
         for i in 0..a.steps + 1 {
             let t0 = Instant::now();
-            field.forward_at(precision, &s, &mut scratch, &mut sig, &mut rgb);
+            field.forward_at(precision, packed, &s, &mut scratch, &mut sig, &mut rgb);
             if i >= 1 {
                 times.push(t0.elapsed().as_secs_f64());
             }
@@ -194,6 +199,11 @@ fn bench_one(
     };
     let precision = Precision::fastest();
     let infer = infer_at(precision);
+    let label = match precision {
+        Precision::Bf16 if assist_simd::bf16::available() => "bf16",
+        Precision::Bf16 => "bf16 tables, f32 products",
+        Precision::F32 => "f32",
+    };
     // One occupancy-grid update round as training runs it (every 16 steps), on a grid of
     // the size training gives this field; the first round (allocation) is not timed.
     let mut grid = OccupancyGrid::new(grid_res);
@@ -227,7 +237,7 @@ fn bench_one(
         "infer_samples_per_sec": infer_sps,
         "train_step_seconds": step,
         "infer_seconds": infer,
-        "infer_precision": format!("{precision:?}").to_lowercase(),
+        "infer_precision": label,
         "infer_f32_samples_per_sec": n as f64 / infer_f32,
         "breakdown_seconds": {
             "encode_forward": phases.encode_forward,
@@ -249,7 +259,7 @@ fn bench_one(
             train_sps / 1e6,
             step * 1e3,
             infer_sps / 1e6,
-            format!("{precision:?}").to_lowercase(),
+            label,
             n as f64 / infer_f32 / 1e6,
             phases.encode_forward * 1e3,
             phases.mlp_forward * 1e3,

@@ -7,7 +7,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, bail};
-use assist_render::{RenderOptions, RenderStats, render_camera_timed};
+use assist_render::{Precision, RenderOptions, RenderStats, SceneTables, render_camera_timed};
 use clap::Args;
 use serde_json::json;
 
@@ -40,6 +40,10 @@ pub struct RenderBenchArgs {
     /// mean density; these do not), comma-separated; each a setting without pruning.
     #[arg(long, value_delimiter = ',')]
     pub occupancy: Vec<f32>,
+    /// Hash tables to compare, comma-separated: `bf16` (packed, what `render` reads) or
+    /// `f32` (the parameters as trained); each with every `--prune-eps`.
+    #[arg(long, value_delimiter = ',', default_value = "bf16")]
+    pub tables: Vec<String>,
     /// Renders per view and setting (the median time is reported).
     #[arg(long, default_value_t = 3)]
     pub runs: usize,
@@ -60,13 +64,64 @@ fn psnr(a: &[f32], b: &[f32]) -> f64 {
     assist_train::metrics::mse_to_psnr(se / a.len().max(1) as f64)
 }
 
-pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
+/// Refuses settings that cannot be rendered, naming the flag.
+fn check(a: &RenderBenchArgs) -> anyhow::Result<()> {
     if a.runs == 0 || a.views == 0 || a.prune_eps.is_empty() {
         bail!("--runs, --views and --prune-eps need at least one each");
     }
     if let Some(e) = a.prune_eps.iter().find(|e| !(0.0..1.0).contains(*e)) {
         bail!("--prune-eps: expected values in [0, 1), got {e}");
     }
+    if let Some(t) = a.tables.iter().find(|t| *t != "bf16" && *t != "f32") {
+        bail!("--tables: expected bf16 or f32, got {t:?}");
+    }
+    if a.tables.is_empty() {
+        bail!("--tables: expected bf16, f32 or both");
+    }
+    Ok(())
+}
+
+/// The settings compared, in order: (tables, pruning threshold, occupancy threshold).
+fn settings_of(a: &RenderBenchArgs) -> Vec<(&str, f32, Option<f32>)> {
+    a.tables
+        .iter()
+        .flat_map(|t| a.prune_eps.iter().map(move |&e| (t.as_str(), e, None)))
+        .chain(
+            a.occupancy
+                .iter()
+                .map(|&o| (a.tables[0].as_str(), 0.0, Some(o))),
+        )
+        .collect()
+}
+
+/// The scene's packed tables, their megabytes and the seconds packing took.
+fn pack(scene: &assist_scene::NeuralScene) -> (Option<std::sync::Arc<SceneTables>>, f64, f64) {
+    let t = std::time::Instant::now();
+    let packed = std::sync::Arc::new(SceneTables::of(scene));
+    let mb = packed.bytes() as f64 / 1e6;
+    (Some(packed), mb, t.elapsed().as_secs_f64())
+}
+
+/// `--views` frames of the split, spread evenly over it.
+fn pick_views<'a>(
+    a: &RenderBenchArgs,
+    ds: &'a assist_data::Dataset,
+    split: Option<assist_data::Split>,
+) -> anyhow::Result<Vec<&'a assist_data::Frame>> {
+    let frames: Vec<_> = ds
+        .frames
+        .iter()
+        .filter(|f| split.is_none_or(|s| f.split == s))
+        .collect();
+    if frames.is_empty() {
+        bail!("{}: no frames in split {}", a.data.display(), a.split);
+    }
+    let n = a.views.min(frames.len());
+    Ok((0..n).map(|i| frames[i * frames.len() / n]).collect())
+}
+
+pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
+    check(&a)?;
     let (scene, info) = assist_scene::scene_file::load(&a.scene)
         .with_context(|| format!("reading {}", a.scene.display()))?;
     let split = crate::cmd_eval::parse_split(&a.split)?;
@@ -77,16 +132,8 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
         ..Default::default()
     };
     let ds = assist_data::load(&a.data, &opts)?;
-    let frames: Vec<_> = ds
-        .frames
-        .iter()
-        .filter(|f| split.is_none_or(|s| f.split == s))
-        .collect();
-    if frames.is_empty() {
-        bail!("{}: no frames in split {}", a.data.display(), a.split);
-    }
-    let n = a.views.min(frames.len());
-    let picked: Vec<_> = (0..n).map(|i| frames[i * frames.len() / n]).collect();
+    let picked = pick_views(&a, &ds, split)?;
+    let n = picked.len();
     let say = |m: String| {
         if !a.json {
             eprintln!("{m}");
@@ -95,24 +142,34 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
     let bg = scene.scene.background_color;
     let mut settings = Vec::new();
     let mut first: Vec<Vec<f32>> = Vec::new();
-    let runs: Vec<(f32, Option<f32>)> = a
-        .prune_eps
-        .iter()
-        .map(|&e| (e, None))
-        .chain(a.occupancy.iter().map(|&o| (0.0, Some(o))))
-        .collect();
-    for (si, &(eps, occ)) in runs.iter().enumerate() {
-        let ro = RenderOptions {
+    let runs = settings_of(&a);
+    let (packed, pack_mb, pack_s) = pack(&scene);
+    if a.tables.iter().any(|t| t == "bf16") {
+        say(format!(
+            "packed the hash tables: {pack_mb:.1} MB in {:.0} ms (once per scene loaded)",
+            pack_s * 1e3
+        ));
+    }
+    for (si, &(tables, eps, occ)) in runs.iter().enumerate() {
+        let mut scene = scene.clone();
+        let mut ro = RenderOptions {
             prune_eps: eps,
+            precision: if tables == "bf16" {
+                Precision::Bf16
+            } else {
+                Precision::F32
+            },
+            tables: packed.clone(),
             ..RenderOptions::default()
         };
-        let mut scene = scene.clone();
         if let Some(o) = occ {
             for nf in scene.fields.values_mut() {
                 let nf = std::sync::Arc::make_mut(nf);
                 let thr = nf.occupancy.threshold * o / 0.01;
                 nf.occupancy.refresh_bits_above(thr);
             }
+            // The fields are copies now (the packed tables are found by identity).
+            ro.tables = Some(std::sync::Arc::new(SceneTables::of(&scene)));
         }
         let scene = &scene;
         let (mut times, mut truth_psnr, mut vs_first) = (Vec::new(), Vec::new(), Vec::new());
@@ -155,6 +212,7 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
         });
         let frame_s = median(times.clone());
         let s = json!({
+            "tables": tables,
             "prune_eps": eps,
             "occupancy": occ,
             "frame_s": frame_s,
@@ -170,7 +228,9 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
             "psnr": mean(&truth_psnr),
             "psnr_vs_first": mean(&vs_first),
         });
-        let name = occ.map_or(format!("prune_eps {eps}"), |o| format!("occupancy {o}"));
+        let name = occ.map_or(format!("{tables} tables, prune_eps {eps}"), |o| {
+            format!("{tables} tables, occupancy {o}")
+        });
         say(format!(
             "{name}: {frame_s:.2} s per {w}×{h} frame (median of {n} views); \
              samples per ray {:.1} marched, {:.1} queried; per frame: sample {:.2} s, prune {:.2} s, query {:.2} s, composite {:.2} s{}{}",
@@ -197,6 +257,7 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
                 "runs": a.runs,
                 "threads": rayon::current_num_threads(),
                 "simd": assist_simd::level().name(),
+                "packed_tables": {"megabytes": pack_mb, "seconds": pack_s},
                 "settings": settings,
             }))?
         );

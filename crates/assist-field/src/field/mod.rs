@@ -20,27 +20,31 @@ mod layout;
 
 use crate::sh::sh_encode_rows;
 pub use backward::Tape;
+mod packed;
 mod two_pass;
 pub use layout::ParamLayout;
 use layout::Rows;
+pub use packed::PackedTables;
 
-/// Arithmetic of the MLP products at inference.
+/// Arithmetic of inference.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Precision {
     /// f32 throughout: what training computes.
     F32,
-    /// bf16 weights and activations in the products, f32 sums (AVX-512 BF16 only; f32
-    /// elsewhere). About 3 significant digits per product operand; for rendering.
+    /// Rendering's: the hash tables read as bf16 pairs where the caller packed them (any
+    /// CPU; see [`PackedTables`]), and bf16 weights and activations in the MLP products
+    /// with f32 sums where the CPU has AVX-512 BF16 (f32 products elsewhere). About 3
+    /// significant digits per table entry and product operand.
     Bf16,
 }
 
 impl Precision {
-    /// The fastest precision this machine runs (`ASSIST_PRECISION=f32` forces f32).
+    /// Rendering's precision: `Bf16` unless `ASSIST_PRECISION=f32`.
     pub fn fastest() -> Self {
-        if bf16::available() {
-            Precision::Bf16
-        } else {
+        if std::env::var("ASSIST_PRECISION").is_ok_and(|v| v == "f32") {
             Precision::F32
+        } else {
+            Precision::Bf16
         }
     }
 }
@@ -394,7 +398,7 @@ impl Field {
         sigma: &mut [f32],
         rgb: &mut [f32],
     ) {
-        self.forward_at(Precision::F32, s, scratch, sigma, rgb)
+        self.forward_at(Precision::F32, None, s, scratch, sigma, rgb)
     }
 
     /// The MLP weights packed for the bf16 kernel, in product order: density 0 and 1,
@@ -412,12 +416,14 @@ impl Field {
         v
     }
 
-    /// Inference at a given precision of the MLP products (the encoding, biases and
-    /// activations are f32 either way). `Precision::Bf16` falls back to f32 where the CPU
-    /// lacks AVX-512 BF16.
+    /// Inference at a given precision of the MLP products (biases and activations are f32
+    /// either way). `Precision::Bf16` falls back to f32 where the CPU lacks AVX-512 BF16.
+    /// The encoding reads `tables` (this field's packed copy, see [`PackedTables`]) where
+    /// given, else the f32 parameters.
     pub fn forward_at(
         &self,
         precision: Precision,
+        tables: Option<&PackedTables>,
         s: &Samples,
         scratch: &mut Tape,
         sigma: &mut [f32],
@@ -432,7 +438,7 @@ impl Field {
         }
         scratch.n = 0;
         let enc = &mut scratch.enc[..need];
-        self.encode(s, enc);
+        self.encode(s.pos, tables, enc);
         self.nets(precision, s, &*enc, width, false, sigma, rgb);
     }
 
@@ -514,7 +520,7 @@ impl Field {
         let n = pos[0].len();
         let width = self.config.encoding_rows();
         let block = width * CHUNK;
-        let enc = self.encode_blocked(pos, scratch);
+        let enc = self.encode_blocked(pos, None, scratch);
         let (d1, d2) = (self.layout.density[0], self.layout.density[1]);
         sigma[..n].par_chunks_mut(CHUNK).enumerate().for_each_init(
             || (vec![0.0f32; d1.out * CHUNK], vec![0.0f32; d2.out * CHUNK]),
@@ -530,7 +536,12 @@ impl Field {
 
     /// The encoding of `pos` in `scratch` (grown as needed), chunk-blocked, the lanes
     /// past the end of the last chunk zero so they stay finite.
-    fn encode_blocked<'a>(&self, pos: [&[f32]; 3], scratch: &'a mut Vec<f32>) -> &'a [f32] {
+    fn encode_blocked<'a>(
+        &self,
+        pos: [&[f32]; 3],
+        tables: Option<&PackedTables>,
+        scratch: &'a mut Vec<f32>,
+    ) -> &'a [f32] {
         let n = pos[0].len();
         let width = self.config.encoding_rows();
         let len = Layout { width }.len(n);
@@ -541,17 +552,22 @@ impl Field {
         if !n.is_multiple_of(CHUNK) {
             enc[len - width * CHUNK..].fill(0.0);
         }
-        encode(&self.layout.grid, &self.params, pos, width, enc);
+        self.encode(pos, tables, enc);
         enc
     }
 
-    fn encode(&self, s: &Samples, enc: &mut [f32]) {
-        encode(
-            &self.layout.grid,
-            &self.params,
-            s.pos,
-            self.config.encoding_rows(),
-            enc,
-        );
+    /// The encoding of `pos` into chunk-blocked `enc`: from the f32 parameters, or from
+    /// `tables` (this field's packed copy) where given.
+    fn encode(&self, pos: [&[f32]; 3], tables: Option<&PackedTables>, enc: &mut [f32]) {
+        match tables {
+            Some(t) => self.encode_packed(t, pos, enc),
+            None => encode(
+                &self.layout.grid,
+                &self.params,
+                pos,
+                self.config.encoding_rows(),
+                enc,
+            ),
+        }
     }
 }

@@ -4,7 +4,7 @@
 
 use rayon::prelude::*;
 
-use super::{Field, MAX_RAW_DENSITY, Precision, Samples, Tape};
+use super::{Field, MAX_RAW_DENSITY, PackedTables, Precision, Samples, Tape};
 use crate::hashgrid::{CHUNK, Layout};
 
 impl Field {
@@ -40,8 +40,15 @@ impl Field {
     }
 
     /// [`density_with`](Self::density_with), keeping every sample's density-net output
-    /// (chunk-blocked) in `tape` for [`forward_from_features`](Self::forward_from_features).
-    pub fn density_features(&self, pos: [&[f32]; 3], sigma: &mut [f32], tape: &mut Tape) {
+    /// (chunk-blocked) in `tape` for [`forward_from_features`](Self::forward_from_features);
+    /// encoded from `tables` where given (as [`forward_at`](Self::forward_at)).
+    pub fn density_features(
+        &self,
+        pos: [&[f32]; 3],
+        tables: Option<&PackedTables>,
+        sigma: &mut [f32],
+        tape: &mut Tape,
+    ) {
         let n = pos[0].len();
         let fw = self.density_rows();
         let len = Layout { width: fw }.len(n);
@@ -50,7 +57,7 @@ impl Field {
         }
         tape.n = 0;
         let feats = &mut tape.act[..len];
-        let enc = self.encode_blocked(pos, &mut tape.enc);
+        let enc = self.encode_blocked(pos, tables, &mut tape.enc);
         let width = self.config.encoding_rows();
         let d1 = self.layout.density[0];
         let d2 = self.layout.density[1];

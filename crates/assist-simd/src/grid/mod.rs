@@ -189,7 +189,7 @@ mod x86 {
     /// AVX-512F; 16 floats readable at each of `x`, `y`, `z`.
     #[inline]
     #[target_feature(enable = "avx512f")]
-    unsafe fn corners16(
+    pub(super) unsafe fn corners16(
         lv: &GridLevel,
         x: *const f32,
         y: *const f32,
@@ -339,7 +339,7 @@ mod x86 {
     /// AVX2; 8 floats readable at each of `x`, `y`, `z`.
     #[inline]
     #[target_feature(enable = "avx2,fma")]
-    unsafe fn corners8(
+    pub(super) unsafe fn corners8(
         lv: &GridLevel,
         x: *const f32,
         y: *const f32,
@@ -493,6 +493,8 @@ mod x86 {
         n8
     }
 }
+
+pub mod packed;
 
 #[cfg(test)]
 mod tests;

@@ -1,7 +1,7 @@
 //! Tests of the hash-grid kernels: every dispatched variant against the scalar reference.
 use super::*;
 
-fn levels() -> Vec<GridLevel> {
+pub(super) fn levels() -> Vec<GridLevel> {
     vec![
         GridLevel {
             res: 16,
@@ -31,7 +31,7 @@ fn levels() -> Vec<GridLevel> {
     ]
 }
 
-fn positions(n: usize, seed: u64) -> [Vec<f32>; 3] {
+pub(super) fn positions(n: usize, seed: u64) -> [Vec<f32>; 3] {
     let mut s = seed;
     let mut next = || {
         s = s
