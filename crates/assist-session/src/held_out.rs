@@ -30,15 +30,74 @@ pub struct HeldOut {
     pub ssim: f64,
     /// Seconds the measurement took (counted in the run's time).
     pub seconds: f64,
+    /// The views were rendered and compared at 1/`scale` of the training images' size
+    /// (views over [`HELD_OUT_MAX_PIXELS`] are; 1: at their size). `assist eval`
+    /// measures at full size.
+    pub scale: u32,
     /// The first view, ground truth left and render right (periodic evaluations).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub preview: Option<PathBuf>,
 }
 
+/// Largest view the held-out checks during training render, in pixels: a larger one is
+/// averaged down by the smallest whole factor that brings it under this (a 1080×1920
+/// photograph to 360×640), so checking 4 views of a phone capture costs seconds, not more
+/// than the training (370 s after 300 s of training at full size).
+pub const HELD_OUT_MAX_PIXELS: usize = 250_000;
+
+/// One held-out view as measured: its camera and photograph at the measured size.
+struct Shown {
+    camera: assist_core::Camera,
+    width: usize,
+    height: usize,
+    rgb: Vec<f32>,
+}
+
+/// The smallest whole factor that brings `w × h` pixels under [`HELD_OUT_MAX_PIXELS`].
+fn shrink_factor(w: usize, h: usize) -> usize {
+    let mut k = 1;
+    while (w / k) * (h / k) > HELD_OUT_MAX_PIXELS && w / k > 1 && h / k > 1 {
+        k += 1;
+    }
+    k
+}
+
+impl Shown {
+    /// A `width × height` photograph at 1/`k` of its size: each pixel the mean of a k×k block (a right or bottom
+    /// remainder of fewer than k pixels is left out), the camera's intrinsics to match.
+    fn of(
+        camera: assist_core::Camera,
+        width: usize,
+        height: usize,
+        rgb: Vec<f32>,
+        k: usize,
+    ) -> Shown {
+        if k == 1 {
+            return Shown {
+                camera,
+                width,
+                height,
+                rgb,
+            };
+        }
+        let (w, h) = (width / k, height / k);
+        let rgb = assist_data::downscale::reduce_mean(&rgb, width, height, 3, k);
+        let mut camera = camera;
+        camera.intrinsics = camera.intrinsics.downscaled(k as f64, w as u32, h as u32);
+        Shown {
+            camera,
+            width: w,
+            height: h,
+            rgb,
+        }
+    }
+}
+
 /// The held-out views of a run, loaded once.
 pub(crate) struct HeldOutSet {
     split: Split,
-    views: Vec<(assist_core::Camera, assist_train::View)>,
+    scale: u32,
+    views: Vec<Shown>,
 }
 
 impl HeldOutSet {
@@ -55,12 +114,19 @@ impl HeldOutSet {
             }
             let k = n.min(frames.len());
             let mut views = Vec::with_capacity(k);
+            let mut scale = 1;
             for i in 0..k {
                 let f = frames[i * frames.len() / k];
                 let v = assist_train::load_view(f, u32::MAX, bg)?;
-                views.push((f.camera, v));
+                let s = shrink_factor(v.width, v.height);
+                scale = scale.max(s);
+                views.push(Shown::of(f.camera, v.width, v.height, v.rgb, s));
             }
-            return Ok(Some(HeldOutSet { split, views }));
+            return Ok(Some(HeldOutSet {
+                split,
+                scale: scale as u32,
+                views,
+            }));
         }
         Ok(None)
     }
@@ -79,8 +145,8 @@ impl HeldOutSet {
         let opts = assist_render::RenderOptions::default();
         let (mut p, mut q) = (0.0, 0.0);
         let mut first = None;
-        for (cam, v) in &self.views {
-            let img = assist_render::render_camera(scene, cam, u32::MAX, &opts);
+        for v in &self.views {
+            let img = assist_render::render_camera(scene, &v.camera, u32::MAX, &opts);
             let rgb: Vec<f32> = img.rgb.iter().map(|x| x.clamp(0.0, 1.0)).collect();
             p += psnr(&rgb, &v.rgb, 3, None)
                 .unwrap_or(f64::INFINITY)
@@ -92,7 +158,7 @@ impl HeldOutSet {
         }
         let n = self.views.len().max(1) as f64;
         let mut written = None;
-        if let (Some(path), Some(rgb), Some((_, v))) = (preview, &first, self.views.first()) {
+        if let (Some(path), Some(rgb), Some(v)) = (preview, &first, self.views.first()) {
             let (w, h) = (v.width, v.height);
             let mut side = vec![0u8; 2 * w * h * 3];
             let to8 = |x: f32| (x.clamp(0.0, 1.0) * 255.0 + 0.5) as u8;
@@ -117,7 +183,38 @@ impl HeldOutSet {
             psnr: p / n,
             ssim: q / n,
             seconds: t0.elapsed().as_secs_f64(),
+            scale: self.scale,
             preview: written,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use assist_core::{Camera, DVec3, Intrinsics, Pose};
+
+    #[test]
+    fn large_views_are_measured_smaller_with_their_cameras_to_match() {
+        assert_eq!(shrink_factor(400, 400), 1);
+        assert_eq!(shrink_factor(640, 480), 2);
+        assert_eq!(shrink_factor(1080, 1920), 3);
+        assert_eq!(shrink_factor(4000, 1), 1);
+        let camera = Camera {
+            intrinsics: Intrinsics::from_fov_x(7, 5, 1.0),
+            pose: Pose::look_at(DVec3::new(0.0, -2.0, 0.5), DVec3::ZERO, DVec3::Z).unwrap(),
+        };
+        let (w, h) = (7, 5);
+        let rgb: Vec<f32> = (0..3 * w * h).map(|i| i as f32).collect();
+        let s = Shown::of(camera, w, h, rgb, 2);
+        assert_eq!((s.width, s.height), (3, 2));
+        // Pixel (1, 1): the mean of source pixels x 2–3, y 2–3, channel 0.
+        let src = |x: usize, y: usize| (3 * (y * w + x)) as f32;
+        let want = (src(2, 2) + src(3, 2) + src(2, 3) + src(3, 3)) / 4.0;
+        assert_eq!(s.rgb[3 * (s.width + 1)], want);
+        // Its ray passes through the middle of that block of the full-size camera.
+        let small = s.camera.pixel_ray(1, 1).unwrap();
+        let full = camera.ray(3.0, 3.0).unwrap();
+        assert!(small.dir.distance(full.dir) < 1e-12, "{small:?} {full:?}");
     }
 }

@@ -56,6 +56,7 @@ pub use export::{
     DEFAULT_MATERIAL_DENSITY, DEFAULT_POINTS, ExportJob, ExportSummary, ExportedNode, SimModel,
 };
 pub use frames::{MAX_CAMERA_RADII, RenderRequest};
+pub use held_out::HELD_OUT_MAX_PIXELS;
 pub use jobs::{
     EvalJob, EvalReport, LIGHT_MIN_EXPLAINED, LightEstimate, LightJob, Photograph, dataset_boxes,
     photograph, recorded_dataset, trained_downscale,

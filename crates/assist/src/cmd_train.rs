@@ -179,8 +179,13 @@ fn step_line(s: &assist_session::StepStats) -> serde_json::Value {
 
 /// A held-out measurement in words.
 fn held_out_text(h: &assist_session::HeldOut) -> String {
+    let size = if h.scale > 1 {
+        format!(" at 1/{} size (`assist eval` measures full size)", h.scale)
+    } else {
+        String::new()
+    };
     format!(
-        "held-out PSNR {:.2} dB, SSIM {:.3} ({} {} view(s), {:.1} s)",
+        "held-out PSNR {:.2} dB, SSIM {:.3} ({} {} view(s){size}, {:.1} s)",
         h.psnr, h.ssim, h.views, h.split, h.seconds
     )
 }
