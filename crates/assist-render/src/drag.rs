@@ -28,6 +28,7 @@ struct Key {
     precision: Precision,
     max_per_node: usize,
     prune_eps: f32,
+    step_scale: f32,
     /// The packed tables read, by identity (their contents follow from `fields`).
     tables: Option<usize>,
     rays_per_batch: usize,
@@ -92,6 +93,7 @@ fn sampling_and_query(opts: &RenderOptions) -> (SampleOptions, Query<'_>) {
         jitter: false,
         seed: 0,
         max_per_node: opts.max_per_node,
+        step_scale: opts.step_scale,
     };
     let q = Query::Render {
         precision: opts.precision,
@@ -116,6 +118,7 @@ fn key(
         precision: opts.precision,
         max_per_node: opts.max_per_node,
         prune_eps: opts.prune_eps,
+        step_scale: opts.step_scale,
         tables: opts
             .tables
             .as_ref()

@@ -26,6 +26,9 @@ pub struct RenderOptions {
     /// dropped after a density-only pass (0 = keep all, the default: see [`crate::prune_occluded`]
     /// for when it pays).
     pub prune_eps: f32,
+    /// Marching steps times this (see [`SampleOptions::step_scale`]): 1, the default, as
+    /// trained; 2 is `render --quality draft`.
+    pub step_scale: f32,
     /// Packed hash tables of the scene's fields (see [`SceneTables`]), read at
     /// `Precision::Bf16`; `None`: every field is encoded from its f32 parameters.
     pub tables: Option<std::sync::Arc<SceneTables>>,
@@ -51,6 +54,7 @@ impl Default for RenderOptions {
             layers: false,
             precision: Precision::fastest(),
             prune_eps: 0.0,
+            step_scale: 1.0,
             tables: None,
             cancel: None,
         }
@@ -278,6 +282,7 @@ pub fn render_rays_timed(
         jitter: false,
         seed: 0,
         max_per_node: opts.max_per_node,
+        step_scale: opts.step_scale,
     };
     let count = |t: &Traced| t.nodes.iter().map(|n| n.len()).sum::<usize>();
     let mut st = RenderStats {

@@ -219,6 +219,7 @@ fn batch_backward_matches_finite_differences() {
         jitter: true,
         seed: 1,
         max_per_node: 40,
+        step_scale: 1.0,
     };
     sample_rays(&s, &rays, &so, &mut traced);
     assert!(traced.nodes.iter().all(|n| n.len() > 10));

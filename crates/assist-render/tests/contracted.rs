@@ -52,6 +52,7 @@ fn contracted_samples_are_the_contracted_ray_points() {
             jitter: true,
             seed: 3,
             max_per_node: 4096,
+            step_scale: 1.0,
         },
         &mut traced,
     );
@@ -199,6 +200,7 @@ fn the_pruned_query_reuses_the_density_pass_encoding_exactly() {
         jitter: false,
         seed: 0,
         max_per_node: 1024,
+        step_scale: 1.0,
     };
     let mut traced = Traced::default();
     sample_rays(&s, &rays, &so, &mut traced);

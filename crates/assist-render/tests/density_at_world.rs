@@ -50,6 +50,7 @@ fn density_at_world_times_interval_is_the_rendered_optical_depth() {
             jitter: false,
             seed: 0,
             max_per_node: 4096,
+            step_scale: 1.0,
         };
         sample_rays(&s, &rays, &so, &mut traced);
         let ns = &traced.nodes[0];

@@ -62,7 +62,8 @@ pub use jobs::{
     photograph, recorded_dataset, trained_downscale,
 };
 pub use render_job::{
-    DatasetOutput, Highlight, RenderJob, RenderSummary, ViewDone, frame_layers, view_images,
+    DatasetOutput, Highlight, Quality, RenderJob, RenderSummary, ViewDone, frame_layers,
+    view_images,
 };
 pub use scale::{ScaleFlags, ScaleTarget, Scaled, ScaledObject};
 pub use train_config::{

@@ -22,6 +22,28 @@ pub enum Highlight {
     Node(InstanceId),
 }
 
+/// How finely rays are marched (`render --quality`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Quality {
+    /// The steps the scene was trained with.
+    #[default]
+    Full,
+    /// Steps twice as long: about half the samples per ray, for previews (its PSNR cost
+    /// is in `BENCHMARKS.md` and `render --help`).
+    Draft,
+}
+
+impl Quality {
+    /// The marching-step scale (`RenderOptions::step_scale`).
+    pub fn step_scale(self) -> f32 {
+        match self {
+            Quality::Full => 1.0,
+            Quality::Draft => 2.0,
+        }
+    }
+}
+
 /// Where and what a render writes.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct DatasetOutput {
@@ -32,6 +54,8 @@ pub struct DatasetOutput {
     /// Write into a non-empty `out`.
     #[serde(default)]
     pub force: bool,
+    #[serde(default)]
+    pub quality: Quality,
 }
 
 /// A render of a scene into a dataset folder.
@@ -79,7 +103,7 @@ impl Session {
     ) -> Result<RenderSummary> {
         let cfg = self.writer_config(job.outputs.clone());
         let writer = DatasetWriter::create(&job.out, cfg, job.force).map_err(SessionError::Data)?;
-        self.render_into(&writer, cameras, job.highlight, false, on_view)?;
+        self.render_into(&writer, cameras, job, false, on_view)?;
         let views = writer.finish().map_err(SessionError::Data)?;
         Ok(RenderSummary {
             views,
@@ -94,12 +118,12 @@ impl Session {
         &self,
         writer: &DatasetWriter,
         cameras: &[NamedCamera],
-        highlight: Highlight,
+        job: &DatasetOutput,
         layers: bool,
         mut on_view: impl FnMut(&ViewDone),
     ) -> Result<()> {
         let scene = self.scene();
-        let highlight = match highlight {
+        let highlight = match job.highlight {
             Highlight::Selected => scene.scene.selected,
             Highlight::None => None,
             Highlight::Node(id) => {
@@ -129,10 +153,12 @@ impl Session {
             highlight: highlight.map(|id| (id, HIGHLIGHT)),
             layers: layers || writer.wants(Output::Objects),
             tables: self.packed_tables(),
+            step_scale: job.quality.step_scale(),
             ..Default::default()
         };
         let bg_opts = RenderOptions {
             tables: opts.tables.clone(),
+            step_scale: opts.step_scale,
             ..Default::default()
         };
         for c in cameras {

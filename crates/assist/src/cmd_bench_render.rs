@@ -40,6 +40,10 @@ pub struct RenderBenchArgs {
     /// mean density; these do not), comma-separated; each a setting without pruning.
     #[arg(long, value_delimiter = ',')]
     pub occupancy: Vec<f32>,
+    /// Marching-step scales to compare (`render --quality draft` is 2), comma-separated;
+    /// each a setting with the first `--tables` and no pruning.
+    #[arg(long, value_delimiter = ',')]
+    pub step_scale: Vec<f32>,
     /// Hash tables to compare, comma-separated: `bf16` (packed, what `render` reads) or
     /// `f32` (the parameters as trained); each with every `--prune-eps`.
     #[arg(long, value_delimiter = ',', default_value = "bf16")]
@@ -78,19 +82,40 @@ fn check(a: &RenderBenchArgs) -> anyhow::Result<()> {
     if a.tables.is_empty() {
         bail!("--tables: expected bf16, f32 or both");
     }
+    if let Some(s) = a.step_scale.iter().find(|s| !(0.25..=16.0).contains(*s)) {
+        bail!("--step-scale: expected values from 0.25 to 16, got {s}");
+    }
     Ok(())
 }
 
-/// The settings compared, in order: (tables, pruning threshold, occupancy threshold).
-fn settings_of(a: &RenderBenchArgs) -> Vec<(&str, f32, Option<f32>)> {
+/// One setting compared.
+#[derive(Clone, Copy)]
+struct Setting<'a> {
+    tables: &'a str,
+    eps: f32,
+    occ: Option<f32>,
+    step: f32,
+}
+
+/// The settings compared, in order: tables × pruning, then the occupancy thresholds, then
+/// the step scales.
+fn settings_of(a: &RenderBenchArgs) -> Vec<Setting<'_>> {
+    let first = a.tables[0].as_str();
+    let at = |tables, eps, occ, step| Setting {
+        tables,
+        eps,
+        occ,
+        step,
+    };
     a.tables
         .iter()
-        .flat_map(|t| a.prune_eps.iter().map(move |&e| (t.as_str(), e, None)))
-        .chain(
-            a.occupancy
+        .flat_map(|t| {
+            a.prune_eps
                 .iter()
-                .map(|&o| (a.tables[0].as_str(), 0.0, Some(o))),
-        )
+                .map(move |&e| at(t.as_str(), e, None, 1.0))
+        })
+        .chain(a.occupancy.iter().map(|&o| at(first, 0.0, Some(o), 1.0)))
+        .chain(a.step_scale.iter().map(|&s| at(first, 0.0, None, s)))
         .collect()
 }
 
@@ -150,10 +175,20 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
             pack_s * 1e3
         ));
     }
-    for (si, &(tables, eps, occ)) in runs.iter().enumerate() {
+    for (
+        si,
+        &Setting {
+            tables,
+            eps,
+            occ,
+            step,
+        },
+    ) in runs.iter().enumerate()
+    {
         let mut scene = scene.clone();
         let mut ro = RenderOptions {
             prune_eps: eps,
+            step_scale: step,
             precision: if tables == "bf16" {
                 Precision::Bf16
             } else {
@@ -215,6 +250,7 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
             "tables": tables,
             "prune_eps": eps,
             "occupancy": occ,
+            "step_scale": step,
             "frame_s": frame_s,
             "frame_s_each": times,
             "marched_per_ray": stats.marched as f64 / rays,
@@ -228,9 +264,11 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
             "psnr": mean(&truth_psnr),
             "psnr_vs_first": mean(&vs_first),
         });
-        let name = occ.map_or(format!("{tables} tables, prune_eps {eps}"), |o| {
-            format!("{tables} tables, occupancy {o}")
-        });
+        let name = match occ {
+            Some(o) => format!("{tables} tables, occupancy {o}"),
+            None if step != 1.0 => format!("{tables} tables, step scale {step}"),
+            None => format!("{tables} tables, prune_eps {eps}"),
+        };
         say(format!(
             "{name}: {frame_s:.2} s per {w}×{h} frame (median of {n} views); \
              samples per ray {:.1} marched, {:.1} queried; per frame: sample {:.2} s, prune {:.2} s, query {:.2} s, composite {:.2} s{}{}",

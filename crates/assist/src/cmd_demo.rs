@@ -347,6 +347,7 @@ fn contact_sheet_of(
             outputs: OUTPUTS.to_vec(),
             highlight: Highlight::None,
             force: true,
+            quality: Default::default(),
         };
         s.write_dataset(&picks, &job, |v| {
             let (f, (w, h)) = (v.frame, (v.frame.width, v.frame.height));

@@ -52,6 +52,47 @@ fn render_orbit_writes_every_output_as_a_readable_dataset() {
             assert!(out.join(&f).is_file(), "missing {f}");
         }
     }
+    // `--quality draft`: the same views with steps twice as long, close to the full ones.
+    let draft = tmp.path().join("draft");
+    let (ok, _, err) = assist(&[
+        "render",
+        s(&edited),
+        "--out",
+        s(&draft),
+        "--frames",
+        "3",
+        "--size",
+        "40x30",
+        "--outputs",
+        "rgb",
+        "--quality",
+        "draft",
+    ]);
+    assert!(ok, "{err}");
+    let read = |p: &std::path::Path| assist_data::image_io::read_rgb(p, [0.0; 3]).unwrap().0.data;
+    let (full, fast) = (
+        read(&out.join("images/orbit_001.png")),
+        read(&draft.join("images/orbit_001.png")),
+    );
+    let mean = full
+        .iter()
+        .zip(&fast)
+        .map(|(a, b)| (a - b).abs())
+        .sum::<f32>()
+        / full.len() as f32;
+    assert!(
+        full != fast && mean < 0.05,
+        "draft differs by {mean} on average"
+    );
+    let (ok, _, err) = assist(&[
+        "render",
+        s(&edited),
+        "--out",
+        s(&draft),
+        "--quality",
+        "nope",
+    ]);
+    assert!(!ok && err.contains("draft"), "{err}");
     let legend: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("panoptic_legend.json")).unwrap()).unwrap();
     // The copy is named "yellow rubber duck 2" and is of the duck's class.
