@@ -117,15 +117,7 @@ fn pruning_changes_renders_by_less_than_its_threshold() {
         constant_field(40.0, [0.2, 0.6, 0.3], true, 1),
         constant_field(200.0, [0.9, 0.1, 0.1], true, 2),
     );
-    let camera = Camera {
-        intrinsics: Intrinsics::from_fov_x(32, 24, 1.0),
-        pose: Pose::look_at(
-            DVec3::new(0.0, -0.8, 0.1),
-            DVec3::new(0.2, 0.0, 0.0),
-            DVec3::Z,
-        )
-        .unwrap(),
-    };
+    let camera = oblique(32, 24);
     let full = render_camera(
         &s,
         &camera,
@@ -157,6 +149,19 @@ fn pruning_changes_renders_by_less_than_its_threshold() {
     assert_eq!(full.panoptic, pruned.panoptic);
 }
 
+/// A `w × h` camera looking past the object at the background, from inside the box.
+fn oblique(w: u32, h: u32) -> Camera {
+    Camera {
+        intrinsics: Intrinsics::from_fov_x(w, h, 1.0),
+        pose: Pose::look_at(
+            DVec3::new(0.0, -0.8, 0.1),
+            DVec3::new(0.2, 0.0, 0.0),
+            DVec3::Z,
+        )
+        .unwrap(),
+    }
+}
+
 /// A field whose output depends on where a sample is: random hash-table entries (±1) and
 /// nets, its density raised by `ln_sigma` so rays turn opaque.
 fn textured_field(seed: u64, ln_sigma: f32) -> assist_field::Field {
@@ -180,15 +185,7 @@ fn the_pruned_query_reuses_the_density_pass_encoding_exactly() {
     use assist_field::Precision;
     use assist_render::{PruneScratch, Query, prune_occluded, query_fields, query_pruned};
     let s = bg_and_object(textured_field(1, 3.0), textured_field(2, 5.0));
-    let camera = Camera {
-        intrinsics: Intrinsics::from_fov_x(24, 18, 1.0),
-        pose: Pose::look_at(
-            DVec3::new(0.0, -0.8, 0.1),
-            DVec3::new(0.2, 0.0, 0.0),
-            DVec3::Z,
-        )
-        .unwrap(),
-    };
+    let camera = oblique(24, 18);
     let mut rays = RayBatch::default();
     for j in 0..camera.height() {
         for i in 0..camera.width() {
@@ -266,15 +263,7 @@ fn packed_tables_render_close_to_f32_and_are_never_stale() {
     use assist_render::SceneTables;
     use std::sync::Arc;
     let s = bg_and_object(textured_field(1, 3.0), textured_field(2, 5.0));
-    let camera = Camera {
-        intrinsics: Intrinsics::from_fov_x(32, 24, 1.0),
-        pose: Pose::look_at(
-            DVec3::new(0.0, -0.8, 0.1),
-            DVec3::new(0.2, 0.0, 0.0),
-            DVec3::Z,
-        )
-        .unwrap(),
-    };
+    let camera = oblique(32, 24);
     let tables = Arc::new(SceneTables::of(&s));
     assert!(tables.covers(&s));
     assert!(tables.bytes() > 0);

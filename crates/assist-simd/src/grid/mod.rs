@@ -141,16 +141,8 @@ pub fn interp2(
     out0: &mut [f32],
     out1: &mut [f32],
 ) {
-    let n = check(lv, pos);
-    assert!(
-        table.len() >= lv.size as usize,
-        "grid: table shorter than the level"
-    );
-    assert!(out0.len() >= n && out1.len() >= n);
-    assert!(
-        lv.size <= i32::MAX as u32 / 2,
-        "grid: table too large for 32-bit gathers"
-    );
+    // 8-byte entries: the byte offsets of 32-bit gathers stay below 2^31.
+    let n = check_interp(lv, pos, table.len(), i32::MAX as u32 / 2, out0, out1);
     let done = match level {
         #[cfg(target_arch = "x86_64")]
         Level::Avx512 if level.supported() => {
@@ -165,11 +157,48 @@ pub fn interp2(
         }
         _ => 0,
     };
-    for l in done..n {
+    interp2_scalar(lv, table, pos, done..n, out0, out1, |e| *e);
+}
+
+/// The lengths an F = 2 interpolation needs (positions, table, outputs, entries within
+/// `max_size` for the gathers); returns the number of positions.
+pub(crate) fn check_interp(
+    lv: &GridLevel,
+    pos: [&[f32]; 3],
+    table_len: usize,
+    max_size: u32,
+    out0: &[f32],
+    out1: &[f32],
+) -> usize {
+    let n = check(lv, pos);
+    assert!(
+        table_len >= lv.size as usize,
+        "grid: table shorter than the level"
+    );
+    assert!(out0.len() >= n && out1.len() >= n);
+    assert!(
+        lv.size <= max_size,
+        "grid: table too large for 32-bit gathers"
+    );
+    n
+}
+
+/// The scalar reference of the F = 2 interpolation over positions `lanes`, from entries
+/// widened to f32 pairs by `pair`.
+pub(crate) fn interp2_scalar<T>(
+    lv: &GridLevel,
+    table: &[T],
+    pos: [&[f32]; 3],
+    lanes: std::ops::Range<usize>,
+    out0: &mut [f32],
+    out1: &mut [f32],
+    pair: impl Fn(&T) -> [f32; 2],
+) {
+    for l in lanes {
         let (i, w) = corners_one(lv, pos[0][l], pos[1][l], pos[2][l]);
         let (mut a, mut b) = (0f32, 0f32);
         for k in 0..8 {
-            let e = table[i[k] as usize];
+            let e = pair(&table[i[k] as usize]);
             a += w[k] * e[0];
             b += w[k] * e[1];
         }

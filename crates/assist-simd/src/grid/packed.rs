@@ -6,7 +6,7 @@
 //!
 //! [`interp2`]: super::interp2
 
-use super::{GridLevel, check, corners_one};
+use super::{GridLevel, check_interp, interp2_scalar};
 use crate::Level;
 
 /// f32 → bf16, rounded to nearest even (NaN stays NaN).
@@ -43,16 +43,7 @@ pub fn interp2_bf16(
     out0: &mut [f32],
     out1: &mut [f32],
 ) {
-    let n = check(lv, pos);
-    assert!(
-        table.len() >= lv.size as usize,
-        "grid: table shorter than the level"
-    );
-    assert!(out0.len() >= n && out1.len() >= n);
-    assert!(
-        lv.size <= i32::MAX as u32,
-        "grid: table too large for 32-bit gathers"
-    );
+    let n = check_interp(lv, pos, table.len(), i32::MAX as u32, out0, out1);
     let done = match level {
         #[cfg(target_arch = "x86_64")]
         Level::Avx512 if level.supported() => {
@@ -67,17 +58,7 @@ pub fn interp2_bf16(
         }
         _ => 0,
     };
-    for l in done..n {
-        let (i, w) = corners_one(lv, pos[0][l], pos[1][l], pos[2][l]);
-        let (mut a, mut b) = (0f32, 0f32);
-        for k in 0..8 {
-            let [e0, e1] = unpack(table[i[k] as usize]);
-            a += w[k] * e0;
-            b += w[k] * e1;
-        }
-        out0[l] = a;
-        out1[l] = b;
-    }
+    interp2_scalar(lv, table, pos, done..n, out0, out1, |e| unpack(*e));
 }
 
 #[cfg(target_arch = "x86_64")]
