@@ -97,6 +97,18 @@ struct Setting<'a> {
     step: f32,
 }
 
+impl Setting<'_> {
+    /// The setting in words, as the report names it.
+    fn name(&self) -> String {
+        let t = self.tables;
+        match self.occ {
+            Some(o) => format!("{t} tables, occupancy {o}"),
+            None if self.step != 1.0 => format!("{t} tables, step scale {}", self.step),
+            None => format!("{t} tables, prune_eps {}", self.eps),
+        }
+    }
+}
+
 /// The settings compared, in order: tables × pruning, then the occupancy thresholds, then
 /// the step scales.
 fn settings_of(a: &RenderBenchArgs) -> Vec<Setting<'_>> {
@@ -175,16 +187,8 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
             pack_s * 1e3
         ));
     }
-    for (
-        si,
-        &Setting {
-            tables,
-            eps,
-            occ,
-            step,
-        },
-    ) in runs.iter().enumerate()
-    {
+    for (si, set) in runs.iter().enumerate() {
+        let (tables, eps, occ, step) = (set.tables, set.eps, set.occ, set.step);
         let mut scene = scene.clone();
         let mut ro = RenderOptions {
             prune_eps: eps,
@@ -264,11 +268,7 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
             "psnr": mean(&truth_psnr),
             "psnr_vs_first": mean(&vs_first),
         });
-        let name = match occ {
-            Some(o) => format!("{tables} tables, occupancy {o}"),
-            None if step != 1.0 => format!("{tables} tables, step scale {step}"),
-            None => format!("{tables} tables, prune_eps {eps}"),
-        };
+        let name = set.name();
         say(format!(
             "{name}: {frame_s:.2} s per {w}×{h} frame (median of {n} views); \
              samples per ray {:.1} marched, {:.1} queried; per frame: sample {:.2} s, prune {:.2} s, query {:.2} s, composite {:.2} s{}{}",
