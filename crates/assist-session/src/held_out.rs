@@ -40,9 +40,8 @@ pub struct HeldOut {
 }
 
 /// Largest view the held-out checks during training render, in pixels: a larger one is
-/// averaged down by the smallest whole factor that brings it under this (a 1080×1920
-/// photograph to 360×640), so checking 4 views of a phone capture costs seconds, not more
-/// than the training (370 s after 300 s of training at full size).
+/// averaged down by the smallest whole factor that brings it under this, so checking a
+/// phone capture's views costs a fraction of the training, not more than it.
 pub const HELD_OUT_MAX_PIXELS: usize = 250_000;
 
 /// One held-out view as measured: its camera and photograph at the measured size.

@@ -23,7 +23,7 @@ pub enum Highlight {
 }
 
 /// How finely rays are marched (`render --quality`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Quality {
     /// The steps the scene was trained with.

@@ -71,8 +71,8 @@ pub struct RenderArgs {
     /// How finely rays are marched: `full` (as trained) or `draft` (steps twice as long:
     /// half the samples per ray and about half the time; measured PSNR cost 0.02–0.08 dB
     /// on real captures (beer, fern), 1.0–1.4 dB on object scenes (desk, lego_400)).
-    #[arg(long, value_enum, default_value_t = QualityArg::Full)]
-    pub quality: QualityArg,
+    #[arg(long, value_enum, default_value_t = Quality::Full)]
+    pub quality: Quality,
     /// Print a JSON summary (views, folder, outputs) on stdout.
     #[arg(long)]
     pub json: bool,
@@ -134,19 +134,9 @@ fn job(a: &RenderArgs, select: Option<u16>) -> anyhow::Result<RenderJob> {
             outputs,
             highlight,
             force: a.force,
-            quality: match a.quality {
-                QualityArg::Full => Quality::Full,
-                QualityArg::Draft => Quality::Draft,
-            },
+            quality: a.quality,
         },
     })
-}
-
-/// `--quality`'s values (`assist_session::Quality`).
-#[derive(clap::ValueEnum, Clone, Copy, Debug)]
-pub enum QualityArg {
-    Full,
-    Draft,
 }
 
 pub fn run(a: RenderArgs) -> anyhow::Result<()> {
