@@ -8,7 +8,7 @@ use assist_core::ShadowCast;
 use assist_data::{Frame, LoadOptions, Split};
 use assist_scene::scene_file;
 pub use assist_train::light::MIN_EXPLAINED as LIGHT_MIN_EXPLAINED;
-pub use assist_train::{EvalReport, LightEstimate};
+pub use assist_train::{EvalReport, EvaluatedView, LightEstimate};
 
 use crate::{Result, Session, SessionError};
 
@@ -40,18 +40,28 @@ pub struct EvalJob {
 impl EvalJob {
     /// Loads the scene and the dataset and measures; `progress(done, total)` per image.
     pub fn run(&self, progress: impl FnMut(usize, usize)) -> Result<EvalReport> {
+        self.run_each(progress, |_| {})
+    }
+
+    /// [`run`](Self::run), handing each measured view to `on_view`.
+    pub fn run_each(
+        &self,
+        progress: impl FnMut(usize, usize),
+        on_view: impl FnMut(assist_train::EvaluatedView<'_>),
+    ) -> Result<EvalReport> {
         let (scene, info) = scene_file::load(&self.scene)?;
         let opts = LoadOptions {
             downscale: self.downscale.unwrap_or_else(|| trained_downscale(&info)),
             ..Default::default()
         };
         let ds = assist_data::load(&self.data, &opts).map_err(SessionError::Data)?;
-        Ok(assist_train::evaluate(
+        Ok(assist_train::evaluate_each(
             &scene,
             &ds,
             self.split,
             self.stride.max(1),
             progress,
+            on_view,
         )?)
     }
 }

@@ -58,8 +58,8 @@ pub use export::{
 pub use frames::{MAX_CAMERA_RADII, RenderRequest};
 pub use held_out::HELD_OUT_MAX_PIXELS;
 pub use jobs::{
-    EvalJob, EvalReport, LIGHT_MIN_EXPLAINED, LightEstimate, LightJob, Photograph, dataset_boxes,
-    photograph, recorded_dataset, trained_downscale,
+    EvalJob, EvalReport, EvaluatedView, LIGHT_MIN_EXPLAINED, LightEstimate, LightJob, Photograph,
+    dataset_boxes, photograph, recorded_dataset, trained_downscale,
 };
 pub use render_job::{
     DatasetOutput, Highlight, Quality, RenderJob, RenderSummary, ViewDone, frame_layers,

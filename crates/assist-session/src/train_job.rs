@@ -176,7 +176,12 @@ impl TrainJob {
         let depth = views.iter().all(|v| v.depth.is_some());
         let held_shadows = self.shadows(&mut scene, &mut views, depth, &mut on_event);
         let lambdas = lambdas(c, views.iter().any(|v| v.inpaint.is_some()));
-        if !c.resume && self.start.is_none() && views.iter().all(|v| v.ids.is_none()) {
+        // (Not with `--no-objects`: the masks were set aside on purpose.)
+        if !c.resume
+            && self.start.is_none()
+            && !c.no_objects
+            && views.iter().all(|v| v.ids.is_none())
+        {
             on_event(&TrainEvent::NoMasks {
                 unused: assist_data::masks::unused_mask_folders(&ds),
             });

@@ -32,6 +32,13 @@ pub struct EvalReport {
     /// IoU of each instance id (0 = background) whose mean is `panoptic_miou`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub panoptic_iou: Option<std::collections::BTreeMap<u16, f64>>,
+    /// PSNR of the composited image over the pixels the dataset's masks give to objects,
+    /// and over all others (every measured image's pixels pooled): where a capture's error
+    /// is, on the object or around it, whatever nodes the scene was trained with.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub object_pixels_psnr: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub other_pixels_psnr: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub background_psnr: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -45,6 +52,14 @@ pub struct EvalReport {
     pub seconds: f64,
 }
 
+/// One measured view, as [`evaluate_each`] hands it over: the photograph (interleaved RGB
+/// at the render's size), the render and its score.
+pub struct EvaluatedView<'a> {
+    pub truth: &'a [f32],
+    pub render: &'a assist_render::RenderedImage,
+    pub score: &'a ImageScore,
+}
+
 /// Evaluates `scene` on the frames of `split` (every `stride`-th one; `None` = all frames,
 /// e.g. for a folder of edit renders).
 pub fn evaluate(
@@ -52,7 +67,19 @@ pub fn evaluate(
     ds: &Dataset,
     split: Option<Split>,
     stride: usize,
+    progress: impl FnMut(usize, usize),
+) -> Result<EvalReport> {
+    evaluate_each(scene, ds, split, stride, progress, |_| {})
+}
+
+/// [`evaluate`], handing each view to `on_view` once it is measured (a contact sheet).
+pub fn evaluate_each(
+    scene: &NeuralScene,
+    ds: &Dataset,
+    split: Option<Split>,
+    stride: usize,
     mut progress: impl FnMut(usize, usize),
+    mut on_view: impl FnMut(EvaluatedView<'_>),
 ) -> Result<EvalReport> {
     let t0 = std::time::Instant::now();
     let split_name = split.map_or("all", |s| s.name());
@@ -96,6 +123,8 @@ pub fn evaluate(
     let mut iou = IouAccumulator::default();
     let mut any_ids = false;
     let (mut bg_se, mut bg_n, mut occ_se, mut occ_n) = (0.0, 0usize, 0.0, 0usize);
+    // Squared error and channel count on object pixels [0] and the others [1].
+    let mut split_se = [(0.0, 0usize); 2];
     let mut depth_err: Vec<f32> = Vec::new();
     for (i, f) in frames.iter().enumerate() {
         progress(i, frames.len());
@@ -108,9 +137,21 @@ pub fn evaluate(
             psnr: mse_to_psnr(se / n as f64),
             ssim: ssim(&rgb, &v.rgb, v.width, v.height, 3),
         });
+        on_view(EvaluatedView {
+            truth: &v.rgb,
+            render: &img,
+            score: per_image.last().expect("pushed above"),
+        });
         if let Some(ids) = &v.ids {
             any_ids = true;
             iou.add(&img.panoptic, ids);
+            let on_object: Vec<bool> = ids.iter().map(|&i| i != 0).collect();
+            let others: Vec<bool> = on_object.iter().map(|&o| !o).collect();
+            for (acc, mask) in split_se.iter_mut().zip([&on_object, &others]) {
+                let (se, n) = squared_error(&rgb, &v.rgb, 3, Some(mask));
+                acc.0 += se;
+                acc.1 += n;
+            }
         }
         if let (Some(bt), Some(bs)) = (&bg_truth, &bg_scene)
             && let Some(bf) = bt.frames.iter().find(|b| b.name == f.name)
@@ -145,12 +186,19 @@ pub fn evaluate(
         ssim: per_image.iter().map(|s| s.ssim).sum::<f64>() / m,
         panoptic_miou: if any_ids { iou.mean() } else { None },
         panoptic_iou: any_ids.then(|| iou.per_class()),
-        background_psnr: (bg_n > 0).then(|| mse_to_psnr(bg_se / bg_n as f64)),
-        background_occluded_psnr: (occ_n > 0).then(|| mse_to_psnr(occ_se / occ_n as f64)),
+        object_pixels_psnr: pooled_psnr(split_se[0]),
+        other_pixels_psnr: pooled_psnr(split_se[1]),
+        background_psnr: pooled_psnr((bg_se, bg_n)),
+        background_occluded_psnr: pooled_psnr((occ_se, occ_n)),
         background_depth_error: median(&mut depth_err),
         per_image,
         seconds: t0.elapsed().as_secs_f64(),
     })
+}
+
+/// PSNR of a pooled squared error and channel count; `None` when nothing was counted.
+fn pooled_psnr((se, n): (f64, usize)) -> Option<f64> {
+    (n > 0).then(|| mse_to_psnr(se / n as f64))
 }
 
 /// The median of `v` (reordered); `None` when empty.

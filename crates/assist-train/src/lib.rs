@@ -25,7 +25,8 @@ mod views;
 pub use distil::{DistilOptions, DistilReport, distil};
 pub use error::{Result, TrainError};
 pub use eval::{
-    EvalReport, ImageScore, PriorReport, PriorScore, background_dataset, evaluate, evaluate_priors,
+    EvalReport, EvaluatedView, ImageScore, PriorReport, PriorScore, background_dataset, evaluate,
+    evaluate_each, evaluate_priors,
 };
 pub use freespace::{CarveStats, carve_scene};
 pub use light::{LightEstimate, estimate_light, estimate_light_from};

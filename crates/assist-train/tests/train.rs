@@ -57,6 +57,13 @@ fn synth_scene_trains_to_stated_quality() {
         r.panoptic_miou
     );
     assert!(r.background_psnr.is_some() && r.background_occluded_psnr.is_some());
+    // The masks split the image: PSNR on the objects' pixels and on the rest, both real
+    // figures (the objects are learnt, the rest is most of the image).
+    let (o, b) = (r.object_pixels_psnr.unwrap(), r.other_pixels_psnr.unwrap());
+    assert!(
+        o > 12.0 && b > 12.0 && o.is_finite() && b.is_finite(),
+        "{o} / {b}"
+    );
 }
 
 #[test]

@@ -3,8 +3,10 @@
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
-use anyhow::Context;
+use anyhow::{Context, bail};
 use assist_data::Split;
+use assist_data::image_io::ImageF32;
+use assist_data::visual::{captioned, depth_image};
 use clap::Args;
 
 #[derive(Args, Debug)]
@@ -27,6 +29,13 @@ pub struct EvalArgs {
     /// without it the report goes to stderr as text.
     #[arg(long)]
     pub json: bool,
+    /// Also write a contact sheet PNG here: a row per measured view, the photograph, the
+    /// render (captioned with its PSNR) and its depth. An existing file needs `--force`.
+    #[arg(long, value_name = "PNG")]
+    pub sheet: Option<PathBuf>,
+    /// Replace an existing `--sheet` file.
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// `--split`: a split name, or `all` (`None`).
@@ -49,10 +58,32 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         downscale: a.downscale,
     };
     let bar = crate::progress::bar(!a.json && std::io::stderr().is_terminal(), "eval");
+    if let Some(p) = &a.sheet
+        && p.exists()
+        && !a.force
+    {
+        bail!(
+            "--sheet {}: the file exists (add --force to replace it)",
+            p.display()
+        );
+    }
+    let mut tiles = Vec::new();
     let r = job
-        .run(crate::progress::steps(&bar))
+        .run_each(crate::progress::steps(&bar), |v| {
+            if a.sheet.is_some() {
+                tiles.extend(sheet_row(&v));
+            }
+        })
         .with_context(|| format!("evaluating {} on {}", a.scene.display(), a.data.display()))?;
     bar.finish_and_clear();
+    if let Some(p) = &a.sheet {
+        let sheet = assist_data::visual::contact_sheet(&tiles, 3);
+        assist_data::image_io::write_rgb_png(p, &sheet)
+            .with_context(|| format!("writing --sheet {}", p.display()))?;
+        if !a.json {
+            eprintln!("contact sheet: {}", p.display());
+        }
+    }
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);
     } else {
@@ -70,6 +101,9 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
                 .collect();
             eprintln!("panoptic mIoU {m:.4} (per instance {})", per.join(", "));
         }
+        if let (Some(o), Some(b)) = (r.object_pixels_psnr, r.other_pixels_psnr) {
+            eprintln!("PSNR {o:.2} dB on the masks' object pixels, {b:.2} dB on the others");
+        }
         if let Some(b) = r.background_psnr {
             eprintln!("background PSNR {b:.2} dB (all pixels)");
         }
@@ -84,4 +118,24 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// One row of the contact sheet: photograph, render with its PSNR, depth.
+fn sheet_row(v: &assist_session::EvaluatedView<'_>) -> [ImageF32; 3] {
+    let (w, h) = (v.render.width, v.render.height);
+    let rgb = |data: &[f32]| ImageF32 {
+        width: w,
+        height: h,
+        channels: 3,
+        data: data.iter().map(|x| x.clamp(0.0, 1.0)).collect(),
+    };
+    [
+        captioned(&rgb(v.truth), &format!("truth {}", v.score.name), 1),
+        captioned(
+            &rgb(&v.render.rgb),
+            &format!("render {:.2} dB", v.score.psnr),
+            1,
+        ),
+        captioned(&depth_image(w, h, &v.render.depth), "depth", 1),
+    ]
 }

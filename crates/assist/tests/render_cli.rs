@@ -250,3 +250,42 @@ fn select_takes_a_name_as_edit_does() {
     common::refused(&render("duck", "nothing"), &["--select", "duck", "ball"]);
     common::refused(&render("99", "no-id"), &["--select", "99"]);
 }
+
+/// `assist eval --sheet`: a row per measured view (photograph, render, depth), the
+/// masks' split of the error in the report, and an existing sheet kept without `--force`.
+#[test]
+fn eval_writes_a_contact_sheet_and_the_masks_split() {
+    let tmp = assist_testkit::TempDir::new("eval-sheet");
+    let (data, sc) = common::tiny_scene(tmp.path());
+    let sheet = tmp.join("sheet.png");
+    let eval = |extra: &[&str]| {
+        let mut args = vec![
+            "eval",
+            s(&sc),
+            "--data",
+            s(&data),
+            "--split",
+            "all",
+            "--json",
+            "--sheet",
+            s(&sheet),
+        ];
+        args.extend_from_slice(extra);
+        common::run(&args)
+    };
+    let r: serde_json::Value = serde_json::from_str(&common::ok_stdout(&eval(&[]))).unwrap();
+    let views = r["per_image"].as_array().unwrap().len();
+    assert_eq!(views, 8);
+    for k in ["object_pixels_psnr", "other_pixels_psnr"] {
+        assert!(r[k].as_f64().is_some_and(f64::is_finite), "{k}: {r}");
+    }
+    let img = image::open(&sheet).unwrap();
+    // Three tiles of 32 pixels and their 2-pixel gaps a row; a row per view.
+    assert_eq!(img.width(), 3 * (32 + 2));
+    assert_eq!(img.height() % 8, 0);
+    assert!(img.height() / 8 > 24);
+    let before = std::fs::read(&sheet).unwrap();
+    common::refused(&eval(&[]), &["--sheet", "sheet.png", "--force"]);
+    assert_eq!(std::fs::read(&sheet).unwrap(), before);
+    common::ok_stdout(&eval(&["--force"]));
+}
