@@ -7,7 +7,7 @@
 use rayon::prelude::*;
 
 use crate::composite::Composite;
-use crate::sample::{HiddenStop, NodeSamples, Traced};
+use crate::sample::{HiddenStop, NodeSamples, Traced, distortion_distance};
 
 /// Outputs of one batch. Per-node arrays are ray-major: `nodes[r * n_nodes + k]`.
 #[derive(Debug, Clone, Default)]
@@ -143,6 +143,7 @@ pub fn composite_batch(
     let nn = traced.nodes.len();
     let beyond = &traced.beyond;
     let front = &traced.front;
+    let unit = traced.distortion_unit;
     let hidden = traced
         .hidden_stop
         .filter(|h| h.background < nn && grad.is_some());
@@ -244,6 +245,7 @@ pub fn composite_batch(
                         (
                             beyond.get(r).copied().unwrap_or(f32::INFINITY),
                             front.get(r).copied().unwrap_or(f32::NEG_INFINITY),
+                            unit,
                         ),
                         &mut views,
                         background,
@@ -285,7 +287,7 @@ struct RayScratch {
 fn composite_ray(
     r: usize,
     i: usize,
-    (beyond, front): (f32, f32),
+    (beyond, front, unit): (f32, f32, f32),
     views: &mut [NodeView],
     behind: Behind,
     hidden: Option<HiddenStop>,
@@ -317,10 +319,12 @@ fn composite_ray(
         acc.rgb[c] += (1.0 - acc.opacity) * background[c];
     }
     *out = acc;
-    // Distortion Σ_{i,j} w_i w_j |t_i − t_j| = 2 Σ_i w_i (t_i W_{<i} − S_{<i}) over the
-    // depth-sorted samples (W, S: prefix sums of w and w·t).
+    // Distortion Σ_{i,j} w_i w_j |s_i − s_j| = 2 Σ_i w_i (s_i W_{<i} − S_{<i}) over the
+    // depth-sorted samples (s: `distortion_distance`, monotone in t; W, S: prefix sums of
+    // w and w·s).
     let (mut w_before, mut s_before, mut dist) = (0.0f32, 0.0f32, 0.0f32);
     for (q, &(t, _, _)) in sc.merged.iter().enumerate() {
+        let t = distortion_distance(t, unit);
         let w = sc.w[q];
         dist += 2.0 * w * (t * w_before - s_before);
         w_before += w;
@@ -358,7 +362,7 @@ fn composite_ray(
         }
     }
     let totals = (acc, w_before, s_before);
-    backward_merged(views, &g, background, totals, sc);
+    backward_merged(views, &g, background, totals, unit, sc);
     // Backward through each node alone (no background colour).
     for (k, v) in views.iter_mut().enumerate() {
         let ng = CompositeGrad {
@@ -469,31 +473,35 @@ fn node_alone(v: &NodeView, range: std::ops::Range<usize>, beyond: f32, front: f
 /// Backward through the merged composite:
 /// dL/dσ_i = δ_i (T_{i+1} g_i − Σ_{j>i} w_j g_j), g_i = dL/dw_i (which includes the
 /// gradient of the share of the sample's node and of the distortion). `totals`: the
-/// composite before the backdrop's colour, Σ w and Σ w·t.
+/// composite before the backdrop's colour, Σ w and Σ w·s (s: the distortion's distance
+/// in `unit`).
 #[inline(always)]
 fn backward_merged(
     views: &mut [NodeView],
     g: &CompositeGrad,
     background: [f32; 3],
     (acc, mut w_before, mut s_before): (Composite, f32, f32),
+    unit: f32,
     sc: &RayScratch,
 ) {
+    let s_total = s_before;
     let g_bg = g.opacity
         - (g.rgb[0] * background[0] + g.rgb[1] * background[1] + g.rgb[2] * background[2]);
-    // d dist / d w_i = 2 Σ_j w_j |t_i − t_j| = 2 (t_i W_{<i} − S_{<i} + S_{>i} − t_i W_{>i}),
-    // with the prefix sums run backwards from the totals (W = O, S = D).
+    // d dist / d w_i = 2 Σ_j w_j |s_i − s_j| = 2 (s_i W_{<i} − S_{<i} + S_{>i} − s_i W_{>i}),
+    // with the prefix sums run backwards from the totals (W = O).
     let mut suffix = 0.0f32;
     for q in (0..sc.merged.len()).rev() {
         let (t, k, j) = sc.merged[q];
         let v = &mut views[k as usize];
         let j = j as usize;
         let wq = sc.w[q];
+        let s = distortion_distance(t, unit);
         w_before -= wq;
-        s_before -= wq * t;
+        s_before -= wq * s;
         let g_dist = if g.distortion != 0.0 {
             let w_after = (acc.opacity - w_before - wq).max(0.0);
-            let s_after = (acc.depth - s_before - wq * t).max(0.0);
-            2.0 * g.distortion * (t * w_before - s_before + s_after - t * w_after)
+            let s_after = (s_total - s_before - wq * s).max(0.0);
+            2.0 * g.distortion * (s * w_before - s_before + s_after - s * w_after)
         } else {
             0.0
         };
@@ -598,6 +606,7 @@ mod tests {
             beyond: Vec::new(),
             front: Vec::new(),
             hidden_stop: stop,
+            distortion_unit: 0.0,
         };
         let grad = |_: &RayOutputs, g: &mut CompositeGrad, gn: &mut [CompositeGrad]| {
             if merged {

@@ -35,7 +35,8 @@ pub use render::{
     query_fields, query_node, render_camera, render_camera_timed, render_rays, render_rays_timed,
 };
 pub use sample::{
-    HiddenStop, NodeSamples, RayBatch, SampleOptions, Traced, sample_rays, sample_rays_node,
+    HiddenStop, NodeSamples, RayBatch, SampleOptions, Traced, distortion_distance, sample_rays,
+    sample_rays_node,
 };
 pub use shade::{Caster, CasterGrid, casters, casts_shadows, shade_background, shade_backward};
 pub use tables::SceneTables;

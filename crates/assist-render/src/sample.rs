@@ -197,6 +197,24 @@ pub struct Traced {
     /// Training: the background's samples an object hides get no gradient from the
     /// composited image (see [`HiddenStop`]). `None`: every sample gets its full gradient.
     pub hidden_stop: Option<HiddenStop>,
+    /// The distortion measures distances along a ray with [`distortion_distance`] in this
+    /// unit (training: the scene's extent); 0 = the world distance itself.
+    pub distortion_unit: f32,
+}
+
+/// The distance along a ray at which the distortion loss measures the gap between two
+/// samples: `t / unit` up to `unit`, then `2 − unit / t` (mip-NeRF 360's normalised
+/// distance: bounded, so a contracted background's far samples, at up to a thousand
+/// extents, weigh no more than its near ones); `t` itself when `unit` is 0.
+#[inline(always)]
+pub fn distortion_distance(t: f32, unit: f32) -> f32 {
+    if unit <= 0.0 {
+        t
+    } else if t <= unit {
+        t / unit
+    } else {
+        2.0 - unit / t
+    }
 }
 
 /// What objects hide of the background learns from the background's own prior, not from

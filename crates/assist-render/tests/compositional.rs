@@ -7,7 +7,7 @@ use common::{constant_field, node, scene};
 use assist_core::{Camera, DQuat, DVec3, Intrinsics, Pose, Ray, Rng, Similarity3};
 use assist_render::{
     BatchOutput, Behind, CompositeGrad, RayBatch, RayOutputs, RenderOptions, SampleOptions, Traced,
-    composite_batch, render_camera, render_rays, sample_rays,
+    composite_batch, distortion_distance, render_camera, render_rays, sample_rays,
 };
 use assist_scene::NeuralScene;
 
@@ -236,11 +236,13 @@ fn batch_backward_matches_finite_differences() {
     assist_render::query_fields(&s, &mut traced, &mut tapes, q);
     let bg = s.scene.background_color;
     const DIST: f32 = 20.0;
-    // The distortion against its definition, Σ_{i,j} w_i w_j |t_i − t_j| over the merged
-    // samples.
-    {
+    // The distortion against its definition, Σ_{i,j} w_i w_j |s_i − s_j| over the merged
+    // samples, in world distance (unit 0) and in the normalised distance with its unit
+    // inside the boxes (samples on both sides of it).
+    for unit in [0.0, 2.9] {
         let mut out = BatchOutput::default();
         let mut t2 = traced.clone();
+        t2.distortion_unit = unit;
         composite_batch(&mut t2, Behind::Color(bg), &mut out, None);
         let mut beyond_seen = Vec::new();
         let mut front_seen = Vec::new();
@@ -262,7 +264,8 @@ fn batch_backward_matches_finite_differences() {
             let mut d = 0.0f64;
             for i in 0..w.len() {
                 for j in 0..w.len() {
-                    d += (w[i] * w[j] * (merged[i].t - merged[j].t).abs()) as f64;
+                    let s = |q: usize| distortion_distance(merged[q].t, unit);
+                    d += (w[i] * w[j] * (s(i) - s(j)).abs()) as f64;
                 }
             }
             assert!(
@@ -317,6 +320,9 @@ fn batch_backward_matches_finite_differences() {
             "no ray has part of a node's weight on each side of its depth: {beyond_seen:?}"
         );
     }
+    // The gradients below with the normalised distance (world distance is unit 0: the
+    // same code with s = t).
+    traced.distortion_unit = 2.9;
     let coef: Vec<f32> = (0..6 * 32).map(|_| rng.f32() - 0.5).collect();
     let loss = |out: &BatchOutput| -> f64 {
         let mut l = 0.0f64;

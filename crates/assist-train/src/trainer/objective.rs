@@ -59,10 +59,11 @@ impl Objective<'_> {
         let mut terms = RayTerms::default();
         let (v, d) = losses::rgb(c.rgb, t.rgb);
         terms.comp_rgb = v;
-        terms.distortion = o.distortion / self.extent;
+        // Already in scene extents (`Traced::distortion_unit`).
+        terms.distortion = o.distortion;
         if let Some((g, _)) = grads.as_mut() {
             g.rgb = d.map(|v| lam.comp_rgb * v / n);
-            g.distortion = lam.distortion / self.extent / n;
+            g.distortion = lam.distortion / n;
         }
         if t.surface.is_some() && lam.empty > 0.0 {
             // Every node's opacity in front of the surface the depth map sees.

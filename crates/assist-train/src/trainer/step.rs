@@ -104,6 +104,9 @@ impl Trainer {
             assist_render::PruneStats::default()
         };
         self.set_beyond();
+        // Distortion in scene extents, bounded beyond one (a contracted background's far
+        // samples lie up to a thousand extents away).
+        self.traced.distortion_unit = self.extent;
         self.traced.hidden_stop = match self.background {
             Some(b) if self.opts.hidden_stop > 0.0 && self.traced.nodes.len() > 1 => {
                 Some(assist_render::HiddenStop {
