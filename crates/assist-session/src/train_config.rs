@@ -237,6 +237,12 @@ pub struct TrainConfig {
     #[arg(long, help_heading = SAMPLING, value_name = "N",
           default_value_t = TrainOptions::default().batch_samples)]
     pub batch_samples: usize,
+    /// Every node's marching steps times this while training (1: as rendered; 2: about
+    /// half the samples per ray, so each step holds about twice the rays). Renders keep
+    /// their own steps (`render --quality`).
+    #[arg(long, help_heading = SAMPLING, value_name = "X",
+          default_value_t = TrainOptions::default().step_scale)]
+    pub step_scale: f32,
     /// Share of each batch's rays drawn from pixels on or next to objects (the rest are
     /// drawn uniformly over all pixels), so that small objects get enough rays.
     #[arg(long, help_heading = SAMPLING, value_name = "SHARE",
@@ -390,6 +396,15 @@ impl TrainConfig {
             return Err(request(
                 "object_rays",
                 format!("expected a fraction between 0 and 1, got {}", c.object_rays),
+            ));
+        }
+        if !(0.25..=8.0).contains(&c.step_scale) {
+            return Err(request(
+                "step_scale",
+                format!(
+                    "expected a step factor between 0.25 and 8 (1 = as rendered), got {}",
+                    c.step_scale
+                ),
             ));
         }
         if !(0.0..=1.0).contains(&c.hidden_stop) {

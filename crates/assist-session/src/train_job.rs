@@ -370,6 +370,7 @@ impl TrainJob {
             depth_affine,
             refine_poses: c.refine_poses,
             hidden_stop: c.hidden_stop,
+            step_scale: c.step_scale,
             lambdas,
             seed: c.seed,
             checkpoint: Some(c.out.clone()),

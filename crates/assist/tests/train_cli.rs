@@ -219,6 +219,14 @@ fn boxes_are_listed_carved_overridden_and_checked() {
             assert!(!out2.exists());
         }
     }
+    for bad in ["0", "9", "NaN"] {
+        let arg = format!("--step-scale={bad}");
+        fails_with(
+            &assist(&["train", s(&data), "--out", s(&out2), "--iters", "1", &arg]),
+            &["--step-scale", "between 0.25 and 8", bad],
+        );
+        assert!(!out2.exists());
+    }
     // `--no-objects` trains the capture as nobody labelled it: the background alone
     // (masks and boxes ignored); with `--boxes` it is a contradiction, refused.
     let unlabelled = tmp.join("unlabelled.assist");

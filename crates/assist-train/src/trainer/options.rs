@@ -47,6 +47,9 @@ pub struct TrainOptions {
     /// interior they favoured no table at all. Off by default: it costs the unedited views
     /// more than it gives a moved object (BENCHMARKS.md).
     pub hidden_stop: f32,
+    /// Every node's marching steps times this while training (`SampleOptions::step_scale`;
+    /// 1 = as rendered).
+    pub step_scale: f32,
     /// The dataset's `--downscale` (recorded in the scene for evaluation; 1 = none).
     pub downscale: u32,
     /// Learn a scale and shift of the background depth prior (`depth_wq`). For priors
@@ -90,6 +93,7 @@ impl Default for TrainOptions {
             refine_poses: false,
             prune_eps: 0.0,
             hidden_stop: 0.0,
+            step_scale: 1.0,
             poison_at: None,
             cancel: None,
             provenance: serde_json::Map::new(),

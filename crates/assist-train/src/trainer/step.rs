@@ -89,7 +89,7 @@ impl Trainer {
             jitter: true,
             seed: self.opts.seed.wrapping_add(self.iteration as u64 * 7919),
             max_per_node: 1024,
-            step_scale: 1.0,
+            step_scale: self.opts.step_scale,
         };
         sample_rays(&self.scene, &self.rays, &so, &mut self.traced);
         let candidates = self.traced.total_samples();
