@@ -91,9 +91,20 @@ fn split_glued(w: &str) -> Option<(f64, &str)> {
     Some((n, unit))
 }
 
+/// Whether a whitespace-separated token starts a number (`0.2`, `-0.2`, `+.5`, `80cm`).
+fn starts_number(raw: &str) -> bool {
+    let t = raw.trim_start_matches(['-', '+']);
+    let t = t.strip_prefix('.').unwrap_or(t);
+    t.starts_with(|c: char| c.is_ascii_digit())
+}
+
 pub fn tokenize(text: &str) -> Vec<Tok> {
     let mut out = Vec::new();
-    for raw in text.split_whitespace() {
+    let raws: Vec<&str> = text.split_whitespace().collect();
+    for (r, raw) in raws.iter().copied().enumerate() {
+        // A number's trailing comma before another number separates coordinates
+        // ("at 0.1, -0.2, 0.8"), not clauses.
+        let list_comma = raws.get(r + 1).is_some_and(|n| starts_number(n));
         if is_path(raw) {
             let core = path_core(raw);
             out.push(Tok::Path(core.to_string()));
@@ -133,6 +144,9 @@ pub fn tokenize(text: &str) -> Vec<Tok> {
             let prev_digit = i > 0 && chars[i - 1].is_ascii_digit();
             match c {
                 ',' if prev_digit && next_digit => piece.push('.'),
+                ',' if prev_digit && i + 1 == chars.len() && list_comma => {
+                    pieces.push(Some(std::mem::take(&mut piece)));
+                }
                 '.' if next_digit && (prev_digit || piece.is_empty() || piece == "-") => {
                     piece.push('.')
                 }

@@ -289,6 +289,11 @@ const TABLE: &[(&str, &str)] = &[
         "insert the mic from ../other.assist at 0.1 0.2 0.8",
         r#"11 add {"scene":"../other.assist","node":1,"position":[0.1,0.2,0.8],"unit":"m"}"#,
     ),
+    // Coordinates written with commas, signs and a unit: one position, not three clauses.
+    (
+        "add the mic from ../other.assist at 0.1, -0.2, 80 cm",
+        r#"11 add {"scene":"../other.assist","node":1,"position":[0.1,-0.2,80.0],"unit":"cm"}"#,
+    ),
     (
         "bring in the microphone from ../other.assist",
         r#"11 add {"scene":"../other.assist","node":1}"#,
