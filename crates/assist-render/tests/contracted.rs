@@ -301,11 +301,19 @@ fn packed_tables_render_close_to_f32_and_are_never_stale() {
     if !assist_simd::bf16::available() {
         assert_eq!(at(&s, Precision::Bf16, None, 0.0).rgb, exact.rgb);
     }
+    // Pruning's density pass runs the density net in f32: on a CPU with AVX-512 BF16 the
+    // unpruned render's products are bf16, so the two differ by up to their rounding too
+    // (bounded by the f32-against-bf16 change above).
+    let rounding = if assist_simd::bf16::available() {
+        worst
+    } else {
+        0.0
+    };
     let pruned = at(&s, Precision::Bf16, Some(&tables), 1e-4);
     let (worst, _) = diff(&packed.rgb, &pruned.rgb);
     assert!(
-        worst < 2e-4 + 1e-5,
-        "pruning on packed tables changed {worst}"
+        worst < 2e-4 + 1e-5 + rounding,
+        "pruning on packed tables changed {worst} (products' rounding {rounding})"
     );
 
     // The object's field changed after packing: its tables are not found (it is read in

@@ -346,6 +346,17 @@ fn known_distance(
     if smooth.len() >= 10 {
         seen = smooth;
     }
+    // Only points in densely textured parts of the frame (eight others within 40 px): the
+    // farthest pair of all once fell where the rerun's model had no point within 79 px
+    // (CI, session 37), as a click on a bare spot would.
+    let dense: Vec<(assist_core::DVec2, DVec3)> = seen
+        .iter()
+        .filter(|(px, _)| seen.iter().filter(|(q, _)| q.distance(*px) < 40.0).count() > 8)
+        .copied()
+        .collect();
+    if dense.len() >= 10 {
+        seen = dense;
+    }
     let mut best = (0.0, 0, 0);
     for i in 0..seen.len() {
         for j in i + 1..seen.len() {

@@ -11,7 +11,8 @@ impl Field {
     /// Inference in two passes, for rendering's pruning: [`density_features`] gives every
     /// sample's density and keeps the density net's outputs in `tape`; the caller drops
     /// samples ([`keep_features`]); this runs the colour net on the rest. A sample's
-    /// outputs are [`forward_at`]'s (the density net in f32 whatever `precision`).
+    /// outputs are [`forward_at`]'s, except that the density net runs in f32 whatever
+    /// `precision` (where the CPU has AVX-512 BF16, `forward_at`'s are bf16 products).
     ///
     /// [`density_features`]: Self::density_features
     /// [`keep_features`]: Self::keep_features
