@@ -186,7 +186,7 @@ fn a_video_and_photographs_become_posed_datasets() {
     );
 
     // The frames as photographs, with one known distance: two COLMAP points seen in
-    // the first frame, their distance in metres taken from the first model (its scale to
+    // one frame, their distance in metres taken from the first model (its scale to
     // the capture's metres fitted on the cameras). The new dataset is in metres: the best
     // similarity onto the capture's cameras has scale 1.
     let (arg, metres) = known_distance(&out, &order, &given);
@@ -276,8 +276,9 @@ fn a_video_and_photographs_become_posed_datasets() {
     assert!(!bad.exists());
 }
 
-/// Two pixels of the first frame showing COLMAP points far apart, as `--scale-by`'s
-/// "FRAME:x,y FRAME:x,y", and their distance in the capture's metres.
+/// Two pixels of one frame (the one seeing the most points) showing COLMAP points far
+/// apart, as `--scale-by`'s "FRAME:x,y FRAME:x,y", and their distance in the capture's
+/// metres.
 fn known_distance(
     out: &Path,
     order: &[PathBuf],
@@ -298,11 +299,12 @@ fn known_distance(
     let scale = assist_session::process::compare::fit_similarity(&from, &to)
         .unwrap()
         .scale;
-    let first = model
+    // The frame seeing the most triangulated points (the rerun registers it best).
+    let frame = model
         .images
         .iter()
-        .find(|i| i.name == "frame_00001.jpg")
-        .expect("the first frame registered");
+        .max_by_key(|i| i.points2d.iter().filter(|(_, id)| *id >= 0).count())
+        .expect("a frame registered");
     // Points seen in many frames: a rerun of the (multi-threaded, so not repeatable)
     // mapper triangulates them again, so `--scale-by` finds them.
     let mut track: std::collections::HashMap<i64, usize> = Default::default();
@@ -312,7 +314,7 @@ fn known_distance(
         }
     }
     let observed = |min: usize| -> Vec<(assist_core::DVec2, DVec3)> {
-        first
+        frame
             .points2d
             .iter()
             .filter(|(_, id)| *id >= 0 && track[id] >= min)
@@ -329,9 +331,9 @@ fn known_distance(
     // another physical point in the second reconstruction, which set the scale wrong
     // (0.56 once in CI).
     let depth = |x: DVec3| {
-        let [w, qx, qy, qz] = first.qvec;
+        let [w, qx, qy, qz] = frame.qvec;
         let r = assist_core::DMat3::from_quat(assist_core::DQuat::from_xyzw(qx, qy, qz, w));
-        (r * x + DVec3::from_array(first.tvec)).z
+        (r * x + DVec3::from_array(frame.tvec)).z
     };
     let smooth: Vec<(assist_core::DVec2, DVec3)> = seen
         .iter()
@@ -369,8 +371,8 @@ fn known_distance(
     let (a, b) = (seen[best.1].0, seen[best.2].0);
     (
         format!(
-            "frame_00001.jpg:{:.2},{:.2} frame_00001.jpg:{:.2},{:.2}",
-            a.x, a.y, b.x, b.y
+            "{0}:{1:.2},{2:.2} {0}:{3:.2},{4:.2}",
+            frame.name, a.x, a.y, b.x, b.y
         ),
         best.0 * scale,
     )
