@@ -162,6 +162,8 @@ pub struct Dataset {
     pub root: PathBuf,
     pub frames: Vec<Frame>,
     pub instances: Vec<InstanceInfo>,
+    /// The world's up (against gravity): as the dataset states it, or, for formats that
+    /// state none (LLFF, COLMAP), the cameras' mean up ([`cameras_mean_up`]).
     pub world_up: Option<DVec3>,
     /// Metres per world unit, when the dataset says (or implies) its scale.
     pub meters_per_unit: Option<f64>,
@@ -235,6 +237,18 @@ impl Dataset {
 }
 
 /// The file stem of `p` (the name outputs rendered for a frame are given).
+/// The cameras' mean up (each image's upward direction in the world, averaged and made
+/// unit): gravity's opposite for a capture taken the way people hold phones and cameras,
+/// upright, whether facing forward or walking around an object. LLFF and COLMAP frames are
+/// COLMAP's, whose axes are arbitrary (often +Y down), so +Z is no guess at all. `None`
+/// when the cameras disagree so much that their mean is shorter than half (views turned
+/// every which way).
+pub fn cameras_mean_up(frames: &[Frame]) -> Option<DVec3> {
+    let sum: DVec3 = frames.iter().map(|f| f.camera.pose.rotation().y_axis).sum();
+    let mean = sum / frames.len().max(1) as f64;
+    (mean.length() >= 0.5).then(|| mean.normalize())
+}
+
 pub fn file_stem(p: &Path) -> String {
     p.file_stem()
         .map(|s| s.to_string_lossy().into_owned())
@@ -344,4 +358,40 @@ pub fn checked_rotation(m: DMat3, file: &Path, field: &str) -> Result<DMat3> {
         ));
     }
     Ok(m)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use assist_core::{DQuat, Intrinsics, Pose};
+
+    fn frame(eye: DVec3, target: DVec3, up: DVec3) -> Frame {
+        let camera = Camera {
+            intrinsics: Intrinsics::from_fov_x(4, 3, 1.0),
+            pose: Pose::look_at(eye, target, up).unwrap(),
+        };
+        Frame::new(PathBuf::from("x.png"), camera, "PINHOLE", Split::Train)
+    }
+
+    /// Upright cameras walking around an object and looking down at it, in a world turned
+    /// every which way: their mean up is the world's up turned the same way.
+    #[test]
+    fn the_mean_up_of_a_walk_around_is_up_in_any_frame() {
+        let turn = DQuat::from_euler(assist_core::glam::EulerRot::XYZ, 1.1, -0.4, 2.3);
+        let frames: Vec<Frame> = (0..12)
+            .map(|k| {
+                let a = k as f64 / 12.0 * std::f64::consts::TAU;
+                let eye = DVec3::new(3.0 * a.cos(), 3.0 * a.sin(), 1.5);
+                frame(turn * eye, DVec3::ZERO, turn * DVec3::Z)
+            })
+            .collect();
+        let up = cameras_mean_up(&frames).unwrap();
+        assert!((up - turn * DVec3::Z).length() < 1e-9, "{up}");
+        // Cameras rolled a quarter turn each in turn: no mean worth the name.
+        let rolled: Vec<Frame> = [DVec3::Z, DVec3::X, -DVec3::Z, -DVec3::X]
+            .iter()
+            .map(|u| frame(DVec3::new(0.0, -3.0, 0.0), DVec3::ZERO, *u))
+            .collect();
+        assert_eq!(cameras_mean_up(&rolled), None);
+    }
 }

@@ -157,12 +157,13 @@ pub fn load(dir: &Path, factor: Option<u32>) -> Result<Dataset> {
     }
     let depth_range = (near.is_finite() && far > 0.0).then_some((near, far));
     let (bounds, normalization) = compute_bounds(&frames, &[], &[], depth_range);
+    let world_up = crate::dataset::cameras_mean_up(&frames);
     Ok(Dataset {
         format: Format::Llff,
         root: dir.to_path_buf(),
         frames,
         instances: vec![],
-        world_up: None,
+        world_up,
         meters_per_unit: None,
         points: vec![],
         depth_range,

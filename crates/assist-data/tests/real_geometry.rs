@@ -209,3 +209,58 @@ fn llff_fern_poses_and_factor() {
     assert!(frac > 0.8, "{frac}");
     let _ = DVec2::ZERO;
 }
+
+/// LLFF and COLMAP state no up; the readers take the cameras' mean up. On gold_cape (a
+/// walk around an object) it is checked against geometry it was not computed from: the
+/// camera centres lie near one level plane (the walk), whose normal must be up. On the
+/// forward-facing captures every camera's up is within 45° of it, and beer's COLMAP model
+/// gives the same up as its LLFF file (one frame).
+#[test]
+fn captures_without_a_stated_up_get_the_cameras_mean_up() {
+    let Some(gold) = shared_dataset("captures_without_a_stated_up", "gold_cape") else {
+        return;
+    };
+    let ds = load(&gold, &LoadOptions::default()).unwrap();
+    let up = ds.world_up.expect("an up for gold_cape");
+    let centres: Vec<DVec3> = ds.frames.iter().map(|f| f.camera.pose.center()).collect();
+    let mean = centres.iter().sum::<DVec3>() / centres.len() as f64;
+    let mut cov = assist_core::DMat3::ZERO;
+    for c in &centres {
+        let d = *c - mean;
+        cov += assist_core::DMat3::from_cols(d * d.x, d * d.y, d * d.z);
+    }
+    // The plane's normal: the covariance's weakest direction (inverse power iteration
+    // on the well-conditioned 3×3).
+    let inv = cov.inverse();
+    let mut n = DVec3::new(0.3, 0.5, 0.8);
+    for _ in 0..100 {
+        n = (inv * n).normalize();
+    }
+    let angle = n.dot(up).abs().clamp(-1.0, 1.0).acos().to_degrees();
+    eprintln!("gold_cape up {up:.3}, the walk's plane normal {n:.3}: {angle:.1}° apart");
+    assert!(angle < 10.0, "{angle}°");
+
+    for name in ["fern", "beer"] {
+        let Some(dir) = shared_dataset("captures_without_a_stated_up", name) else {
+            return;
+        };
+        let ds = load(&dir, &LoadOptions::default()).unwrap();
+        let up = ds.world_up.expect("an up");
+        let worst = ds
+            .frames
+            .iter()
+            .map(|f| f.camera.pose.rotation().y_axis.dot(up))
+            .fold(1.0, f64::min);
+        eprintln!("{name}: up {up:.3}, least agreeing camera {worst:.3}");
+        assert!(worst > 45f64.to_radians().cos(), "{name}: {worst}");
+        if name == "beer" {
+            let colmap = assist_data::colmap::load_dataset(
+                &dir.join("sparse/0"),
+                assist_data::Format::ColmapBinary,
+            )
+            .unwrap();
+            let other = colmap.world_up.expect("an up from COLMAP");
+            assert!(other.dot(up) > 0.9999, "{other} vs {up}");
+        }
+    }
+}

@@ -346,6 +346,24 @@ fn print_text(ds: &Dataset, v: &Value) {
         ds.bounds.max.to_array(),
         ds.bounds.source
     );
+    use assist_data::Format;
+    match ds.world_up {
+        Some(u) => println!(
+            "up        [{:.3}, {:.3}, {:.3}]{}",
+            u.x,
+            u.y,
+            u.z,
+            if matches!(
+                ds.format,
+                Format::Llff | Format::ColmapBinary | Format::ColmapText
+            ) {
+                " (the cameras' mean up: the format states none)"
+            } else {
+                ""
+            }
+        ),
+        None => println!("up        not stated (+Z taken)"),
+    }
     match ds.meters_per_unit {
         Some(m) => println!("scale     {m} m per unit"),
         None => println!("scale     unknown (no metric scale in the dataset)"),
