@@ -22,9 +22,7 @@ pub struct TrainOptions {
     pub batch_samples: usize,
     pub lr_start: f32,
     /// The learning rate at the end of the run (it decays exponentially from `lr_start`
-    /// over the iterations or the time budget). 3e-3, measured against 1e-3 on the six
-    /// scenes in docs/history.md (session 37): a run of minutes ends far from converged,
-    /// and a lower floor spent its last third learning too slowly.
+    /// over the iterations or the time budget); measured against 1e-4 in BENCHMARKS.md.
     pub lr_end: f32,
     pub lambdas: Lambdas,
     pub occupancy_every: usize,
@@ -83,7 +81,7 @@ impl Default for TrainOptions {
             max_time: None,
             batch_samples: 1 << 16,
             lr_start: 1e-2,
-            lr_end: 3e-3,
+            lr_end: 1e-3,
             lambdas: Lambdas::default(),
             occupancy_every: 16,
             seed: 0,
