@@ -190,9 +190,9 @@ fn a_video_and_photographs_become_posed_datasets() {
     // the capture's metres fitted on the cameras). The new dataset is in metres: the best
     // similarity onto the capture's cameras has scale 1.
     // COLMAP's rerun is not repeatable: at times it triangulates nothing near the chosen
-    // pixels of a frame (twice in session 37, on frames rich in points in the first model)
-    // and `--scale-by` rightly refuses them as a bare spot; then the next frame's pixels
-    // are tried, up to three frames.
+    // pixels of a frame, even one rich in points in the first model, and `--scale-by`
+    // rightly refuses them as a bare spot; then the next frame's pixels are tried, up to
+    // three frames.
     let photos = root.join("from-photos");
     let mut tried = Vec::new();
     let (o, arg, metres) = loop {
@@ -362,9 +362,8 @@ fn known_distance(
     if smooth.len() >= 10 {
         seen = smooth;
     }
-    // Only points in densely textured parts of the frame (eight others within 40 px): the
-    // farthest pair of all once fell where the rerun's model had no point within 79 px
-    // (CI, session 37), as a click on a bare spot would.
+    // Only points in densely textured parts of the frame (eight others within 40 px), as a
+    // user would click: a bare spot may have no point in the rerun's model.
     let dense: Vec<(assist_core::DVec2, DVec3)> = seen
         .iter()
         .filter(|(px, _)| seen.iter().filter(|(q, _)| q.distance(*px) < 40.0).count() > 8)
