@@ -23,6 +23,11 @@ fn fnv(bytes: &[u8]) -> u64 {
     h
 }
 
+/// A file's content hash as written in the manifests.
+pub fn hash_hex(bytes: &[u8]) -> String {
+    format!("{:016x}", fnv(bytes))
+}
+
 /// What identifies a run, from its `generate.json`: the spec (seed included) by hash, the
 /// folder format and the assist version that made it.
 pub fn run_identity(manifest: &Value) -> Value {
@@ -66,7 +71,7 @@ pub fn write_manifest(dir: &Path, run: &Value) -> Result<()> {
         list.push(json!({
             "path": rel.to_string_lossy().replace('\\', "/"),
             "size": bytes.len(),
-            "hash": format!("{:016x}", fnv(&bytes)),
+            "hash": hash_hex(&bytes),
         }));
     }
     let m = json!({"run": run, "files": list});
@@ -102,7 +107,7 @@ pub fn check(dir: &Path, run: &Value, hashes: bool) -> std::result::Result<(), S
         }
         if hashes {
             let bytes = std::fs::read(&p).map_err(|e| format!("{rel}: {e}"))?;
-            if Some(format!("{:016x}", fnv(&bytes)).as_str()) != f["hash"].as_str() {
+            if Some(hash_hex(&bytes).as_str()) != f["hash"].as_str() {
                 return Err(format!("{rel} was changed since it was made"));
             }
         }

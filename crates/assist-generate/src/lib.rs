@@ -18,6 +18,7 @@ mod merge;
 pub mod place;
 mod plan;
 mod sample;
+pub mod shards;
 pub mod spec;
 pub mod surface;
 
@@ -32,6 +33,7 @@ use assist_session::{NamedCamera, Session, SessionError, SplitChoice};
 pub use coco::CocoMasks;
 pub use merge::{GENERATED, MergeSummary, RunEvent, RunOptions, RunSummary, merge};
 pub use sample::{GaveUp, Sample, SampleReport, View};
+pub use shards::{ShardState, Status, status};
 pub use spec::Spec;
 
 use place::Shape;

@@ -10,6 +10,7 @@ use serde_json::{Value, json};
 use crate::coco::CocoMasks;
 use crate::integrity;
 use crate::sample::{SampleReport, io, pretty};
+use crate::shards::{self, ShardState};
 use crate::{GenError, Generator, Result, Shard};
 
 /// Where and how a run writes.
@@ -110,6 +111,10 @@ impl Generator {
                 elapsed: t0.elapsed().as_secs_f64(),
             });
         }
+        // Last: the shard's completion record (every sample it owns holds now).
+        if !opts.dry_run {
+            shards::write_record(out, opts.shard, self.spec.count, &run)?;
+        }
         let seconds = t0.elapsed().as_secs_f64();
         let merged = if opts.shard.count == 1 && !opts.dry_run {
             Some(merge(out, false, opts.coco_masks)?)
@@ -198,6 +203,7 @@ pub const GENERATED: &[&str] = &[
     "generate.json",
     "index.json",
     "plans",
+    shards::SHARDS,
 ];
 
 /// What a merge wrote.
@@ -209,28 +215,65 @@ pub struct MergeSummary {
     pub missing: Vec<u64>,
 }
 
-/// Joins the samples in `out` into `annotations/instances.json` (COCO instances, RLE
-/// masks), `annotations/panoptic.json` (COCO panoptic; its PNGs are the samples'
-/// `views/panoptic_coco/`, paths relative to `out`) and `index.json`. Missing samples are
-/// an error unless `partial`.
+/// Joins the samples in `out` into `annotations/instances.json` (COCO instances),
+/// `annotations/panoptic.json` (COCO panoptic; its PNGs are the samples'
+/// `views/panoptic_coco/`, paths relative to `out`) and `index.json`. Refuses a sample
+/// that does not hold and another run's shards, naming them; missing samples are an error
+/// unless `partial`. Streams: one sample's annotations in memory at a time, the arrays
+/// gathered in temporary files beside the output, so a run of any size merges in bounded
+/// memory. COCO ids follow the samples' order, so they are the same however the run was
+/// sharded.
 pub fn merge(out: &Path, partial: bool, masks: CocoMasks) -> Result<MergeSummary> {
-    let file = out.join("generate.json");
-    if !file.is_file() {
-        return Err(GenError::Folder {
-            path: out.into(),
-            message: "has no generate.json: not a folder `assist generate` wrote".into(),
-        });
-    }
-    let manifest: Value =
-        serde_json::from_str(&assist_fs::read_text(&file)?).map_err(|e| GenError::Folder {
-            path: file.clone(),
-            message: format!("not valid JSON: {e}"),
-        })?;
+    let manifest = shards::read_manifest(out)?;
     let count = manifest["spec"]["count"].as_u64().unwrap_or(0);
-    let run = integrity::run_identity(&manifest);
     // What a killed merge left behind.
     integrity::clean_stale(out);
     integrity::clean_stale(&out.join("annotations"));
+    let st = shards::status(out, None, true)?;
+    let refuse = |what: &str, bad: Vec<&ShardState>, hint: &str| -> GenError {
+        let named: Vec<String> = bad
+            .iter()
+            .take(10)
+            .map(|s| format!("{} {} ({})", s.shard, s.state, s.problems.join("; ")))
+            .collect();
+        GenError::Folder {
+            path: out.into(),
+            message: format!(
+                "{} shard{} {what}: {}{}; {hint} (`assist generate status {}` lists them)",
+                bad.len(),
+                if bad.len() == 1 { "" } else { "s" },
+                named.join(", "),
+                if bad.len() > 10 { ", …" } else { "" },
+                out.display()
+            ),
+        }
+    };
+    let foreign: Vec<&ShardState> = st.incomplete.iter().filter(|s| s.state == "foreign").collect();
+    if !foreign.is_empty() {
+        return Err(refuse(
+            "made by another run (another spec, seed or assist version)",
+            foreign,
+            "run them again with this run's spec and assist",
+        ));
+    }
+    let damaged = st.incomplete.iter().any(|s| s.damaged > 0);
+    if damaged || (st.samples_done < count && !partial) {
+        // Without --partial every shard that is not complete is named; with it, the
+        // damaged ones (a merge never indexes a file that does not hold).
+        let bad: Vec<&ShardState> = st
+            .incomplete
+            .iter()
+            .filter(|s| !partial || s.damaged > 0)
+            .collect();
+        return Err(refuse(
+            &format!(
+                "not complete ({} of {count} samples hold)",
+                st.samples_done
+            ),
+            bad,
+            "run them again with the same spec (a rerun remakes only what does not hold), or merge the others with --partial",
+        ));
+    }
     let classes: Vec<String> = manifest["classes"]
         .as_array()
         .map(|a| {
@@ -239,49 +282,46 @@ pub fn merge(out: &Path, partial: bool, masks: CocoMasks) -> Result<MergeSummary
                 .collect()
         })
         .unwrap_or_default();
-    let mut images = Vec::new();
-    let mut anns = Vec::new();
-    let mut pan = Vec::new();
-    let mut index = Vec::new();
+    let ad = out.join("annotations");
+    std::fs::create_dir_all(&ad).map_err(|e| io(&ad, e))?;
+    let mut sinks = Sinks {
+        images: Part::new(&ad, "images")?,
+        anns: Part::new(&ad, "annotations")?,
+        pan: Part::new(&ad, "panoptic")?,
+    };
+    let mut index = Part::new(out, "index-samples")?;
     let mut missing = Vec::new();
+    let (mut draws, mut rejected) = (0u64, 0u64);
+    let mut by_reason = serde_json::Map::new();
     for i in 0..count {
-        let dir = sample_dir(out, i);
-        if !dir.join(assist_fs::MARKER).is_file() {
+        if !st.sample_ok[i as usize] {
             missing.push(i);
             continue;
         }
-        if let Err(why) = integrity::check(&dir, &run, true) {
-            return Err(integrity::damaged(out, i, why));
-        }
-        let sf = dir.join("sample.json");
+        let sf = sample_dir(out, i).join("sample.json");
         let s: Value =
             serde_json::from_str(&assist_fs::read_text(&sf)?).map_err(|e| GenError::Folder {
                 path: sf.clone(),
                 message: format!("not valid JSON: {e}"),
             })?;
-        let rel = format!("samples/{i:06}");
-        add_views(&s, i, masks, &mut images, &mut anns, &mut pan);
-        index.push(json!({
+        add_views(&s, i, masks, &mut sinks)?;
+        draws += s["draws"].as_u64().unwrap_or(0);
+        rejected += s["rejected"].as_u64().unwrap_or(0);
+        for (r, k) in s["rejections"].as_object().into_iter().flatten() {
+            let sum =
+                by_reason.get(r).and_then(|v| v.as_u64()).unwrap_or(0) + k.as_u64().unwrap_or(0);
+            by_reason.insert(r.clone(), json!(sum));
+        }
+        index.push(&json!({
             "index": i,
-            "dir": rel,
+            "dir": format!("samples/{i:06}"),
             "objects": s["objects"].as_array().map(|a| a.len()).unwrap_or(0),
             "views": s["views"].as_array().map(|a| a.len()).unwrap_or(0),
             "draws": s["draws"],
             "rejected": s["rejected"],
             "rejections": s["rejections"],
             "gave_up": s["gave_up"],
-        }));
-    }
-    if !missing.is_empty() && !partial {
-        let first: Vec<String> = missing.iter().take(10).map(|i| i.to_string()).collect();
-        return Err(GenError::Folder {
-            path: out.into(),
-            message: format!(
-                "{} of {count} samples are not made yet (first: {}); run the missing shards, or merge with --partial",
-                missing.len(),
-                first.join(", ")
-            ),
-        });
+        }))?;
     }
     let things: Vec<Value> = classes
         .iter()
@@ -290,12 +330,6 @@ pub fn merge(out: &Path, partial: bool, masks: CocoMasks) -> Result<MergeSummary
         .map(|(k, c)| json!({"id": k, "name": c, "supercategory": "object"}))
         .collect();
     let info = json!({"description": "assist generate", "version": "1", "masks": masks});
-    let instances = json!({
-        "info": info,
-        "images": images,
-        "annotations": anns,
-        "categories": things,
-    });
     let mut pan_cats =
         vec![json!({"id": 0, "name": "background", "supercategory": "background", "isthing": 0})];
     pan_cats.extend(
@@ -305,75 +339,159 @@ pub fn merge(out: &Path, partial: bool, masks: CocoMasks) -> Result<MergeSummary
             .skip(1)
             .map(|(k, c)| json!({"id": k, "name": c, "supercategory": "object", "isthing": 1})),
     );
-    let panoptic = json!({
-        "info": info,
-        "images": images,
-        "annotations": pan,
-        "categories": pan_cats,
-    });
-    let ad = out.join("annotations");
-    std::fs::create_dir_all(&ad).map_err(|e| io(&ad, e))?;
-    assist_data::image_io::write_atomic(&ad.join("instances.json"), &pretty(&instances))?;
-    assist_data::image_io::write_atomic(&ad.join("panoptic.json"), &pretty(&panoptic))?;
-    let draws: u64 = index.iter().map(|s| s["draws"].as_u64().unwrap_or(0)).sum();
-    let rejected: u64 = index
-        .iter()
-        .map(|s| s["rejected"].as_u64().unwrap_or(0))
-        .sum();
-    let mut by_reason = serde_json::Map::new();
-    for s in &index {
-        for (r, k) in s["rejections"].as_object().into_iter().flatten() {
-            let sum =
-                by_reason.get(r).and_then(|v| v.as_u64()).unwrap_or(0) + k.as_u64().unwrap_or(0);
-            by_reason.insert(r.clone(), json!(sum));
-        }
+    for p in [&mut sinks.images, &mut sinks.anns, &mut sinks.pan, &mut index] {
+        p.flush()?;
     }
-    assist_data::image_io::write_atomic(
+    let head = |cats: &Vec<Value>| {
+        format!(
+            "{{\"info\": {info},\n\"categories\": {},\n\"images\": [\n",
+            Value::from(cats.clone())
+        )
+    };
+    assemble(
+        &ad.join("instances.json"),
+        &[
+            Piece::Text(head(&things)),
+            Piece::Part(&sinks.images),
+            Piece::Text("\n],\n\"annotations\": [\n".into()),
+            Piece::Part(&sinks.anns),
+            Piece::Text("\n]}\n".into()),
+        ],
+    )?;
+    assemble(
+        &ad.join("panoptic.json"),
+        &[
+            Piece::Text(head(&pan_cats)),
+            Piece::Part(&sinks.images),
+            Piece::Text("\n],\n\"annotations\": [\n".into()),
+            Piece::Part(&sinks.pan),
+            Piece::Text("\n]}\n".into()),
+        ],
+    )?;
+    let summary = json!({
+        "count": count,
+        "missing": missing,
+        "draws": draws,
+        "rejected": rejected,
+        "rejections": by_reason,
+        "classes": classes,
+    });
+    let summary = summary.to_string();
+    assemble(
         &out.join("index.json"),
-        &pretty(&json!({
-            "count": count,
-            "samples": index,
-            "missing": missing,
-            "draws": draws,
-            "rejected": rejected,
-            "rejections": by_reason,
-            "classes": classes,
-        })),
+        &[
+            Piece::Text(format!("{},\n\"samples\": [\n", &summary[..summary.len() - 1])),
+            Piece::Part(&index),
+            Piece::Text("\n]}\n".into()),
+        ],
     )?;
     Ok(MergeSummary {
-        samples: index.len() as u64,
-        images: images.len() as u64,
-        annotations: anns.len() as u64,
+        samples: index.n,
+        images: sinks.images.n,
+        annotations: sinks.anns.n,
         missing,
     })
 }
 
+/// One JSON array's elements, written as they come to a temporary file (`.NAME.tmp-PID`,
+/// which a later merge clears if this one is killed) and removed when dropped.
+struct Part {
+    path: PathBuf,
+    w: std::io::BufWriter<std::fs::File>,
+    n: u64,
+}
+
+impl Part {
+    fn new(dir: &Path, name: &str) -> Result<Part> {
+        let path = dir.join(format!(".{name}.tmp-{}", std::process::id()));
+        let f = std::fs::File::create(&path).map_err(|e| io(&path, e))?;
+        Ok(Part {
+            w: std::io::BufWriter::new(f),
+            path,
+            n: 0,
+        })
+    }
+
+    fn push(&mut self, v: &Value) -> Result<()> {
+        use std::io::Write;
+        let r = (|| {
+            if self.n > 0 {
+                self.w.write_all(b",\n")?;
+            }
+            serde_json::to_writer(&mut self.w, v).map_err(std::io::Error::other)
+        })();
+        self.n += 1;
+        r.map_err(|e| io(&self.path, e))
+    }
+
+    fn flush(&mut self) -> Result<()> {
+        use std::io::Write;
+        self.w.flush().map_err(|e| io(&self.path, e))
+    }
+}
+
+impl Drop for Part {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+enum Piece<'a> {
+    Text(String),
+    Part(&'a Part),
+}
+
+/// Writes `path` atomically from text and parts, in order.
+fn assemble(path: &Path, pieces: &[Piece]) -> Result<()> {
+    use std::io::Write;
+    let name = path.file_name().unwrap_or_default().to_string_lossy();
+    let tmp = path.with_file_name(format!(".{name}.tmp-{}", std::process::id()));
+    let r = (|| -> std::io::Result<()> {
+        let mut w = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
+        for p in pieces {
+            match p {
+                Piece::Text(t) => w.write_all(t.as_bytes())?,
+                Piece::Part(part) => {
+                    std::io::copy(&mut std::fs::File::open(&part.path)?, &mut w)?;
+                }
+            }
+        }
+        w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if let Err(e) = r {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(io(path, e));
+    }
+    Ok(())
+}
+
+/// Where a merge writes each sample's COCO images, instances and panoptic segments.
+struct Sinks {
+    images: Part,
+    anns: Part,
+    pan: Part,
+}
+
 /// Sample `i`'s views (its `sample.json` `s`) as COCO images, instance annotations and
-/// panoptic segments, with ids following those already in the lists.
-fn add_views(
-    s: &Value,
-    i: u64,
-    masks: CocoMasks,
-    images: &mut Vec<Value>,
-    anns: &mut Vec<Value>,
-    pan: &mut Vec<Value>,
-) {
+/// panoptic segments, with ids following those already written.
+fn add_views(s: &Value, i: u64, masks: CocoMasks, sinks: &mut Sinks) -> Result<()> {
     let rel = format!("samples/{i:06}");
     for v in s["views"].as_array().into_iter().flatten() {
         let name = v["name"].as_str().unwrap_or("");
-        let image_id = images.len() as u64 + 1;
+        let image_id = sinks.images.n + 1;
         let (w, h) = (
             v["width"].as_u64().unwrap_or(0),
             v["height"].as_u64().unwrap_or(0),
         );
-        images.push(json!({
+        sinks.images.push(&json!({
             "id": image_id,
             "file_name": format!("{rel}/views/images/{name}.png"),
             "width": w,
             "height": h,
             "sample": i,
             "view": name,
-        }));
+        }))?;
         let mut segments = Vec::new();
         for o in v["objects"].as_array().into_iter().flatten() {
             let Some(rle) = o["rle"].as_str() else {
@@ -387,8 +505,8 @@ fn add_views(
                 }
                 CocoMasks::Polygon => o["polygons"].clone(),
             };
-            anns.push(json!({
-                "id": anns.len() as u64 + 1,
+            sinks.anns.push(&json!({
+                "id": sinks.anns.n + 1,
                 "image_id": image_id,
                 "category_id": o["class"],
                 "segmentation": segmentation,
@@ -398,7 +516,7 @@ fn add_views(
                 "instance_id": o["id"],
                 "bbox_amodal": o["bbox_amodal"],
                 "visibility": o["visibility"],
-            }));
+            }))?;
             segments.push(json!({
                 "id": o["id"],
                 "category_id": o["class"],
@@ -416,10 +534,11 @@ fn add_views(
                 "iscrowd": 0,
             }));
         }
-        pan.push(json!({
+        sinks.pan.push(&json!({
             "image_id": image_id,
             "file_name": format!("{rel}/views/panoptic_coco/{name}.png"),
             "segments_info": segments,
-        }));
+        }))?;
     }
+    Ok(())
 }

@@ -87,6 +87,25 @@ pub enum GenerateCommand {
         #[arg(long, value_enum, default_value_t = CocoMasksArg::Polygon)]
         coco_masks: CocoMasksArg,
     },
+    /// List the run's shards that are complete, partial (stopped, or a file missing or
+    /// truncated), missing, or another run's, and how to run the others again.
+    Status {
+        /// The run's output folder.
+        dir: PathBuf,
+        /// The n of the shards' `--shard i/n` (default: the n their completion records
+        /// name; a run without records counts as one shard).
+        #[arg(long, value_name = "N")]
+        shards: Option<u64>,
+        /// Check every file's content by hash, not only its size.
+        #[arg(long)]
+        hashes: bool,
+        /// Print only the shards to run again, as `i,j,…` (for Slurm's `--array=`).
+        #[arg(long, conflicts_with = "json")]
+        rerun: bool,
+        /// Print the status as JSON on stdout.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 struct Prep(bool);
@@ -99,7 +118,67 @@ impl assist_generate::Progress for Prep {
     }
 }
 
+fn status(dir: &std::path::Path, shards: Option<u64>, hashes: bool, rerun: bool, json: bool) -> anyhow::Result<()> {
+    let st = assist_generate::status(dir, shards, hashes)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&st)?);
+        return Ok(());
+    }
+    if rerun {
+        println!("{}", st.to_rerun());
+        return Ok(());
+    }
+    let n = st.shards;
+    println!(
+        "{}: {} of {} samples made; {} shards{}: {} complete, {} partial, {} missing, {} another run's",
+        dir.display(),
+        st.samples_done,
+        st.count,
+        n,
+        match st.shards_from {
+            "records" => " (from the completion records)",
+            "whole run" => " (no completion records: one shard; give --shards N if the run was split)",
+            _ => "",
+        },
+        st.complete.len(),
+        st.partial.len(),
+        st.missing.len(),
+        st.foreign.len()
+    );
+    for s in &st.incomplete {
+        println!(
+            "  shard {} {}: {} of {} samples hold{}{}",
+            s.shard,
+            s.state,
+            s.done,
+            s.owned,
+            if s.problems.is_empty() { "" } else { "; " },
+            s.problems.join("; ")
+        );
+    }
+    if st.all_complete {
+        println!("every shard is complete: assist generate merge {}", dir.display());
+    } else {
+        let list = st.to_rerun();
+        println!(
+            "run again: assist generate --spec SPEC --out {} --shard i/{n} for i in {list} (Slurm: sbatch --array={list} …; a rerun remakes only what does not hold)",
+            dir.display()
+        );
+    }
+    Ok(())
+}
+
 pub fn run(a: GenerateArgs) -> anyhow::Result<()> {
+    if let Some(GenerateCommand::Status {
+        dir,
+        shards,
+        hashes,
+        rerun,
+        json,
+    }) = &a.command
+    {
+        return status(dir, *shards, *hashes, *rerun, *json);
+    }
     if let Some(GenerateCommand::Merge {
         dir,
         partial,
@@ -152,6 +231,37 @@ pub fn run(a: GenerateArgs) -> anyhow::Result<()> {
             .map_err(|m| anyhow::anyhow!("shard from the environment: {m}"))?
             .unwrap_or(Shard::ALL),
     };
+    // A shard that is complete has nothing to do: say so without loading a scene.
+    if !a.dry_run && !a.force && assist_generate::shards::is_complete(&out, &spec, shard) {
+        let owned = (0..spec.count).filter(|&i| shard.owns(i)).count();
+        let merged = shard.count == 1 && !out.join("index.json").is_file();
+        eprintln!(
+            "shard {}/{} of {} is complete ({owned} samples; its record {}): nothing to do",
+            shard.index,
+            shard.count,
+            out.display(),
+            assist_generate::shards::record_path(&out, shard).display()
+        );
+        let m = if merged {
+            Some(assist_generate::merge(&out, false, a.coco_masks.into())?)
+        } else {
+            None
+        };
+        if a.json {
+            println!(
+                "{}",
+                serde_json::to_string_pretty(&serde_json::json!({
+                    "out": out,
+                    "shard": format!("{}/{}", shard.index, shard.count),
+                    "made": 0,
+                    "skipped": owned,
+                    "complete": true,
+                    "merged": m,
+                }))?
+            );
+        }
+        return Ok(());
+    }
     let tty = std::io::stderr().is_terminal();
     let generator = Generator::prepare(spec, &mut Prep(true)).context("preparing the run")?;
     let bar = crate::progress::bar(tty, "generate");

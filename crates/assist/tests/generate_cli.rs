@@ -13,7 +13,8 @@ use std::process::Command;
 
 use common::{ok, pycoco_check, refused, run, s};
 
-/// Every file under `dir` (relative path → bytes).
+/// Every file under `dir` (relative path → bytes) but the shards' completion records
+/// (`shards/`: which shards ran, so a sharded run's differ from a whole run's).
 fn tree(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
     let mut out = BTreeMap::new();
     let mut stack = vec![dir.to_path_buf()];
@@ -21,7 +22,9 @@ fn tree(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
         for e in std::fs::read_dir(&d).unwrap() {
             let p = e.unwrap().path();
             if p.is_dir() {
-                stack.push(p);
+                if p != dir.join("shards") {
+                    stack.push(p);
+                }
             } else {
                 out.insert(
                     p.strip_prefix(dir).unwrap().to_path_buf(),
@@ -31,6 +34,55 @@ fn tree(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
         }
     }
     out
+}
+
+/// One shard deleted and one file of another truncated: `status` names both, `merge`
+/// refuses, a rerun of a complete shard does nothing, and rerunning the two then merging
+/// gives `whole` again, file for file.
+fn shards_damaged_and_remade(sp: &Path, dir: &Path, whole: &BTreeMap<PathBuf, Vec<u8>>) {
+    let status = |extra: &[&str]| {
+        let mut args = vec!["generate", "status", s(dir)];
+        args.extend_from_slice(extra);
+        let o = run(&args);
+        ok(&o);
+        o
+    };
+    let st: serde_json::Value = serde_json::from_slice(&status(&["--json"]).stdout).unwrap();
+    assert_eq!(st["shards"], 4, "{st}");
+    assert_eq!(st["complete"], serde_json::json!([0, 1, 2, 3]), "{st}");
+    // Shard 1 deleted (its samples and its record), a file of shard 2 truncated.
+    for i in (1..100).step_by(4) {
+        std::fs::remove_dir_all(dir.join(format!("samples/{i:06}"))).unwrap();
+    }
+    std::fs::remove_file(dir.join("shards/1-of-4.json")).unwrap();
+    let img = dir.join("samples/000042/views/images/v0.png");
+    let bytes = std::fs::read(&img).unwrap();
+    std::fs::write(&img, &bytes[..bytes.len() / 2]).unwrap();
+    let st: serde_json::Value = serde_json::from_slice(&status(&["--json"]).stdout).unwrap();
+    assert_eq!(st["missing"], serde_json::json!([1]), "{st}");
+    assert_eq!(st["partial"], serde_json::json!([2]), "{st}");
+    assert_eq!(st["samples_done"], 74, "{st}");
+    let text = String::from_utf8_lossy(&status(&[]).stdout).into_owned();
+    assert!(
+        text.contains("shard 1/4 missing") && text.contains("000042 views/images/v0.png"),
+        "{text}"
+    );
+    assert_eq!(String::from_utf8_lossy(&status(&["--rerun"]).stdout).trim(), "1,2");
+    let m = run(&["generate", "merge", s(dir)]);
+    refused(&m, &["2 shards not complete", "1/4 missing", "2/4 partial", "000042"]);
+    // A complete shard: nothing to do, nothing loaded.
+    let again = run(&["generate", "--spec", s(sp), "--out", s(dir), "--shard", "3/4"]);
+    ok(&again);
+    assert!(
+        String::from_utf8_lossy(&again.stderr).contains("is complete"),
+        "{}",
+        String::from_utf8_lossy(&again.stderr)
+    );
+    for i in ["1/4", "2/4"] {
+        ok(&run(&["generate", "--spec", s(sp), "--out", s(dir), "--shard", i]));
+    }
+    ok(&run(&["generate", "merge", s(dir)]));
+    assert!(tree(dir) == *whole, "the remade shards differ from the whole run");
 }
 
 fn spec(dir: &Path, scene: &Path, extra: &str) -> PathBuf {
@@ -169,6 +221,7 @@ fn generate_shards_replays_and_annotations() {
             k.display()
         );
     }
+    shards_damaged_and_remade(&sp, &sharded, &a);
 
     // Replaying 3 samples' actions reproduces their images bit for bit.
     for i in [0, 37, 99] {
