@@ -248,7 +248,11 @@ pub fn merge(out: &Path, partial: bool, masks: CocoMasks) -> Result<MergeSummary
             ),
         }
     };
-    let foreign: Vec<&ShardState> = st.incomplete.iter().filter(|s| s.state == "foreign").collect();
+    let foreign: Vec<&ShardState> = st
+        .incomplete
+        .iter()
+        .filter(|s| s.state == "foreign")
+        .collect();
     if !foreign.is_empty() {
         return Err(refuse(
             "made by another run (another spec, seed or assist version)",
@@ -266,10 +270,7 @@ pub fn merge(out: &Path, partial: bool, masks: CocoMasks) -> Result<MergeSummary
             .filter(|s| !partial || s.damaged > 0)
             .collect();
         return Err(refuse(
-            &format!(
-                "not complete ({} of {count} samples hold)",
-                st.samples_done
-            ),
+            &format!("not complete ({} of {count} samples hold)", st.samples_done),
             bad,
             "run them again with the same spec (a rerun remakes only what does not hold), or merge the others with --partial",
         ));
@@ -339,7 +340,12 @@ pub fn merge(out: &Path, partial: bool, masks: CocoMasks) -> Result<MergeSummary
             .skip(1)
             .map(|(k, c)| json!({"id": k, "name": c, "supercategory": "object", "isthing": 1})),
     );
-    for p in [&mut sinks.images, &mut sinks.anns, &mut sinks.pan, &mut index] {
+    for p in [
+        &mut sinks.images,
+        &mut sinks.anns,
+        &mut sinks.pan,
+        &mut index,
+    ] {
         p.flush()?;
     }
     let head = |cats: &Vec<Value>| {
@@ -380,7 +386,10 @@ pub fn merge(out: &Path, partial: bool, masks: CocoMasks) -> Result<MergeSummary
     assemble(
         &out.join("index.json"),
         &[
-            Piece::Text(format!("{},\n\"samples\": [\n", &summary[..summary.len() - 1])),
+            Piece::Text(format!(
+                "{},\n\"samples\": [\n",
+                &summary[..summary.len() - 1]
+            )),
             Piece::Part(&index),
             Piece::Text("\n]}\n".into()),
         ],

@@ -30,7 +30,12 @@ pub fn record_path(out: &Path, s: Shard) -> PathBuf {
 fn parse_record_name(name: &str) -> Option<Shard> {
     let stem = name.strip_suffix(".json")?;
     let (i, n) = stem.split_once("-of-")?;
-    Shard::parse(&format!("{}/{}", i.parse::<u64>().ok()?, n.parse::<u64>().ok()?)).ok()
+    Shard::parse(&format!(
+        "{}/{}",
+        i.parse::<u64>().ok()?,
+        n.parse::<u64>().ok()?
+    ))
+    .ok()
 }
 
 /// Writes shard `s`'s completion record; every sample it owns must hold already.
@@ -62,7 +67,12 @@ pub fn write_record(out: &Path, s: Shard, count: u64, run: &Value) -> Result<()>
 
 /// Why shard `s`'s record does not hold for `run`, if it does not: absent, another run's,
 /// or a sample's manifest gone or changed.
-fn check_record(out: &Path, s: Shard, run: &Value, hashes: bool) -> std::result::Result<(), Problem> {
+fn check_record(
+    out: &Path,
+    s: Shard,
+    run: &Value,
+    hashes: bool,
+) -> std::result::Result<(), Problem> {
     let p = record_path(out, s);
     let Ok(text) = std::fs::read_to_string(&p) else {
         return Err(Problem::NoRecord);
@@ -85,7 +95,9 @@ fn check_record(out: &Path, s: Shard, run: &Value, hashes: bool) -> std::result:
         let changed = Some(meta.len()) != e["manifest"]["size"].as_u64()
             || (hashes
                 && std::fs::read(&mp)
-                    .map(|b| Some(integrity::hash_hex(&b).as_str()) != e["manifest"]["hash"].as_str())
+                    .map(|b| {
+                        Some(integrity::hash_hex(&b).as_str()) != e["manifest"]["hash"].as_str()
+                    })
                     .unwrap_or(true));
         if changed {
             return Err(Problem::Damaged(format!(
@@ -158,7 +170,10 @@ impl Status {
             .copied()
             .collect();
         v.sort_unstable();
-        v.iter().map(|i| i.to_string()).collect::<Vec<_>>().join(",")
+        v.iter()
+            .map(|i| i.to_string())
+            .collect::<Vec<_>>()
+            .join(",")
     }
 }
 
@@ -195,7 +210,10 @@ fn shards_of_records(out: &Path) -> Result<Option<u64>> {
             path: out.join(SHARDS),
             message: format!(
                 "holds records of runs split {} ways; give --shards N to say which split to list",
-                ns.iter().map(|n| n.to_string()).collect::<Vec<_>>().join(", ")
+                ns.iter()
+                    .map(|n| n.to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
             ),
         }),
     }

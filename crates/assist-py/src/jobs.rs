@@ -99,24 +99,8 @@ pub(crate) fn generate(
     count: Option<Whole>,
     start: Whole,
 ) -> PyResult<Samples> {
-    let seed: Option<u64> = whole_opt("seed", seed)?;
-    let count: Option<u64> = whole_opt("count", count)?;
     let start: u64 = start.get("start")?;
-    let (mut spec, name) = if let Ok(p) = spec.extract::<PathBuf>() {
-        (assist_generate::Spec::load(&p).map_err(err)?, p)
-    } else {
-        let v = from_py(spec, "spec")?;
-        let s: assist_generate::Spec =
-            serde_json::from_value(v).map_err(|e| err(format!("spec: {e}")))?;
-        (s, PathBuf::from("spec"))
-    };
-    if let Some(s) = seed {
-        spec.seed = s;
-    }
-    if let Some(c) = count {
-        spec.count = c;
-    }
-    spec.check(&name).map_err(err)?;
+    let spec = crate::shards::load_spec(spec, seed, count)?;
     let end = spec.count;
     let g = py
         .detach(|| assist_generate::Generator::prepare(spec, &mut ()))

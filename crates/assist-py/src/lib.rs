@@ -20,6 +20,7 @@ mod args;
 mod clip;
 mod jobs;
 mod scene;
+mod shards;
 
 use args::{Whole, whole_opt};
 use clip::Clip;
@@ -238,6 +239,7 @@ fn cameras(py: Python<'_>, path: PathBuf, split: &str) -> PyResult<Vec<Camera>> 
 }
 
 #[pymodule]
+#[pyo3(name = "_assist")]
 fn assist(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("AssistError", m.py().get_type::<AssistError>())?;
     m.add_class::<Scene>()?;
@@ -249,6 +251,9 @@ fn assist(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(train, m)?)?;
     m.add_function(wrap_pyfunction!(process, m)?)?;
     m.add_function(wrap_pyfunction!(split, m)?)?;
+    m.add_function(wrap_pyfunction!(shards::generate_shard, m)?)?;
+    m.add_function(wrap_pyfunction!(shards::merge, m)?)?;
+    m.add_function(wrap_pyfunction!(shards::status, m)?)?;
     m.add_class::<Samples>()?;
     m.add_class::<Clip>()?;
     Ok(())

@@ -118,7 +118,13 @@ impl assist_generate::Progress for Prep {
     }
 }
 
-fn status(dir: &std::path::Path, shards: Option<u64>, hashes: bool, rerun: bool, json: bool) -> anyhow::Result<()> {
+fn status(
+    dir: &std::path::Path,
+    shards: Option<u64>,
+    hashes: bool,
+    rerun: bool,
+    json: bool,
+) -> anyhow::Result<()> {
     let st = assist_generate::status(dir, shards, hashes)?;
     if json {
         println!("{}", serde_json::to_string_pretty(&st)?);
@@ -137,7 +143,8 @@ fn status(dir: &std::path::Path, shards: Option<u64>, hashes: bool, rerun: bool,
         n,
         match st.shards_from {
             "records" => " (from the completion records)",
-            "whole run" => " (no completion records: one shard; give --shards N if the run was split)",
+            "whole run" =>
+                " (no completion records: one shard; give --shards N if the run was split)",
             _ => "",
         },
         st.complete.len(),
@@ -157,7 +164,10 @@ fn status(dir: &std::path::Path, shards: Option<u64>, hashes: bool, rerun: bool,
         );
     }
     if st.all_complete {
-        println!("every shard is complete: assist generate merge {}", dir.display());
+        println!(
+            "every shard is complete: assist generate merge {}",
+            dir.display()
+        );
     } else {
         let list = st.to_rerun();
         println!(

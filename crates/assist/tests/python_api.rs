@@ -1,11 +1,27 @@
 //! The Python API (`crates/assist-py`) as a user meets it: its pytest suite, run with the
 //! Python of a fresh venv where `pip install ./crates/assist-py` was done (`ASSIST_PYTHON`,
-//! set by `.ci/run`), against this build's `assist` binary.
+//! set by `.ci/run`), against this build's `assist` binary. `assist.distributed`'s tests
+//! (a real local Ray cluster) run as a test of their own, beside the others.
 
 use std::process::Command;
 
+const DISTRIBUTED: &str = "test_distributed.py";
+
 #[test]
 fn python_api_pytest_suite() {
+    pytest(&[tests(), "--ignore", &format!("{}/{DISTRIBUTED}", tests())]);
+}
+
+#[test]
+fn python_distributed_on_a_ray_cluster() {
+    pytest(&[&format!("{}/{DISTRIBUTED}", tests())]);
+}
+
+fn tests() -> &'static str {
+    concat!(env!("CARGO_MANIFEST_DIR"), "/../assist-py/tests")
+}
+
+fn pytest(args: &[&str]) {
     let Ok(py) = std::env::var("ASSIST_PYTHON") else {
         if std::env::var("ASSIST_REQUIRE_PYTHON").is_ok() {
             panic!("ASSIST_REQUIRE_PYTHON is set but ASSIST_PYTHON is not");
@@ -30,9 +46,17 @@ fn python_api_pytest_suite() {
         eprintln!("SKIPPED the Python API tests: {msg}");
         return;
     }
-    let tests = concat!(env!("CARGO_MANIFEST_DIR"), "/../assist-py/tests");
     let o = Command::new(&py)
-        .args(["-m", "pytest", "-q", "-p", "no:cacheprovider", tests])
+        .args([
+            "-m",
+            "pytest",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "--rootdir",
+            tests(),
+        ])
+        .args(args)
         .env("ASSIST_BIN", env!("CARGO_BIN_EXE_assist"))
         .output()
         .unwrap();

@@ -201,3 +201,24 @@ def train(
     (downscale=2, seed=1, resume=True, force=True, shadows="off", lambda_obj_share=0.0, …). The callback sees every event as a dict. Ctrl+C saves the
     scene and raises KeyboardInterrupt. Returns the report (iterations, seconds,
     stopped_by, final_stats)."""
+
+def generate_shard(
+    spec: Union[_Path, dict[str, Any]],
+    out: _Path,
+    shard: str = "0/1",
+    seed: Optional[int] = None,
+    count: Optional[int] = None,
+    force: bool = False,
+    coco_masks: str = "polygon",
+) -> dict[str, Any]:
+    """Makes shard "i/n" of a run into the folder `out`, as `assist generate --shard i/n`
+    does (a rerun remakes only what does not hold; a complete shard does nothing; "0/1"
+    merges at its end). Returns the summary (made, skipped, seconds, record, …)."""
+
+def merge(out: _Path, partial: bool = False, coco_masks: str = "polygon") -> dict[str, Any]:
+    """Joins a run's samples into its COCO files and index.json, as `assist generate
+    merge` does; refuses shards that do not hold, naming them."""
+
+def status(out: _Path, shards: Optional[int] = None, hashes: bool = False) -> dict[str, Any]:
+    """Which shards of the run in `out` are complete, partial, missing or another run's
+    (`assist generate status --json`)."""

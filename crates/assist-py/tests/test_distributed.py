@@ -1,0 +1,217 @@
+"""`assist.distributed` on a real local Ray cluster: a head node and a second worker node,
+each its own `ray start` process with 1 CPU. Generation across both equals one process's
+run file for file, also when the worker node is killed while a shard runs on it. Two
+scenes are trained as tasks. Ray missing, an unreachable address and an output folder the
+driver cannot see are refused with what to do. Skipped when Ray is not installed, unless
+ASSIST_REQUIRE_RAY is set (CI sets it)."""
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+import assist
+from conftest import run
+
+if os.environ.get("ASSIST_REQUIRE_RAY"):
+    import ray  # noqa: F401 (CI: Ray must be there)
+else:
+    ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'assist[ray]')")
+
+RAY = str(Path(sys.executable).with_name("ray"))
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def start(args):
+    """A `ray start … --block` in its own process group: the node's raylet and workers
+    are its children, so killing the group kills the node."""
+    env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0")
+    return subprocess.Popen(
+        [RAY, "start", "--num-cpus", "1", "--block", *args],
+        env=env,
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+
+
+def alive_nodes():
+    return [n for n in ray.nodes() if n["Alive"]]
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    port = free_port()
+    # Short: Ray's unix sockets live under it (paths are limited to 107 bytes).
+    temp = tempfile.mkdtemp(prefix="ray", dir="/tmp")
+    head = start(["--head", "--port", str(port), "--temp-dir", temp, "--include-dashboard=false"])
+    address = f"127.0.0.1:{port}"
+    worker = None
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                ray.init(address=address, logging_level="WARNING", log_to_driver=False)
+                break
+            except Exception:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(1)
+        worker = start(["--address", address])
+        while len(alive_nodes()) < 2:
+            assert time.monotonic() < deadline + 60, "the worker node did not join"
+            time.sleep(0.5)
+        yield {"address": address, "worker": worker}
+    finally:
+        ray.shutdown()
+        for p in (worker, head):
+            if p is not None and p.poll() is None:
+                os.killpg(p.pid, signal.SIGTERM)
+                try:
+                    p.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    os.killpg(p.pid, signal.SIGKILL)
+
+
+def tree(d):
+    """Every file under `d` but the shards' completion records (relative path → bytes)."""
+    d = Path(d)
+    return {
+        str(p.relative_to(d)): p.read_bytes()
+        for p in sorted(d.rglob("*"))
+        if p.is_file() and p.relative_to(d).parts[0] != "shards"
+    }
+
+
+def spec_file(root, scene, count):
+    p = root / f"spec{count}.toml"
+    p.write_text(
+        f"""count = {count}
+seed = 3
+
+[[scenes]]
+path = "{scene}"
+
+[objects]
+keep = 0.8
+move = 0.8
+
+[output]
+width = 64
+height = 48
+"""
+    )
+    return p
+
+
+def shard_task_in_group(pgid):
+    """Whether a process of group `pgid` is running a shard (Ray titles a worker busy
+    with a task `ray::NAME`)."""
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            stat = (d / "stat").read_text()
+            group = int(stat.rsplit(")", 1)[1].split()[2])
+            cmd = (d / "cmdline").read_bytes()
+        except (OSError, ValueError, IndexError):
+            continue
+        if group == pgid and cmd.startswith(b"ray::_shard_task"):
+            return True
+    return False
+
+
+def test_generate_on_two_nodes_equals_one_process_even_when_a_node_dies(cluster, trained_more):
+    cap, scene, root = trained_more
+    sp = spec_file(root, scene, 48)
+    whole = root / "whole"
+    run("generate", "--spec", sp, "--out", whole)
+    want = tree(whole)
+
+    # 8 shards over both nodes.
+    out = root / "ray8"
+    r = assist.distributed.generate(sp, out=out, shards=8, address=cluster["address"], progress=False)
+    assert r["shards"] == 8 and r["samples"] == 48 and r["made"] == 48, r
+    nodes = {s["node"] for s in r["per_shard"]}
+    assert tree(out) == want, "8 Ray shards differ from one process's run"
+    st = assist.status(out)
+    assert st["all_complete"] and st["shards"] == 8, st
+
+    # The worker node killed while a shard runs on it: Ray retries the shard on the head.
+    out2 = root / "ray8-killed"
+    result, failure = {}, []
+
+    def drive():
+        try:
+            result.update(
+                assist.distributed.generate(sp, out=out2, shards=8, address=cluster["address"], progress=False)
+            )
+        except Exception as e:  # reported below
+            failure.append(e)
+
+    t = threading.Thread(target=drive)
+    t.start()
+    worker = cluster["worker"]
+    deadline = time.monotonic() + 120
+    while not shard_task_in_group(worker.pid):
+        assert time.monotonic() < deadline and t.is_alive(), f"no shard ran on the worker node ({nodes})"
+        time.sleep(0.05)
+    os.killpg(worker.pid, signal.SIGKILL)
+    worker.wait()
+    t.join(timeout=300)
+    assert not t.is_alive(), "the run did not finish after the worker node died"
+    assert not failure, failure
+    assert result["samples"] == 48, result
+    assert tree(out2) == want, "the run with a killed node differs from one process's run"
+
+
+def test_train_two_scenes_as_tasks(cluster, tmp_path):
+    caps = []
+    for k in range(2):
+        c = tmp_path / f"cap{k}"
+        run("synth", "--out", c, "--views", "8", "--width", "32", "--height", "24", "--objects", "2", "--seed", str(k))
+        caps.append(c)
+    out = tmp_path / "scenes"
+    reports = assist.distributed.train(caps, out, address=cluster["address"], iters=20, progress=False)
+    assert [Path(r["scene"]).name for r in reports] == ["cap0.assist", "cap1.assist"], reports
+    for r in reports:
+        s = assist.Scene.load(r["scene"])
+        assert len(s.nodes()) >= 1
+        assert Path(r["log"]).read_text().count('"event"') >= 2
+    # Again: both are done, nothing is trained.
+    again = assist.distributed.train(caps, out, address=cluster["address"], iters=20, progress=False)
+    assert all(r.get("skipped") for r in again), again
+
+
+def test_errors_say_what_to_do(tmp_path):
+    # Ray missing: the extra to install is named.
+    code = "import sys; sys.modules['ray'] = None\nimport assist\ntry:\n    assist.distributed.generate('x', out='y')\nexcept ImportError as e:\n    print(e)"
+    o = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert "pip install 'assist[ray]'" in o.stdout, o.stdout + o.stderr
+    # An address where no cluster answers: refused at once, not after Ray's minutes of
+    # retries (in a fresh process: this one is connected to the test cluster).
+    code = (
+        "import assist, time\nt = time.monotonic()\ntry:\n"
+        f"    assist.distributed.generate('x', out='y', address='127.0.0.1:{free_port()}')\n"
+        "except assist.AssistError as e:\n    print(e, time.monotonic() - t)"
+    )
+    o = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert "cannot reach the Ray cluster" in o.stdout and "ray start --head" in o.stdout, o.stdout + o.stderr
+    # A shard whose output the driver cannot see: the folder is not shared.
+    with pytest.raises(assist.AssistError, match="not visible here.*share"):
+        assist.distributed._check_visible(
+            {"shard": "3/8", "node": "node-b", "record": str(tmp_path / "elsewhere/shards/3-of-8.json")},
+            tmp_path,
+        )
