@@ -33,6 +33,8 @@ pub enum BenchCommand {
     /// Masks derived from object boxes on a scene trained without masks, against the
     /// dataset's instance masks: IoU per object, mIoU, time.
     Split(crate::cmd_bench_split::SplitBenchArgs),
+    /// `assist generate merge` on a run split into many shards: time and peak memory.
+    Merge(crate::cmd_bench_merge::MergeBenchArgs),
     /// Segment Anything on this machine: load, embedding a photograph, one prompt's
     /// masks (a random ViT-B unless --checkpoint).
     Sam(crate::cmd_bench_sam::SamBenchArgs),
@@ -83,6 +85,7 @@ pub fn run(c: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Embed(a) => crate::cmd_bench_embed::run(a),
         BenchCommand::Process(a) => crate::cmd_bench_process::run(a),
         BenchCommand::Split(a) => crate::cmd_bench_split::run(a),
+        BenchCommand::Merge(a) => crate::cmd_bench_merge::run(a),
         BenchCommand::Sam(a) => crate::cmd_bench_sam::run(a),
     }
 }

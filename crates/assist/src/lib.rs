@@ -13,6 +13,7 @@ use clap::{Parser, Subcommand};
 mod cmd_bench;
 mod cmd_bench_embed;
 mod cmd_bench_gpu;
+mod cmd_bench_merge;
 mod cmd_bench_mesh;
 mod cmd_bench_process;
 mod cmd_bench_render;
