@@ -74,9 +74,16 @@ def _shard_task(spec, out, shard, seed, count, coco_masks):
 
 
 def _progress(done, total, t0, what):
+    """A bar over the tasks on a terminal, a line per finished task otherwise."""
     el = time.monotonic() - t0
     eta = el / done * (total - done) if done else float("nan")
-    print(f"[{done}/{total} {what}] {el:.0f} s, ETA {eta:.0f} s", file=sys.stderr, flush=True)
+    text = f"{done}/{total} {what}, {el:.0f} s, ETA {eta:.0f} s"
+    if sys.stderr.isatty():
+        filled = round(30 * done / max(total, 1))
+        end = "\n" if done == total else ""
+        print(f"\r[{'#' * filled}{'.' * (30 - filled)}] {text}", end=end, file=sys.stderr, flush=True)
+    else:
+        print(text, file=sys.stderr, flush=True)
 
 
 def _check_visible(result, out):
