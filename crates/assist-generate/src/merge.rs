@@ -143,6 +143,9 @@ impl Generator {
     /// restart, another shard). A folder another spec made is replaced only with `force`
     /// (and only if assist wrote it); anything else is refused.
     fn claim(&self, out: &Path, force: bool) -> Result<()> {
+        // The shards of a run start together: one claims the new folder while the others
+        // wait, then find its generate.json and agree with it.
+        let _claiming = claim_lock(out)?;
         let manifest = self.manifest();
         let file = out.join("generate.json");
         if file.is_file() {
@@ -192,6 +195,19 @@ impl Generator {
         }
         assist_data::image_io::write_atomic(&file, &pretty(&manifest))?;
         Ok(())
+    }
+}
+
+/// The output's lock, waited for (a minute at most) while another shard holds it.
+fn claim_lock(out: &Path) -> Result<assist_fs::OutputLock> {
+    let t0 = Instant::now();
+    loop {
+        match assist_fs::lock(out, "claiming the folder of a generate run") {
+            Err(assist_fs::FsError::Busy { .. }) if t0.elapsed().as_secs() < 60 => {
+                std::thread::sleep(std::time::Duration::from_millis(20));
+            }
+            r => return Ok(r?),
+        }
     }
 }
 

@@ -116,21 +116,35 @@ height = 48
     return p
 
 
-def shard_task_in_group(pgid):
-    """Whether a process of group `pgid` is running a shard (Ray titles a worker busy
-    with a task `ray::NAME`)."""
+def processes():
+    """(pid, parent pid, process group, command line) of every process."""
     for d in Path("/proc").iterdir():
         if not d.name.isdigit():
             continue
         try:
-            stat = (d / "stat").read_text()
-            group = int(stat.rsplit(")", 1)[1].split()[2])
-            cmd = (d / "cmdline").read_bytes()
+            fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
+            yield int(d.name), int(fields[1]), int(fields[2]), (d / "cmdline").read_bytes()
         except (OSError, ValueError, IndexError):
             continue
-        if group == pgid and cmd.startswith(b"ray::_shard_task"):
-            return True
-    return False
+
+
+def shard_tasks_of_node(pgid):
+    """The processes of the node `ray start` started in group `pgid` that are running a
+    shard: children of its raylet titled `ray::_shard_task` (Ray titles a worker busy with
+    a task `ray::NAME`; newer Rays start each worker in a process group of its own)."""
+    procs = list(processes())
+    raylets = {p for p, _, g, cmd in procs if g == pgid and b"raylet/raylet" in cmd}
+    return [p for p, pp, _, cmd in procs if pp in raylets and cmd.startswith(b"ray::_shard_task")]
+
+
+def kill_node(pgid):
+    """Kills a node as a machine dies: its shard workers, its raylet and the rest."""
+    for p in shard_tasks_of_node(pgid):
+        try:
+            os.kill(p, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    os.killpg(pgid, signal.SIGKILL)
 
 
 def test_generate_on_two_nodes_equals_one_process_even_when_a_node_dies(cluster, trained_more):
@@ -144,7 +158,8 @@ def test_generate_on_two_nodes_equals_one_process_even_when_a_node_dies(cluster,
     out = root / "ray8"
     r = assist.distributed.generate(sp, out=out, shards=8, address=cluster["address"], progress=False)
     assert r["shards"] == 8 and r["samples"] == 48 and r["made"] == 48, r
-    nodes = {s["node"] for s in r["per_shard"]}
+    nodes = {s["node_id"] for s in r["per_shard"]}
+    assert len(nodes) == 2, f"the shards ran on {len(nodes)} node(s), not both"
     assert tree(out) == want, "8 Ray shards differ from one process's run"
     st = assist.status(out)
     assert st["all_complete"] and st["shards"] == 8, st
@@ -165,10 +180,10 @@ def test_generate_on_two_nodes_equals_one_process_even_when_a_node_dies(cluster,
     t.start()
     worker = cluster["worker"]
     deadline = time.monotonic() + 120
-    while not shard_task_in_group(worker.pid):
+    while not shard_tasks_of_node(worker.pid):
         assert time.monotonic() < deadline and t.is_alive(), f"no shard ran on the worker node ({nodes})"
         time.sleep(0.05)
-    os.killpg(worker.pid, signal.SIGKILL)
+    kill_node(worker.pid)
     worker.wait()
     t.join(timeout=300)
     assert not t.is_alive(), "the run did not finish after the worker node died"

@@ -68,8 +68,11 @@ def _where():
 
 
 def _shard_task(spec, out, shard, seed, count, coco_masks):
+    import ray
+
     r = generate_shard(spec, out, shard=shard, seed=seed, count=count, coco_masks=coco_masks)
     r["node"] = _where()
+    r["node_id"] = ray.get_runtime_context().get_node_id()
     return r
 
 
