@@ -246,51 +246,7 @@ pub fn merge(out: &Path, partial: bool, masks: CocoMasks) -> Result<MergeSummary
     integrity::clean_stale(out);
     integrity::clean_stale(&out.join("annotations"));
     let st = shards::status(out, None, true)?;
-    let refuse = |what: &str, bad: Vec<&ShardState>, hint: &str| -> GenError {
-        let named: Vec<String> = bad
-            .iter()
-            .take(10)
-            .map(|s| format!("{} {} ({})", s.shard, s.state, s.problems.join("; ")))
-            .collect();
-        GenError::Folder {
-            path: out.into(),
-            message: format!(
-                "{} shard{} {what}: {}{}; {hint} (`assist generate status {}` lists them)",
-                bad.len(),
-                if bad.len() == 1 { "" } else { "s" },
-                named.join(", "),
-                if bad.len() > 10 { ", …" } else { "" },
-                out.display()
-            ),
-        }
-    };
-    let foreign: Vec<&ShardState> = st
-        .incomplete
-        .iter()
-        .filter(|s| s.state == "foreign")
-        .collect();
-    if !foreign.is_empty() {
-        return Err(refuse(
-            "made by another run (another spec, seed or assist version)",
-            foreign,
-            "run them again with this run's spec and assist",
-        ));
-    }
-    let damaged = st.incomplete.iter().any(|s| s.damaged > 0);
-    if damaged || (st.samples_done < count && !partial) {
-        // Without --partial every shard that is not complete is named; with it, the
-        // damaged ones (a merge never indexes a file that does not hold).
-        let bad: Vec<&ShardState> = st
-            .incomplete
-            .iter()
-            .filter(|s| !partial || s.damaged > 0)
-            .collect();
-        return Err(refuse(
-            &format!("not complete ({} of {count} samples hold)", st.samples_done),
-            bad,
-            "run them again with the same spec (a rerun remakes only what does not hold), or merge the others with --partial",
-        ));
-    }
+    refuse_unless_whole(out, &st, count, partial)?;
     let classes: Vec<String> = manifest["classes"]
         .as_array()
         .map(|a| {
@@ -416,6 +372,57 @@ pub fn merge(out: &Path, partial: bool, masks: CocoMasks) -> Result<MergeSummary
         annotations: sinks.anns.n,
         missing,
     })
+}
+
+/// The merge's refusals: another run's shards, damaged ones, and (unless `partial`)
+/// missing ones, each named.
+fn refuse_unless_whole(out: &Path, st: &shards::Status, count: u64, partial: bool) -> Result<()> {
+    let refuse = |what: &str, bad: Vec<&ShardState>, hint: &str| -> GenError {
+        let named: Vec<String> = bad
+            .iter()
+            .take(10)
+            .map(|s| format!("{} {} ({})", s.shard, s.state, s.problems.join("; ")))
+            .collect();
+        GenError::Folder {
+            path: out.into(),
+            message: format!(
+                "{} shard{} {what}: {}{}; {hint} (`assist generate status {}` lists them)",
+                bad.len(),
+                if bad.len() == 1 { "" } else { "s" },
+                named.join(", "),
+                if bad.len() > 10 { ", …" } else { "" },
+                out.display()
+            ),
+        }
+    };
+    let foreign: Vec<&ShardState> = st
+        .incomplete
+        .iter()
+        .filter(|s| s.state == "foreign")
+        .collect();
+    if !foreign.is_empty() {
+        return Err(refuse(
+            "made by another run (another spec, seed or assist version)",
+            foreign,
+            "run them again with this run's spec and assist",
+        ));
+    }
+    let damaged = st.incomplete.iter().any(|s| s.damaged > 0);
+    if damaged || (st.samples_done < count && !partial) {
+        // Without --partial every shard that is not complete is named; with it, the
+        // damaged ones (a merge never indexes a file that does not hold).
+        let bad: Vec<&ShardState> = st
+            .incomplete
+            .iter()
+            .filter(|s| !partial || s.damaged > 0)
+            .collect();
+        return Err(refuse(
+            &format!("not complete ({} of {count} samples hold)", st.samples_done),
+            bad,
+            "run them again with the same spec (a rerun remakes only what does not hold), or merge the others with --partial",
+        ));
+    }
+    Ok(())
 }
 
 /// One JSON array's elements, written as they come to a temporary file (`.NAME.tmp-PID`,

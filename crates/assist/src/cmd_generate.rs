@@ -178,6 +178,43 @@ fn status(
     Ok(())
 }
 
+/// A rerun of a shard that is complete: nothing made (a whole run merges if it has not).
+fn complete_already(
+    a: &GenerateArgs,
+    out: &std::path::Path,
+    spec: &Spec,
+    shard: Shard,
+) -> anyhow::Result<()> {
+    let owned = (0..spec.count).filter(|&i| shard.owns(i)).count();
+    let merged = shard.count == 1 && !out.join("index.json").is_file();
+    eprintln!(
+        "shard {}/{} of {} is complete ({owned} samples; its record {}): nothing to do",
+        shard.index,
+        shard.count,
+        out.display(),
+        assist_generate::shards::record_path(out, shard).display()
+    );
+    let m = if merged {
+        Some(assist_generate::merge(out, false, a.coco_masks.into())?)
+    } else {
+        None
+    };
+    if a.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&serde_json::json!({
+                "out": out,
+                "shard": format!("{}/{}", shard.index, shard.count),
+                "made": 0,
+                "skipped": owned,
+                "complete": true,
+                "merged": m,
+            }))?
+        );
+    }
+    Ok(())
+}
+
 pub fn run(a: GenerateArgs) -> anyhow::Result<()> {
     if let Some(GenerateCommand::Status {
         dir,
@@ -243,34 +280,7 @@ pub fn run(a: GenerateArgs) -> anyhow::Result<()> {
     };
     // A shard that is complete has nothing to do: say so without loading a scene.
     if !a.dry_run && !a.force && assist_generate::shards::is_complete(&out, &spec, shard) {
-        let owned = (0..spec.count).filter(|&i| shard.owns(i)).count();
-        let merged = shard.count == 1 && !out.join("index.json").is_file();
-        eprintln!(
-            "shard {}/{} of {} is complete ({owned} samples; its record {}): nothing to do",
-            shard.index,
-            shard.count,
-            out.display(),
-            assist_generate::shards::record_path(&out, shard).display()
-        );
-        let m = if merged {
-            Some(assist_generate::merge(&out, false, a.coco_masks.into())?)
-        } else {
-            None
-        };
-        if a.json {
-            println!(
-                "{}",
-                serde_json::to_string_pretty(&serde_json::json!({
-                    "out": out,
-                    "shard": format!("{}/{}", shard.index, shard.count),
-                    "made": 0,
-                    "skipped": owned,
-                    "complete": true,
-                    "merged": m,
-                }))?
-            );
-        }
-        return Ok(());
+        return complete_already(&a, &out, &spec, shard);
     }
     let tty = std::io::stderr().is_terminal();
     let generator = Generator::prepare(spec, &mut Prep(true)).context("preparing the run")?;
