@@ -8,11 +8,10 @@
 
 mod common;
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use common::{ok, run, s};
+use common::{ok, run, run_tree, s};
 
 const EXAMPLES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../examples");
 
@@ -88,27 +87,6 @@ fn assist(cmd: &[String], subst: &Subst, env: &[(&str, String)]) -> std::process
     c.output().unwrap()
 }
 
-fn tree(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                if p != dir.join("shards") {
-                    stack.push(p);
-                }
-            } else {
-                out.insert(
-                    p.strip_prefix(dir).unwrap().into(),
-                    std::fs::read(&p).unwrap(),
-                );
-            }
-        }
-    }
-    out
-}
-
 /// Runs `cmd` once per environment in `envs`, all at once (as the engine's tasks run),
 /// and waits for all.
 fn tasks(cmd: &[String], subst: &Subst, envs: Vec<Vec<(&'static str, String)>>) {
@@ -161,7 +139,7 @@ fn slurm_and_kubernetes_examples_run_as_written() {
     .unwrap();
     let whole = root.join("whole");
     ok(&run(&["generate", "--spec", s(&spec), "--out", s(&whole)]));
-    let want = tree(&whole);
+    let want = run_tree(&whole);
 
     // Slurm: the array from #SBATCH --array, tasks 3 and 7 "fail" (never run).
     let script = std::fs::read_to_string(Path::new(EXAMPLES).join("generate-slurm.sh")).unwrap();
@@ -229,7 +207,7 @@ fn slurm_and_kubernetes_examples_run_as_written() {
     );
     ok(&assist(&merge, &subst, &[]));
     assert!(
-        tree(&slurm_out) == want,
+        run_tree(&slurm_out) == want,
         "the Slurm array's run differs from one process's"
     );
 
@@ -273,7 +251,7 @@ fn slurm_and_kubernetes_examples_run_as_written() {
     assert!(String::from_utf8_lossy(&st.stdout).contains("every shard is complete"));
     ok(&assist(merge, &subst, &[]));
     assert!(
-        tree(&k8s_out) == want,
+        run_tree(&k8s_out) == want,
         "the Indexed Job's run differs from one process's"
     );
 }

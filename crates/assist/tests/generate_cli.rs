@@ -11,30 +11,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use common::{ok, pycoco_check, refused, run, s};
-
-/// Every file under `dir` (relative path → bytes) but the shards' completion records
-/// (`shards/`: which shards ran, so a sharded run's differ from a whole run's).
-fn tree(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                if p != dir.join("shards") {
-                    stack.push(p);
-                }
-            } else {
-                out.insert(
-                    p.strip_prefix(dir).unwrap().to_path_buf(),
-                    std::fs::read(&p).unwrap(),
-                );
-            }
-        }
-    }
-    out
-}
+use common::{ok, pycoco_check, refused, run, run_tree, s};
 
 /// One shard deleted and one file of another truncated: `status` names both, `merge`
 /// refuses, a rerun of a complete shard does nothing, and rerunning the two then merging
@@ -110,7 +87,7 @@ fn shards_damaged_and_remade(sp: &Path, dir: &Path, whole: &BTreeMap<PathBuf, Ve
     }
     ok(&run(&["generate", "merge", s(dir)]));
     assert!(
-        tree(dir) == *whole,
+        run_tree(dir) == *whole,
         "the remade shards differ from the whole run"
     );
 }
@@ -210,13 +187,13 @@ fn generate_shards_replays_and_annotations() {
     );
 
     // A restart makes nothing and changes nothing.
-    let before = tree(&full);
+    let before = run_tree(&full);
     let again = run(&["generate", "--spec", s(&sp), "--out", s(&full), "--json"]);
     ok(&again);
     let again: serde_json::Value = serde_json::from_slice(&again.stdout).unwrap();
     assert_eq!(again["made"], 0);
     assert_eq!(again["skipped"], 100);
-    assert_eq!(tree(&full), before, "a restart rewrote files");
+    assert_eq!(run_tree(&full), before, "a restart rewrote files");
 
     // 4 shards as separate processes into one folder, then merge: file for file the same.
     let sharded = root.join("sharded");
@@ -237,8 +214,8 @@ fn generate_shards_replays_and_annotations() {
     }
     assert!(!sharded.join("index.json").exists(), "a shard merged");
     ok(&run(&["generate", "merge", s(&sharded)]));
-    let a = tree(&full);
-    let b = tree(&sharded);
+    let a = run_tree(&full);
+    let b = run_tree(&sharded);
     assert_eq!(
         a.keys().collect::<Vec<_>>(),
         b.keys().collect::<Vec<_>>(),

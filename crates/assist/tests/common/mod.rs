@@ -261,3 +261,27 @@ pub fn pycoco_check(out: &Path, table: f64) {
     );
     python_check("bop_check.py", &[out.as_os_str()], needs);
 }
+
+/// Every file of a generate run's folder `dir` (relative path → bytes) but the shards'
+/// completion records (`shards/`: which shards ran, so a sharded run's differ from a whole
+/// run's).
+pub fn run_tree(dir: &Path) -> std::collections::BTreeMap<std::path::PathBuf, Vec<u8>> {
+    let mut out = std::collections::BTreeMap::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                if p != dir.join("shards") {
+                    stack.push(p);
+                }
+            } else {
+                out.insert(
+                    p.strip_prefix(dir).unwrap().to_path_buf(),
+                    std::fs::read(&p).unwrap(),
+                );
+            }
+        }
+    }
+    out
+}
