@@ -358,3 +358,37 @@ pub fn is_complete(out: &Path, spec: &Spec, s: Shard) -> bool {
             .filter(|&i| s.owns(i))
             .all(|i| integrity::check(&sample_dir(out, i), &run, false).is_ok())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn record_names_round_trip_and_sort_in_shard_order() {
+        let out = Path::new("/run");
+        let mut names = Vec::new();
+        for i in [0, 7, 9, 10, 99, 100, 999] {
+            let s = Shard {
+                index: i,
+                count: 1000,
+            };
+            let p = record_path(out, s);
+            let name = p.file_name().unwrap().to_string_lossy().into_owned();
+            assert_eq!(parse_record_name(&name), Some(s), "{name}");
+            names.push(name);
+        }
+        let mut sorted = names.clone();
+        sorted.sort();
+        assert_eq!(sorted, names, "padded indices sort as numbers");
+        assert_eq!(names[1], "0007-of-1000.json");
+        for bad in [
+            "3-of-2.json",
+            "x-of-4.json",
+            "3-of-4.txt",
+            "3of4.json",
+            "-1-of-4.json",
+        ] {
+            assert_eq!(parse_record_name(bad), None, "{bad}");
+        }
+    }
+}
