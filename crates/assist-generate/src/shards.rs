@@ -359,6 +359,37 @@ pub fn is_complete(out: &Path, spec: &Spec, s: Shard) -> bool {
             .all(|i| integrity::check(&sample_dir(out, i), &run, false).is_ok())
 }
 
+/// A rerun of shard `s` that finds it complete: nothing to make (a whole run's merge is
+/// written if it is not there yet).
+#[derive(Debug, Clone)]
+pub struct CompleteRerun {
+    /// The samples the shard owns.
+    pub owned: u64,
+    pub merged: Option<crate::MergeSummary>,
+}
+
+/// What a rerun of shard `s` does when it is complete ([`is_complete`]); `None` when it
+/// has work to do. The CLI and Python share it.
+pub fn rerun_if_complete(
+    out: &Path,
+    spec: &Spec,
+    s: Shard,
+    masks: crate::CocoMasks,
+) -> Result<Option<CompleteRerun>> {
+    if !is_complete(out, spec, s) {
+        return Ok(None);
+    }
+    let merged = if s.count == 1 && !out.join("index.json").is_file() {
+        Some(crate::merge(out, false, masks)?)
+    } else {
+        None
+    };
+    Ok(Some(CompleteRerun {
+        owned: (0..spec.count).filter(|&i| s.owns(i)).count() as u64,
+        merged,
+    }))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -64,16 +64,10 @@ pub(crate) fn generate_shard<'py>(
     let record = shards::record_path(&out, shard);
     let summary = py
         .detach(|| -> assist_generate::Result<serde_json::Value> {
-            if !force && shards::is_complete(&out, &spec, shard) {
-                let merged = if shard.count == 1 && !out.join("index.json").is_file() {
-                    Some(assist_generate::merge(&out, false, masks)?)
-                } else {
-                    None
-                };
-                let owned = (0..spec.count).filter(|&i| shard.owns(i)).count();
+            if !force && let Some(done) = shards::rerun_if_complete(&out, &spec, shard, masks)? {
                 return Ok(serde_json::json!({
                     "out": out, "shard": format!("{}/{}", shard.index, shard.count),
-                    "made": 0, "skipped": owned, "seconds": 0.0, "merged": merged,
+                    "made": 0, "skipped": done.owned, "seconds": 0.0, "merged": done.merged,
                 }));
             }
             let g = Generator::prepare(spec, &mut ())?;

@@ -178,27 +178,22 @@ fn status(
     Ok(())
 }
 
-/// A rerun of a shard that is complete: nothing made (a whole run merges if it has not).
+/// Says what a rerun of a complete shard did: nothing made (a whole run merged if it had
+/// not been).
 fn complete_already(
     a: &GenerateArgs,
     out: &std::path::Path,
-    spec: &Spec,
     shard: Shard,
+    done: assist_generate::shards::CompleteRerun,
 ) -> anyhow::Result<()> {
-    let owned = (0..spec.count).filter(|&i| shard.owns(i)).count();
-    let merged = shard.count == 1 && !out.join("index.json").is_file();
     eprintln!(
-        "shard {}/{} of {} is complete ({owned} samples; its record {}): nothing to do",
+        "shard {}/{} of {} is complete ({} samples; its record {}): nothing to do",
         shard.index,
         shard.count,
         out.display(),
+        done.owned,
         assist_generate::shards::record_path(out, shard).display()
     );
-    let m = if merged {
-        Some(assist_generate::merge(out, false, a.coco_masks.into())?)
-    } else {
-        None
-    };
     if a.json {
         println!(
             "{}",
@@ -206,9 +201,9 @@ fn complete_already(
                 "out": out,
                 "shard": format!("{}/{}", shard.index, shard.count),
                 "made": 0,
-                "skipped": owned,
+                "skipped": done.owned,
                 "complete": true,
-                "merged": m,
+                "merged": done.merged,
             }))?
         );
     }
@@ -279,8 +274,12 @@ pub fn run(a: GenerateArgs) -> anyhow::Result<()> {
             .unwrap_or(Shard::ALL),
     };
     // A shard that is complete has nothing to do: say so without loading a scene.
-    if !a.dry_run && !a.force && assist_generate::shards::is_complete(&out, &spec, shard) {
-        return complete_already(&a, &out, &spec, shard);
+    if !a.dry_run
+        && !a.force
+        && let Some(done) =
+            assist_generate::shards::rerun_if_complete(&out, &spec, shard, a.coco_masks.into())?
+    {
+        return complete_already(&a, &out, shard, done);
     }
     let tty = std::io::stderr().is_terminal();
     let generator = Generator::prepare(spec, &mut Prep(true)).context("preparing the run")?;
