@@ -8,11 +8,12 @@
 //! Speed: level-major encoding (one level's table in cache at a time), backward split per
 //! level (no atomics), MLP products through `assist-simd`'s runtime-dispatched GEMM, rayon
 //! across cores, buffers reused across steps. The CPU implementation is the reference
-//! behind the `Field` API, where a GPU backend can be added later.
+//! behind the `Field` API; a second implementation (a GPU) plugs in as a [`FieldBackend`].
 
 #![forbid(unsafe_code)]
 
 mod adam;
+mod backend;
 mod config;
 mod constant;
 pub mod contraction;
@@ -26,6 +27,7 @@ mod sh;
 pub mod shade;
 
 pub use adam::Adam;
+pub use backend::FieldBackend;
 pub use config::FieldConfig;
 pub use error::FieldError;
 pub use field::{Field, PackedTables, ParamLayout, PhaseTimes, Precision, Samples, Tape};

@@ -247,17 +247,28 @@ fn base_data(k: usize, b: &spec::BaseScene, session: &Session) -> Result<PathBuf
     })
 }
 
+/// Where fields are queried (a GPU: `--device`), shared by every session of a run.
+pub type Backend = std::sync::Arc<dyn assist_session::FieldBackend>;
+
+/// What preparing a base scene shares with the others: the backend and the library
+/// scenes surveyed so far (by canonical path).
+struct Where<'a> {
+    backend: Option<Backend>,
+    surveyed: &'a mut BTreeMap<String, Option<Survey>>,
+}
+
 /// Base scene `k` loaded and surveyed: its cameras, what its training views saw, the
 /// surfaces objects may stand on, each object's shape and the library as it stands there.
 fn prepare_base(
     spec: &Spec,
     k: usize,
     b: &spec::BaseScene,
-    surveyed: &mut BTreeMap<String, Option<Survey>>,
+    at: Where<'_>,
     progress: &mut dyn Progress,
 ) -> Result<Base> {
     progress.preparing(&format!("loading {}", b.path.display()));
-    let session = Session::open(&b.path)?;
+    let mut session = Session::open(&b.path)?;
+    session.set_backend(at.backend.clone());
     let data = base_data(k, b, &session)?;
     progress.preparing(&format!("reading the cameras of {}", data.display()));
     let train = assist_session::dataset_cameras(&data, SplitChoice::Train, 1)?;
@@ -271,7 +282,7 @@ fn prepare_base(
         train.len().min(48)
     ));
     let views = surface::small_views(&train, 96, 48);
-    let (seen, points) = surface::survey(session.scene(), &views);
+    let (seen, points) = surface::survey(session.scene(), &views, &session.survey_options());
     let scene = session.description();
     let mpu = scene.meters_per_unit;
     let no_surface = || GenError::Spec {
@@ -303,7 +314,7 @@ fn prepare_base(
     for (j, l) in spec.library.iter().enumerate() {
         library.push(lib_node(&session, j, l)?);
     }
-    let library = library_shapes(&session, &b.path, &shapes, library, surveyed, progress);
+    let library = library_shapes(&session, &b.path, &shapes, library, at, progress);
     Ok(Base {
         path: b.path.clone(),
         session,
@@ -354,7 +365,7 @@ fn library_shapes(
     path: &Path,
     shapes: &BTreeMap<String, Option<Shape>>,
     library: Vec<(LibNode, std::sync::Arc<assist_session::NodeField>)>,
-    surveyed: &mut BTreeMap<String, Option<Survey>>,
+    at: Where<'_>,
     progress: &mut dyn Progress,
 ) -> Vec<LibNode> {
     let scene = session.description();
@@ -372,12 +383,12 @@ fn library_shapes(
                 }
                 _ => {
                     let ax = place::up_axis(&ln.node.world_from_local, scene.up);
-                    let survey = surveyed.entry(ln.scene.clone()).or_insert_with(|| {
+                    let survey = at.surveyed.entry(ln.scene.clone()).or_insert_with(|| {
                         progress.preparing(&format!(
                             "surveying {} for the surfaces its objects stood on",
                             ln.scene
                         ));
-                        Survey::of(Path::new(&ln.scene))
+                        Survey::of(Path::new(&ln.scene), at.backend.clone())
                     });
                     survey
                         .as_ref()
@@ -397,6 +408,16 @@ impl Generator {
     /// Loads the base scenes and library, and surveys each base scene's training views
     /// (support surfaces, what was seen).
     pub fn prepare(spec: Spec, progress: &mut dyn Progress) -> Result<Generator> {
+        Self::prepare_on(spec, None, progress)
+    }
+
+    /// [`prepare`](Self::prepare), every render of the run querying its fields on
+    /// `backend` (a GPU: `--device`; `None`: this CPU).
+    pub fn prepare_on(
+        spec: Spec,
+        backend: Option<Backend>,
+        progress: &mut dyn Progress,
+    ) -> Result<Generator> {
         let outputs = spec.output.outputs().map_err(|m| GenError::Spec {
             path: "spec".into(),
             field: "output.images".into(),
@@ -406,7 +427,11 @@ impl Generator {
         // Library scenes surveyed so far (by canonical path).
         let mut surveyed: BTreeMap<String, Option<Survey>> = BTreeMap::new();
         for (k, b) in spec.scenes.iter().enumerate() {
-            bases.push(prepare_base(&spec, k, b, &mut surveyed, progress)?);
+            let at = Where {
+                backend: backend.clone(),
+                surveyed: &mut surveyed,
+            };
+            bases.push(prepare_base(&spec, k, b, at, progress)?);
         }
         check_look_at(&spec, &bases)?;
         let classes = class_list(&bases);
@@ -467,12 +492,13 @@ struct Survey {
 impl Survey {
     /// `None` when the scene, its recorded capture or a surface in it is missing (its
     /// objects then keep their whole occupancy).
-    fn of(path: &Path) -> Option<Survey> {
-        let session = Session::open(path).ok()?;
+    fn of(path: &Path, backend: Option<Backend>) -> Option<Survey> {
+        let mut session = Session::open(path).ok()?;
+        session.set_backend(backend);
         let data = assist_session::recorded_dataset(path, session.info()).ok()??;
         let train = assist_session::dataset_cameras(&data, SplitChoice::Train, 1).ok()?;
         let views = surface::small_views(&train, 96, 48);
-        let (_, points) = surface::survey(session.scene(), &views);
+        let (_, points) = surface::survey(session.scene(), &views, &session.survey_options());
         let scene = session.description();
         let mpu = scene.meters_per_unit;
         let support = surface::support_map(scene.up, &points, 0.01 / mpu, 0.005 / mpu)?;

@@ -353,10 +353,7 @@ impl Generator {
             ..Default::default()
         };
         // The background alone shares the scene's fields, so their packed tables too.
-        let bg_opts = assist_session::RenderOptions {
-            tables: session.packed_tables(),
-            ..Default::default()
-        };
+        let bg_opts = session.base_options();
         for c in cameras {
             let frame = session.render(&c.camera, &req)?;
             let bg = background

@@ -149,15 +149,18 @@ pub fn small_views(cams: &[NamedCamera], max_width: u32, max_views: usize) -> Ve
 
 /// Renders the base scene and its background alone at `views`: the views as seen (for
 /// the observed test) and the upward-facing surface points of the background.
-pub fn survey(scene: &NeuralScene, views: &[Camera]) -> (Vec<SeenView>, Vec<DVec3>) {
+pub fn survey(
+    scene: &NeuralScene,
+    views: &[Camera],
+    opts: &RenderOptions,
+) -> (Vec<SeenView>, Vec<DVec3>) {
     let up = UpFrame::new(scene.scene.up);
     let mut bg = scene.clone();
     bg.scene.nodes.retain(|n| n.is_background());
-    let opts = RenderOptions::default();
     let mut seen = Vec::with_capacity(views.len());
     let mut points = Vec::new();
     for cam in views {
-        let full = render_camera(scene, cam, u32::MAX, &opts);
+        let full = render_camera(scene, cam, u32::MAX, opts);
         seen.push(SeenView {
             camera: *cam,
             depth: full.depth,
@@ -165,7 +168,7 @@ pub fn survey(scene: &NeuralScene, views: &[Camera]) -> (Vec<SeenView>, Vec<DVec
         if bg.scene.nodes.is_empty() {
             continue;
         }
-        let img = render_camera(&bg, cam, u32::MAX, &opts);
+        let img = render_camera(&bg, cam, u32::MAX, opts);
         let (w, h) = (img.width as usize, img.height as usize);
         let flat = 20f64.to_radians().cos();
         let normals = cam.depth_normals(&img.depth, w, h, |i| img.opacity[i] >= 0.9);

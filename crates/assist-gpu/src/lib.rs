@@ -4,18 +4,21 @@
 //!
 //! What runs here so far: a field's inference and its density alone ([`GpuField`]), and
 //! its whole training step — forward with a record, backward, every parameter's gradient,
-//! Adam ([`GpuTrainer`]) — over batches resident in GPU memory. Sampling and compositing
-//! still run on the CPU.
+//! Adam ([`GpuTrainer`]) — over batches resident in GPU memory; and rendering's field
+//! queries ([`GpuBackend`], `--device` on `render`, `eval`, `view` and `generate`), whose
+//! samples still come from the CPU's marching and go back to its compositing.
 //! Backends are loaded at run time, so a binary with this crate starts on a machine with
 //! no GPU and no Vulkan loader; [`Gpu::open`] then finds no adapter.
 
 #![forbid(unsafe_code)]
 
+mod backend;
 mod codegen;
 mod field;
 mod kernels;
 mod train;
 
+pub use backend::GpuBackend;
 pub use field::GpuField;
 pub use train::GpuTrainer;
 

@@ -99,6 +99,7 @@ fn sampling_and_query(opts: &RenderOptions) -> (SampleOptions, Query<'_>) {
         precision: opts.precision,
         highlight: opts.highlight,
         tables: opts.tables.as_deref(),
+        backend: opts.backend.as_deref(),
     };
     (so, q)
 }

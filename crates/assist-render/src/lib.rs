@@ -22,7 +22,7 @@ mod sample;
 mod shade;
 mod tables;
 
-pub use assist_field::Precision;
+pub use assist_field::{FieldBackend, Precision};
 pub use batch::{BatchOutput, Behind, CompositeGrad, GradFn, RayOutputs, composite_batch};
 pub use composite::{Composite, RaySample, composite, composite_backward};
 pub use drag::{DragCache, render_camera_moving};

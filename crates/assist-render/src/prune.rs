@@ -97,7 +97,10 @@ pub fn query_node_pruned(
     q: crate::render::Query,
 ) -> PruneStats {
     let mut stats = PruneStats::default();
-    if ns.is_empty() {
+    let elsewhere = matches!(q, crate::render::Query::Render { backend: Some(_), .. });
+    if ns.is_empty() || elsewhere {
+        // A backend (a GPU) queries every sample: no density pass here.
+        stats.queried = ns.len();
         crate::render::query_node(scene, ns, tape, q);
         return stats;
     }

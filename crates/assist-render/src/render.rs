@@ -3,7 +3,7 @@
 //! selected node is highlighted by adding a colour to its samples (paper §III-B).
 
 use assist_core::{Camera, InstanceId};
-use assist_field::{Precision, Tape};
+use assist_field::{FieldBackend, Precision, Tape};
 
 use crate::batch::{BatchOutput, composite_batch};
 use crate::sample::{NodeSamples, RayBatch, SampleOptions, Traced, sample_rays};
@@ -35,6 +35,11 @@ pub struct RenderOptions {
     /// When set (from another thread), a whole-camera render stops after the batch in
     /// hand; the caller that set it discards the partial image.
     pub cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
+    /// Where the fields are queried when not on this CPU (a GPU, `--device`): every
+    /// node's samples go to it in one call; pruning's density pass is then skipped (the
+    /// GPU queries all samples for less than the CPU would spend choosing). `None`: the
+    /// CPU.
+    pub backend: Option<std::sync::Arc<dyn FieldBackend>>,
 }
 
 impl RenderOptions {
@@ -57,6 +62,7 @@ impl Default for RenderOptions {
             step_scale: 1.0,
             tables: None,
             cancel: None,
+            backend: None,
         }
     }
 }
@@ -153,6 +159,8 @@ pub enum Query<'a> {
         precision: Precision,
         highlight: Option<(InstanceId, [f32; 3])>,
         tables: Option<&'a SceneTables>,
+        /// Queries the fields there rather than on this CPU (see [`RenderOptions::backend`]).
+        backend: Option<&'a dyn FieldBackend>,
     },
     /// For a training step: in f32, keeping each node's tape for the backward pass and
     /// leaving room for the gradients.
@@ -197,10 +205,18 @@ pub(crate) fn query_node_with(
         Query::Render {
             precision,
             highlight,
+            backend,
             ..
         } => {
             let tables = crate::tables::for_node(scene, ns.node, &q);
-            if encoded {
+            // A backend that fails falls back to this CPU (it keeps its error to report).
+            let elsewhere = !encoded
+                && backend.is_some_and(|b| {
+                    b.forward(&nf.field, &ns.samples(), &mut sigma, &mut rgb)
+                        .is_ok()
+                });
+            if elsewhere {
+            } else if encoded {
                 nf.field.forward_from_features(
                     precision,
                     &ns.samples(),
@@ -297,9 +313,10 @@ pub fn render_rays_timed(
         precision: opts.precision,
         highlight: opts.highlight,
         tables: opts.tables.as_deref(),
+        backend: opts.backend.as_deref(),
     };
     let t = std::time::Instant::now();
-    if opts.prune_eps > 0.0 {
+    if opts.prune_eps > 0.0 && opts.backend.is_none() {
         let s = crate::prune::query_pruned(
             scene,
             &mut sc.traced,

@@ -232,6 +232,7 @@ fn batch_backward_matches_finite_differences() {
         precision: assist_field::Precision::F32,
         highlight: None,
         tables: None,
+        backend: None,
     };
     assist_render::query_fields(&s, &mut traced, &mut tapes, q);
     let bg = s.scene.background_color;

@@ -206,6 +206,7 @@ fn the_pruned_query_reuses_the_density_pass_encoding_exactly() {
         precision: Precision::F32,
         highlight: None,
         tables: None,
+        backend: None,
     };
     let (mut sc, mut tapes) = (PruneScratch::default(), Vec::new());
     let before = prune_occluded(&s, &mut two_pass, 1e-4, &mut sc);

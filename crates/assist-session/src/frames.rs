@@ -37,7 +37,6 @@ pub struct RenderRequest {
 impl Session {
     fn options(&self, req: &RenderRequest) -> RenderOptions {
         RenderOptions {
-            tables: self.packed_tables(),
             cancel: req.cancel.clone(),
             layers: req.layers,
             highlight: if req.highlight {
@@ -45,7 +44,7 @@ impl Session {
             } else {
                 None
             },
-            ..RenderOptions::default()
+            ..self.base_options()
         }
     }
 

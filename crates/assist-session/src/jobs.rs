@@ -35,6 +35,8 @@ pub struct EvalJob {
     pub stride: usize,
     /// Images this many times smaller (`None`: as the scene was trained).
     pub downscale: Option<u32>,
+    /// Where the fields are queried (a GPU: `--device`; `None`: this CPU).
+    pub backend: Option<std::sync::Arc<dyn assist_render::FieldBackend>>,
 }
 
 impl EvalJob {
@@ -60,6 +62,10 @@ impl EvalJob {
             &ds,
             self.split,
             self.stride.max(1),
+            &assist_render::RenderOptions {
+                backend: self.backend.clone(),
+                ..Default::default()
+            },
             progress,
             on_view,
         )?)

@@ -40,7 +40,7 @@ pub use assist_mesh::{
 /// `assist process`: a video or photographs → a posed dataset (ffmpeg, COLMAP).
 pub use assist_process as process;
 pub use assist_render::RenderedImage as Frame;
-pub use assist_render::{DragCache, RenderOptions, render_camera};
+pub use assist_render::{DragCache, FieldBackend, RenderOptions, render_camera};
 pub use assist_scene::scene_file;
 pub use assist_scene::{NeuralScene, NodeField};
 pub use assist_train::NodeBox;
@@ -125,6 +125,9 @@ pub struct Session {
     clip: ClipSlot,
     /// Packed hash tables of the fields rendered so far (see `frames.rs`), shared by forks.
     tables: Arc<std::sync::Mutex<Arc<assist_render::SceneTables>>>,
+    /// Where renders query the fields when not on this CPU (a GPU: `--device`), shared
+    /// by forks.
+    backend: Option<Arc<dyn crate::FieldBackend>>,
 }
 
 /// The session's CLIP model: where it comes from (`ASSIST_CLIP` by default), loaded on
@@ -201,6 +204,7 @@ impl Session {
             editor: Editor::open(path)?,
             clip: ClipSlot::from_env(),
             tables: Arc::default(),
+            backend: None,
         })
     }
 
@@ -210,6 +214,7 @@ impl Session {
             editor: Editor::new(scene),
             clip: ClipSlot::from_env(),
             tables: Arc::default(),
+            backend: None,
         }
     }
 
@@ -221,6 +226,36 @@ impl Session {
             editor: self.editor.fork(),
             clip: self.clip.clone(),
             tables: self.tables.clone(),
+            backend: self.backend.clone(),
+        }
+    }
+
+    /// Renders from now on query the fields on `backend` (a GPU; `None`: this CPU).
+    pub fn set_backend(&mut self, backend: Option<Arc<dyn crate::FieldBackend>>) {
+        self.backend = backend;
+    }
+
+    /// Where renders query the fields (`None`: this CPU).
+    pub fn backend(&self) -> Option<&Arc<dyn crate::FieldBackend>> {
+        self.backend.as_ref()
+    }
+
+    /// The options of renders that measure the scene rather than show it (f32 fields, no
+    /// packed tables), on the session's backend.
+    pub fn survey_options(&self) -> RenderOptions {
+        RenderOptions {
+            backend: self.backend.clone(),
+            ..RenderOptions::default()
+        }
+    }
+
+    /// The render options every render of this session starts from: its packed tables
+    /// and its backend.
+    pub fn base_options(&self) -> RenderOptions {
+        RenderOptions {
+            tables: self.packed_tables(),
+            backend: self.backend.clone(),
+            ..RenderOptions::default()
         }
     }
 

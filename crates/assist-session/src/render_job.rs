@@ -152,14 +152,12 @@ impl Session {
         let opts = RenderOptions {
             highlight: highlight.map(|id| (id, HIGHLIGHT)),
             layers: layers || writer.wants(Output::Objects),
-            tables: self.packed_tables(),
             step_scale: job.quality.step_scale(),
-            ..Default::default()
+            ..self.base_options()
         };
         let bg_opts = RenderOptions {
-            tables: opts.tables.clone(),
             step_scale: opts.step_scale,
-            ..Default::default()
+            ..self.base_options()
         };
         for c in cameras {
             self.check_camera(&c.camera)

@@ -69,7 +69,8 @@ pub fn evaluate(
     stride: usize,
     progress: impl FnMut(usize, usize),
 ) -> Result<EvalReport> {
-    evaluate_each(scene, ds, split, stride, progress, |_| {})
+    let opts = RenderOptions::default();
+    evaluate_each(scene, ds, split, stride, &opts, progress, |_| {})
 }
 
 /// [`evaluate`], handing each view to `on_view` once it is measured (a contact sheet).
@@ -78,6 +79,7 @@ pub fn evaluate_each(
     ds: &Dataset,
     split: Option<Split>,
     stride: usize,
+    opts: &RenderOptions,
     mut progress: impl FnMut(usize, usize),
     mut on_view: impl FnMut(EvaluatedView<'_>),
 ) -> Result<EvalReport> {
@@ -118,7 +120,6 @@ pub fn evaluate_each(
             s.scene.nodes = vec![scene.scene.nodes[k].clone()];
             s
         });
-    let opts = RenderOptions::default();
     let mut per_image = Vec::new();
     let mut iou = IouAccumulator::default();
     let mut any_ids = false;
@@ -129,7 +130,7 @@ pub fn evaluate_each(
     for (i, f) in frames.iter().enumerate() {
         progress(i, frames.len());
         let v = load_view(f, u32::MAX, scene.scene.background_color)?;
-        let img = render_camera(scene, &f.camera, u32::MAX, &opts);
+        let img = render_camera(scene, &f.camera, u32::MAX, opts);
         let rgb: Vec<f32> = img.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect();
         let (se, n) = squared_error(&rgb, &v.rgb, 3, None);
         per_image.push(ImageScore {
@@ -157,7 +158,7 @@ pub fn evaluate_each(
             && let Some(bf) = bt.frames.iter().find(|b| b.name == f.name)
         {
             let truth = load_view(bf, u32::MAX, scene.scene.background_color)?;
-            let b = render_camera(bs, &f.camera, u32::MAX, &opts);
+            let b = render_camera(bs, &f.camera, u32::MAX, opts);
             let brgb: Vec<f32> = b.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect();
             let (se, n) = squared_error(&brgb, &truth.rgb, 3, None);
             bg_se += se;

@@ -79,6 +79,8 @@ pub struct ViewerOptions {
     pub others: Vec<PathBuf>,
     /// A folder of scenes clients may take nodes from (by relative path).
     pub scenes: Option<PathBuf>,
+    /// Where renders query the fields (a GPU: `--device`; `None`: this CPU).
+    pub backend: Option<std::sync::Arc<dyn assist_session::FieldBackend>>,
 }
 
 struct App {
@@ -92,6 +94,7 @@ struct App {
     /// Clients connected now.
     clients: std::sync::atomic::AtomicUsize,
     hello: ServerMsg,
+    backend: Option<std::sync::Arc<dyn assist_session::FieldBackend>>,
 }
 
 /// A running viewer: its address, the token clients need (if any) and the URL to open.
@@ -250,6 +253,7 @@ pub async fn start(opts: ViewerOptions) -> Result<Running, ViewerError> {
         hosts: served_hosts(addr),
         clients: std::sync::atomic::AtomicUsize::new(0),
         hello,
+        backend: opts.backend.clone(),
     });
     let router = Router::new()
         .route("/", get(index))
@@ -366,11 +370,15 @@ async fn client(mut socket: WebSocket, app: Arc<App>) {
         return;
     }
     let path = app.scene.clone();
+    let backend = app.backend.clone();
     // The file's stamp is taken before it is read: a save in between makes the stamp older
     // than the session, so a later save is refused rather than lost.
     let opened = tokio::task::spawn_blocking(move || {
         let stamp = worker::disk_stamp(&path);
-        Session::open(&path).map(|s| (s, stamp))
+        Session::open(&path).map(|mut s| {
+            s.set_backend(backend);
+            (s, stamp)
+        })
     })
     .await;
     let opened = match opened {

@@ -2,7 +2,8 @@
 //! goes — samples marched and queried per ray, seconds per stage (marching, the pruning
 //! density pass, the field queries, shading and compositing) — for each renderer setting
 //! asked for, on the same held-out views; and what each setting costs in PSNR, against the
-//! photographs and against the first setting's render.
+//! photographs and against the first setting's render. With `--device gpu` (or auto
+//! finding one) a last setting queries the fields on the GPU.
 
 use std::path::PathBuf;
 
@@ -54,6 +55,10 @@ pub struct RenderBenchArgs {
     /// One JSON object with every setting's figures.
     #[arg(long)]
     pub json: bool,
+    /// Also render on this device when it is a GPU (a last setting: the fields queried
+    /// there in f32, no pruning, compared with the first).
+    #[command(flatten)]
+    pub device: crate::device::DeviceArg,
 }
 
 use crate::cmd_bench::median_of as median;
@@ -88,7 +93,7 @@ fn check(a: &RenderBenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// One setting compared.
+/// One setting compared (`tables` "gpu": the fields queried on the GPU).
 #[derive(Clone, Copy)]
 struct Setting<'a> {
     tables: &'a str,
@@ -101,6 +106,9 @@ impl Setting<'_> {
     /// The setting in words, as the report names it.
     fn name(&self) -> String {
         let t = self.tables;
+        if t == "gpu" {
+            return "the GPU's f32 fields".into();
+        }
         match self.occ {
             Some(o) => format!("{t} tables, occupancy {o}"),
             None if self.step != 1.0 => format!("{t} tables, step scale {}", self.step),
@@ -110,8 +118,8 @@ impl Setting<'_> {
 }
 
 /// The settings compared, in order: tables × pruning, then the occupancy thresholds, then
-/// the step scales.
-fn settings_of(a: &RenderBenchArgs) -> Vec<Setting<'_>> {
+/// the step scales, then the GPU's (when `gpu`).
+fn settings_of(a: &RenderBenchArgs, gpu: bool) -> Vec<Setting<'_>> {
     let first = a.tables[0].as_str();
     let at = |tables, eps, occ, step| Setting {
         tables,
@@ -128,6 +136,7 @@ fn settings_of(a: &RenderBenchArgs) -> Vec<Setting<'_>> {
         })
         .chain(a.occupancy.iter().map(|&o| at(first, 0.0, Some(o), 1.0)))
         .chain(a.step_scale.iter().map(|&s| at(first, 0.0, None, s)))
+        .chain(gpu.then(|| at("gpu", 0.0, None, 1.0)))
         .collect()
 }
 
@@ -179,7 +188,8 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
     let bg = scene.scene.background_color;
     let mut settings = Vec::new();
     let mut first: Vec<Vec<f32>> = Vec::new();
-    let runs = settings_of(&a);
+    let device = a.device.open()?;
+    let runs = settings_of(&a, device.backend.is_some());
     let (packed, pack_mb, pack_s) = pack(&scene);
     if a.tables.iter().any(|t| t == "bf16") {
         say(format!(
@@ -199,6 +209,9 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
                 Precision::F32
             },
             tables: packed.clone(),
+            backend: (tables == "gpu")
+                .then(|| device.field_backend())
+                .flatten(),
             ..RenderOptions::default()
         };
         if let Some(o) = occ {
@@ -285,6 +298,7 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
         ));
         settings.push(s);
     }
+    device.report();
     if a.json {
         println!(
             "{}",
@@ -296,6 +310,7 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
                 "threads": rayon::current_num_threads(),
                 "simd": assist_simd::level().name(),
                 "packed_tables": {"megabytes": pack_mb, "seconds": pack_s},
+                "device": device.name(),
                 "settings": settings,
             }))?
         );

@@ -36,6 +36,8 @@ pub struct EvalArgs {
     /// Replace an existing `--sheet` file.
     #[arg(long)]
     pub force: bool,
+    #[command(flatten)]
+    pub device: crate::device::DeviceArg,
 }
 
 /// `--split`: a split name, or `all` (`None`).
@@ -50,12 +52,14 @@ pub(crate) fn parse_split(s: &str) -> anyhow::Result<Option<Split>> {
 
 pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     let split = parse_split(&a.split)?;
+    let device = a.device.open()?;
     let job = assist_session::EvalJob {
         scene: a.scene.clone(),
         data: a.data.clone(),
         split,
         stride: a.stride,
         downscale: a.downscale,
+        backend: device.field_backend(),
     };
     let bar = crate::progress::bar(!a.json && std::io::stderr().is_terminal(), "eval");
     if let Some(p) = &a.sheet
@@ -76,6 +80,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         })
         .with_context(|| format!("evaluating {} on {}", a.scene.display(), a.data.display()))?;
     bar.finish_and_clear();
+    device.report();
     if let Some(p) = &a.sheet {
         let sheet = assist_data::visual::contact_sheet(&tiles, 3);
         assist_data::image_io::write_rgb_png(p, &sheet)

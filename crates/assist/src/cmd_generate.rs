@@ -52,6 +52,8 @@ pub struct GenerateArgs {
     /// filled: what torchvision's and detectron2's loaders read by default) or exact RLE.
     #[arg(long, value_enum, default_value_t = CocoMasksArg::Polygon)]
     pub coco_masks: CocoMasksArg,
+    #[command(flatten)]
+    pub device: crate::device::DeviceArg,
 }
 
 /// `--coco-masks`.
@@ -282,7 +284,9 @@ pub fn run(a: GenerateArgs) -> anyhow::Result<()> {
         return complete_already(&a, &out, shard, done);
     }
     let tty = std::io::stderr().is_terminal();
-    let generator = Generator::prepare(spec, &mut Prep(true)).context("preparing the run")?;
+    let device = a.device.open()?;
+    let generator = Generator::prepare_on(spec, device.field_backend(), &mut Prep(true))
+        .context("preparing the run")?;
     let bar = crate::progress::bar(tty, "generate");
     let opts = RunOptions {
         out: out.clone(),
@@ -326,6 +330,7 @@ pub fn run(a: GenerateArgs) -> anyhow::Result<()> {
         }
     })?;
     bar.finish_and_clear();
+    device.report();
     eprintln!(
         "{} {} samples into {} (shard {}; {} already there) in {:.1} s, {:.2} samples/s; {} of {} placement draws rejected, {} objects given up",
         if a.dry_run { "planned" } else { "made" },

@@ -76,6 +76,8 @@ pub struct RenderArgs {
     /// Print a JSON summary (views, folder, outputs) on stdout.
     #[arg(long)]
     pub json: bool,
+    #[command(flatten)]
+    pub device: crate::device::DeviceArg,
 }
 
 pub(crate) fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
@@ -149,6 +151,8 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     assist_fs::check_not_input(&a.out, &inputs)?;
     let mut session =
         Session::open(&a.scene).with_context(|| format!("loading scene {}", a.scene.display()))?;
+    let device = a.device.open()?;
+    session.set_backend(device.field_backend());
     let select = match &a.select {
         None => None,
         Some(t) => match t.trim().parse::<u16>() {
@@ -177,6 +181,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
             other => other.into(),
         })?;
     bar.finish_and_clear();
+    device.report();
     if a.json {
         println!(
             "{}",
@@ -185,6 +190,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
                 "out": done.out,
                 "outputs": a.outputs.split(',').map(str::trim).collect::<Vec<_>>(),
                 "highlight": select,
+                "device": device.name(),
             }))?
         );
     } else {

@@ -36,6 +36,8 @@ pub struct ViewArgs {
     /// Print the URL as JSON (`{"url": …, "addr": …}`) once listening.
     #[arg(long)]
     pub json: bool,
+    #[command(flatten)]
+    pub device: crate::device::DeviceArg,
 }
 
 pub fn run(a: ViewArgs) -> anyhow::Result<()> {
@@ -52,6 +54,7 @@ pub fn run(a: ViewArgs) -> anyhow::Result<()> {
             .and_then(|(_, info)| assist_session::recorded_dataset(&a.scene, &info).ok())
             .flatten(),
     };
+    let device = a.device.open()?;
     rt.block_on(async move {
         let running = assist_viewer::start(assist_viewer::ViewerOptions {
             scene: a.scene.clone(),
@@ -61,6 +64,7 @@ pub fn run(a: ViewArgs) -> anyhow::Result<()> {
             token: a.token.clone(),
             others: a.others.clone(),
             scenes: a.scenes.clone(),
+            backend: device.field_backend(),
         })
         .await
         .with_context(|| format!("viewer for {}", a.scene.display()))?;

@@ -36,6 +36,7 @@ mod cmd_synth;
 mod cmd_train;
 mod cmd_view;
 mod config;
+mod device;
 mod edit_checks;
 mod progress;
 

@@ -167,7 +167,9 @@ impl Worker {
             }
             r => r.map_err(Refused::from)?,
         };
+        let backend = self.session.backend().cloned();
         self.session = Session::open(&out).map_err(Refused::from)?;
+        self.session.set_backend(backend);
         self.scene_path = out.clone();
         self.disk = disk_stamp(&out);
         self.cache.clear();

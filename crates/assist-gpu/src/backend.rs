@@ -1,0 +1,143 @@
+//! [`GpuBackend`]: rendering's field queries on a GPU, behind `assist_field::FieldBackend`.
+//! Each field met is uploaded once and kept resident; a field whose parameters changed
+//! since (training between renders, an edit that replaced it) is uploaded again.
+
+use std::sync::Mutex;
+
+use assist_field::{Field, FieldBackend, Samples};
+
+use crate::{Gpu, GpuError, GpuField};
+
+/// Fields kept resident at most; past this the least recently used is dropped.
+const RESIDENT: usize = 32;
+
+/// A GPU answering rendering's field queries.
+pub struct GpuBackend {
+    gpu: Gpu,
+    resident: Mutex<Resident>,
+    /// The first failure; the queries after it go to the CPU (see [`FieldBackend::forward`]).
+    failed: Mutex<Option<String>>,
+}
+
+#[derive(Default)]
+struct Resident {
+    fields: Vec<Entry>,
+    clock: u64,
+}
+
+struct Entry {
+    /// Where the field's parameters live and how many: which field this is.
+    at: (usize, usize),
+    /// A digest of the parameters (see [`digest`]): whether they changed.
+    digest: u64,
+    used: u64,
+    field: GpuField,
+}
+
+impl std::fmt::Debug for GpuBackend {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "GpuBackend({})", self.gpu.name())
+    }
+}
+
+impl GpuBackend {
+    pub fn new(gpu: Gpu) -> Self {
+        GpuBackend {
+            gpu,
+            resident: Mutex::default(),
+            failed: Mutex::default(),
+        }
+    }
+
+    pub fn gpu(&self) -> &Gpu {
+        &self.gpu
+    }
+
+    /// The first error the GPU raised, after which every query ran on the CPU.
+    pub fn failure(&self) -> Option<String> {
+        self.failed.lock().ok().and_then(|f| f.clone())
+    }
+
+    fn run(
+        &self,
+        field: &Field,
+        s: &Samples,
+        sigma: &mut [f32],
+        rgb: &mut [f32],
+    ) -> Result<(), GpuError> {
+        let mut res = self.resident.lock().unwrap_or_else(|e| e.into_inner());
+        res.clock += 1;
+        let clock = res.clock;
+        let at = (field.params.as_ptr() as usize, field.params.len());
+        let d = digest(field);
+        let k = match res.fields.iter().position(|e| e.at == at) {
+            Some(k) if res.fields[k].digest == d => k,
+            Some(k) => {
+                res.fields[k].field.upload(&self.gpu, field)?;
+                res.fields[k].digest = d;
+                k
+            }
+            None => {
+                if res.fields.len() >= RESIDENT
+                    && let Some(old) = (0..res.fields.len()).min_by_key(|&i| res.fields[i].used)
+                {
+                    res.fields.swap_remove(old);
+                }
+                res.fields.push(Entry {
+                    at,
+                    digest: d,
+                    used: clock,
+                    field: GpuField::new(&self.gpu, field)?,
+                });
+                res.fields.len() - 1
+            }
+        };
+        let e = &mut res.fields[k];
+        e.used = clock;
+        e.field.forward(&self.gpu, s, sigma, rgb)
+    }
+}
+
+impl FieldBackend for GpuBackend {
+    fn name(&self) -> String {
+        self.gpu.name()
+    }
+
+    /// On the first error the backend records it and declines every later query (the
+    /// caller then queries on the CPU), so one bad adapter costs one message, not a
+    /// render.
+    fn forward(
+        &self,
+        field: &Field,
+        s: &Samples,
+        sigma: &mut [f32],
+        rgb: &mut [f32],
+    ) -> Result<(), String> {
+        if let Some(e) = self.failure() {
+            return Err(e);
+        }
+        self.run(field, s, sigma, rgb).map_err(|e| {
+            let msg = e.to_string();
+            let mut failed = self.failed.lock().unwrap_or_else(|e| e.into_inner());
+            failed.get_or_insert(msg.clone());
+            msg
+        })
+    }
+}
+
+/// A digest of `field`'s parameters: every value past the hash grid (the nets, the
+/// appearance codes: every training step changes these) and 8,192 of the grid's spread
+/// evenly, with its length. Cheap next to a batch's query, and changed by any step.
+fn digest(field: &Field) -> u64 {
+    let p = &field.params;
+    let grid = field.layout.grid.param_count().min(p.len());
+    let stride = (grid / 8192).max(1);
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325 ^ p.len() as u64;
+    let mut eat = |v: f32| {
+        h ^= v.to_bits() as u64;
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    };
+    p[..grid].iter().step_by(stride).for_each(|&v| eat(v));
+    p[grid..].iter().for_each(|&v| eat(v));
+    h
+}
