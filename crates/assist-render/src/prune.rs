@@ -97,7 +97,13 @@ pub fn query_node_pruned(
     q: crate::render::Query,
 ) -> PruneStats {
     let mut stats = PruneStats::default();
-    let elsewhere = matches!(q, crate::render::Query::Render { backend: Some(_), .. });
+    let elsewhere = matches!(
+        q,
+        crate::render::Query::Render {
+            backend: Some(_),
+            ..
+        }
+    );
     if ns.is_empty() || elsewhere {
         // A backend (a GPU) queries every sample: no density pass here.
         stats.queried = ns.len();

@@ -193,8 +193,8 @@ fn haze_in_front_of_surfaces(scene: &assist_scene::NeuralScene, ds: &Dataset) ->
             precision: assist_field::Precision::F32,
             highlight: None,
             tables: None,
-        backend: None,
-    };
+            backend: None,
+        };
         assist_render::query_fields(scene, &mut traced, &mut Vec::new(), q);
         let mut out = BatchOutput::default();
         assist_render::composite_batch(&mut traced, Behind::Color([0.0; 3]), &mut out, None);

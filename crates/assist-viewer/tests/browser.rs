@@ -49,8 +49,8 @@ fn serve(scene: &Path, data: &Path) -> (tokio::runtime::Runtime, assist_viewer::
             token: None,
             others: Vec::new(),
             scenes: None,
- backend: None,
-}))
+            backend: None,
+        }))
         .unwrap();
     (rt, running)
 }

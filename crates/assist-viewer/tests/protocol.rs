@@ -94,8 +94,8 @@ async fn a_client_renders_selects_edits_undoes_and_saves() {
         token: None,
         others: vec![other.clone()],
         scenes: Some(dir.join("library")),
- backend: None,
-})
+        backend: None,
+    })
     .await
     .unwrap();
     // Loopback too needs the token (issue 47: any web page could drive the viewer).
@@ -429,8 +429,8 @@ async fn an_attacker_cannot_drive_the_viewer() {
         token: None,
         others: Vec::new(),
         scenes: Some(dir.join("library")),
- backend: None,
-})
+        backend: None,
+    })
     .await
     .unwrap();
     let addr = running.addr;
@@ -583,8 +583,8 @@ async fn start_plain(path: std::path::PathBuf, host: Ipv4Addr) -> assist_viewer:
         token: None,
         others: Vec::new(),
         scenes: None,
- backend: None,
-})
+        backend: None,
+    })
     .await
     .unwrap()
 }

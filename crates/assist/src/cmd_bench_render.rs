@@ -209,9 +209,7 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
                 Precision::F32
             },
             tables: packed.clone(),
-            backend: (tables == "gpu")
-                .then(|| device.field_backend())
-                .flatten(),
+            backend: (tables == "gpu").then(|| device.field_backend()).flatten(),
             ..RenderOptions::default()
         };
         if let Some(o) = occ {

@@ -41,9 +41,7 @@ impl DeviceArg {
 impl Device {
     /// The backend as renders take it.
     pub fn field_backend(&self) -> Option<Arc<dyn FieldBackend>> {
-        self.backend
-            .clone()
-            .map(|b| b as Arc<dyn FieldBackend>)
+        self.backend.clone().map(|b| b as Arc<dyn FieldBackend>)
     }
 
     /// What answered, for `--json`: the adapter's name, or "cpu".

@@ -92,6 +92,43 @@ fn shards_damaged_and_remade(sp: &Path, dir: &Path, whole: &BTreeMap<PathBuf, Ve
     );
 }
 
+/// One shard made with the fields queried on the GPU (`--device gpu`: lavapipe in CI): its
+/// images are the single run's within 8-bit rounding. Skipped loudly without an adapter
+/// unless `ASSIST_REQUIRE_GPU=1`.
+fn on_the_gpu(sp: &Path, root: &Path, full: &Path) {
+    let out = root.join("gpu");
+    let o = run(&[
+        "generate",
+        "--spec",
+        s(sp),
+        "--out",
+        s(&out),
+        "--shard",
+        "0/100",
+        "--device",
+        "gpu",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    if !o.status.success()
+        && err.contains("no GPU adapter")
+        && std::env::var("ASSIST_REQUIRE_GPU").as_deref() != Ok("1")
+    {
+        eprintln!("SKIPPED: generate --device gpu: no GPU adapter");
+        return;
+    }
+    ok(&o);
+    let views = Path::new("samples/000000/views/images");
+    let images: Vec<_> = std::fs::read_dir(full.join(views))
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert!(!images.is_empty());
+    for f in &images {
+        let q = common::png_psnr(&full.join(views).join(f), &out.join(views).join(f));
+        assert!(q > 40.0, "{f:?}: {q:.1} dB between the devices");
+    }
+}
+
 fn spec(dir: &Path, scene: &Path, extra: &str) -> PathBuf {
     let p = dir.join(format!("spec{}.toml", extra.len()));
     std::fs::write(
@@ -229,6 +266,7 @@ fn generate_shards_replays_and_annotations() {
         );
     }
     shards_damaged_and_remade(&sp, &sharded, &a);
+    on_the_gpu(&sp, &root, &full);
 
     // Replaying 3 samples' actions reproduces their images bit for bit.
     for i in [0, 37, 99] {

@@ -1,7 +1,12 @@
 //! `--device` as a user meets it: `assist bench field --device gpu` on whatever adapter
-//! is present (lavapipe in CI, where `ASSIST_REQUIRE_GPU=1`), and the clear refusal or
-//! CPU fallback when no Vulkan driver is found.
+//! is present (lavapipe in CI, where `ASSIST_REQUIRE_GPU=1`); `render` and `eval` with
+//! the fields queried there, against the CPU's output (`generate`'s is in
+//! `generate_cli.rs`, on its trained scene); and the clear
+//! refusal or CPU fallback when no Vulkan driver is found.
 
+mod common;
+
+use std::path::Path;
 use std::process::Command;
 
 use serde_json::Value;
@@ -27,17 +32,25 @@ const SMALL: [&str; 9] = [
     "1",
 ];
 
+/// Whether `out` failed for want of an adapter where that is allowed (a loud skip).
+fn no_adapter(out: &std::process::Output) -> bool {
+    let err = String::from_utf8_lossy(&out.stderr);
+    let skip = !out.status.success()
+        && err.contains("no GPU adapter")
+        && std::env::var("ASSIST_REQUIRE_GPU").as_deref() != Ok("1");
+    if skip {
+        eprintln!("SKIPPED: no GPU adapter (install mesa-vulkan-drivers for lavapipe)");
+    }
+    skip
+}
+
 #[test]
 fn bench_field_on_the_gpu_reports_training_and_inference() {
     let mut args = SMALL.to_vec();
     args.extend(["--device", "gpu", "--json"]);
     let out = assist(&args, &[]);
     let err = String::from_utf8_lossy(&out.stderr);
-    if !out.status.success()
-        && err.contains("no GPU adapter")
-        && std::env::var("ASSIST_REQUIRE_GPU").as_deref() != Ok("1")
-    {
-        eprintln!("SKIPPED: no GPU adapter (install mesa-vulkan-drivers for lavapipe)");
+    if no_adapter(&out) {
         return;
     }
     assert!(out.status.success(), "{err}");
@@ -109,5 +122,72 @@ fn without_a_vulkan_driver_gpu_is_refused_and_auto_runs_on_the_cpu() {
     assert!(
         err.contains("cuda") && err.contains("auto, cpu or gpu"),
         "{err}"
+    );
+}
+
+/// Every PNG under `dir` (sorted), relative to it.
+fn pngs(dir: &Path) -> Vec<std::path::PathBuf> {
+    common::run_tree(dir)
+        .into_keys()
+        .filter(|p| p.extension().is_some_and(|e| e == "png"))
+        .collect()
+}
+
+#[test]
+fn render_and_eval_on_the_gpu_match_the_cpu() {
+    let dir = assist_testkit::TempDir::new("gpu-cli-render");
+    let tmp = dir.path();
+    let (data, scene) = common::tiny_scene(tmp);
+    let (data, scene) = (common::s(&data), common::s(&scene));
+    // render: the same views on each device, image for image.
+    let render = |dev: &str| {
+        let out = tmp.join(format!("r_{dev}"));
+        let o = assist(
+            &[
+                "render",
+                scene,
+                "--cameras",
+                data,
+                "--out",
+                common::s(&out),
+                "--device",
+                dev,
+                "--json",
+            ],
+            &[],
+        );
+        (o, out)
+    };
+    let (o, on_gpu) = render("gpu");
+    if no_adapter(&o) {
+        return;
+    }
+    let v: Value = serde_json::from_slice(&common::ok_stdout(&o).into_bytes()).unwrap();
+    assert!(v["device"].as_str().is_some_and(|d| d != "cpu"), "{v}");
+    let (o, on_cpu) = render("cpu");
+    let v: Value = serde_json::from_slice(&common::ok_stdout(&o).into_bytes()).unwrap();
+    assert_eq!(v["device"], "cpu", "{v}");
+    let images = pngs(&on_cpu.join("images"));
+    assert!(!images.is_empty() && images == pngs(&on_gpu.join("images")));
+    for p in &images {
+        let q = common::png_psnr(
+            &on_cpu.join("images").join(p),
+            &on_gpu.join("images").join(p),
+        );
+        assert!(q > 40.0, "{}: {q:.1} dB between the devices", p.display());
+    }
+    // eval: the same PSNR within 0.1 dB.
+    let eval = |dev: &str| {
+        let o = assist(
+            &["eval", scene, "--data", data, "--device", dev, "--json"],
+            &[],
+        );
+        let v: Value = serde_json::from_slice(&common::ok_stdout(&o).into_bytes()).unwrap();
+        v["psnr"].as_f64().expect("psnr")
+    };
+    let (g, c) = (eval("gpu"), eval("cpu"));
+    assert!(
+        (g - c).abs() <= 0.1,
+        "eval PSNR {g:.3} on the GPU, {c:.3} on the CPU"
     );
 }

@@ -1,3 +1,4 @@
+#![allow(dead_code)] // each test binary uses a part of these
 //! What the GPU tests share: the adapter (or a loud skip), the field configurations
 //! tested, and fields with every parameter random.
 
