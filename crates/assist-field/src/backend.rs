@@ -6,6 +6,14 @@
 
 use crate::{Field, Samples};
 
+/// One field's query in a [`FieldBackend::forward_all`] call.
+pub struct FieldQuery<'a> {
+    pub field: &'a Field,
+    pub samples: Samples<'a>,
+    pub sigma: &'a mut [f32],
+    pub rgb: &'a mut [f32],
+}
+
 /// Inference of fields somewhere other than this CPU.
 pub trait FieldBackend: Send + Sync + std::fmt::Debug {
     /// What runs the fields ("NVIDIA H200 (Vulkan, DiscreteGpu)"), for logs and `--json`.
@@ -21,4 +29,13 @@ pub trait FieldBackend: Send + Sync + std::fmt::Debug {
         sigma: &mut [f32],
         rgb: &mut [f32],
     ) -> Result<(), String>;
+
+    /// [`forward`](Self::forward) for several fields at once (a render batch's nodes), so
+    /// that a backend can submit them together and wait once.
+    fn forward_all(&self, queries: &mut [FieldQuery<'_>]) -> Result<(), String> {
+        for q in queries {
+            self.forward(q.field, &q.samples, q.sigma, q.rgb)?;
+        }
+        Ok(())
+    }
 }

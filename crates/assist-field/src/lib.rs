@@ -27,7 +27,7 @@ mod sh;
 pub mod shade;
 
 pub use adam::Adam;
-pub use backend::FieldBackend;
+pub use backend::{FieldBackend, FieldQuery};
 pub use config::FieldConfig;
 pub use error::FieldError;
 pub use field::{Field, PackedTables, ParamLayout, PhaseTimes, Precision, Samples, Tape};

@@ -4,12 +4,17 @@
 
 use std::sync::Mutex;
 
-use assist_field::{Field, FieldBackend, Samples};
+use assist_field::{Field, FieldBackend, FieldQuery, Samples};
 
+use crate::field::collect;
 use crate::{Gpu, GpuError, GpuField};
 
 /// Fields kept resident at most; past this the least recently used is dropped.
 const RESIDENT: usize = 32;
+
+/// Samples per submitted part of a query: bounds the GPU's batch buffers (the encoded
+/// features are 128 bytes a sample at Nerfacto's width: 256 MiB).
+const PART: usize = 1 << 21;
 
 /// A GPU answering rendering's field queries.
 pub struct GpuBackend {
@@ -17,6 +22,8 @@ pub struct GpuBackend {
     resident: Mutex<Resident>,
     /// The first failure; the queries after it go to the CPU (see [`FieldBackend::forward`]).
     failed: Mutex<Option<String>>,
+    /// Samples per submitted part ([`PART`]; smaller in tests).
+    part: usize,
 }
 
 #[derive(Default)]
@@ -46,6 +53,17 @@ impl GpuBackend {
             gpu,
             resident: Mutex::default(),
             failed: Mutex::default(),
+            part: PART,
+        }
+    }
+
+    /// [`new`](Self::new) submitting queries in parts of `part` samples, for the tests
+    /// of queries larger than a part.
+    #[doc(hidden)]
+    pub fn with_part(gpu: Gpu, part: usize) -> Self {
+        GpuBackend {
+            part: part.max(1),
+            ..Self::new(gpu)
         }
     }
 
@@ -58,14 +76,8 @@ impl GpuBackend {
         self.failed.lock().ok().and_then(|f| f.clone())
     }
 
-    fn run(
-        &self,
-        field: &Field,
-        s: &Samples,
-        sigma: &mut [f32],
-        rgb: &mut [f32],
-    ) -> Result<(), GpuError> {
-        let mut res = self.resident.lock().unwrap_or_else(|e| e.into_inner());
+    /// The resident copy of `field` (uploaded now if new or changed): its index.
+    fn resident(&self, res: &mut Resident, field: &Field) -> Result<usize, GpuError> {
         res.clock += 1;
         let clock = res.clock;
         let at = (field.params.as_ptr() as usize, field.params.len());
@@ -92,9 +104,46 @@ impl GpuBackend {
                 res.fields.len() - 1
             }
         };
-        let e = &mut res.fields[k];
-        e.used = clock;
-        e.field.forward(&self.gpu, s, sigma, rgb)
+        res.fields[k].used = clock;
+        Ok(k)
+    }
+
+    /// Every query submitted in parts of at most [`PART`] samples, then one wait.
+    fn run_all(&self, queries: &mut [FieldQuery<'_>]) -> Result<(), GpuError> {
+        let mut res = self.resident.lock().unwrap_or_else(|e| e.into_inner());
+        let (mut pending, mut parts) = (Vec::new(), Vec::new());
+        for (qi, q) in queries.iter().enumerate() {
+            let n = q.samples.len();
+            if n == 0 {
+                continue;
+            }
+            let k = self.resident(&mut res, q.field)?;
+            for a in (0..n).step_by(self.part) {
+                let part = slice(&q.samples, a, (a + self.part).min(n));
+                pending.push(res.fields[k].field.enqueue(&self.gpu, &part)?);
+                parts.push((qi, a));
+            }
+        }
+        collect(&self.gpu, &pending, |j, sigma, rgb| {
+            let (qi, a) = parts[j];
+            let q = &mut queries[qi];
+            q.sigma[a..a + sigma.len()].copy_from_slice(sigma);
+            q.rgb[3 * a..3 * a + rgb.len()].copy_from_slice(rgb);
+        })
+    }
+}
+
+/// Samples `a..b` of `s` (directions and codes left empty where they are).
+fn slice<'a>(s: &Samples<'a>, a: usize, b: usize) -> Samples<'a> {
+    let part = |v: &'a [f32]| if v.is_empty() { v } else { &v[a..b] };
+    Samples {
+        pos: s.pos.map(|p| &p[a..b]),
+        dir: s.dir.map(part),
+        image: if s.image.is_empty() {
+            s.image
+        } else {
+            &s.image[a..b]
+        },
     }
 }
 
@@ -103,9 +152,6 @@ impl FieldBackend for GpuBackend {
         self.gpu.name()
     }
 
-    /// On the first error the backend records it and declines every later query (the
-    /// caller then queries on the CPU), so one bad adapter costs one message, not a
-    /// render.
     fn forward(
         &self,
         field: &Field,
@@ -113,10 +159,22 @@ impl FieldBackend for GpuBackend {
         sigma: &mut [f32],
         rgb: &mut [f32],
     ) -> Result<(), String> {
+        self.forward_all(&mut [FieldQuery {
+            field,
+            samples: *s,
+            sigma,
+            rgb,
+        }])
+    }
+
+    /// On the first error the backend records it and declines every later query (the
+    /// caller then queries on the CPU), so one bad adapter costs one message, not a
+    /// render.
+    fn forward_all(&self, queries: &mut [FieldQuery<'_>]) -> Result<(), String> {
         if let Some(e) = self.failure() {
             return Err(e);
         }
-        self.run(field, s, sigma, rgb).map_err(|e| {
+        self.run_all(queries).map_err(|e| {
             let msg = e.to_string();
             let mut failed = self.failed.lock().unwrap_or_else(|e| e.into_inner());
             failed.get_or_insert(msg.clone());

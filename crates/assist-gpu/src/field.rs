@@ -9,6 +9,45 @@ use crate::{Gpu, GpuError};
 
 const SHADER: &str = include_str!("shaders/field.wgsl");
 
+/// A query submitted by [`GpuField::enqueue`]: its `n` samples' outputs (σ, then rgb
+/// interleaved) on their way to a staging buffer.
+pub(crate) struct Pending {
+    staging: wgpu::Buffer,
+    pub(crate) n: usize,
+}
+
+/// Waits once for every query in `pending` and hands each one's σ and rgb to `out`.
+pub(crate) fn collect(
+    gpu: &Gpu,
+    pending: &[Pending],
+    mut out: impl FnMut(usize, &[f32], &[f32]),
+) -> Result<(), GpuError> {
+    let (tx, rx) = std::sync::mpsc::channel();
+    for (k, p) in pending.iter().enumerate() {
+        let tx = tx.clone();
+        p.staging
+            .slice(..)
+            .map_async(wgpu::MapMode::Read, move |r| {
+                let _ = tx.send((k, r));
+            });
+    }
+    drop(tx);
+    gpu.wait()?;
+    for (_, r) in rx.iter() {
+        r.map_err(|e| GpuError::Run(format!("reading back: {e}")))?;
+    }
+    for (k, p) in pending.iter().enumerate() {
+        let view = p
+            .staging
+            .slice(..)
+            .get_mapped_range()
+            .map_err(|e| GpuError::Run(format!("reading back: {e}")))?;
+        let v: &[f32] = bytemuck::cast_slice(&view);
+        out(k, &v[..p.n], &v[p.n..4 * p.n]);
+    }
+    Ok(())
+}
+
 /// A field's parameters and kernels on one GPU.
 pub struct GpuField {
     pub(crate) params: wgpu::Buffer,
@@ -275,6 +314,33 @@ impl GpuField {
     pub fn run_density(&self, gpu: &Gpu, reps: usize) -> Result<(), GpuError> {
         self.submit(gpu, &self.density, reps);
         gpu.wait()
+    }
+
+    /// Loads `s`, submits its inference and the copy of its outputs to a staging buffer,
+    /// and returns without waiting: several fields' queries then share one wait
+    /// ([`collect`]). Queue order keeps a later load of the same field from overwriting
+    /// this one's samples before they are used.
+    pub(crate) fn enqueue(&mut self, gpu: &Gpu, s: &Samples) -> Result<Pending, GpuError> {
+        let n = s.len();
+        self.load(gpu, s)?;
+        self.submit(gpu, &self.forward, 1);
+        let io = self.io.as_ref().expect("reserved");
+        let bytes = 16 * n as u64;
+        let staging = gpu.checked("reading back", || {
+            let staging = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("staging"),
+                size: bytes.max(16),
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let mut enc = gpu
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+            enc.copy_buffer_to_buffer(&io.out, 0, &staging, 0, bytes);
+            gpu.queue.submit([enc.finish()]);
+            staging
+        })?;
+        Ok(Pending { staging, n })
     }
 
     /// The first `floats` outputs of the last run (σ, then rgb interleaved).

@@ -1,7 +1,8 @@
 //! Rendering with the fields queried on the GPU ([`GpuBackend`] behind
 //! `RenderOptions::backend`) against rendering on the CPU: a scene of three nodes whose
 //! fields have every parameter random, the same camera, the same image within f32
-//! rounding; and a field changed after a render is uploaded again, not rendered stale.
+//! rounding, also when queries are submitted in many parts and two nodes share a field;
+//! and a field changed after a render is uploaded again, not rendered stale.
 
 mod common;
 
@@ -105,6 +106,25 @@ fn a_frame_rendered_on_the_gpu_matches_the_cpu() {
         "panoptic ids agree on {same} of {} pixels",
         got.panoptic.len()
     );
+}
+
+#[test]
+fn queries_in_parts_and_a_shared_field_render_the_same() {
+    let Some(g) = gpu() else { return };
+    // 97 samples a part: every node's query is split, parts of one field queued back
+    // to back before the one wait.
+    let backend = Arc::new(GpuBackend::with_part(g, 97));
+    let mut s = scene();
+    // Node b shows node a's field (a duplicate): one field, two queries in one call.
+    s.scene.nodes[2].field = "f1".into();
+    s.scene.nodes[2].half_size = s.scene.nodes[1].half_size;
+    let want = cpu(&s);
+    let got = on(&s, &backend, false);
+    assert!(backend.failure().is_none(), "{:?}", backend.failure());
+    let d = max_diff(&got.rgb, &want.rgb);
+    assert!(d < 1e-4, "rgb differs by {d}");
+    let d = max_diff(&got.opacity, &want.opacity);
+    assert!(d < 1e-4, "opacity differs by {d}");
 }
 
 #[test]

@@ -124,7 +124,7 @@ fn key(
             .tables
             .as_ref()
             .map(|t| std::sync::Arc::as_ptr(t) as usize),
-        rays_per_batch: opts.rays_per_batch,
+        rays_per_batch: opts.batch_rays(),
         layers: opts.layers,
         near: scene.scene.near,
         others: scene

@@ -43,6 +43,16 @@ pub struct RenderOptions {
 }
 
 impl RenderOptions {
+    /// Rays per batch as rendered: with a backend at least [`BACKEND_RAYS_PER_BATCH`]
+    /// (each batch costs a GPU a round trip, so fewer and larger ones pay).
+    pub fn batch_rays(&self) -> usize {
+        match self.backend {
+            Some(_) => self.rays_per_batch.max(BACKEND_RAYS_PER_BATCH),
+            None => self.rays_per_batch,
+        }
+        .max(1)
+    }
+
     pub(crate) fn cancelled(&self) -> bool {
         self.cancel
             .as_ref()
@@ -66,6 +76,9 @@ impl Default for RenderOptions {
         }
     }
 }
+
+/// The fewest rays per batch when a backend queries the fields ([`RenderOptions::batch_rays`]).
+pub const BACKEND_RAYS_PER_BATCH: usize = 1 << 16;
 
 /// The default highlight colour (added to the selected node's samples).
 pub const HIGHLIGHT: [f32; 3] = [0.0, 0.45, 0.25];
@@ -171,8 +184,70 @@ pub enum Query<'a> {
 /// training. `tapes` are reusable scratch buffers, one per node.
 pub fn query_fields(scene: &NeuralScene, traced: &mut Traced, tapes: &mut Vec<Tape>, q: Query) {
     tapes.resize_with(traced.nodes.len(), Tape::default);
+    if let Query::Render {
+        backend: Some(b),
+        highlight,
+        ..
+    } = q
+        && query_all_on(b, scene, traced)
+    {
+        for ns in &mut traced.nodes {
+            add_highlight(scene, ns.node, &mut ns.rgb, highlight);
+        }
+        return;
+    }
     for (ns, tape) in traced.nodes.iter_mut().zip(tapes.iter_mut()) {
         query_node(scene, ns, tape, q);
+    }
+}
+
+/// Every node's samples queried on `backend` in one call (so a GPU waits once per batch,
+/// not once per node); false when it failed (the caller then queries on this CPU).
+fn query_all_on(backend: &dyn FieldBackend, scene: &NeuralScene, traced: &mut Traced) -> bool {
+    let mut outs: Vec<(Vec<f32>, Vec<f32>)> = traced
+        .nodes
+        .iter_mut()
+        .map(|ns| {
+            ns.prepare_outputs(false);
+            (std::mem::take(&mut ns.sigma), std::mem::take(&mut ns.rgb))
+        })
+        .collect();
+    let mut queries: Vec<assist_field::FieldQuery> = traced
+        .nodes
+        .iter()
+        .zip(outs.iter_mut())
+        .filter(|(ns, _)| !ns.is_empty())
+        .map(|(ns, (sigma, rgb))| assist_field::FieldQuery {
+            field: &scene.field_of(ns.node).field,
+            samples: ns.samples(),
+            sigma,
+            rgb,
+        })
+        .collect();
+    let ok = backend.forward_all(&mut queries).is_ok();
+    drop(queries);
+    for (ns, (sigma, rgb)) in traced.nodes.iter_mut().zip(outs) {
+        ns.sigma = sigma;
+        ns.rgb = rgb;
+    }
+    ok
+}
+
+/// Adds the highlight's colour to node `node`'s samples when it is the one highlighted.
+fn add_highlight(
+    scene: &NeuralScene,
+    node: usize,
+    rgb: &mut [f32],
+    highlight: Option<(InstanceId, [f32; 3])>,
+) {
+    if let Some((id, add)) = highlight
+        && scene.scene.nodes[node].id == id
+    {
+        for px in rgb.chunks_exact_mut(3) {
+            for c in 0..3 {
+                px[c] = (px[c] + add[c]).min(1.0);
+            }
+        }
     }
 }
 
@@ -228,15 +303,7 @@ pub(crate) fn query_node_with(
                 nf.field
                     .forward_at(precision, tables, &ns.samples(), tape, &mut sigma, &mut rgb);
             }
-            if let Some((id, add)) = highlight
-                && scene.scene.nodes[ns.node].id == id
-            {
-                for px in rgb.chunks_exact_mut(3) {
-                    for c in 0..3 {
-                        px[c] = (px[c] + add[c]).min(1.0);
-                    }
-                }
-            }
+            add_highlight(scene, ns.node, &mut rgb, highlight);
         }
     }
     ns.sigma = sigma;
@@ -396,7 +463,7 @@ pub(crate) fn camera_batch(
         return None;
     }
     let forward = camera.pose.forward();
-    let end = (p + opts.rays_per_batch.max(1)).min(n);
+    let end = (p + opts.batch_rays()).min(n);
     rays.clear();
     cos.clear();
     pixels.clear();
