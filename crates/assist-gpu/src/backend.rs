@@ -6,7 +6,7 @@ use std::sync::Mutex;
 
 use assist_field::{Field, FieldBackend, FieldQuery, Samples};
 
-use crate::field::collect;
+use crate::field::{collect, staging_buffer};
 use crate::{Gpu, GpuError, GpuField};
 
 /// Fields kept resident at most; past this the least recently used is dropped.
@@ -30,6 +30,33 @@ pub struct GpuBackend {
 struct Resident {
     fields: Vec<Entry>,
     clock: u64,
+    /// Read-back buffers kept between calls (a fresh one costs an allocation the size
+    /// of the outputs each time).
+    staging: Vec<wgpu::Buffer>,
+}
+
+/// Read-back buffers kept at most.
+const STAGING: usize = 16;
+
+impl Resident {
+    /// A kept read-back buffer for `n` samples (the smallest that fits), or a new one.
+    fn staging_for(&mut self, gpu: &Gpu, n: usize) -> Result<wgpu::Buffer, GpuError> {
+        let need = 16 * n as u64;
+        let best = (0..self.staging.len())
+            .filter(|&i| self.staging[i].size() >= need)
+            .min_by_key(|&i| self.staging[i].size());
+        match best {
+            Some(i) => Ok(self.staging.swap_remove(i)),
+            None => staging_buffer(gpu, n.next_power_of_two()),
+        }
+    }
+
+    /// Keeps `bufs` for later calls, the largest [`STAGING`] of all kept.
+    fn keep(&mut self, bufs: Vec<wgpu::Buffer>) {
+        self.staging.extend(bufs);
+        self.staging.sort_by_key(|b| std::cmp::Reverse(b.size()));
+        self.staging.truncate(STAGING);
+    }
 }
 
 struct Entry {
@@ -120,16 +147,19 @@ impl GpuBackend {
             let k = self.resident(&mut res, q.field)?;
             for a in (0..n).step_by(self.part) {
                 let part = slice(&q.samples, a, (a + self.part).min(n));
-                pending.push(res.fields[k].field.enqueue(&self.gpu, &part)?);
+                let staging = res.staging_for(&self.gpu, part.len())?;
+                pending.push(res.fields[k].field.enqueue(&self.gpu, &part, staging)?);
                 parts.push((qi, a));
             }
         }
-        collect(&self.gpu, &pending, |j, sigma, rgb| {
+        let bufs = collect(&self.gpu, pending, |j, sigma, rgb| {
             let (qi, a) = parts[j];
             let q = &mut queries[qi];
             q.sigma[a..a + sigma.len()].copy_from_slice(sigma);
             q.rgb[3 * a..3 * a + rgb.len()].copy_from_slice(rgb);
-        })
+        })?;
+        res.keep(bufs);
+        Ok(())
     }
 }
 

@@ -16,12 +16,25 @@ pub(crate) struct Pending {
     pub(crate) n: usize,
 }
 
-/// Waits once for every query in `pending` and hands each one's σ and rgb to `out`.
+/// A buffer the outputs of `n` samples are read back through (σ and rgb: 16 bytes each).
+pub(crate) fn staging_buffer(gpu: &Gpu, n: usize) -> Result<wgpu::Buffer, GpuError> {
+    gpu.checked("allocating a read-back buffer", || {
+        gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("staging"),
+            size: 16 * n.max(1) as u64,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
+    })
+}
+
+/// Waits once for every query in `pending` and hands each one's σ and rgb to `out`;
+/// gives back the staging buffers, unmapped, for reuse.
 pub(crate) fn collect(
     gpu: &Gpu,
-    pending: &[Pending],
+    pending: Vec<Pending>,
     mut out: impl FnMut(usize, &[f32], &[f32]),
-) -> Result<(), GpuError> {
+) -> Result<Vec<wgpu::Buffer>, GpuError> {
     let (tx, rx) = std::sync::mpsc::channel();
     for (k, p) in pending.iter().enumerate() {
         let tx = tx.clone();
@@ -45,7 +58,13 @@ pub(crate) fn collect(
         let v: &[f32] = bytemuck::cast_slice(&view);
         out(k, &v[..p.n], &v[p.n..4 * p.n]);
     }
-    Ok(())
+    Ok(pending
+        .into_iter()
+        .map(|p| {
+            p.staging.unmap();
+            p.staging
+        })
+        .collect())
 }
 
 /// A field's parameters and kernels on one GPU.
@@ -244,23 +263,30 @@ impl GpuField {
         let n = s.len();
         self.reserve(gpu, n)?;
         let io = self.io.as_ref().expect("reserved");
-        let mut soa = Vec::with_capacity(6 * n);
-        for a in 0..3 {
-            soa.extend_from_slice(&s.pos[a][..n]);
+        // Positions then directions, each axis a run of n values (no copy made here:
+        // each slice goes straight to wgpu's staging memory).
+        let zeros = match s.dir.iter().any(|d| d.is_empty()) {
+            true => vec![0.0f32; n],
+            false => Vec::new(),
+        };
+        for a in 0..6 {
+            let v = if a < 3 { s.pos[a] } else { s.dir[a - 3] };
+            let v = if v.is_empty() { &zeros[..] } else { &v[..n] };
+            gpu.queue
+                .write_buffer(&io.samples, (4 * a * n) as u64, bytemuck::cast_slice(v));
         }
-        for a in 0..3 {
-            match s.dir[a].len() {
-                0 => soa.resize(soa.len() + n, 0.0),
-                _ => soa.extend_from_slice(&s.dir[a][..n]),
+        let image: Vec<u32>;
+        let image = match s.image.len() >= n {
+            true => &s.image[..n],
+            false => {
+                image = (0..n)
+                    .map(|i| s.image.get(i).copied().unwrap_or(u32::MAX))
+                    .collect();
+                &image[..]
             }
-        }
-        let image: Vec<u32> = (0..n)
-            .map(|i| s.image.get(i).copied().unwrap_or(u32::MAX))
-            .collect();
+        };
         gpu.queue
-            .write_buffer(&io.samples, 0, bytemuck::cast_slice(&soa));
-        gpu.queue
-            .write_buffer(&io.image, 0, bytemuck::cast_slice(&image));
+            .write_buffer(&io.image, 0, bytemuck::cast_slice(image));
         gpu.queue
             .write_buffer(&self.call, 0, bytemuck::cast_slice(&[n as u32, 0, 0, 0]));
         self.n = n;
@@ -316,30 +342,26 @@ impl GpuField {
         gpu.wait()
     }
 
-    /// Loads `s`, submits its inference and the copy of its outputs to a staging buffer,
-    /// and returns without waiting: several fields' queries then share one wait
-    /// ([`collect`]). Queue order keeps a later load of the same field from overwriting
-    /// this one's samples before they are used.
-    pub(crate) fn enqueue(&mut self, gpu: &Gpu, s: &Samples) -> Result<Pending, GpuError> {
+    /// Loads `s`, submits its inference and the copy of its outputs to `staging` (a
+    /// readable buffer of at least 16 bytes a sample, see [`staging_buffer`]), and returns
+    /// without waiting: several fields' queries then share one wait ([`collect`]). Queue
+    /// order keeps a later load of the same field from overwriting this one's samples
+    /// before they are used.
+    pub(crate) fn enqueue(
+        &mut self,
+        gpu: &Gpu,
+        s: &Samples,
+        staging: wgpu::Buffer,
+    ) -> Result<Pending, GpuError> {
         let n = s.len();
         self.load(gpu, s)?;
         self.submit(gpu, &self.forward, 1);
         let io = self.io.as_ref().expect("reserved");
-        let bytes = 16 * n as u64;
-        let staging = gpu.checked("reading back", || {
-            let staging = gpu.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("staging"),
-                size: bytes.max(16),
-                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            let mut enc = gpu
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-            enc.copy_buffer_to_buffer(&io.out, 0, &staging, 0, bytes);
-            gpu.queue.submit([enc.finish()]);
-            staging
-        })?;
+        let mut enc = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        enc.copy_buffer_to_buffer(&io.out, 0, &staging, 0, 16 * n as u64);
+        gpu.queue.submit([enc.finish()]);
         Ok(Pending { staging, n })
     }
 
