@@ -18,7 +18,7 @@ const PART: usize = 1 << 21;
 
 /// A GPU answering rendering's field queries.
 pub struct GpuBackend {
-    gpu: Gpu,
+    gpu: std::sync::Arc<Gpu>,
     resident: Mutex<Resident>,
     /// The first failure; the queries after it go to the CPU (see [`FieldBackend::forward`]).
     failed: Mutex<Option<String>>,
@@ -77,7 +77,7 @@ impl std::fmt::Debug for GpuBackend {
 impl GpuBackend {
     pub fn new(gpu: Gpu) -> Self {
         GpuBackend {
-            gpu,
+            gpu: std::sync::Arc::new(gpu),
             resident: Mutex::default(),
             failed: Mutex::default(),
             part: PART,
@@ -94,7 +94,8 @@ impl GpuBackend {
         }
     }
 
-    pub fn gpu(&self) -> &Gpu {
+    /// The GPU, to share (training's optimizers use the same device).
+    pub fn gpu(&self) -> &std::sync::Arc<Gpu> {
         &self.gpu
     }
 
@@ -216,7 +217,7 @@ impl FieldBackend for GpuBackend {
 /// A digest of `field`'s parameters: every value past the hash grid (the nets, the
 /// appearance codes: every training step changes these) and 8,192 of the grid's spread
 /// evenly, with its length. Cheap next to a batch's query, and changed by any step.
-fn digest(field: &Field) -> u64 {
+pub(crate) fn digest(field: &Field) -> u64 {
     let p = &field.params;
     let grid = field.layout.grid.param_count().min(p.len());
     let stride = (grid / 8192).max(1);

@@ -16,10 +16,12 @@ mod backend;
 mod codegen;
 mod field;
 mod kernels;
+mod optimizer;
 mod train;
 
 pub use backend::GpuBackend;
 pub use field::GpuField;
+pub use optimizer::{GpuOptimizer, GpuTraining};
 pub use train::GpuTrainer;
 
 /// Which processor runs the fields (`--device`).

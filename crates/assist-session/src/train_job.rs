@@ -84,6 +84,8 @@ pub struct TrainJob {
     /// Whether the scene records `config.masks` (false for a folder deleted after the
     /// run: a split's temporary masks).
     pub(crate) masks_recorded: bool,
+    /// Makes the fields' optimizers elsewhere than on this CPU (a GPU: `--device`).
+    optimizers: Option<Arc<dyn assist_train::OptimizerFactory>>,
 }
 
 impl TrainJob {
@@ -93,7 +95,14 @@ impl TrainJob {
             cancel: Arc::new(AtomicBool::new(false)),
             start: None,
             masks_recorded: true,
+            optimizers: None,
         }
+    }
+
+    /// Steps the fields with `factory`'s optimizers (a GPU's) instead of the CPU's.
+    pub fn with_optimizers(mut self, factory: Arc<dyn assist_train::OptimizerFactory>) -> Self {
+        self.optimizers = Some(factory);
+        self
     }
 
     /// Trains `scene` (its nodes and fields as they are) instead of a new scene, saving
@@ -208,6 +217,9 @@ impl TrainJob {
         let preview = preview_path(&c.out);
         let mut eval_error = None;
         let mut trainer = Trainer::new(scene, views, opts)?;
+        if let Some(f) = &self.optimizers {
+            trainer.use_optimizers(f.as_ref())?;
+        }
         trainer.kept = kept;
         if c.shadows.resolve(depth) == Shadows::Fixed {
             // What the photographs show of each shadow stays as estimated, and what lies

@@ -31,7 +31,7 @@ pub use eval::{
 pub use freespace::{CarveStats, carve_scene};
 pub use light::{LightEstimate, estimate_light, estimate_light_from};
 pub use multiview::MultiViewStats;
-pub use optimizer::{CpuOptimizer, NodeOptimizer};
+pub use optimizer::{CpuOptimizer, NodeOptimizer, OptimizerFactory};
 pub use setup::{
     BackgroundSpace, BoxSource, NodeBox, SetupOptions, background_color, build_scene,
     is_object_capture, near_plane, node_boxes, object_field, scene_param_estimate, scene_region,

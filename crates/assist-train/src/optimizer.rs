@@ -1,10 +1,12 @@
 //! What the trainer asks of a node's field once the forward pass is done: take a
 //! batch's output gradients, step the parameters, refresh the occupancy grid. The trainer
 //! holds one [`NodeOptimizer`] per field and never writes parameters itself; this is the
-//! seam a GPU backend implements (its state lives in device buffers, the field's
-//! parameters are read back only at checkpoints).
+//! seam a GPU backend implements (its gradient and Adam moments live in device buffers;
+//! `assist_gpu::GpuOptimizer` writes the stepped parameters back into the field, which
+//! stays the one the trainer's sampling, occupancy and checkpoints read).
 //!
 //! [`CpuOptimizer`] keeps the gradient buffer and Adam moments beside the field.
+//! [`OptimizerFactory`] makes the optimizers of a run (`train --device`).
 
 use assist_core::Rng;
 use assist_field::{Adam, Samples, Tape};
@@ -23,10 +25,10 @@ pub trait NodeOptimizer: Send {
         tape: &mut Tape,
         d_sigma: &[f32],
         d_rgb: &[f32],
-    );
+    ) -> Result<(), String>;
 
     /// One optimiser step with learning rate `lr`; clears the accumulated gradient.
-    fn step(&mut self, field: &mut NodeField, lr: f32);
+    fn step(&mut self, field: &mut NodeField, lr: f32) -> Result<(), String>;
 
     /// Refreshes the field's occupancy grid from its density (`round` counts refreshes).
     fn refresh_occupancy(&mut self, field: &mut NodeField, rng: &mut Rng, round: usize) {
@@ -64,16 +66,27 @@ impl NodeOptimizer for CpuOptimizer {
         tape: &mut Tape,
         d_sigma: &[f32],
         d_rgb: &[f32],
-    ) {
+    ) -> Result<(), String> {
         field
             .field
             .backward(samples, tape, d_sigma, d_rgb, &mut self.grad);
+        Ok(())
     }
 
-    fn step(&mut self, field: &mut NodeField, lr: f32) {
+    fn step(&mut self, field: &mut NodeField, lr: f32) -> Result<(), String> {
         self.adam
             .update(lr, &mut field.field.params, &mut self.grad);
+        Ok(())
     }
+}
+
+/// Makes a run's optimizer for each field (a GPU's, for `train --device gpu`); without
+/// one the trainer uses [`CpuOptimizer`].
+pub trait OptimizerFactory: Send + Sync + std::fmt::Debug {
+    /// What steps the fields, for logs ("NVIDIA H200 (Vulkan, DiscreteGpu)").
+    fn name(&self) -> String;
+    /// The optimizer of `field`, its state fresh.
+    fn make(&self, field: &NodeField) -> Result<Box<dyn NodeOptimizer>, String>;
 }
 
 #[cfg(test)]
@@ -100,7 +113,7 @@ mod tests {
         let mut opt = CpuOptimizer::new(&nf);
         let k = nf.field.layout.mlp_start();
         opt.grad[k] = 1.0;
-        opt.step(&mut nf, 1e-2);
+        opt.step(&mut nf, 1e-2).unwrap();
         assert!(nf.field.params[k] < before[k], "moved against the gradient");
         assert!(opt.grad.iter().all(|&g| g == 0.0), "gradient cleared");
         let moved = nf

@@ -58,6 +58,10 @@ pub struct TrainArgs {
     /// Print one JSON object (the report) on stdout instead of text on stderr.
     #[arg(long)]
     pub json: bool,
+    /// Where the fields' backward passes and Adam steps run (sampling, the forward pass
+    /// and compositing stay on the CPU; the parameters come back after every step).
+    #[command(flatten)]
+    pub device: crate::device::DeviceArg,
 }
 
 impl TrainArgs {
@@ -490,8 +494,13 @@ fn print_report(a: &TrainArgs, outcome: &assist_session::TrainOutcome) -> anyhow
 }
 
 pub fn run(a: TrainArgs) -> anyhow::Result<()> {
-    let job = TrainJob::new(a.config()?);
+    let mut job = TrainJob::new(a.config()?);
     job.validate().map_err(flag_error)?;
+    if let Some(b) = a.device.open()?.backend {
+        job = job.with_optimizers(std::sync::Arc::new(assist_gpu::GpuTraining::new(
+            b.gpu().clone(),
+        )));
+    }
     let log = match &a.log {
         Some(p) => Some(Log::new(p, a.train.resume, a.train.force)?),
         None => None,

@@ -1,6 +1,7 @@
 //! `--device` as a user meets it: `assist bench field --device gpu` on whatever adapter
-//! is present (lavapipe in CI, where `ASSIST_REQUIRE_GPU=1`); `render` and `eval` with
-//! the fields queried there, against the CPU's output (`generate`'s is in
+//! is present (lavapipe in CI, where `ASSIST_REQUIRE_GPU=1`); `train` with the fields'
+//! backward passes and Adam there, and `render` and `eval` with the fields queried there,
+//! against the CPU's output (`generate`'s is in
 //! `generate_cli.rs`, on its trained scene); and the clear
 //! refusal or CPU fallback when no Vulkan driver is found.
 
@@ -189,5 +190,53 @@ fn render_and_eval_on_the_gpu_match_the_cpu() {
     assert!(
         (g - c).abs() <= 0.1,
         "eval PSNR {g:.3} on the GPU, {c:.3} on the CPU"
+    );
+}
+
+#[test]
+fn training_on_the_gpu_matches_the_cpu() {
+    let dir = assist_testkit::TempDir::new("gpu-cli-train");
+    let data = dir.path().join("cap");
+    common::synth_small(&data, 24);
+    let data = common::s(&data);
+    // The held-out PSNR of a scene trained `iters` steps on `dev` (same seed).
+    let trained = |dev: &str, iters: &str| -> Option<f64> {
+        let out = dir.path().join(format!("{dev}_{iters}.assist"));
+        let o = assist(
+            &[
+                "train",
+                data,
+                "--out",
+                common::s(&out),
+                "--iters",
+                iters,
+                "--seed",
+                "1",
+                "--device",
+                dev,
+                "--json",
+            ],
+            &[],
+        );
+        if no_adapter(&o) {
+            return None;
+        }
+        common::ok(&o);
+        let o = assist(&["eval", common::s(&out), "--data", data, "--json"], &[]);
+        let v: Value = serde_json::from_slice(&common::ok_stdout(&o).into_bytes()).unwrap();
+        v["psnr"].as_f64()
+    };
+    let Some(gpu) = trained("gpu", "12") else {
+        return;
+    };
+    let cpu = trained("cpu", "12").unwrap();
+    let start = trained("cpu", "1").unwrap();
+    assert!(
+        cpu > start + 1.0,
+        "12 steps train the scene: {start:.2} → {cpu:.2} dB"
+    );
+    assert!(
+        (gpu - cpu).abs() <= 0.05,
+        "after 12 steps: {gpu:.3} dB on the GPU, {cpu:.3} dB on the CPU"
     );
 }

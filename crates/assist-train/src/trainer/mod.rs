@@ -96,6 +96,18 @@ pub struct Trainer {
 }
 
 impl Trainer {
+    /// The fields' optimizers from now on made by `factory` (a GPU's), their state fresh:
+    /// call before the first step (a resumed run starts its moments afresh either way).
+    pub fn use_optimizers(&mut self, factory: &dyn crate::OptimizerFactory) -> Result<()> {
+        for (k, f) in &self.scene.fields {
+            let o = factory
+                .make(f)
+                .map_err(|e| TrainError::Other(format!("{} for field {k}: {e}", factory.name())))?;
+            self.optimizers.insert(k.clone(), o);
+        }
+        Ok(())
+    }
+
     pub fn new(scene: NeuralScene, views: Vec<View>, opts: TrainOptions) -> Result<Self> {
         if views.is_empty() {
             return Err(TrainError::Other("no training images".into()));

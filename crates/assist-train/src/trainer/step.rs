@@ -50,9 +50,9 @@ impl Trainer {
         };
         let g_wq = self.composite_and_losses(&mut s)?;
         phase[2] = tp.elapsed().as_secs_f64();
-        let shade_grads = self.backward();
+        let shade_grads = self.backward()?;
         phase[3] = tp.elapsed().as_secs_f64();
-        self.update(lr, shade_grads, g_wq);
+        self.update(lr, shade_grads, g_wq)?;
         phase[4] = tp.elapsed().as_secs_f64();
         if self.opts.poison_at == Some(self.iteration) {
             for nf in self.scene.fields.values_mut() {
@@ -181,7 +181,7 @@ impl Trainer {
 
     /// Backward from the samples into each field's optimizer, the shadow grids and
     /// (every POSE_EVERY steps) the camera poses; returns the shadow grids' gradients.
-    fn backward(&mut self) -> Vec<(usize, Vec<f32>)> {
+    fn backward(&mut self) -> Result<Vec<(usize, Vec<f32>)>> {
         for (ns, tape) in self.traced.nodes.iter().zip(self.tapes.iter_mut()) {
             if ns.is_empty() {
                 continue;
@@ -196,7 +196,8 @@ impl Trainer {
                     tape,
                     &ns.d_sigma,
                     &ns.d_rgb,
-                );
+                )
+                .map_err(|e| TrainError::Other(format!("the gradient of field {key}: {e}")))?;
         }
         let shade_grads = assist_render::shade_backward(&self.scene, &self.rays, &self.traced);
         let pose_step = self.iteration.is_multiple_of(POSE_EVERY);
@@ -209,12 +210,17 @@ impl Trainer {
                 &self.ray_views,
             );
         }
-        shade_grads
+        Ok(shade_grads)
     }
 
     /// The optimizers' steps at learning rate `lr`: poses, fields, shadow grids (points
     /// held keep their factors) and the depth scale/shift.
-    fn update(&mut self, lr: f32, shade_grads: Vec<(usize, Vec<f32>)>, mut g_wq: [f32; 2]) {
+    fn update(
+        &mut self,
+        lr: f32,
+        shade_grads: Vec<(usize, Vec<f32>)>,
+        mut g_wq: [f32; 2],
+    ) -> Result<()> {
         let pose_step = self.iteration.is_multiple_of(POSE_EVERY);
         if let Some(p) = self.poses.as_mut().filter(|_| pose_step) {
             p.step(POSE_LR * lr / self.opts.lr_start);
@@ -223,7 +229,8 @@ impl Trainer {
             self.optimizers
                 .get_mut(key)
                 .expect("optimizer per field")
-                .step(Arc::make_mut(nf), lr);
+                .step(Arc::make_mut(nf), lr)
+                .map_err(|e| TrainError::Other(format!("the step of field {key}: {e}")))?;
         }
         for (k, mut g) in shade_grads {
             let key = self.scene.scene.nodes[k].field.clone();
@@ -257,6 +264,7 @@ impl Trainer {
         if self.background.is_some() && self.opts.lambdas.bg_depth > 0.0 && self.opts.depth_affine {
             update_depth_affine(&mut self.wq_adam, &mut self.depth_wq, &mut g_wq);
         }
+        Ok(())
     }
 }
 

@@ -1,0 +1,116 @@
+//! Training through the trainer's seam (`assist_train::NodeOptimizer`): each field's
+//! backward pass, gradients and Adam on the GPU ([`GpuOptimizer`]), made per field by
+//! [`GpuTraining`] (`train --device gpu`). The trainer still samples, queries the fields
+//! forward and composites on the CPU; after each step the parameters are read back into
+//! the field, so its sampling, occupancy refresh, held-out checks and checkpoints see
+//! them as on the CPU path.
+
+use std::sync::Arc;
+
+use assist_field::{Adam, Samples, Tape};
+use assist_scene::NodeField;
+use assist_train::{NodeOptimizer, OptimizerFactory};
+
+use crate::{Gpu, GpuError, GpuField, GpuTrainer};
+
+/// Makes each field's [`GpuOptimizer`] on one GPU.
+pub struct GpuTraining {
+    gpu: Arc<Gpu>,
+}
+
+impl std::fmt::Debug for GpuTraining {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "GpuTraining({})", self.gpu.name())
+    }
+}
+
+impl GpuTraining {
+    pub fn new(gpu: Arc<Gpu>) -> Self {
+        GpuTraining { gpu }
+    }
+}
+
+impl OptimizerFactory for GpuTraining {
+    fn name(&self) -> String {
+        self.gpu.name()
+    }
+
+    fn make(&self, field: &NodeField) -> Result<Box<dyn NodeOptimizer>, String> {
+        GpuOptimizer::new(self.gpu.clone(), field)
+            .map(|o| Box::new(o) as Box<dyn NodeOptimizer>)
+            .map_err(|e| e.to_string())
+    }
+}
+
+/// One field's gradient and Adam moments on the GPU, with a copy of its parameters.
+pub struct GpuOptimizer {
+    gpu: Arc<Gpu>,
+    field: GpuField,
+    trainer: GpuTrainer,
+    /// The digest of the parameters the GPU holds ([`crate::backend::digest`]): a field
+    /// changed on the CPU since (a resumed or edited one) is uploaded before its next
+    /// gradient.
+    digest: u64,
+}
+
+impl GpuOptimizer {
+    pub fn new(gpu: Arc<Gpu>, nf: &NodeField) -> Result<Self, GpuError> {
+        let field = GpuField::new(&gpu, &nf.field)?;
+        let trainer = GpuTrainer::new(&gpu, &field, &nf.field, &Adam::for_field(&nf.field))?;
+        Ok(GpuOptimizer {
+            digest: crate::backend::digest(&nf.field),
+            gpu,
+            field,
+            trainer,
+        })
+    }
+
+    fn accumulate_on(
+        &mut self,
+        nf: &NodeField,
+        samples: &Samples,
+        d_sigma: &[f32],
+        d_rgb: &[f32],
+    ) -> Result<(), GpuError> {
+        let d = crate::backend::digest(&nf.field);
+        if d != self.digest {
+            self.field.upload(&self.gpu, &nf.field)?;
+            self.digest = d;
+        }
+        self.field.load(&self.gpu, samples)?;
+        self.trainer
+            .set_loss_grads(&self.gpu, &self.field, &nf.field, d_sigma, d_rgb)?;
+        self.trainer.submit_step(&self.gpu, &self.field, 1)
+    }
+
+    fn step_on(&mut self, nf: &mut NodeField, lr: f32) -> Result<(), GpuError> {
+        self.trainer.submit_adam(&self.gpu, lr);
+        let p = self.field.read_params(&self.gpu)?;
+        nf.field.params.copy_from_slice(&p);
+        self.digest = crate::backend::digest(&nf.field);
+        Ok(())
+    }
+}
+
+impl NodeOptimizer for GpuOptimizer {
+    /// The forward pass with its record runs again on the GPU (the CPU's tape stays
+    /// there for the pose refinement), then backward into the GPU's gradient.
+    fn accumulate(
+        &mut self,
+        field: &NodeField,
+        samples: &Samples,
+        _tape: &mut Tape,
+        d_sigma: &[f32],
+        d_rgb: &[f32],
+    ) -> Result<(), String> {
+        if samples.is_empty() {
+            return Ok(());
+        }
+        self.accumulate_on(field, samples, d_sigma, d_rgb)
+            .map_err(|e| e.to_string())
+    }
+
+    fn step(&mut self, field: &mut NodeField, lr: f32) -> Result<(), String> {
+        self.step_on(field, lr).map_err(|e| e.to_string())
+    }
+}
