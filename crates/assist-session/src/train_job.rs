@@ -216,19 +216,13 @@ impl TrainJob {
         }
         let preview = preview_path(&c.out);
         let mut eval_error = None;
-        let mut trainer = Trainer::new(scene, views, opts)?;
-        if let Some(f) = &self.optimizers {
-            trainer.use_optimizers(f.as_ref())?;
-        }
+        let mut trainer = self.trainer(scene, views, opts, resume.as_ref())?;
         trainer.kept = kept;
         if c.shadows.resolve(depth) == Shadows::Fixed {
             // What the photographs show of each shadow stays as estimated, and what lies
             // nearer another object stays shadow-free; the rest (under the object) trains
             // with the scene.
             trainer.shade_held = held_shadows;
-        }
-        if let Some(r) = &resume {
-            trainer.resume_from(r);
         }
         let mut last_occupancy = std::time::Instant::now();
         let mut last_eval = None;
@@ -429,6 +423,24 @@ impl TrainJob {
     /// Where a resumed run starts, and the run's time budget (a resumed run's counts from
     /// where it stopped); refused when the scene was trained on another dataset (unless
     /// `force`) or has no iterations left.
+    /// The trainer of `scene`, with this job's optimizers, continuing `resume`.
+    fn trainer(
+        &self,
+        scene: NeuralScene,
+        views: Vec<assist_train::View>,
+        opts: assist_train::TrainOptions,
+        resume: Option<&ResumeState>,
+    ) -> Result<Trainer> {
+        let mut trainer = Trainer::new(scene, views, opts)?;
+        if let Some(f) = &self.optimizers {
+            trainer.use_optimizers(f.as_ref())?;
+        }
+        if let Some(r) = resume {
+            trainer.resume_from(r);
+        }
+        Ok(trainer)
+    }
+
     fn resume_point(&self, fingerprint: &str) -> Result<(Option<ResumeState>, Option<f64>)> {
         let c = &self.config;
         let mut max_time = c.max_time;
