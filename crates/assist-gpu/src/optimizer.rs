@@ -1,7 +1,7 @@
 //! Training through the trainer's seam (`assist_train::NodeOptimizer`): each field's
-//! backward pass, gradients and Adam on the GPU ([`GpuOptimizer`]), made per field by
-//! [`GpuTraining`] (`train --device gpu`). The trainer still samples, queries the fields
-//! forward and composites on the CPU; after each step the parameters are read back into
+//! forward and backward passes, gradients and Adam on the GPU ([`GpuOptimizer`]), made per
+//! field by [`GpuTraining`] (`train --device gpu`). The trainer still samples and
+//! composites on the CPU; after each step the parameters are read back into
 //! the field, so its sampling, occupancy refresh, held-out checks and checkpoints see
 //! them as on the CPU path.
 
@@ -72,15 +72,22 @@ impl GpuOptimizer {
         d_sigma: &[f32],
         d_rgb: &[f32],
     ) -> Result<(), GpuError> {
+        self.sync(nf)?;
+        self.field.load(&self.gpu, samples)?;
+        self.trainer
+            .set_loss_grads(&self.gpu, &self.field, &nf.field, d_sigma, d_rgb)?;
+        self.trainer.submit_step(&self.gpu, &self.field, 1)
+    }
+
+    /// Uploads the field's parameters when they changed on the CPU since the GPU's copy
+    /// was made or read back.
+    fn sync(&mut self, nf: &NodeField) -> Result<(), GpuError> {
         let d = crate::backend::digest(&nf.field);
         if d != self.digest {
             self.field.upload(&self.gpu, &nf.field)?;
             self.digest = d;
         }
-        self.field.load(&self.gpu, samples)?;
-        self.trainer
-            .set_loss_grads(&self.gpu, &self.field, &nf.field, d_sigma, d_rgb)?;
-        self.trainer.submit_step(&self.gpu, &self.field, 1)
+        Ok(())
     }
 
     fn step_on(&mut self, nf: &mut NodeField, lr: f32) -> Result<(), GpuError> {
@@ -112,5 +119,21 @@ impl NodeOptimizer for GpuOptimizer {
 
     fn step(&mut self, field: &mut NodeField, lr: f32) -> Result<(), String> {
         self.step_on(field, lr).map_err(|e| e.to_string())
+    }
+
+    /// On the GPU's copy (current: the parameters come back after each step, and a
+    /// field changed on the CPU since is uploaded first).
+    fn forward(
+        &mut self,
+        field: &NodeField,
+        samples: &Samples,
+        sigma: &mut [f32],
+        rgb: &mut [f32],
+    ) -> Option<Result<(), String>> {
+        let mut run = || -> Result<(), GpuError> {
+            self.sync(field)?;
+            self.field.forward(&self.gpu, samples, sigma, rgb)
+        };
+        Some(run().map_err(|e| e.to_string()))
     }
 }

@@ -30,6 +30,19 @@ pub trait NodeOptimizer: Send {
     /// One optimiser step with learning rate `lr`; clears the accumulated gradient.
     fn step(&mut self, field: &mut NodeField, lr: f32) -> Result<(), String>;
 
+    /// The training forward pass where this optimizer keeps its own copy of the field (a
+    /// GPU: σ and rgb come back, no CPU tape is recorded), or `None` to leave it to the
+    /// CPU's `Field::forward_train`.
+    fn forward(
+        &mut self,
+        _field: &NodeField,
+        _samples: &Samples,
+        _sigma: &mut [f32],
+        _rgb: &mut [f32],
+    ) -> Option<Result<(), String>> {
+        None
+    }
+
     /// Refreshes the field's occupancy grid from its density (`round` counts refreshes).
     fn refresh_occupancy(&mut self, field: &mut NodeField, rng: &mut Rng, round: usize) {
         field.occupancy.update_round(&field.field, rng, round);

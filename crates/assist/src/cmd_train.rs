@@ -58,8 +58,9 @@ pub struct TrainArgs {
     /// Print one JSON object (the report) on stdout instead of text on stderr.
     #[arg(long)]
     pub json: bool,
-    /// Where the fields' backward passes and Adam steps run (sampling, the forward pass
-    /// and compositing stay on the CPU; the parameters come back after every step).
+    /// Where the fields' forward and backward passes and Adam steps run (sampling and
+    /// compositing stay on the CPU, the forward pass too with --refine-poses; the
+    /// parameters come back after every step).
     #[command(flatten)]
     pub device: crate::device::DeviceArg,
 }

@@ -1,7 +1,7 @@
 //! `--device auto|cpu|gpu` on the commands that render (`render`, `eval`, `view`,
 //! `generate`, `bench render`): where the fields are queried (rays are still marched and
 //! composited on the CPU; the GPU answers each batch's field queries); and on `train`:
-//! where the fields' backward passes and Adam run (`assist-gpu`).
+//! where the fields' forward and backward passes and Adam run (`assist-gpu`).
 
 use std::sync::Arc;
 

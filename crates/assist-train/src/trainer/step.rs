@@ -33,8 +33,7 @@ impl Trainer {
         let mut phase = [0.0f64; 6];
         let (candidates, pruned) = self.trace();
         phase[0] = tp.elapsed().as_secs_f64();
-        let q = assist_render::Query::Train;
-        assist_render::query_fields(&self.scene, &mut self.traced, &mut self.tapes, q);
+        self.forward()?;
         phase[1] = tp.elapsed().as_secs_f64();
         // The step's figures; the losses come with the compositing.
         let mut s = StepStats {
@@ -181,6 +180,37 @@ impl Trainer {
 
     /// Backward from the samples into each field's optimizer, the shadow grids and
     /// (every POSE_EVERY steps) the camera poses; returns the shadow grids' gradients.
+    /// The fields queried at the batch's samples: by the optimizers where they can (a
+    /// GPU's, unless the poses are refined: that needs the CPU's tapes), else on the CPU.
+    fn forward(&mut self) -> Result<()> {
+        let q = assist_render::Query::Train;
+        if self.poses.is_some() {
+            assist_render::query_fields(&self.scene, &mut self.traced, &mut self.tapes, q);
+            return Ok(());
+        }
+        self.tapes
+            .resize_with(self.traced.nodes.len(), Default::default);
+        for (ns, tape) in self.traced.nodes.iter_mut().zip(self.tapes.iter_mut()) {
+            let key = &self.scene.scene.nodes[ns.node].field;
+            let nf = &self.scene.fields[key];
+            let opt = self.optimizers.get_mut(key).expect("optimizer per field");
+            ns.prepare_outputs(true);
+            let (mut sigma, mut rgb) = (std::mem::take(&mut ns.sigma), std::mem::take(&mut ns.rgb));
+            let done = match ns.is_empty() {
+                true => Some(Ok(())),
+                false => opt.forward(nf, &ns.samples(), &mut sigma, &mut rgb),
+            };
+            (ns.sigma, ns.rgb) = (sigma, rgb);
+            match done {
+                Some(r) => r.map_err(|e| {
+                    TrainError::Other(format!("the forward pass of field {key}: {e}"))
+                })?,
+                None => assist_render::query_node(&self.scene, ns, tape, q),
+            }
+        }
+        Ok(())
+    }
+
     fn backward(&mut self) -> Result<Vec<(usize, Vec<f32>)>> {
         for (ns, tape) in self.traced.nodes.iter().zip(self.tapes.iter_mut()) {
             if ns.is_empty() {
