@@ -88,6 +88,22 @@ impl Drop for TempDir {
     }
 }
 
+/// PSNR between two 8-bit images of the same size and layout (∞ when equal).
+pub fn psnr_u8(a: &[u8], b: &[u8]) -> f64 {
+    assert_eq!(a.len(), b.len(), "images of one size");
+    let se: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(&x, &y)| ((x as f64 - y as f64) / 255.0).powi(2))
+        .sum();
+    let mse = se / a.len().max(1) as f64;
+    if mse == 0.0 {
+        f64::INFINITY
+    } else {
+        -10.0 * mse.log10()
+    }
+}
+
 /// Median of a list (NaN-free); panics on an empty list.
 pub fn median(v: &mut [f64]) -> f64 {
     assert!(!v.is_empty(), "median of nothing");

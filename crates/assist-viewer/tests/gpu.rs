@@ -100,18 +100,7 @@ async fn client(
 
 fn psnr(a: &image::RgbImage, b: &image::RgbImage) -> f64 {
     assert_eq!(a.dimensions(), b.dimensions());
-    let se: f64 = a
-        .as_raw()
-        .iter()
-        .zip(b.as_raw())
-        .map(|(&x, &y)| ((x as f64 - y as f64) / 255.0).powi(2))
-        .sum();
-    let mse = se / a.as_raw().len() as f64;
-    if mse == 0.0 {
-        f64::INFINITY
-    } else {
-        -10.0 * mse.log10()
-    }
+    assist_testkit::psnr_u8(a.as_raw(), b.as_raw())
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

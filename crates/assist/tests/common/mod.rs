@@ -293,16 +293,5 @@ pub fn png_psnr(a: &Path, b: &Path) -> f64 {
         image::open(b).unwrap().to_rgb8(),
     );
     assert_eq!(a.dimensions(), b.dimensions());
-    let se: f64 = a
-        .as_raw()
-        .iter()
-        .zip(b.as_raw())
-        .map(|(&x, &y)| ((x as f64 - y as f64) / 255.0).powi(2))
-        .sum();
-    let mse = se / a.as_raw().len() as f64;
-    if mse == 0.0 {
-        f64::INFINITY
-    } else {
-        -10.0 * mse.log10()
-    }
+    assist_testkit::psnr_u8(a.as_raw(), b.as_raw())
 }
