@@ -31,6 +31,9 @@ pub struct ViewBenchArgs {
     /// One JSON object: preview_ms, full_ms, drag_ms, drag_first_ms, clients (frames/s).
     #[arg(long)]
     pub json: bool,
+    /// Where the viewer's renders query the fields.
+    #[command(flatten)]
+    pub device: crate::device::DeviceArg,
 }
 
 use crate::cmd_bench::median_of as median;
@@ -47,7 +50,9 @@ pub fn run(a: ViewBenchArgs) -> anyhow::Result<()> {
     if a.frames < 3 {
         bail!("--frames: expected at least 3, got {}", a.frames);
     }
+    let device = a.device.open()?;
     let mut s = Session::open(&a.scene)?;
+    s.set_backend(device.field_backend());
     let cams = CameraSource::train_or_orbit(a.data.as_deref()).cameras(s.description())?;
     let cam: Camera = cams.first().context("no camera to view from")?.camera;
     let full = Some((a.width, a.height));
@@ -138,7 +143,8 @@ pub fn run(a: ViewBenchArgs) -> anyhow::Result<()> {
             let handles: Vec<_> = (0..clients)
                 .map(|_| {
                     sc.spawn(|| -> anyhow::Result<()> {
-                        let s = Session::open(&a.scene)?;
+                        let mut s = Session::open(&a.scene)?;
+                        s.set_backend(device.field_backend());
                         for _ in 0..per {
                             let f = s.render(&cam, &req(preview))?;
                             let _ = encode_jpeg(&f.rgb, f.width, f.height);
@@ -173,6 +179,7 @@ pub fn run(a: ViewBenchArgs) -> anyhow::Result<()> {
                 "drag_node": moving,
                 "clients": clients_fps,
                 "threads": rayon::current_num_threads(),
+                "device": device.name(),
             })
         );
     }
