@@ -290,8 +290,7 @@ pub(crate) fn query_node_with(
                     b.forward(&nf.field, &ns.samples(), &mut sigma, &mut rgb)
                         .is_ok()
                 });
-            if elsewhere {
-            } else if encoded {
+            if encoded {
                 nf.field.forward_from_features(
                     precision,
                     &ns.samples(),
@@ -299,7 +298,7 @@ pub(crate) fn query_node_with(
                     &mut sigma,
                     &mut rgb,
                 );
-            } else {
+            } else if !elsewhere {
                 nf.field
                     .forward_at(precision, tables, &ns.samples(), tape, &mut sigma, &mut rgb);
             }
