@@ -100,22 +100,38 @@ pub(crate) fn capacity(gpu: &Gpu, n: usize, per_sample: usize) -> usize {
 /// The first `floats` values of a buffer (made with `COPY_SRC`), through a staging
 /// buffer; waits for the work submitted so far.
 pub(crate) fn read_f32(gpu: &Gpu, buf: &wgpu::Buffer, floats: usize) -> Result<Vec<f32>, GpuError> {
-    let bytes = 4 * floats as u64;
     let staging = gpu.checked("reading back", || {
-        let staging = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+        gpu.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("staging"),
-            size: bytes,
+            size: 4 * floats as u64,
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
-        });
+        })
+    })?;
+    let mut out = vec![0.0; floats];
+    read_f32_into(gpu, buf, &staging, &mut out)?;
+    Ok(out)
+}
+
+/// The first `out.len()` values of `buf` into `out`, through `staging` (a `MAP_READ`
+/// buffer at least that large, kept by the caller: allocating one the size of a field's
+/// parameters on every step costs more than the copy); waits for the work submitted so
+/// far.
+pub(crate) fn read_f32_into(
+    gpu: &Gpu,
+    buf: &wgpu::Buffer,
+    staging: &wgpu::Buffer,
+    out: &mut [f32],
+) -> Result<(), GpuError> {
+    let bytes = 4 * out.len() as u64;
+    gpu.checked("reading back", || {
         let mut enc = gpu
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        enc.copy_buffer_to_buffer(buf, 0, &staging, 0, bytes);
+        enc.copy_buffer_to_buffer(buf, 0, staging, 0, bytes);
         gpu.queue.submit([enc.finish()]);
-        staging
     })?;
-    let slice = staging.slice(..);
+    let slice = staging.slice(..bytes);
     let (tx, rx) = std::sync::mpsc::channel();
     slice.map_async(wgpu::MapMode::Read, move |r| {
         let _ = tx.send(r);
@@ -124,10 +140,14 @@ pub(crate) fn read_f32(gpu: &Gpu, buf: &wgpu::Buffer, floats: usize) -> Result<V
     rx.recv()
         .map_err(|e| GpuError::Run(e.to_string()))?
         .map_err(|e| GpuError::Run(format!("reading back: {e}")))?;
-    let view = slice
-        .get_mapped_range()
-        .map_err(|e| GpuError::Run(format!("reading back: {e}")))?;
-    Ok(bytemuck::cast_slice(&view).to_vec())
+    {
+        let view = slice
+            .get_mapped_range()
+            .map_err(|e| GpuError::Run(format!("reading back: {e}")))?;
+        out.copy_from_slice(bytemuck::cast_slice(&view));
+    }
+    staging.unmap();
+    Ok(())
 }
 
 /// An opened GPU: the adapter's description, its device and queue.

@@ -47,6 +47,9 @@ pub struct GpuOptimizer {
     gpu: Arc<Gpu>,
     field: GpuField,
     trainer: GpuTrainer,
+    /// The buffer the parameters come back through after each step (kept: a new one
+    /// each step cost more than the copy on an H200).
+    readback: wgpu::Buffer,
     /// The digest of the parameters the GPU holds ([`crate::backend::digest`]): a field
     /// changed on the CPU since (a resumed or edited one) is uploaded before its next
     /// gradient.
@@ -57,7 +60,16 @@ impl GpuOptimizer {
     pub fn new(gpu: Arc<Gpu>, nf: &NodeField) -> Result<Self, GpuError> {
         let field = GpuField::new(&gpu, &nf.field)?;
         let trainer = GpuTrainer::new(&gpu, &field, &nf.field, &Adam::for_field(&nf.field))?;
+        let readback = gpu.checked("allocating the parameters' read-back buffer", || {
+            gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("params readback"),
+                size: std::mem::size_of_val(nf.field.params.as_slice()) as u64,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        })?;
         Ok(GpuOptimizer {
+            readback,
             digest: crate::backend::digest(&nf.field),
             gpu,
             field,
@@ -92,8 +104,12 @@ impl GpuOptimizer {
 
     fn step_on(&mut self, nf: &mut NodeField, lr: f32) -> Result<(), GpuError> {
         self.trainer.submit_adam(&self.gpu, lr);
-        let p = self.field.read_params(&self.gpu)?;
-        nf.field.params.copy_from_slice(&p);
+        crate::read_f32_into(
+            &self.gpu,
+            &self.field.params,
+            &self.readback,
+            &mut nf.field.params,
+        )?;
         self.digest = crate::backend::digest(&nf.field);
         Ok(())
     }
