@@ -72,6 +72,8 @@ impl TempDir {
         ));
         let _ = std::fs::remove_dir_all(&p);
         std::fs::create_dir_all(&p).expect("create temp dir");
+        static SWEPT: std::sync::Once = std::sync::Once::new();
+        SWEPT.call_once(sweep_stale);
         TempDir(p)
     }
     pub fn path(&self) -> &Path {
@@ -79,6 +81,35 @@ impl TempDir {
     }
     pub fn join(&self, p: impl AsRef<Path>) -> PathBuf {
         self.0.join(p)
+    }
+}
+
+/// Removes the temporary directories of test processes that have ended. A directory held
+/// in a `static` is never dropped, and nextest runs every test as its own process, so each
+/// run would otherwise leave one per process behind. Linux only (liveness from `/proc`).
+fn sweep_stale() {
+    if !Path::new("/proc/self").exists() {
+        return;
+    }
+    let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let name = e.file_name();
+        let Some(rest) = name.to_str().and_then(|n| n.strip_prefix("assist-test-")) else {
+            continue;
+        };
+        // assist-test-{tag}-{pid}-{n}: the pid is the second field from the end.
+        let mut fields = rest.rsplit('-');
+        let (Some(_n), Some(pid)) = (fields.next(), fields.next()) else {
+            continue;
+        };
+        let Ok(pid) = pid.parse::<u32>() else {
+            continue;
+        };
+        if pid != std::process::id() && !Path::new(&format!("/proc/{pid}")).exists() {
+            let _ = std::fs::remove_dir_all(e.path());
+        }
     }
 }
 

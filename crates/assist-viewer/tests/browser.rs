@@ -113,9 +113,9 @@ fn the_viewer_works_in_a_real_browser() {
             return;
         }
     };
-    let work = std::env::temp_dir().join(format!("assist-viewer-browser-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&work);
-    std::fs::create_dir_all(&work).unwrap();
+    // Removed when the test ends, passed or failed.
+    let tmp = assist_testkit::TempDir::new("viewer-browser");
+    let work = tmp.path();
     let data = synth_capture(&work);
     let scene = work.join("scene.assist");
     TrainJob::new(TrainConfig {
@@ -211,10 +211,8 @@ fn new_object_mode_works_in_a_real_browser() {
             return;
         }
     };
-    let work =
-        std::env::temp_dir().join(format!("assist-viewer-new-object-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&work);
-    std::fs::create_dir_all(&work).unwrap();
+    let tmp = assist_testkit::TempDir::new("viewer-new-object");
+    let work = tmp.path();
     let data = synth_capture(&work);
     let scene = work.join("plain.assist");
     TrainJob::new(TrainConfig {
@@ -273,5 +271,4 @@ fn new_object_mode_works_in_a_real_browser() {
     assert_eq!((split.scene.nodes.len(), history.undo.len()), (2, 1));
     assert_eq!(split.scene.nodes[1].label, "found object");
     drop(rt);
-    let _ = std::fs::remove_dir_all(&work);
 }
