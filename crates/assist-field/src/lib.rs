@@ -33,4 +33,4 @@ pub use error::FieldError;
 pub use field::{Field, PackedTables, ParamLayout, PhaseTimes, Precision, Samples, Tape};
 pub use mlp::Linear;
 pub use occupancy::{OccupancyGrid, Step};
-pub use shade::ShadeGrid;
+pub use shade::{LitCells, ShadeGrid};

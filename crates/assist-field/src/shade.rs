@@ -24,6 +24,24 @@ pub struct ShadeGrid {
     pub values: Vec<f32>,
 }
 
+/// One bit per cell of a [`ShadeGrid`]: set where the grid shades nothing.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LitCells {
+    res: usize,
+    bits: Vec<u64>,
+}
+
+impl LitCells {
+    /// No cell known to shade nothing (every point must be looked up).
+    pub fn none(grid: &ShadeGrid) -> LitCells {
+        let m = grid.res - 1;
+        LitCells {
+            res: grid.res,
+            bits: vec![0; (m * m * m).div_ceil(64)],
+        }
+    }
+}
+
 /// The lattice points around one position and their trilinear weights.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Corners {
@@ -57,10 +75,10 @@ impl ShadeGrid {
         self.res.pow(3)
     }
 
-    /// The lattice points around `c` (box units) and their weights; `None` outside the
-    /// region.
+    /// The cell holding `c` (box units): its lowest lattice index per axis and where `c`
+    /// lies in it (0..1 per axis); `None` outside the region.
     #[inline]
-    pub fn corners(&self, c: [f32; 3]) -> Option<Corners> {
+    fn cell(&self, c: [f32; 3]) -> Option<([usize; 3], [f32; 3])> {
         let n = (self.res - 1) as f32;
         let mut i0 = [0usize; 3];
         let mut f = [0f32; 3];
@@ -69,10 +87,19 @@ impl ShadeGrid {
             if !(0.0..=n).contains(&u) {
                 return None;
             }
-            let i = (u.floor() as usize).min(self.res - 2);
+            // `u` is at least 0 here, so truncation is the floor.
+            let i = (u as usize).min(self.res - 2);
             i0[a] = i;
             f[a] = u - i as f32;
         }
+        Some((i0, f))
+    }
+
+    /// The lattice points around `c` (box units) and their weights; `None` outside the
+    /// region.
+    #[inline]
+    pub fn corners(&self, c: [f32; 3]) -> Option<Corners> {
+        let (i0, f) = self.cell(c)?;
         let r = self.res;
         let mut out = Corners {
             index: [0; 8],
@@ -89,6 +116,45 @@ impl ShadeGrid {
         Some(out)
     }
 
+    /// Which cells shade nothing: those whose eight corners are all exactly 1, where
+    /// [`ShadeGrid::at`] gives exactly 1. Most of a region is such cells.
+    pub fn lit_cells(&self) -> LitCells {
+        let r = self.res;
+        let one: Vec<bool> = self.values.chunks_exact(3).map(|v| v == [1.0; 3]).collect();
+        let m = r - 1;
+        let mut bits = vec![0u64; (m * m * m).div_ceil(64)];
+        for z in 0..m {
+            for y in 0..m {
+                for x in 0..m {
+                    let lit = (0..8).all(|k| {
+                        let (dx, dy, dz) = (k & 1, (k >> 1) & 1, (k >> 2) & 1);
+                        one[(z + dz) * r * r + (y + dy) * r + x + dx]
+                    });
+                    if lit {
+                        let i = (z * m + y) * m + x;
+                        bits[i / 64] |= 1 << (i % 64);
+                    }
+                }
+            }
+        }
+        LitCells { res: r, bits }
+    }
+
+    /// Whether `c` (box units) gets exactly 1 from this grid: outside the region, or in
+    /// a cell `lit` (this grid's [`ShadeGrid::lit_cells`]) marks.
+    #[inline]
+    pub fn shades_nothing_at(&self, lit: &LitCells, c: [f32; 3]) -> bool {
+        debug_assert_eq!(lit.res, self.res, "lit cells of another grid");
+        match self.cell(c) {
+            None => true,
+            Some((i0, _)) => {
+                let m = self.res - 1;
+                let i = (i0[2] * m + i0[1]) * m + i0[0];
+                lit.bits[i / 64] >> (i % 64) & 1 == 1
+            }
+        }
+    }
+
     /// The factors at `c` (box units): 1 outside the region.
     #[inline]
     pub fn value(&self, c: [f32; 3]) -> [f32; 3] {
@@ -98,17 +164,21 @@ impl ShadeGrid {
         }
     }
 
-    /// The interpolated factors at `k`.
+    /// The interpolated factors at `k`: exactly 1 (no shadow) where all eight corners are
+    /// 1, as most of a region is. The weights' sum may miss 1 by a rounding; the exact 1
+    /// lets a moved grid leave unshadowed samples' factors unchanged to the bit.
     #[inline]
     pub fn at(&self, k: &Corners) -> [f32; 3] {
         let mut out = [0.0f32; 3];
+        let mut lit = true;
         for i in 0..8 {
             let v = &self.values[3 * k.index[i] as usize..3 * k.index[i] as usize + 3];
             for ch in 0..3 {
                 out[ch] += k.weight[i] * v[ch];
+                lit &= v[ch] == 1.0;
             }
         }
-        out
+        if lit { [1.0; 3] } else { out }
     }
 
     /// Adds `Σ_ch g[ch] · ∂value[ch]/∂values` at `k` into `grad` (sized like `values`).
@@ -181,6 +251,48 @@ mod tests {
         let grey = ShadeGrid::from_grey(2, 2.0, &[0.5; 8]);
         assert_eq!(grey.values.len(), 24);
         assert!(near(grey.value([0.3, -1.0, 1.5]), [0.5; 3]));
+    }
+
+    #[test]
+    fn cells_marked_lit_give_exactly_one() {
+        let mut rng = assist_core::Rng::new(9);
+        let mut g = ShadeGrid::new(6, 2.0);
+        // Lattice points with x ≤ 2 are 1 in every channel; one point among them is 1 in
+        // red and green only, so the cells around it shade.
+        for (i, v) in g.values.iter_mut().enumerate() {
+            if (i / 3) % 6 > 2 {
+                *v = 0.2 + 0.8 * rng.f32();
+            }
+        }
+        let odd = 3 * (1 + 6 * (2 + 6 * 2)) + 2;
+        g.values[odd] = 0.9;
+        let lit = g.lit_cells();
+        let none = LitCells::none(&g);
+        let (mut marked, mut trials) = (0, 0);
+        for _ in 0..20_000 {
+            let c = [0.0; 3].map(|_| (rng.f32() * 2.0 - 1.0) * 2.3);
+            trials += 1;
+            assert!(!g.shades_nothing_at(&none, c) || g.corners(c).is_none());
+            if g.shades_nothing_at(&lit, c) {
+                marked += 1;
+                assert_eq!(g.value(c), [1.0; 3], "at {c:?}");
+            } else if let Some((i0, _)) = g.cell(c) {
+                // Unmarked inside: some corner differs from 1.
+                let k = g.corners(c).unwrap();
+                assert!(
+                    k.index
+                        .iter()
+                        .any(|&p| g.values[3 * p as usize..3 * p as usize + 3] != [1.0; 3]),
+                    "cell {i0:?}"
+                );
+            }
+        }
+        assert!(
+            marked > trials / 10 && marked < trials,
+            "{marked} of {trials}"
+        );
+        // A cell whose corners are all 1 gives exactly 1 whatever the weights' rounding.
+        assert_eq!(g.value([-1.9, 0.37, 1.11]), [1.0; 3]);
     }
 
     #[test]

@@ -8,7 +8,7 @@
 use std::sync::Arc;
 
 use assist_core::{Camera, InstanceId, SceneNode};
-use assist_field::{Precision, Tape};
+use assist_field::{LitCells, Precision, Tape};
 use assist_scene::NeuralScene;
 
 use crate::batch::{BatchOutput, Behind, composite_batch};
@@ -61,9 +61,10 @@ pub struct DragCache {
     /// their samples.
     fresh: NodeSamples,
     affected: Vec<usize>,
-    /// The moving node as the last render saw it, and per ray whether its shading
-    /// changed since.
+    /// The moving node as the last render saw it, the cells of its shadow grid that
+    /// shaded nothing there, and per ray whether its shading changed since.
     moved: Option<SceneNode>,
+    moved_lit: Option<LitCells>,
     shade_changed: Vec<bool>,
     sub: Traced,
     pixels: Vec<usize>,
@@ -84,6 +85,7 @@ impl DragCache {
         self.batches.clear();
         self.image = None;
         self.moved = None;
+        self.moved_lit = None;
     }
 }
 
@@ -173,6 +175,9 @@ pub fn render_camera_moving(
             .as_ref()
             .and_then(|_| scene.scene.nodes.iter().position(|n| n.is_background()));
         let before = c.moved.take();
+        let casters = bg.map(|_| crate::shade::casters(scene)).unwrap_or_default();
+        let now_lit = crate::shade::lit_cells_of(&casters, k);
+        let before_lit = c.moved_lit.take();
         for b in c.batches.iter_mut() {
             sample_rays_node(scene, k, &b.rays, &so, &mut c.fresh);
             // Only the samples in the moved node's shadow region, before or after, can
@@ -181,16 +186,19 @@ pub fn render_camera_moving(
             c.shade_changed.resize(b.rays.len(), false);
             let mut old_shade = None;
             if let Some(bi) = bg {
-                let done = before.as_ref().is_some_and(|n| {
-                    crate::shade::reshade_moved(
+                let done = match (&before, &before_lit, &now_lit) {
+                    (Some(n), Some(was), Some(now)) => crate::shade::reshade_moved(
                         scene,
                         &b.rays,
                         &mut b.traced,
+                        &casters,
                         k,
-                        n,
+                        (n, was),
+                        now,
                         &mut c.shade_changed,
-                    )
-                });
+                    ),
+                    _ => false,
+                };
                 if !done {
                     let was = std::mem::take(&mut b.traced.nodes[bi].shade);
                     crate::shade::shade_background(scene, &b.rays, &mut b.traced);
@@ -254,6 +262,7 @@ pub fn render_camera_moving(
             std::mem::swap(&mut b.traced.nodes[k], &mut c.fresh);
         }
         cache.moved = Some(scene.scene.nodes[k].clone());
+        cache.moved_lit = now_lit;
         cache.image = Some(img.clone());
         return img;
     }
@@ -261,6 +270,7 @@ pub fn render_camera_moving(
     let img = render_and_keep(scene, camera, image, opts, cache);
     cache.key = Some(key);
     cache.moved = Some(scene.scene.nodes[k].clone());
+    cache.moved_lit = crate::shade::lit_cells_of(&crate::shade::casters(scene), k);
     cache.image = Some(img.clone());
     img
 }

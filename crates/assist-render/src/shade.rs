@@ -6,8 +6,8 @@
 //! (a node layer, or the scene without its objects) has none.
 
 use assist_core::{DVec3, SceneNode};
-use assist_field::ShadeGrid;
 use assist_field::shade::Corners;
+use assist_field::{LitCells, ShadeGrid};
 use std::sync::Arc;
 
 use rayon::prelude::*;
@@ -62,18 +62,38 @@ impl std::ops::Deref for CasterGrid<'_> {
     }
 }
 
-impl Caster<'_> {
-    /// Where world point `p` lies in the grid, if inside its region.
-    #[inline]
-    fn corners(&self, p: DVec3) -> Option<Corners> {
-        let (lo, hi) = self.bounds;
-        if p.cmplt(lo).any() || p.cmpgt(hi).any() {
-            return None;
+/// A ray in a box's own units (the box spans `[−1, 1]³`): `c(t) = o + t·d` for `t` the
+/// world distance along the ray. Found once per ray and caster, so that each sample costs
+/// three products instead of a transform into the box's frame; every path that shades a
+/// sample (render, drag, training's backward) finds its place this way, to the same bits.
+#[derive(Clone, Copy)]
+struct BoxRay {
+    o: DVec3,
+    d: DVec3,
+}
+
+impl BoxRay {
+    fn new(node: &SceneNode, rays: &RayBatch, r: usize) -> Self {
+        let (o, d) = ray(rays, r);
+        let pose = &node.world_from_local;
+        BoxRay {
+            o: pose.local_from_world_point(o) / node.half_size,
+            d: pose.local_from_world_vector(d) / node.half_size,
         }
-        let l = self.scene_node.world_from_local.local_from_world_point(p);
-        let c = (l / self.scene_node.half_size).as_vec3().to_array();
-        self.grid.corners(c)
     }
+
+    #[inline]
+    fn at(&self, t: f32) -> [f32; 3] {
+        (self.o + self.d * t as f64).as_vec3().to_array()
+    }
+}
+
+/// Origin and unit direction of ray `r`, in f64.
+fn ray(rays: &RayBatch, r: usize) -> (DVec3, DVec3) {
+    (
+        DVec3::from(rays.origin[r].map(f64::from)),
+        DVec3::from(rays.dir[r].map(f64::from)),
+    )
 }
 
 /// The objects of `scene` that cast a shadow (those whose field has a shadow grid), each
@@ -128,44 +148,55 @@ pub fn casts_shadows(scene: &NeuralScene) -> bool {
     !casters(scene).is_empty()
 }
 
-/// World position of sample `j` of ray `r` (sample distances are world distances along
-/// the ray's unit direction).
-#[inline]
-fn position(rays: &RayBatch, r: usize, t: f32) -> DVec3 {
-    let o = DVec3::from(rays.origin[r].map(f64::from));
-    let d = DVec3::from(rays.dir[r].map(f64::from));
-    o + d * t as f64
-}
-
-/// `f(casters, world position)` of every sample of the background node, in order; `None`
-/// when the scene has no background or no object casts a shadow.
-fn per_background_sample<T: Send>(
-    scene: &NeuralScene,
-    rays: &RayBatch,
-    traced: &Traced,
-    f: impl Fn(&[Caster], DVec3) -> T + Sync,
-) -> Option<Vec<T>> {
-    let ns = background(scene).and_then(|b| traced.nodes.get(b))?;
-    let cs = casters(scene);
-    if cs.is_empty() {
-        return None;
+/// The stretch of ray `r` (distances along its unit direction) inside the world box
+/// `(lo, hi)`, widened a little so that rounding never leaves out a sample whose position
+/// lies inside; `None` when the ray's line misses the box.
+fn ray_span(rays: &RayBatch, r: usize, (lo, hi): (DVec3, DVec3)) -> Option<(f64, f64)> {
+    let (o, d) = ray(rays, r);
+    let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
+    for a in 0..3 {
+        if d[a] == 0.0 {
+            if o[a] < lo[a] || o[a] > hi[a] {
+                return None;
+            }
+            continue;
+        }
+        let (u, v) = ((lo[a] - o[a]) / d[a], (hi[a] - o[a]) / d[a]);
+        t0 = t0.max(u.min(v));
+        t1 = t1.min(u.max(v));
     }
-    let (cs, f) = (&cs, &f);
-    Some(
-        (0..traced.rays)
-            .into_par_iter()
-            .flat_map_iter(|r| ns.range(r).map(move |j| f(cs, position(rays, r, ns.t[j]))))
-            .collect(),
-    )
+    let pad = 1e-6 * (1.0 + t0.abs().max(t1.abs()));
+    (t0 <= t1).then_some((t0 - pad, t1 + pad))
 }
 
-/// The background's shading at world point `p`: per channel, the product of the factors
-/// of the casters whose region holds it, in their order.
-fn shade_at(cs: &[Caster], p: DVec3) -> [f32; 3] {
+/// A caster ray `r` can meet: its index, the stretch of the ray through the world box
+/// around its region, and the ray in its box's units.
+type RayCaster = (usize, (f64, f64), BoxRay);
+
+/// The casters ray `r` can meet, in their order, into `out`.
+fn ray_casters(rays: &RayBatch, r: usize, cs: &[Caster], out: &mut Vec<RayCaster>) {
+    out.clear();
+    for (i, c) in cs.iter().enumerate() {
+        if let Some(span) = ray_span(rays, r, c.bounds) {
+            out.push((i, span, BoxRay::new(c.scene_node, rays, r)));
+        }
+    }
+}
+
+/// The background's shading at distance `t` along a ray that meets `hit` (as
+/// [`ray_casters`] finds them): per channel, the product of the factors of the casters
+/// whose region holds the point, in their order.
+#[inline]
+fn shade_at(cs: &[Caster], hit: &[RayCaster], t: f32) -> [f32; 3] {
     let mut f = [1.0f32; 3];
-    for c in cs {
-        if let Some(k) = c.corners(p) {
-            let v = c.grid.at(&k);
+    let tt = t as f64;
+    for &(i, (a, b), br) in hit {
+        if tt < a || tt > b {
+            continue;
+        }
+        let g = &cs[i].grid;
+        if let Some(k) = g.corners(br.at(t)) {
+            let v = g.at(&k);
             for ch in 0..3 {
                 f[ch] *= v[ch];
             }
@@ -174,42 +205,75 @@ fn shade_at(cs: &[Caster], p: DVec3) -> [f32; 3] {
     f
 }
 
+/// Rays per parallel task of the shading passes.
+const RAYS_PER_TASK: usize = 256;
+
 /// Fills the background node's [`NodeSamples::shade`](crate::NodeSamples::shade) (three
 /// factors per sample) from the objects' shadow grids (left empty — no shadow — when no
 /// object has one). Call after sampling, before compositing.
 pub fn shade_background(scene: &NeuralScene, rays: &RayBatch, traced: &mut Traced) {
-    let shade = per_background_sample(scene, rays, traced, shade_at);
-    if let Some(ns) = background(scene).and_then(|b| traced.nodes.get_mut(b)) {
-        // Three factors per sample, replacing the previous ones.
-        ns.shade.clear();
-        if let Some(s) = shade {
-            ns.shade.reserve(3 * s.len());
-            for f in s {
-                ns.shade.extend_from_slice(&f);
-            }
+    let Some(bi) = background(scene).filter(|&b| b < traced.nodes.len()) else {
+        return;
+    };
+    let cs = casters(scene);
+    let mut shade = std::mem::take(&mut traced.nodes[bi].shade);
+    // Three factors per sample, replacing the previous ones.
+    shade.clear();
+    if !cs.is_empty() {
+        let (ns, cs) = (&traced.nodes[bi], &cs);
+        let parts: Vec<Vec<f32>> = (0..traced.rays.div_ceil(RAYS_PER_TASK))
+            .into_par_iter()
+            .map(|task| {
+                let rs = task * RAYS_PER_TASK..((task + 1) * RAYS_PER_TASK).min(traced.rays);
+                let mut out =
+                    Vec::with_capacity(3 * (ns.start[rs.end] - ns.start[rs.start]) as usize);
+                let mut hit = Vec::new();
+                for r in rs {
+                    ray_casters(rays, r, cs, &mut hit);
+                    for j in ns.range(r) {
+                        out.extend_from_slice(&shade_at(cs, &hit, ns.t[j]));
+                    }
+                }
+                out
+            })
+            .collect();
+        shade.reserve(3 * ns.t.len());
+        for p in parts {
+            shade.extend_from_slice(&p);
         }
     }
+    traced.nodes[bi].shade = shade;
 }
 
-/// After node `k` alone moved (it stood as `before`), the background samples' shading
-/// again where it can have changed: inside `k`'s shadow region where it stands now or
-/// where it stood (every other caster's grid is as it was). Each sample there gets the
-/// product over all casters, in [`shade_background`]'s order (the same bits); `changed[r]`
-/// is set for every ray `r` with a factor that changed. Returns false, doing nothing,
-/// when the background's shading is not laid out as [`shade_background`] leaves it or `k`
+/// The cells of node `k`'s shadow grid, as [`casters`] finds it where `k` stands now,
+/// that shade nothing (`None` when `k` casts no shadow).
+pub(crate) fn lit_cells_of(cs: &[Caster], k: usize) -> Option<LitCells> {
+    cs.iter().find(|c| c.node == k).map(|c| c.grid.lit_cells())
+}
+
+/// After node `k` alone moved (it stood as `before`, its grid's cells that shade nothing
+/// then `before_lit`), the background samples' shading again where it can have changed:
+/// where `k`'s grid shades something, where it stands now (`now_lit`, from
+/// [`lit_cells_of`]) or where it stood (every other caster's grid is as it was; elsewhere
+/// `k` gave and gives exactly 1). Each such sample gets the product over all casters `cs`
+/// (from [`casters`]), in [`shade_background`]'s order (the same bits); `changed[r]` is
+/// set for every ray `r` with a factor that changed. Returns false, doing nothing, when
+/// the background's shading is not laid out as [`shade_background`] leaves it or `k`
 /// casts no shadow (then shade everything again).
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn reshade_moved(
     scene: &NeuralScene,
     rays: &RayBatch,
     traced: &mut Traced,
+    cs: &[Caster],
     k: usize,
-    before: &SceneNode,
+    (before, before_lit): (&SceneNode, &LitCells),
+    now_lit: &LitCells,
     changed: &mut [bool],
 ) -> bool {
     let Some(bi) = background(scene) else {
         return false;
     };
-    let cs = casters(scene);
     let Some(moved) = cs.iter().find(|c| c.node == k) else {
         return false;
     };
@@ -219,45 +283,52 @@ pub(crate) fn reshade_moved(
     if ns.shade.len() != 3 * ns.t.len() {
         return false;
     }
-    let extent = moved.grid.extent as f64;
+    let grid = &moved.grid;
     let regions = [
-        (moved.scene_node, moved.bounds),
-        (before, region_bounds(before, moved.grid.extent)),
+        (moved.scene_node, moved.bounds, now_lit),
+        (before, region_bounds(before, grid.extent), before_lit),
     ];
-    let in_region = |p: DVec3| {
-        regions.iter().any(|&(n, (lo, hi))| {
-            !(p.cmplt(lo).any() || p.cmpgt(hi).any()) && {
-                let c = n.world_from_local.local_from_world_point(p) / n.half_size;
-                c.abs().max_element() <= extent
-            }
-        })
-    };
-    let (cs, ns_ref) = (&cs, ns);
-    // Per ray with a change, its samples' new factors.
-    type Changes = Vec<(usize, [f32; 3])>;
-    let updates: Vec<(usize, Changes)> = (0..traced.rays)
+    // Per task of rays, the samples whose factors changed: (ray, sample, new factors).
+    let parts: Vec<Vec<(usize, usize, [f32; 3])>> = (0..traced.rays.div_ceil(RAYS_PER_TASK))
         .into_par_iter()
-        .filter_map(|r| {
+        .map(|task| {
             let mut u = Vec::new();
-            for j in ns_ref.range(r) {
-                let p = position(rays, r, ns_ref.t[j]);
-                if !in_region(p) {
+            let mut hit = Vec::new();
+            for r in task * RAYS_PER_TASK..((task + 1) * RAYS_PER_TASK).min(traced.rays) {
+                // The stretches of the ray inside either region's world box, and the ray
+                // in that box's units.
+                let inside = regions.map(|(n, b, lit)| {
+                    ray_span(rays, r, b).map(|span| (span, BoxRay::new(n, rays, r), lit))
+                });
+                if inside.iter().all(Option::is_none) {
                     continue;
                 }
-                let f = shade_at(cs, p);
-                if ns_ref.shade[3 * j..3 * j + 3] != f {
-                    u.push((j, f));
+                let mut met = false;
+                for j in ns.range(r) {
+                    let t = ns.t[j];
+                    let shades = inside.iter().flatten().any(|&((a, b), br, lit)| {
+                        (a..=b).contains(&(t as f64)) && !grid.shades_nothing_at(lit, br.at(t))
+                    });
+                    if !shades {
+                        continue;
+                    }
+                    if !met {
+                        ray_casters(rays, r, cs, &mut hit);
+                        met = true;
+                    }
+                    let f = shade_at(cs, &hit, t);
+                    if ns.shade[3 * j..3 * j + 3] != f {
+                        u.push((r, j, f));
+                    }
                 }
             }
-            (!u.is_empty()).then_some((r, u))
+            u
         })
         .collect();
     let ns = &mut traced.nodes[bi];
-    for (r, u) in updates {
+    for (r, j, f) in parts.into_iter().flatten() {
         changed[r] = true;
-        for (j, f) in u {
-            ns.shade[3 * j..3 * j + 3].copy_from_slice(&f);
-        }
+        ns.shade[3 * j..3 * j + 3].copy_from_slice(&f);
     }
     true
 }
@@ -284,16 +355,21 @@ pub fn shade_backward(
         .flat_map_iter(|r| {
             let mut out: Vec<(u32, u32, [f32; 3])> = Vec::new();
             let mut hit: Vec<(usize, Corners, [f32; 3])> = Vec::with_capacity(cs.len());
+            let mut meets = Vec::new();
+            ray_casters(rays, r, &cs, &mut meets);
             for j in ns.range(r) {
                 let g: [f32; 3] = ns.d_shade[3 * j..3 * j + 3].try_into().expect("3");
                 if g == [0.0; 3] {
                     continue;
                 }
-                let p = position(rays, r, ns.t[j]);
+                let t = ns.t[j];
                 hit.clear();
-                for (i, c) in cs.iter().enumerate() {
-                    if let Some(k) = c.corners(p) {
-                        hit.push((i, k, c.grid.at(&k)));
+                for &(i, (a, b), br) in &meets {
+                    let c = &cs[i].grid;
+                    if (a..=b).contains(&(t as f64))
+                        && let Some(k) = c.corners(br.at(t))
+                    {
+                        hit.push((i, k, c.at(&k)));
                     }
                 }
                 // d(Π s_i)/d s_i = Π_{other} s_j, channel by channel.

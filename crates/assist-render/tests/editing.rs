@@ -439,9 +439,16 @@ fn drag_bit_for_bit_at(shadow: bool, lit: bool, prune_eps: f32, packed: bool) {
     use assist_render::{DragCache, render_camera_moving};
     let mut s = base();
     if shadow {
+        // Half of the region shades nothing (factors exactly 1, as in trained grids,
+        // which a drag skips), the rest varies.
         let mut g = assist_field::ShadeGrid::new(5, 2.5);
         for (i, v) in g.values.iter_mut().enumerate() {
-            *v = 0.3 + 0.07 * (i % 10) as f32;
+            let x = (i / 3) % 5;
+            *v = if x <= 2 {
+                1.0
+            } else {
+                0.3 + 0.07 * (i % 10) as f32
+            };
         }
         Arc::make_mut(s.fields.get_mut("red").unwrap()).shade = Some(g.clone());
         if lit {
