@@ -29,6 +29,8 @@ pub struct ShadeGrid {
 pub struct LitCells {
     res: usize,
     bits: Vec<u64>,
+    /// The lowest and highest cell index per axis of the cells that shade (`None`: none).
+    active: Option<([usize; 3], [usize; 3])>,
 }
 
 impl LitCells {
@@ -38,7 +40,17 @@ impl LitCells {
         LitCells {
             res: grid.res,
             bits: vec![0; (m * m * m).div_ceil(64)],
+            active: Some(([0; 3], [m - 1; 3])),
         }
+    }
+
+    /// The box (box units, lowest and highest corner) holding every cell that shades, for
+    /// a grid of half-width `extent`; `None` when no cell does.
+    pub fn active_box(&self, extent: f32) -> Option<([f64; 3], [f64; 3])> {
+        let (lo, hi) = self.active?;
+        let n = (self.res - 1) as f64;
+        let c = |u: usize| (u as f64 / n * 2.0 - 1.0) * extent as f64;
+        Some((lo.map(c), hi.map(|h| c(h + 1))))
     }
 }
 
@@ -119,25 +131,48 @@ impl ShadeGrid {
     /// Which cells shade nothing: those whose eight corners are all exactly 1, where
     /// [`ShadeGrid::at`] gives exactly 1. Most of a region is such cells.
     pub fn lit_cells(&self) -> LitCells {
-        let r = self.res;
-        let one: Vec<bool> = self.values.chunks_exact(3).map(|v| v == [1.0; 3]).collect();
-        let m = r - 1;
-        let mut bits = vec![0u64; (m * m * m).div_ceil(64)];
-        for z in 0..m {
-            for y in 0..m {
-                for x in 0..m {
-                    let lit = (0..8).all(|k| {
-                        let (dx, dy, dz) = (k & 1, (k >> 1) & 1, (k >> 2) & 1);
-                        one[(z + dz) * r * r + (y + dy) * r + x + dx]
-                    });
-                    if lit {
-                        let i = (z * m + y) * m + x;
-                        bits[i / 64] |= 1 << (i % 64);
+        let (r, m) = (self.res, self.res - 1);
+        // A cell is lit where its corners are: AND over each axis's pair in turn.
+        let mut one: Vec<bool> = self.values.chunks_exact(3).map(|v| v == [1.0; 3]).collect();
+        let (mut nx, mut ny) = (r, r);
+        for axis in 0..3 {
+            let stride = [1, nx, nx * ny][axis];
+            let mut next = Vec::with_capacity(one.len());
+            let (ex, ey, ez) = match axis {
+                0 => (m, ny, r),
+                1 => (nx, m, r),
+                _ => (nx, ny, m),
+            };
+            for z in 0..ez {
+                for y in 0..ey {
+                    for x in 0..ex {
+                        let i = (z * ny + y) * nx + x;
+                        next.push(one[i] && one[i + stride]);
                     }
                 }
             }
+            one = next;
+            (nx, ny) = (ex, ey);
         }
-        LitCells { res: r, bits }
+        let mut bits = vec![0u64; (m * m * m).div_ceil(64)];
+        let (mut lo, mut hi) = ([m; 3], [0; 3]);
+        for (i, &lit) in one.iter().enumerate() {
+            if lit {
+                bits[i / 64] |= 1 << (i % 64);
+            } else {
+                let cell = [i % m, (i / m) % m, i / (m * m)];
+                for a in 0..3 {
+                    lo[a] = lo[a].min(cell[a]);
+                    hi[a] = hi[a].max(cell[a]);
+                }
+            }
+        }
+        let active = (lo[0] <= hi[0]).then_some((lo, hi));
+        LitCells {
+            res: r,
+            bits,
+            active,
+        }
     }
 
     /// Whether `c` (box units) gets exactly 1 from this grid: outside the region, or in
@@ -277,7 +312,9 @@ mod tests {
                 marked += 1;
                 assert_eq!(g.value(c), [1.0; 3], "at {c:?}");
             } else if let Some((i0, _)) = g.cell(c) {
-                // Unmarked inside: some corner differs from 1.
+                // Unmarked inside: some corner differs from 1, in the active box.
+                let (lo, hi) = lit.active_box(g.extent).unwrap();
+                assert!((0..3).all(|a| (lo[a]..=hi[a]).contains(&(c[a] as f64))));
                 let k = g.corners(c).unwrap();
                 assert!(
                     k.index
@@ -291,6 +328,21 @@ mod tests {
             marked > trials / 10 && marked < trials,
             "{marked} of {trials}"
         );
+        // The active box: where only lattice points with x ≥ 4 (of 0..5) shade, the cells
+        // from x = 3 on (box units 0.4 to 2).
+        let mut h = ShadeGrid::new(6, 2.0);
+        for (i, v) in h.values.iter_mut().enumerate() {
+            if (i / 3) % 6 >= 4 && (i / 18) % 6 == 1 {
+                *v = 0.5;
+            }
+        }
+        let (lo, hi) = h.lit_cells().active_box(h.extent).unwrap();
+        assert!((lo[0] - 0.4).abs() < 1e-12 && hi[0] == 2.0, "{lo:?} {hi:?}");
+        assert!(
+            (lo[1] + 2.0).abs() < 1e-12 && (hi[1] + 0.4).abs() < 1e-12,
+            "{lo:?} {hi:?}"
+        );
+        assert_eq!(ShadeGrid::new(4, 2.0).lit_cells().active_box(2.0), None);
         // A cell whose corners are all 1 gives exactly 1 whatever the weights' rounding.
         assert_eq!(g.value([-1.9, 0.37, 1.11]), [1.0; 3]);
     }

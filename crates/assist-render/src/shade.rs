@@ -28,21 +28,31 @@ pub struct Caster<'a> {
 /// The world box around `node`'s box grown `extent` times, grown by a relative margin so
 /// that rounding never puts a point inside the region outside it.
 fn region_bounds(node: &SceneNode, extent: f32) -> (DVec3, DVec3) {
-    let h = node.half_size * extent as f64;
-    let mut lo = DVec3::splat(f64::INFINITY);
-    let mut hi = DVec3::splat(f64::NEG_INFINITY);
+    let e = extent as f64;
+    box_bounds(node, ([-e; 3], [e; 3]))
+}
+
+/// The world box around the part `(lo, hi)` (box units) of `node`'s box, grown by a
+/// relative margin as [`region_bounds`]'s.
+fn box_bounds(node: &SceneNode, (lo, hi): ([f64; 3], [f64; 3])) -> (DVec3, DVec3) {
+    let (lo, hi) = (
+        DVec3::from(lo) * node.half_size,
+        DVec3::from(hi) * node.half_size,
+    );
+    let mut wlo = DVec3::splat(f64::INFINITY);
+    let mut whi = DVec3::splat(f64::NEG_INFINITY);
     for i in 0..8 {
         let c = DVec3::new(
-            if i & 1 == 0 { -h.x } else { h.x },
-            if i & 2 == 0 { -h.y } else { h.y },
-            if i & 4 == 0 { -h.z } else { h.z },
+            if i & 1 == 0 { lo.x } else { hi.x },
+            if i & 2 == 0 { lo.y } else { hi.y },
+            if i & 4 == 0 { lo.z } else { hi.z },
         );
         let w = node.world_from_local.transform_point(c);
-        lo = lo.min(w);
-        hi = hi.max(w);
+        wlo = wlo.min(w);
+        whi = whi.max(w);
     }
-    let pad = (hi - lo).max_element() * 1e-6 + 1e-9;
-    (lo - pad, hi + pad)
+    let pad = (whi - wlo).max_element() * 1e-6 + 1e-9;
+    (wlo - pad, whi + pad)
 }
 
 /// A caster's shadow grid: the learned one, or the one re-cast for where the object
@@ -284,9 +294,12 @@ pub(crate) fn reshade_moved(
         return false;
     }
     let grid = &moved.grid;
+    // Where the grid shades at all, as it stands now and as it stood.
+    let active =
+        |n: &SceneNode, lit: &LitCells| lit.active_box(grid.extent).map(|b| box_bounds(n, b));
     let regions = [
-        (moved.scene_node, moved.bounds, now_lit),
-        (before, region_bounds(before, grid.extent), before_lit),
+        (moved.scene_node, active(moved.scene_node, now_lit), now_lit),
+        (before, active(before, before_lit), before_lit),
     ];
     // Per task of rays, the samples whose factors changed: (ray, sample, new factors).
     let parts: Vec<Vec<(usize, usize, [f32; 3])>> = (0..traced.rays.div_ceil(RAYS_PER_TASK))
@@ -298,7 +311,8 @@ pub(crate) fn reshade_moved(
                 // The stretches of the ray inside either region's world box, and the ray
                 // in that box's units.
                 let inside = regions.map(|(n, b, lit)| {
-                    ray_span(rays, r, b).map(|span| (span, BoxRay::new(n, rays, r), lit))
+                    let span = ray_span(rays, r, b?)?;
+                    Some((span, BoxRay::new(n, rays, r), lit))
                 });
                 if inside.iter().all(Option::is_none) {
                     continue;
