@@ -210,9 +210,10 @@ pub struct TrainConfig {
     /// (its iterations or its time).
     #[arg(long, help_heading = RUN, value_name = "LR", default_value_t = TrainOptions::default().lr_start)]
     pub lr_start: f32,
-    /// Learning rate of the last step.
-    #[arg(long, help_heading = RUN, value_name = "LR", default_value_t = TrainOptions::default().lr_end)]
-    pub lr_end: f32,
+    /// Learning rate of the last step [default: 3e-3 where the background is unbounded
+    /// (contracted: captures without depth), else 1e-3].
+    #[arg(long, help_heading = RUN, value_name = "LR")]
+    pub lr_end: Option<f32>,
     /// Seed of every random draw (ray batches, initial weights): the same seed, data and
     /// flags give the same scene, bit for bit, on a machine with as many cores.
     #[arg(long, help_heading = RUN, default_value_t = 0)]
@@ -356,7 +357,8 @@ impl TrainConfig {
                 ),
             ));
         }
-        for (what, lr) in [("lr_start", c.lr_start), ("lr_end", c.lr_end)] {
+        let lrs = [("lr_start", Some(c.lr_start)), ("lr_end", c.lr_end)];
+        for (what, lr) in lrs.into_iter().filter_map(|(w, lr)| Some((w, lr?))) {
             if !(lr.is_finite() && lr > 0.0 && lr <= 1.0) {
                 return Err(request(
                     what,

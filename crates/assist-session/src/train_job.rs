@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
+use assist_core::NodeSpace;
 use assist_data::{Dataset, LoadOptions, Split};
 use assist_scene::NeuralScene;
 use assist_train::{KeptHistory, ResumeState, StepStats};
@@ -203,7 +204,11 @@ impl TrainJob {
                 .map(|n| (n.id, n.label.clone()))
                 .collect(),
         });
-        let opts = self.options(max_time, depth_affine, lambdas, fingerprint);
+        let unbounded = scene
+            .fields
+            .values()
+            .any(|f| f.space == NodeSpace::Contracted);
+        let opts = self.options(max_time, depth_affine, lambdas, fingerprint, unbounded);
         let held = HeldOutSet::load(&ds, c.eval_views)?;
         if c.eval_every.is_some() && held.is_none() {
             return Err(request(
@@ -363,13 +368,15 @@ impl TrainJob {
         depth_affine: bool,
         lambdas: assist_train::Lambdas,
         fingerprint: String,
+        unbounded: bool,
     ) -> TrainOptions {
         let c = &self.config;
+        let lr_end = c.lr_end.unwrap_or(assist_train::default_lr_end(unbounded));
         TrainOptions {
             iters: c.iters,
             max_time,
             lr_start: c.lr_start,
-            lr_end: c.lr_end,
+            lr_end,
             batch_samples: c.batch_samples,
             object_ray_fraction: c.object_rays,
             downscale: c.downscale,
@@ -397,6 +404,8 @@ impl TrainJob {
                 ("dataset_fingerprint".to_string(), fingerprint.into()),
                 ("train_config".to_string(), {
                     let mut r = c.record();
+                    // The floor the run used, where it was left to the scene.
+                    r["lr_end"] = lr_end.into();
                     if !self.masks_recorded {
                         r["masks"] = serde_json::Value::Null;
                     }

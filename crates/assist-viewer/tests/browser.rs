@@ -116,7 +116,7 @@ fn the_viewer_works_in_a_real_browser() {
     // Removed when the test ends, passed or failed.
     let tmp = assist_testkit::TempDir::new("viewer-browser");
     let work = tmp.path();
-    let data = synth_capture(&work);
+    let data = synth_capture(work);
     let scene = work.join("scene.assist");
     TrainJob::new(TrainConfig {
         data: data.clone(),
@@ -213,7 +213,7 @@ fn new_object_mode_works_in_a_real_browser() {
     };
     let tmp = assist_testkit::TempDir::new("viewer-new-object");
     let work = tmp.path();
-    let data = synth_capture(&work);
+    let data = synth_capture(work);
     let scene = work.join("plain.assist");
     TrainJob::new(TrainConfig {
         data: data.clone(),

@@ -208,6 +208,30 @@ fn config_files_give_flags_and_print_config_round_trips() {
     assert_eq!(info["options"]["lambdas"]["obj_share"], 0.25, "{info}");
     assert_eq!(info["train_config"]["lambda_obj_share"], 0.25, "{info}");
     assert_eq!(info["train_config"]["shadows"], "off", "{info}");
+    // The learning-rate floor left to the scene: 1e-3 with a bounded background (this
+    // capture has depth), 3e-3 with an unbounded one; recorded as used.
+    let lr_end = |info: &serde_json::Value| info["options"]["lr_end"].as_f64().unwrap() as f32;
+    assert_eq!(lr_end(&info), 1e-3, "{info}");
+    assert_eq!(
+        info["train_config"]["lr_end"].as_f64().unwrap() as f32,
+        1e-3
+    );
+    let u = tmp.path().join("u.assist");
+    let unbounded = |extra: &[&str]| {
+        let mut args = vec!["train", s(&data), "--out", s(&u), "--iters", "1"];
+        args.extend_from_slice(&["--eval-views", "0", "--background", "contracted", "--force"]);
+        args.extend_from_slice(extra);
+        ok(&run(&args));
+        common::scene_info(&u)
+    };
+    let info = unbounded(&[]);
+    assert_eq!(lr_end(&info), 3e-3, "{info}");
+    assert_eq!(
+        info["train_config"]["lr_end"].as_f64().unwrap() as f32,
+        3e-3
+    );
+    // A floor given is kept.
+    assert_eq!(lr_end(&unbounded(&["--lr-end", "2e-3"])), 2e-3);
 
     let bad = tmp.path().join("bad.toml");
     std::fs::write(&bad, "colour = 3\n").unwrap();

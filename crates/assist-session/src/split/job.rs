@@ -271,7 +271,7 @@ impl SplitJob {
         record.iters = c.iters;
         record.max_time = c.max_time;
         if let Some((start, end)) = c.lr_start.zip(c.lr_end) {
-            (record.lr_start, record.lr_end) = (start, end);
+            (record.lr_start, record.lr_end) = (start, Some(end));
         }
         record.eval_every = None;
         let trained = if c.no_train {

@@ -38,7 +38,7 @@ mod terms;
 
 pub use options::{
     EMPTY_MARGIN, KeptHistory, PhaseTimes, ResumeState, StepStats, StopReason, TrainOptions,
-    TrainReport,
+    TrainReport, default_lr_end,
 };
 pub use poses::{POSE_EVERY, POSE_LR, PoseRefiner};
 use rays::Target;

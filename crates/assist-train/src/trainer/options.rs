@@ -23,6 +23,7 @@ pub struct TrainOptions {
     pub lr_start: f32,
     /// The learning rate at the end of the run (it decays exponentially from `lr_start`
     /// over the iterations or the time budget); measured against 1e-4 in BENCHMARKS.md.
+    /// See [`default_lr_end`] for a scene with an unbounded background.
     pub lr_end: f32,
     pub lambdas: Lambdas,
     pub occupancy_every: usize,
@@ -300,5 +301,17 @@ impl KeptHistory {
             all.fields.entry(k.clone()).or_insert_with(|| f.clone());
         }
         assist_scene::scene_file::save_with_history(dir, &all, &self.history, info, true)
+    }
+}
+
+/// The learning rate a run ends at unless told: 3e-3 where a node is unbounded (a
+/// contracted background: real captures without depth, far from converged at their
+/// budgets, where the later floor measured better on every one), else
+/// [`TrainOptions::default`]'s 1e-3 (docs/history.md, sessions 36, 37 and 40).
+pub fn default_lr_end(unbounded: bool) -> f32 {
+    if unbounded {
+        3e-3
+    } else {
+        TrainOptions::default().lr_end
     }
 }
