@@ -204,11 +204,7 @@ impl TrainJob {
                 .map(|n| (n.id, n.label.clone()))
                 .collect(),
         });
-        let unbounded = scene
-            .fields
-            .values()
-            .any(|f| f.space == NodeSpace::Contracted);
-        let opts = self.options(max_time, depth_affine, lambdas, fingerprint, unbounded);
+        let opts = self.options(max_time, depth_affine, lambdas, fingerprint, &scene);
         let held = HeldOutSet::load(&ds, c.eval_views)?;
         if c.eval_every.is_some() && held.is_none() {
             return Err(request(
@@ -368,10 +364,12 @@ impl TrainJob {
         depth_affine: bool,
         lambdas: assist_train::Lambdas,
         fingerprint: String,
-        unbounded: bool,
+        scene: &NeuralScene,
     ) -> TrainOptions {
         let c = &self.config;
-        let lr_end = c.lr_end.unwrap_or(assist_train::default_lr_end(unbounded));
+        let lr_end = c
+            .lr_end
+            .unwrap_or(assist_train::default_lr_end(unbounded(scene)));
         TrainOptions {
             iters: c.iters,
             max_time,
@@ -577,4 +575,12 @@ fn unlabel(ds: &mut assist_data::Dataset) {
     for f in &mut ds.frames {
         f.instance_mask_path = None;
     }
+}
+
+/// Whether a node of `scene` is unbounded (a contracted background).
+fn unbounded(scene: &NeuralScene) -> bool {
+    scene
+        .fields
+        .values()
+        .any(|f| f.space == NodeSpace::Contracted)
 }
