@@ -34,6 +34,11 @@ struct Key {
     rays_per_batch: usize,
     layers: bool,
     near: f64,
+    /// What the shading and the backdrop read from the scene besides its nodes: the key
+    /// light (re-cast shadows), the up it faces, the backdrop.
+    light: Option<assist_core::KeyLight>,
+    up: assist_core::DVec3,
+    behind: Behind,
     /// Every node but the moving one.
     others: Vec<SceneNode>,
     /// Every field, by identity.
@@ -129,6 +134,9 @@ fn key(
         rays_per_batch: opts.batch_rays(),
         layers: opts.layers,
         near: scene.scene.near,
+        light: scene.scene.light,
+        up: scene.scene.up,
+        behind: Behind::of(&scene.scene),
         others: scene
             .scene
             .nodes

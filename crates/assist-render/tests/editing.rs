@@ -463,6 +463,14 @@ fn drag_bit_for_bit_at(shadow: bool, lit: bool, prune_eps: f32, packed: bool) {
                 pose: s.scene.nodes[1].world_from_local,
                 strength: [0.6, 0.5, 0.4],
             });
+            // The other caster was moved since its shadow was learned: its grid is
+            // re-cast under the light too.
+            let mut learned_at = s.scene.nodes[2].world_from_local;
+            learned_at.translation.x += 0.05;
+            s.scene.nodes[2].cast = Some(assist_core::ShadowCast {
+                pose: learned_at,
+                strength: [0.5, 0.5, 0.5],
+            });
         }
     }
     let cam = camera();
@@ -495,6 +503,12 @@ fn drag_bit_for_bit_at(shadow: bool, lit: bool, prune_eps: f32, packed: bool) {
             render_camera(&unlit, &cam, u32::MAX, &opts).rgb,
             render_camera(&s, &cam, u32::MAX, &opts).rgb
         );
+        // A light moved between two updates of the same drag re-casts every shadow.
+        let mut light = s.scene.light.unwrap();
+        light.position += assist_core::DVec3::new(1.0, 0.6, -0.6);
+        s.scene.light = Some(light);
+        let cached = render_camera_moving(&s, &cam, u32::MAX, &opts, 1, &mut cache);
+        assert_eq!(cached.rgb, render_camera(&s, &cam, u32::MAX, &opts).rgb);
     }
     // Another node moving invalidates the cache: still the same image as a full render.
     s.scene.nodes[2].world_from_local.translation.x -= 0.2;
