@@ -306,8 +306,8 @@ impl KeptHistory {
 
 /// The learning rate a run ends at unless told: 3e-3 where a node is unbounded (a
 /// contracted background: real captures without depth, far from converged at their
-/// budgets, where the later floor measured better on every one), else
-/// [`TrainOptions::default`]'s 1e-3 (docs/history.md, sessions 36, 37 and 40).
+/// budgets, where the later floor measured better), else [`TrainOptions::default`]'s
+/// 1e-3 (the comparison is in BENCHMARKS.md).
 pub fn default_lr_end(unbounded: bool) -> f32 {
     if unbounded {
         3e-3
