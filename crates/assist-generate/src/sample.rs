@@ -483,7 +483,7 @@ impl Generator {
             rgb[3 * q + 1] = (s >> 8 & 255) as u8;
             rgb[3 * q + 2] = (s >> 16 & 255) as u8;
         }
-        let mask = crate::surface::unobserved_mask(&base.seen, camera, &f.depth, &f.panoptic);
+        let mask = crate::surface::unobserved_mask(&base.seen, camera, f);
         let unseen = mask.iter().filter(|&&m| m != 0).count();
         let background = f.panoptic.iter().filter(|&&id| id == 0).count();
         let background_bbox = coco::bbox(w, h, |q| f.panoptic[q] == 0);

@@ -14,7 +14,7 @@
 //! invented: the `unobserved` masks).
 
 use assist_core::{Camera, DVec2, DVec3};
-use assist_session::{NamedCamera, Session};
+use assist_session::{Frame as RenderedImage, NamedCamera, Session};
 use assist_session::{NeuralScene, RenderOptions, render_camera};
 use rayon::prelude::*;
 
@@ -161,9 +161,16 @@ pub fn survey(
     let mut points = Vec::new();
     for cam in views {
         let full = render_camera(scene, cam, u32::MAX, opts);
+        // A filled pixel's depth is a guess: it counts as nothing seen.
+        let depth = full
+            .depth
+            .iter()
+            .zip(&full.unseen)
+            .map(|(&d, &u)| if u { 0.0 } else { d })
+            .collect();
         seen.push(SeenView {
             camera: *cam,
-            depth: full.depth,
+            depth,
         });
         if bg.scene.nodes.is_empty() {
             continue;
@@ -270,23 +277,20 @@ pub fn observed(views: &[SeenView], p: DVec3) -> bool {
 }
 
 /// The unobserved mask of a rendered view: 255 where the pixel shows background that no
-/// training view observed, else 0.
-pub fn unobserved_mask(
-    views: &[SeenView],
-    camera: &Camera,
-    depth: &[f32],
-    panoptic: &[u16],
-) -> Vec<u8> {
+/// training view observed (a pixel the render filled included), else 0.
+pub fn unobserved_mask(views: &[SeenView], camera: &Camera, frame: &RenderedImage) -> Vec<u8> {
     let w = camera.width() as usize;
-    depth
+    frame
+        .depth
         .par_iter()
-        .zip(panoptic.par_iter())
+        .zip(frame.panoptic.par_iter())
+        .zip(frame.unseen.par_iter())
         .enumerate()
-        .map(|(q, (&z, &id))| {
+        .map(|(q, ((&z, &id), &unseen))| {
             if id != 0 {
                 return 0;
             }
-            if z <= 0.0 {
+            if z <= 0.0 || unseen {
                 return 255;
             }
             let (i, j) = (q % w, q / w);

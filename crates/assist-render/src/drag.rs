@@ -272,14 +272,16 @@ pub fn render_camera_moving(
         cache.moved = Some(scene.scene.nodes[k].clone());
         cache.moved_lit = now_lit;
         cache.image = Some(img.clone());
+        img.fill_unseen();
         return img;
     }
     cache.clear();
-    let img = render_and_keep(scene, camera, image, opts, cache);
+    let mut img = render_and_keep(scene, camera, image, opts, cache);
     cache.key = Some(key);
     cache.moved = Some(scene.scene.nodes[k].clone());
     cache.moved_lit = crate::shade::lit_cells_of(&crate::shade::casters(scene), k);
     cache.image = Some(img.clone());
+    img.fill_unseen();
     img
 }
 

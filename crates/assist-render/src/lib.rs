@@ -15,6 +15,7 @@
 mod batch;
 mod composite;
 mod drag;
+pub mod fill;
 pub mod light;
 mod prune;
 mod render;

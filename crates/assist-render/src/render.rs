@@ -103,6 +103,10 @@ pub struct RenderedImage {
     /// Instance id of the node with the largest composited weight; 0 = background.
     pub panoptic: Vec<u16>,
     pub layers: Vec<NodeLayer>,
+    /// Pixels whose ray met no sample of any node under a last-sample backdrop: what no
+    /// training view saw (e.g. the top of a wall). [`RenderedImage::fill_unseen`] gives
+    /// them the colour and depth of the nearest seen pixels; their opacity stays 0.
+    pub unseen: Vec<bool>,
 }
 
 impl RenderedImage {
@@ -117,6 +121,7 @@ impl RenderedImage {
             depth: vec![0.0; n],
             opacity: vec![0.0; n],
             panoptic: vec![0; n],
+            unseen: vec![false; n],
             layers: if layers {
                 scene
                     .scene
@@ -144,8 +149,11 @@ impl RenderedImage {
         cos: &[f32],
     ) {
         let nn = scene.scene.nodes.len();
+        let last_sample = scene.scene.backdrop == assist_core::Backdrop::LastSample;
         for (r, &q) in pixels.iter().enumerate() {
             let c = out.rays[r];
+            // No sample at all: nothing weighted and no last sample's colour behind.
+            self.unseen[q] = last_sample && c.opacity == 0.0 && c.rgb == [0.0; 3];
             self.rgb[3 * q..3 * q + 3].copy_from_slice(&c.rgb);
             self.opacity[q] = c.opacity;
             self.depth[q] = if c.opacity > 1e-3 {
@@ -160,6 +168,22 @@ impl RenderedImage {
                 layer.opacity[q] = a.opacity;
             }
         }
+    }
+}
+
+impl RenderedImage {
+    /// Fills the [`unseen`](Self::unseen) pixels' colour and depth from the seen pixels
+    /// around them (see [`crate::fill`]); a no-op when every pixel was seen.
+    pub fn fill_unseen(&mut self) {
+        if !self.unseen.iter().any(|&u| u) {
+            return;
+        }
+        let (w, h) = (self.width as usize, self.height as usize);
+        let seen: Vec<bool> = self.unseen.iter().map(|u| !u).collect();
+        crate::fill::pull_push(w, h, 3, &mut self.rgb, &seen, &self.unseen);
+        // Depth from the seen pixels that have one (a nearly transparent ray has none).
+        let with_depth: Vec<bool> = self.depth.iter().map(|&d| d > 0.0).collect();
+        crate::fill::pull_push(w, h, 1, &mut self.depth, &with_depth, &self.unseen);
     }
 }
 
@@ -441,6 +465,7 @@ pub fn render_camera_timed(
         img.write_batch(scene, &sc.out, &pixels, &cos);
         p = end;
     }
+    img.fill_unseen();
     (img, stats)
 }
 
