@@ -48,7 +48,8 @@ pub fn carve_scene(scene: &mut NeuralScene, views: &[View]) -> CarveStats {
         };
         let res = nf.occupancy.res;
         let (free, hit) = ray_counts(node, res, views);
-        let (mut empty, kept) = classify(node, views, &free, &hit);
+        let reached = surface_cells(node, res, views);
+        let (mut empty, kept) = classify(node, views, &free, &hit, &reached);
         if node.is_background() && dense_depth(views) {
             spare_under_objects(node, res, &objects, &free, &mut empty);
         }
@@ -71,21 +72,30 @@ fn free_cells(node: &SceneNode, res: u32, views: &[View]) -> Vec<bool> {
 #[cfg(test)]
 fn carve_cells(node: &SceneNode, res: u32, views: &[View]) -> (Vec<bool>, Vec<bool>) {
     let (free, hit) = ray_counts(node, res, views);
-    classify(node, views, &free, &hit)
+    classify(node, views, &free, &hit, &surface_cells(node, res, views))
 }
 
 /// The cells of a `res`³ grid the depth maps show to be empty, and those where at least
 /// [`MIN_FREE_RAYS`] rays end on this node's surface (kept occupied in training, whatever
-/// a random point in them says), from the ray counts of [`ray_counts`].
-fn classify(node: &SceneNode, views: &[View], free: &[u16], hit: &[u16]) -> (Vec<bool>, Vec<bool>) {
+/// a random point in them says), from the ray counts of [`ray_counts`] and the cells the
+/// depth maps' surfaces pass through ([`surface_cells`]).
+fn classify(
+    node: &SceneNode,
+    views: &[View],
+    free: &[u16],
+    hit: &[u16],
+    reached: &[bool],
+) -> (Vec<bool>, Vec<bool>) {
     // With dense depth maps, a background cell no ray reaches (behind every surface, or
     // outside every view) can never be trained: its initial haze would only float in front
-    // of a novel view (the demo's test views had fog 0.1–0.7 m from the camera).
+    // of a novel view (the demo's test views had fog 0.1–0.7 m from the camera). A cell a
+    // seen surface passes through is reached, even where no pixel's end point fell in it.
     let unobserved_too = node.is_background() && dense_depth(views);
     let empty = free
         .iter()
         .zip(hit)
-        .map(|(&f, &h)| h == 0 && (f >= MIN_FREE_RAYS || (unobserved_too && f == 0)))
+        .zip(reached)
+        .map(|((&f, &h), &s)| h == 0 && (f >= MIN_FREE_RAYS || (unobserved_too && f == 0 && !s)))
         .collect();
     let kept = hit.iter().map(|&h| h >= MIN_FREE_RAYS).collect();
     (empty, kept)
@@ -179,6 +189,141 @@ fn dense_depth(views: &[View]) -> bool {
     })
 }
 
+/// Adjacent pixels whose surface depths differ by at most this fraction are taken to see
+/// one surface between them (more is a depth edge, or a surface too oblique to bridge).
+const SURFACE_GAP: f64 = 0.1;
+
+/// The cells of `node`'s `res`³ grid that the depth maps' surfaces pass through: each pair
+/// of adjacent pixels that see this node's surface (its prior depth behind objects, for the
+/// background) at nearly one depth spans a piece of it, and so does each quad of four such
+/// pixels (a bilinear patch), sampled at half a cell. At a
+/// distance or at a grazing angle a pixel covers several cells, and its end point marks
+/// only one: a wall seen by a few views far away had cells between the end points that
+/// counted as never seen and were carved (the demo's wall rendered speckled with holes).
+pub fn surface_cells(node: &SceneNode, res: u32, views: &[View]) -> Vec<bool> {
+    let n = (res as usize).pow(3);
+    views
+        .par_iter()
+        .fold(
+            || vec![false; n],
+            |mut reached, v| {
+                mark_surface(node, v, res, &mut reached);
+                reached
+            },
+        )
+        .reduce(
+            || vec![false; n],
+            |mut a, b| {
+                for (x, y) in a.iter_mut().zip(b) {
+                    *x |= y;
+                }
+                a
+            },
+        )
+}
+
+/// [`surface_cells`] for one view.
+fn mark_surface(node: &SceneNode, v: &View, res: u32, reached: &mut [bool]) {
+    let Some(depth) = v.depth.as_ref() else {
+        return;
+    };
+    let size = node.half_size * 2.0;
+    let step = 0.5 * (size / res as f64).min_element();
+    let forward = v.camera.pose.forward();
+    // Each pixel's surface point in the node's local frame, with its z-depth.
+    let points: Vec<Option<(DVec3, f64)>> = (0..v.width * v.height)
+        .map(|p| {
+            let z = surface_depth(node, v, depth, p)?;
+            let ray = v
+                .camera
+                .pixel_ray((p % v.width) as u32, (p / v.width) as u32)?;
+            let cos = ray.dir.dot(forward);
+            (cos > 1e-6).then(|| {
+                let w = ray.origin + ray.dir * (z / cos);
+                (node.world_from_local.local_from_world_point(w), z)
+            })
+        })
+        .collect();
+    let at = |i: usize, j: usize| {
+        (i < v.width && j < v.height)
+            .then(|| points[j * v.width + i])
+            .flatten()
+    };
+    let one_surface = |zs: &[f64]| {
+        let (lo, hi) = zs
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(l, h), &z| (l.min(z), h.max(z)));
+        hi - lo <= SURFACE_GAP * lo
+    };
+    let mut mark = |p: DVec3| {
+        if let Some(c) = cell_of(p, size, res) {
+            reached[c] = true;
+        }
+    };
+    for j in 0..v.height {
+        for i in 0..v.width {
+            let Some((a, za)) = at(i, j) else {
+                continue;
+            };
+            let (b, c, d) = (at(i + 1, j), at(i, j + 1), at(i + 1, j + 1));
+            // The four pixels' quad as a bilinear patch where they see one surface;
+            // else the edges to the right and below that do.
+            if let (Some((b, zb)), Some((c, zc)), Some((d, zd))) = (b, c, d)
+                && one_surface(&[za, zb, zc, zd])
+            {
+                let nu = (b - a).length().max((d - c).length()) / step;
+                let nv = (c - a).length().max((d - b).length()) / step;
+                let (nu, nv) = (nu.ceil().max(1.0) as usize, nv.ceil().max(1.0) as usize);
+                for kv in 0..=nv {
+                    let fv = kv as f64 / nv as f64;
+                    let (l, r) = (a + (c - a) * fv, b + (d - b) * fv);
+                    for ku in 0..=nu {
+                        mark(l + (r - l) * (ku as f64 / nu as f64));
+                    }
+                }
+                continue;
+            }
+            for (b, zb) in [b, c].into_iter().flatten() {
+                if !one_surface(&[za, zb]) {
+                    continue;
+                }
+                let steps = ((b - a).length() / step).ceil().max(1.0) as usize;
+                for k in 0..=steps {
+                    mark(a + (b - a) * (k as f64 / steps as f64));
+                }
+            }
+        }
+    }
+}
+
+/// The z-depth of `node`'s surface at pixel `p`: the depth map's where the pixel sees the
+/// node, and for the background the prior's depth where an object hides it.
+fn surface_depth(node: &SceneNode, v: &View, depth: &[f32], p: usize) -> Option<f64> {
+    let z = depth[p] as f64;
+    if z <= 0.0 {
+        return None;
+    }
+    let id = v.ids.as_ref().map_or(0, |ids| ids[p]);
+    if id == node.id {
+        return Some(z);
+    }
+    let zb = v.inpaint_depth.as_ref().map(|b| b[p] as f64)?;
+    (node.is_background() && zb > z).then_some(zb)
+}
+
+/// The cell of a `res`³ grid over a box of `size` (centred on the origin) holding local
+/// point `p`; `None` outside the box.
+fn cell_of(p: DVec3, size: DVec3, res: u32) -> Option<usize> {
+    let r = res as usize;
+    let u = p / size + 0.5;
+    if u.min_element() < 0.0 || u.max_element() >= 1.0 {
+        return None;
+    }
+    let i = (u * res as f64).as_uvec3();
+    let [x, y, z] = [i.x as usize, i.y as usize, i.z as usize].map(|a| a.min(r - 1));
+    Some(x + r * (y + r * z))
+}
+
 fn cast_view(
     node: &SceneNode,
     v: &View,
@@ -191,21 +336,12 @@ fn cast_view(
     let Some(depth) = v.depth.as_ref() else {
         return;
     };
-    let r = res as usize;
     let half = node.half_size;
     let cell = size / res as f64;
     let step = 0.5 * cell.min_element();
     let margin = 1.5 * cell.max_element();
     let forward = v.camera.pose.forward();
-    let to_cell = |p: DVec3| -> Option<usize> {
-        let u = p / size + 0.5;
-        if u.min_element() < 0.0 || u.max_element() >= 1.0 {
-            return None;
-        }
-        let i = (u * res as f64).as_uvec3();
-        let [x, y, z] = [i.x as usize, i.y as usize, i.z as usize].map(|a| a.min(r - 1));
-        Some(x + r * (y + r * z))
-    };
+    let to_cell = |p: DVec3| cell_of(p, size, res);
     // Every pixel's end point counts (a surface seen at the edge of one or two views would
     // otherwise have no hit between the cast rays, and with dense depth be carved as never
     // seen: desk's wall near the top of the views rendered as holes); the space in front
@@ -232,19 +368,11 @@ fn cast_view(
             let per_world = d.length();
             let t_end_local = t_surface * per_world;
             let d = d / per_world;
-            let id = v.ids.as_ref().map_or(0, |ids| ids[p]);
-            if id == node.id {
-                if let Some(c) = to_cell(o + d * t_end_local) {
-                    hit[c] = hit[c].saturating_add(1);
-                }
-            } else if node.is_background()
-                && let Some(zb) = v.inpaint_depth.as_ref().map(|b| b[p] as f64)
-                && zb > z
+            // This node's surface (behind an object, the background's prior depth there).
+            if let Some(zs) = surface_depth(node, v, depth, p)
+                && let Some(c) = to_cell(o + d * (zs / cos * per_world))
             {
-                // Behind an object: the background's prior depth there is a surface to keep.
-                if let Some(c) = to_cell(o + d * (zb / cos * per_world)) {
-                    hit[c] = hit[c].saturating_add(1);
-                }
+                hit[c] = hit[c].saturating_add(1);
             }
             if !cast {
                 continue;
@@ -415,6 +543,40 @@ mod tests {
             above * 10 >= n * 9,
             "{above} of {n} cells above the plane carved"
         );
+    }
+
+    /// On a grid finer than the pixels' footprint the end points miss some of the
+    /// plane's cells; the surface between adjacent pixels keeps every one of them from
+    /// being carved as never seen (and without it some would be).
+    #[test]
+    fn a_surface_between_sparse_end_points_is_not_carved_as_unseen() {
+        let views = plane_views();
+        let node = plane_box();
+        let res = 160u32;
+        let r = res as usize;
+        let (free, hit) = ray_counts(&node, res, &views);
+        let reached = surface_cells(&node, res, &views);
+        // The plane z = 0 lies on the boundary of layers 31 and 32 (local z = −0.3).
+        let holes = |empty: &[bool]| {
+            let mut n = 0;
+            for y in 60..100 {
+                for x in 60..100 {
+                    let c = |z: usize| x + r * (y + r * z);
+                    n += usize::from(empty[c(31)] && empty[c(32)]);
+                }
+            }
+            n
+        };
+        let (empty, _) = classify(&node, &views, &free, &hit, &reached);
+        let (hits_only, _) = classify(&node, &views, &free, &hit, &vec![false; r * r * r]);
+        assert_eq!(holes(&empty), 0, "the plane has holes");
+        assert!(holes(&hits_only) > 100, "{}", holes(&hits_only));
+        // The surface pass marks the plane, not the space above it.
+        let above = (60..100)
+            .flat_map(|y| (60..100).map(move |x| (x, y)))
+            .filter(|&(x, y)| reached[x + r * (y + r * 40)])
+            .count();
+        assert_eq!(above, 0);
     }
 
     /// Every pixel's end point is a hit, however few rays are marched: a surface seen
