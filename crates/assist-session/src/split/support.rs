@@ -309,6 +309,7 @@ mod tests {
             opacity: vec![1.0; w * h],
             panoptic: vec![0; w * h],
             layers: Vec::new(),
+            unseen: vec![false; w * h],
         };
         let cube = |p: DVec3| p.x.abs() < 0.2 && p.y.abs() < 0.2;
         for y in 0..h {
