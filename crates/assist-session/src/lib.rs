@@ -240,13 +240,13 @@ impl Session {
         self.backend.as_ref()
     }
 
-    /// The options of renders that measure the scene rather than show it (f32 fields, no
-    /// packed tables), on the session's backend.
+    /// The options of renders that measure the scene rather than show it: f32 fields, no
+    /// packed tables, and always on this CPU (the reference), whatever the session's
+    /// backend. What is decided from them (where the generator may place an object) is
+    /// then the same on every device; a GPU's last bits would otherwise move a support
+    /// cell's count across a threshold, and a placement by a whole cell.
     pub fn survey_options(&self) -> RenderOptions {
-        RenderOptions {
-            backend: self.backend.clone(),
-            ..RenderOptions::default()
-        }
+        RenderOptions::default()
     }
 
     /// The render options every render of this session starts from: its packed tables
