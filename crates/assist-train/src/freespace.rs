@@ -48,7 +48,12 @@ pub fn carve_scene(scene: &mut NeuralScene, views: &[View]) -> CarveStats {
         };
         let res = nf.occupancy.res;
         let (free, hit) = ray_counts(node, res, views);
-        let reached = surface_cells(node, res, views);
+        // Only a background with dense depth carves what no ray reaches (see `classify`).
+        let reached = if node.is_background() && dense_depth(views) {
+            surface_cells(node, res, views)
+        } else {
+            vec![false; free.len()]
+        };
         let (mut empty, kept) = classify(node, views, &free, &hit, &reached);
         if node.is_background() && dense_depth(views) {
             spare_under_objects(node, res, &objects, &free, &mut empty);
