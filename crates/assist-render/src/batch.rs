@@ -25,7 +25,19 @@ pub struct BatchOutput {
     /// term, in world units): `Σ_{i,j} w_i w_j |t_i − t_j|`. Small when the weight sits at
     /// one depth, large for haze spread along the ray.
     pub distortion: Vec<f32>,
+    /// Per ray, the part of the composited colour from the samples without shading (every
+    /// node's but the shaded background's), before the backdrop: with the shaded samples'
+    /// weights ([`NodeSamples::w`]) and `last`, a ray whose shading alone changed gets its
+    /// colour again without compositing ([`recolour`]).
+    pub unshaded: Vec<[f32; 3]>,
+    /// Per ray, its last sample in depth (the backdrop's colour under
+    /// [`Behind::LastSample`]): the node's index and the sample's place among that node's
+    /// samples of the ray; [`NO_SAMPLE`] for a ray without samples.
+    pub last: Vec<(u32, u32)>,
 }
+
+/// [`BatchOutput::last`] of a ray without samples.
+pub const NO_SAMPLE: (u32, u32) = (u32::MAX, u32::MAX);
 
 impl BatchOutput {
     /// Panoptic choice per ray: the node with the largest share, or `None` when what is
@@ -113,6 +125,9 @@ struct NodeView<'a> {
     /// Per sample, the factors on its colour's channels in the composite (empty: 1).
     shade: &'a [f32],
     d_shade: &'a mut [f32],
+    /// Per sample of a shaded node, its weight in the composite (written by the forward
+    /// pass; empty for a node without shade).
+    w: &'a mut [f32],
 }
 
 impl NodeView<'_> {
@@ -156,6 +171,10 @@ pub fn composite_batch(
     out.share.resize(n * nn, 0.0);
     out.distortion.clear();
     out.distortion.resize(n, 0.0);
+    out.unshaded.clear();
+    out.unshaded.resize(n, [0.0; 3]);
+    out.last.clear();
+    out.last.resize(n, NO_SAMPLE);
     if nn == 0 {
         // No node (a scene whose every node is hidden): every ray sees nothing.
         return;
@@ -175,10 +194,16 @@ pub fn composite_batch(
             d_rgb,
             shade,
             d_shade,
+            w,
             ..
         } = ns;
         let with_grad = grad.is_some();
         let shaded = !shade.is_empty();
+        w.clear();
+        if shaded {
+            w.resize(t.len(), 0.0);
+        }
+        let mut ws: &mut [f32] = w.as_mut_slice();
         if with_grad && shaded {
             d_shade.clear();
             d_shade.resize(shade.len(), 0.0);
@@ -214,6 +239,8 @@ pub fn composite_batch(
                 0
             });
             dsh = rest;
+            let (wv, rest) = std::mem::take(&mut ws).split_at_mut(if shaded { len } else { 0 });
+            ws = rest;
             views.push(NodeView {
                 start: &start[r0..=r1],
                 sigma: &sigma[s0..s1],
@@ -224,6 +251,7 @@ pub fn composite_batch(
                 d_rgb: c,
                 shade: if shaded { &shade[3 * s0..3 * s1] } else { &[] },
                 d_shade: e,
+                w: wv,
             });
         }
     }
@@ -233,10 +261,12 @@ pub fn composite_batch(
         .zip(out.nodes.par_chunks_mut(BLOCK * nn))
         .zip(out.share.par_chunks_mut(BLOCK * nn))
         .zip(out.distortion.par_chunks_mut(BLOCK))
+        .zip(out.unshaded.par_chunks_mut(BLOCK))
+        .zip(out.last.par_chunks_mut(BLOCK))
         .enumerate()
         .for_each_init(
             RayScratch::default,
-            |scratch, (b, ((((mut views, rays), nodes), share), dist))| {
+            |scratch, (b, ((((((mut views, rays), nodes), share), dist), unshaded), last))| {
                 for (i, ray_out) in rays.iter_mut().enumerate() {
                     let r = b * BLOCK + i;
                     composite_ray(
@@ -255,6 +285,8 @@ pub fn composite_batch(
                             nodes: &mut nodes[i * nn..(i + 1) * nn],
                             share: &mut share[i * nn..(i + 1) * nn],
                             distortion: &mut dist[i],
+                            unshaded: &mut unshaded[i],
+                            last: &mut last[i],
                         },
                         grad,
                         scratch,
@@ -270,6 +302,8 @@ struct RayOut<'a> {
     nodes: &'a mut [Composite],
     share: &'a mut [f32],
     distortion: &'a mut f32,
+    unshaded: &'a mut [f32; 3],
+    last: &'a mut (u32, u32),
 }
 
 #[derive(Default)]
@@ -300,24 +334,26 @@ fn composite_ray(
         nodes: node_out,
         share,
         distortion,
+        unshaded,
+        last: last_out,
     } = o;
     merge_samples(i, views, sc);
     let m = sc.merged.len();
-    let mut acc = forward_merged(views, hidden, share, sc);
+    let (mut acc, parts) = forward_merged(views, hidden, share, sc);
+    *unshaded = parts[0];
     // The backdrop: a colour, or the colour of the last sample (black without samples).
     let last = sc.merged.last().map(|&(_, k, j)| (k as usize, j as usize));
+    if let Some((k, j)) = last {
+        *last_out = (k as u32, (j - ray_range(&views[k], i).start) as u32);
+    }
     let background = match (behind, last) {
         (Behind::Color(c), _) => c,
         (Behind::LastSample, Some((k, j))) => {
-            let c = &views[k].rgb[3 * j..3 * j + 3];
-            let sh = views[k].shade(j);
-            [c[0] * sh[0], c[1] * sh[1], c[2] * sh[2]]
+            backdrop_colour(&views[k].rgb[3 * j..3 * j + 3], views[k].shade(j))
         }
         (Behind::LastSample, None) => [0.0; 3],
     };
-    for c in 0..3 {
-        acc.rgb[c] += (1.0 - acc.opacity) * background[c];
-    }
+    acc.rgb = with_backdrop(acc.rgb, acc.opacity, background);
     *out = acc;
     // Distortion Σ_{i,j} w_i w_j |s_i − s_j| = 2 Σ_i w_i (s_i W_{<i} − S_{<i}) over the
     // depth-sorted samples (s: `distortion_distance`, monotone in t; W, S: prefix sums of
@@ -401,11 +437,11 @@ fn merge_samples(i: usize, views: &[NodeView], sc: &mut RayScratch) {
 /// share of the weight, and which background samples objects hide.
 #[inline(always)]
 fn forward_merged(
-    views: &[NodeView],
+    views: &mut [NodeView],
     hidden: Option<HiddenStop>,
     share: &mut [f32],
     sc: &mut RayScratch,
-) -> Composite {
+) -> (Composite, [[f32; 3]; 2]) {
     let m = sc.merged.len();
     sc.w.clear();
     sc.w.resize(m, 0.0);
@@ -414,34 +450,120 @@ fn forward_merged(
     sc.hidden.clear();
     sc.hidden.resize(m, false);
     let mut acc = Composite::default();
-    let mut log_t = 0.0f32;
-    // Log transmittance through the objects' samples alone (for `HiddenStop`).
-    let mut log_t_obj = 0.0f32;
+    // The colour of the samples without and with shading, apart.
+    let mut parts = [[0.0f32; 3]; 2];
+    // Transmittance in front of the sample, a running product of each sample's
+    // `exp(−σδ)` (one exponential per sample).
+    let mut trans = 1.0f32;
+    // Transmittance through the objects' samples alone (for `HiddenStop`).
+    let mut trans_obj = 1.0f32;
     for (q, &(t, k, j)) in sc.merged.iter().enumerate() {
-        let v = &views[k as usize];
+        let v = &mut views[k as usize];
         let j = j as usize;
-        let tau = v.sigma[j] * v.dt[j];
-        let w = log_t.exp() * (1.0 - (-tau).exp());
-        log_t -= tau;
+        let pass = (-(v.sigma[j] * v.dt[j])).exp();
+        let w = trans * (1.0 - pass);
+        trans *= pass;
         if let Some(h) = hidden {
             if k as usize == h.background {
-                sc.hidden[q] = log_t_obj.exp() < h.below;
+                sc.hidden[q] = trans_obj < h.below;
             } else {
-                log_t_obj -= tau;
+                trans_obj *= pass;
             }
         }
         sc.w[q] = w;
-        sc.t_next[q] = log_t.exp();
-        let sh = v.shade(j);
-        for c in 0..3 {
-            acc.rgb[c] += w * sh[c] * v.rgb[3 * j + c];
+        sc.t_next[q] = trans;
+        let shaded = !v.shade.is_empty();
+        add_weighted(
+            &mut parts[shaded as usize],
+            w,
+            v.shade(j),
+            &v.rgb[3 * j..3 * j + 3],
+        );
+        if shaded {
+            v.w[j] = w;
         }
         acc.depth += w * t;
         acc.depth_sq += w * t * t;
         acc.opacity += w;
         share[k as usize] += w;
     }
-    acc
+    acc.rgb = join_parts(parts[0], parts[1]);
+    (acc, parts)
+}
+
+/// Adds a sample's colour `rgb`, shaded by `sh`, at weight `w` to `acc` (the one formula
+/// of the composite and of [`recolour`], so that both give the same bits).
+#[inline(always)]
+fn add_weighted(acc: &mut [f32; 3], w: f32, sh: [f32; 3], rgb: &[f32]) {
+    for c in 0..3 {
+        acc[c] += w * sh[c] * rgb[c];
+    }
+}
+
+/// The composited colour from its unshaded and shaded parts.
+#[inline(always)]
+fn join_parts(unshaded: [f32; 3], shaded: [f32; 3]) -> [f32; 3] {
+    [
+        unshaded[0] + shaded[0],
+        unshaded[1] + shaded[1],
+        unshaded[2] + shaded[2],
+    ]
+}
+
+/// The last sample's colour as the backdrop shows it.
+#[inline(always)]
+fn backdrop_colour(rgb: &[f32], sh: [f32; 3]) -> [f32; 3] {
+    [rgb[0] * sh[0], rgb[1] * sh[1], rgb[2] * sh[2]]
+}
+
+/// `rgb` with the backdrop behind what is left of the transmittance.
+#[inline(always)]
+fn with_backdrop(mut rgb: [f32; 3], opacity: f32, background: [f32; 3]) -> [f32; 3] {
+    for c in 0..3 {
+        rgb[c] += (1.0 - opacity) * background[c];
+    }
+    rgb
+}
+
+/// The composited colour of ray `r` of `traced` when only the shading of its shaded
+/// node's samples changed since [`composite_batch`] gave it `unshaded`, `last` and
+/// `opacity` (and the shaded node's weights, [`NodeSamples::w`]): the same bits as
+/// compositing the ray again. `None` when more than one node is shaded.
+pub fn recolour(
+    traced: &Traced,
+    r: usize,
+    behind: Behind,
+    (unshaded, last, opacity): ([f32; 3], (u32, u32), f32),
+) -> Option<[f32; 3]> {
+    let mut shaded_nodes = traced.nodes.iter().filter(|ns| !ns.shade.is_empty());
+    let mut shaded = [0.0f32; 3];
+    if let Some(ns) = shaded_nodes.next() {
+        if shaded_nodes.next().is_some() || ns.w.len() != ns.len() {
+            return None;
+        }
+        for j in ns.range(r) {
+            add_weighted(
+                &mut shaded,
+                ns.w[j],
+                ns.shade_at(j),
+                &ns.rgb[3 * j..3 * j + 3],
+            );
+        }
+    }
+    let background = match behind {
+        Behind::Color(c) => c,
+        Behind::LastSample if last == NO_SAMPLE => [0.0; 3],
+        Behind::LastSample => {
+            let ns = traced.nodes.get(last.0 as usize)?;
+            let j = ns.range(r).start + last.1 as usize;
+            backdrop_colour(ns.rgb.get(3 * j..3 * j + 3)?, ns.shade_at(j))
+        }
+    };
+    Some(with_backdrop(
+        join_parts(unshaded, shaded),
+        opacity,
+        background,
+    ))
 }
 
 /// A node's samples of one ray composited alone (no backdrop, no shading), with the
@@ -449,11 +571,11 @@ fn forward_merged(
 #[inline(always)]
 fn node_alone(v: &NodeView, range: std::ops::Range<usize>, beyond: f32, front: f32) -> Composite {
     let mut a = Composite::default();
-    let mut log_t = 0.0f32;
+    let mut trans = 1.0f32;
     for j in range {
-        let tau = v.sigma[j] * v.dt[j];
-        let w = log_t.exp() * (1.0 - (-tau).exp());
-        log_t -= tau;
+        let pass = (-(v.sigma[j] * v.dt[j])).exp();
+        let w = trans * (1.0 - pass);
+        trans *= pass;
         for c in 0..3 {
             a.rgb[c] += w * v.rgb[3 * j + c];
         }
@@ -547,12 +669,12 @@ fn node_alone_backward(
 ) {
     sc.w.clear();
     sc.t_next.clear();
-    let mut log_t = 0.0f32;
+    let mut trans = 1.0f32;
     for j in rg.clone() {
-        let tau = v.sigma[j] * v.dt[j];
-        sc.w.push(log_t.exp() * (1.0 - (-tau).exp()));
-        log_t -= tau;
-        sc.t_next.push(log_t.exp());
+        let pass = (-(v.sigma[j] * v.dt[j])).exp();
+        sc.w.push(trans * (1.0 - pass));
+        trans *= pass;
+        sc.t_next.push(trans);
     }
     let mut suffix = 0.0f32;
     for (q, j) in rg.enumerate().rev() {
@@ -624,6 +746,47 @@ mod tests {
             .iter()
             .map(|n| n.d_sigma.iter().chain(&n.d_rgb).copied().collect())
             .collect()
+    }
+
+    #[test]
+    fn a_ray_whose_shading_alone_changed_is_recoloured_to_the_same_bits() {
+        // Two rays: the background (shaded) behind and in front of an object, thin
+        // enough that the last sample's colour shows behind; and a ray without samples.
+        let mut bg = node(0, &[1.0, 2.0, 3.0], &[0.5, 1.0, 2.0]);
+        bg.start = vec![0, 3, 3];
+        bg.shade = vec![0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.95, 0.85, 0.75];
+        let mut obj = node(1, &[1.5], &[3.0]);
+        obj.start = vec![0, 1, 1];
+        for behind in [Behind::LastSample, Behind::Color([0.3, 0.2, 0.1])] {
+            let mut traced = Traced {
+                rays: 2,
+                nodes: vec![bg.clone(), obj.clone()],
+                beyond: Vec::new(),
+                front: Vec::new(),
+                hidden_stop: None,
+                distortion_unit: 0.0,
+            };
+            let mut out = BatchOutput::default();
+            composite_batch(&mut traced, behind, &mut out, None);
+            let kept: Vec<_> = (0..2)
+                .map(|r| (out.unshaded[r], out.last[r], out.rays[r].opacity))
+                .collect();
+            assert!(out.rays[0].opacity < 0.99, "the backdrop shows");
+            assert_eq!(out.last[0], (0, 2));
+            assert_eq!(out.last[1], NO_SAMPLE);
+            // New shading, then the whole composite again.
+            traced.nodes[0].shade = vec![0.5, 0.6, 0.7, 0.2, 0.3, 0.4, 0.1, 0.2, 0.3];
+            let mut again = BatchOutput::default();
+            composite_batch(&mut traced, behind, &mut again, None);
+            assert_ne!(again.rays[0].rgb, out.rays[0].rgb);
+            for (r, &k) in kept.iter().enumerate() {
+                assert_eq!(
+                    recolour(&traced, r, behind, k),
+                    Some(again.rays[r].rgb),
+                    "ray {r}, {behind:?}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -41,11 +41,11 @@ pub fn composite(
     mut weights: Option<&mut [f32]>,
 ) -> Composite {
     let mut out = Composite::default();
-    let mut log_t = 0.0f32;
+    // T_i as a running product of each sample's exp(−σδ), one exponential per sample.
+    let mut trans = 1.0f32;
     for (i, s) in samples.iter().enumerate() {
-        let tau = s.sigma * s.dt;
-        let t_i = log_t.exp();
-        let w = t_i * (1.0 - (-tau).exp());
+        let pass = (-(s.sigma * s.dt)).exp();
+        let w = trans * (1.0 - pass);
         for c in 0..3 {
             out.rgb[c] += w * s.rgb[c];
         }
@@ -55,7 +55,7 @@ pub fn composite(
         if let Some(ws) = weights.as_deref_mut() {
             ws[i] = w;
         }
-        log_t -= tau;
+        trans *= pass;
     }
     for c in 0..3 {
         out.rgb[c] += (1.0 - out.opacity) * background[c];
@@ -80,13 +80,12 @@ pub fn composite_backward(
     // Forward pass again for T_i and w_i (cheap; avoids storing).
     let mut w = vec![0f32; n];
     let mut t_next = vec![0f32; n];
-    let mut log_t = 0.0f32;
+    let mut trans = 1.0f32;
     for (i, s) in samples.iter().enumerate() {
-        let tau = s.sigma * s.dt;
-        let t_i = log_t.exp();
-        w[i] = t_i * (1.0 - (-tau).exp());
-        log_t -= tau;
-        t_next[i] = log_t.exp();
+        let pass = (-(s.sigma * s.dt)).exp();
+        w[i] = trans * (1.0 - pass);
+        trans *= pass;
+        t_next[i] = trans;
     }
     // dL/dσ_i = δ_i (T_{i+1} g_i − Σ_{j>i} w_j g_j), suffix sums from the back.
     let mut suffix = 0.0f32;

@@ -7,6 +7,8 @@
 
 use std::sync::Arc;
 
+use rayon::prelude::*;
+
 use assist_core::{Camera, InstanceId, SceneNode};
 use assist_field::{LitCells, Precision, Tape};
 use assist_scene::NeuralScene;
@@ -50,6 +52,10 @@ struct Batch {
     pixels: Vec<usize>,
     cos: Vec<f32>,
     traced: Traced,
+    /// Per ray, what [`crate::batch::recolour`] needs besides the samples: the colour of
+    /// the unshaded samples and the last sample ([`BatchOutput::unshaded`], `last`).
+    unshaded: Vec<[f32; 3]>,
+    last: Vec<(u32, u32)>,
 }
 
 /// The kept samples of one camera's frame (about 60 bytes per sample: a 480×360 frame of
@@ -66,6 +72,8 @@ pub struct DragCache {
     /// their samples.
     fresh: NodeSamples,
     affected: Vec<usize>,
+    /// The rays whose shading alone changed: coloured again without compositing.
+    recoloured: Vec<usize>,
     /// The moving node as the last render saw it, the cells of its shadow grid that
     /// shaded nothing there, and per ray whether its shading changed since.
     moved: Option<SceneNode>,
@@ -227,10 +235,45 @@ pub fn render_camera_moving(
                         })
                     })
             };
+            // A ray the node crosses, before or after, is composited again; one whose
+            // shading alone changed needs only its colour again, from the weights kept.
+            let keeps_weights = bg_ns.is_some_and(|ns| ns.w.len() == ns.len())
+                && b.traced
+                    .nodes
+                    .iter()
+                    .filter(|n| !n.shade.is_empty())
+                    .count()
+                    == 1;
             c.affected.clear();
-            c.affected.extend((0..b.rays.len()).filter(|&r| {
-                !old.range(r).is_empty() || !c.fresh.range(r).is_empty() || shade_changed(r)
-            }));
+            c.recoloured.clear();
+            for r in 0..b.rays.len() {
+                if !old.range(r).is_empty() || !c.fresh.range(r).is_empty() {
+                    c.affected.push(r);
+                } else if shade_changed(r) {
+                    if keeps_weights {
+                        c.recoloured.push(r);
+                    } else {
+                        c.affected.push(r);
+                    }
+                }
+            }
+            if !c.recoloured.is_empty() {
+                let colours: Vec<Option<[f32; 3]>> = c
+                    .recoloured
+                    .par_iter()
+                    .map(|&r| {
+                        let kept = (b.unshaded[r], b.last[r], img.opacity[b.pixels[r]]);
+                        crate::batch::recolour(&b.traced, r, behind, kept)
+                    })
+                    .collect();
+                for (&r, rgb) in c.recoloured.iter().zip(colours) {
+                    match rgb {
+                        Some(rgb) => img.set_colour(scene, b.pixels[r], rgb),
+                        None => c.affected.push(r),
+                    }
+                }
+                c.affected.sort_unstable();
+            }
             if !c.affected.is_empty() {
                 c.sub.rays = c.affected.len();
                 c.sub
@@ -266,6 +309,22 @@ pub fn render_camera_moving(
                     c.cos.push(b.cos[r]);
                 }
                 img.write_batch(scene, &c.out, &c.pixels, &c.cos);
+                // What a later update recolours these rays from.
+                for (i, &r) in c.affected.iter().enumerate() {
+                    b.unshaded[r] = c.out.unshaded[i];
+                    b.last[r] = c.out.last[i];
+                }
+                if let Some(bi) = bg {
+                    let (sub, ns) = (&c.sub.nodes[bi], &mut b.traced.nodes[bi]);
+                    if sub.w.len() == sub.len() && ns.w.len() == ns.len() {
+                        for (i, &r) in c.affected.iter().enumerate() {
+                            let (from, to) = (sub.range(i), ns.range(r));
+                            ns.w[to].copy_from_slice(&sub.w[from]);
+                        }
+                    } else {
+                        ns.w.clear();
+                    }
+                }
             }
             std::mem::swap(&mut b.traced.nodes[k], &mut c.fresh);
         }
@@ -307,6 +366,8 @@ fn render_and_keep(
             pixels: Vec::new(),
             cos: Vec::new(),
             traced: Traced::default(),
+            unshaded: Vec::new(),
+            last: Vec::new(),
         };
         let Some(end) = camera_batch(
             camera,
@@ -335,6 +396,8 @@ fn render_and_keep(
         crate::shade::shade_background(scene, &b.rays, &mut b.traced);
         composite_batch(&mut b.traced, behind, &mut cache.out, None);
         img.write_batch(scene, &cache.out, &b.pixels, &b.cos);
+        b.unshaded = cache.out.unshaded.clone();
+        b.last = cache.out.last.clone();
         cache.batches.push(b);
         p = end;
     }

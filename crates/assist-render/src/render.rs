@@ -152,10 +152,8 @@ impl RenderedImage {
         let last_sample = scene.scene.backdrop == assist_core::Backdrop::LastSample;
         for (r, &q) in pixels.iter().enumerate() {
             let c = out.rays[r];
-            // No sample at all: nothing weighted and no last sample's colour behind.
-            self.unseen[q] = last_sample && c.opacity == 0.0 && c.rgb == [0.0; 3];
-            self.rgb[3 * q..3 * q + 3].copy_from_slice(&c.rgb);
             self.opacity[q] = c.opacity;
+            self.set_rgb(last_sample, q, c.rgb);
             self.depth[q] = if c.opacity > 1e-3 {
                 c.depth / c.opacity * cos[r]
             } else {
@@ -172,6 +170,19 @@ impl RenderedImage {
 }
 
 impl RenderedImage {
+    /// Pixel `q`'s colour, its opacity already set.
+    fn set_rgb(&mut self, last_sample: bool, q: usize, rgb: [f32; 3]) {
+        // No sample at all: nothing weighted and no last sample's colour behind.
+        self.unseen[q] = last_sample && self.opacity[q] == 0.0 && rgb == [0.0; 3];
+        self.rgb[3 * q..3 * q + 3].copy_from_slice(&rgb);
+    }
+
+    /// Pixel `q`'s colour again (its opacity as it was), as [`Self::write_batch`] writes it.
+    pub(crate) fn set_colour(&mut self, scene: &NeuralScene, q: usize, rgb: [f32; 3]) {
+        let last_sample = scene.scene.backdrop == assist_core::Backdrop::LastSample;
+        self.set_rgb(last_sample, q, rgb);
+    }
+
     /// Fills the [`unseen`](Self::unseen) pixels' colour and depth from the seen pixels
     /// around them (see [`crate::fill`]); a no-op when every pixel was seen.
     pub fn fill_unseen(&mut self) {

@@ -92,6 +92,9 @@ pub struct NodeSamples {
     pub shade: Vec<f32>,
     /// Gradient with respect to `shade` (filled by `composite_batch` when `shade` is).
     pub d_shade: Vec<f32>,
+    /// Each shaded sample's weight in the composite (filled by `composite_batch` when
+    /// `shade` is; see [`crate::batch::recolour`]).
+    pub w: Vec<f32>,
 }
 
 impl NodeSamples {
@@ -103,6 +106,19 @@ impl NodeSamples {
     }
     pub fn range(&self, r: usize) -> std::ops::Range<usize> {
         self.start[r] as usize..self.start[r + 1] as usize
+    }
+    /// Sample `j`'s three shading factors (1 without shade).
+    #[inline(always)]
+    pub fn shade_at(&self, j: usize) -> [f32; 3] {
+        if self.shade.is_empty() {
+            [1.0; 3]
+        } else {
+            [
+                self.shade[3 * j],
+                self.shade[3 * j + 1],
+                self.shade[3 * j + 2],
+            ]
+        }
     }
     pub fn samples(&self) -> assist_field::Samples<'_> {
         assist_field::Samples {
@@ -121,6 +137,7 @@ impl NodeSamples {
         self.dt.clear();
         self.start.clear();
         self.shade.clear();
+        self.w.clear();
     }
     fn append(&mut self, o: &NodeSamples) {
         let base = self.t.len() as u32;
@@ -134,8 +151,9 @@ impl NodeSamples {
         // `o.start` holds the block-local start of each of its rays (no trailing end).
         self.start.extend(o.start.iter().map(|s| s + base));
     }
-    /// The samples of rays `rays` (in that order) as a batch of `rays.len()` rays, with
-    /// their field outputs when `with_outputs`.
+    /// The samples of rays `rays` (in that order) as a batch of `rays.len()` rays: to be
+    /// queried (positions, directions, images), or, `with_outputs`, to be composited as
+    /// they are (field outputs and shading instead).
     pub(crate) fn gather_rays(&self, rays: &[usize], with_outputs: bool, out: &mut NodeSamples) {
         out.node = self.node;
         out.clear();
@@ -145,11 +163,13 @@ impl NodeSamples {
         for &r in rays {
             out.start.push(out.t.len() as u32);
             let g = self.range(r);
-            for a in 0..3 {
-                out.pos[a].extend_from_slice(&self.pos[a][g.clone()]);
-                out.dir[a].extend_from_slice(&self.dir[a][g.clone()]);
+            if !with_outputs {
+                for a in 0..3 {
+                    out.pos[a].extend_from_slice(&self.pos[a][g.clone()]);
+                    out.dir[a].extend_from_slice(&self.dir[a][g.clone()]);
+                }
+                out.image.extend_from_slice(&self.image[g.clone()]);
             }
-            out.image.extend_from_slice(&self.image[g.clone()]);
             out.t.extend_from_slice(&self.t[g.clone()]);
             out.dt.extend_from_slice(&self.dt[g.clone()]);
             if with_outputs {
