@@ -50,19 +50,26 @@ pub struct Occluder<'a> {
 
 impl Occluder<'_> {
     /// Transmittance of the segment from world point `p` to world point `l` through the
-    /// object: `exp(−∫σ)` with the occupancy grid's density, half a cell per step
+    /// object: `exp(−∫σ)` with the occupancy grid's density in the cells rendering marches
+    /// (an empty cell holds nothing for a shadow ray either), half a cell per step
     /// (distances in the node's local units, as its density is); 0 through a cell never
     /// measured (infinite density) or occupied whatever its estimate
     /// ([`OccupancyGrid::warming`]).
     pub fn transmittance(&self, p: DVec3, l: DVec3) -> f32 {
+        let lp = self.pose.local_from_world_point(p);
+        let dl = self.pose.local_from_world_vector(l - p);
+        self.transmittance_local(lp, dl)
+    }
+
+    /// [`Self::transmittance`] of the segment from `lp` to `lp + dl`, in the node's local
+    /// frame.
+    fn transmittance_local(&self, lp: DVec3, dl: DVec3) -> f32 {
         let occ = self.occupancy;
         let res = occ.res as usize;
         if res == 0 || occ.density.len() != res.pow(3) {
             return 1.0;
         }
         // The segment in the box's unit cube: u(s) = u0 + s·du, s ∈ [0, 1].
-        let lp = self.pose.local_from_world_point(p);
-        let dl = self.pose.local_from_world_vector(l - p);
         let u0 = (lp / self.half_size + 1.0) * 0.5;
         let du = dl / self.half_size * 0.5;
         let (mut s0, mut s1) = (0.0f64, 1.0f64);
@@ -83,12 +90,21 @@ impl Occluder<'_> {
         let len_u = du.length();
         let ds = 0.5 / res as f64 / len_u;
         let step_local = (dl.length() * ds) as f32;
+        // The most cells one step moves along any axis: an empty cell of reach `d` lets
+        // the steps that stay within `d − 1` cells of it be skipped.
+        let step_cells = ds * du.abs().max_element() * res as f64;
         let mut tau = 0.0f32;
         let mut s = s0 + 0.5 * ds;
         while s < s1 {
             let u = u0 + du * s;
             let i = |a: usize| ((u[a] * res as f64) as usize).min(res - 1);
             let c = i(0) + res * (i(1) + res * i(2));
+            if !occ.is_occupied_cell(c) {
+                let d = occ.reach_of(c);
+                let skip = ((d - 1) as f64 / step_cells).floor() as usize;
+                s += (skip + 1) as f64 * ds;
+                continue;
+            }
             // A cell occupied whatever its estimate (known to hold a surface, or in
             // warm-up) blocks the light as its file says (saved as never measured:
             // infinite density), so a scene finds the same light before and after saving.
@@ -136,6 +152,11 @@ fn lattice_visibility(
         half_size,
         pose,
     };
+    // The lattice and the lamp in the node's frame: each segment without a transform.
+    let local: Vec<DVec3> = lights
+        .iter()
+        .map(|&l| pose.local_from_world_point(l))
+        .collect();
     (0..n * n * n)
         .into_par_iter()
         .map(|k| {
@@ -144,7 +165,11 @@ fn lattice_visibility(
                 lattice_coord(k / n % n, n, extent),
                 lattice_coord(k / (n * n), n, extent),
             ) * half_size;
-            o.visibility(pose.transform_point(c), lights)
+            local
+                .iter()
+                .map(|&l| o.transmittance_local(c, l - c))
+                .sum::<f32>()
+                / local.len() as f32
         })
         .collect()
 }

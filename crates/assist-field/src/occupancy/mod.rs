@@ -138,9 +138,10 @@ impl OccupancyGrid {
         self.reach = fz;
     }
 
-    /// The reach of cell `c` (see [`reach`](Self::reach); 1 without a distance field).
+    /// The reach of empty cell `c` (see [`reach`](Self::reach); 1 without a distance
+    /// field): every cell within `reach − 1` cells of it on each axis is empty too.
     #[inline(always)]
-    fn reach_of(&self, c: usize) -> u32 {
+    pub fn reach_of(&self, c: usize) -> u32 {
         self.reach.get(c).map_or(1, |&v| u32::from(v.max(1)))
     }
 

@@ -499,8 +499,18 @@ pub fn encode_jpeg(rgb: &[f32], w: u32, h: u32) -> Vec<u8> {
         .map(|v| (v.clamp(0.0, 1.0) * 255.0 + 0.5) as u8)
         .collect();
     let mut out = Vec::new();
-    let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, JPEG_QUALITY);
-    // Sizes are bounded by the protocol and the buffer matches them, so this cannot fail.
-    let _ = image::ImageEncoder::write_image(enc, &bytes, w, h, image::ExtendedColorType::Rgb8);
+    // jpeg-encoder (SIMD where the CPU has it) rather than `image`'s encoder: the same
+    // quality at full chroma resolution in a third of the time, and a drag sends a frame
+    // per update.
+    let mut enc = jpeg_encoder::Encoder::new(&mut out, JPEG_QUALITY);
+    enc.set_sampling_factor(jpeg_encoder::SamplingFactor::R_4_4_4);
+    // Sizes are bounded by the protocol (well under 65,536) and the buffer matches them,
+    // so this cannot fail.
+    let _ = enc.encode(
+        &bytes,
+        w.min(u16::MAX as u32) as u16,
+        h.min(u16::MAX as u32) as u16,
+        jpeg_encoder::ColorType::Rgb,
+    );
     out
 }
