@@ -9,6 +9,8 @@
 //!   + `semantic_legend.json`;
 //! - `objects/ID/NAME.png`: each object's own colour, alpha = its opacity;
 //! - `background/NAME.png`: the background node alone;
+//! - `unseen/NAME.png`: 8-bit, 255 where no ray met a sample (what no training view saw,
+//!   its colour and depth continued from the seen pixels around it), else 0;
 //! - `transforms.json`: an OPENCV camera per frame, `depth_file_path`,
 //!   `instance_mask_path`, `depth_unit_scale_factor`, `world_up` and the `instances`.
 //!
@@ -38,16 +40,18 @@ pub enum Output {
     Semantic,
     Objects,
     Background,
+    Unseen,
 }
 
 impl Output {
-    pub const ALL: [Output; 6] = [
+    pub const ALL: [Output; 7] = [
         Output::Rgb,
         Output::Depth,
         Output::Panoptic,
         Output::Semantic,
         Output::Objects,
         Output::Background,
+        Output::Unseen,
     ];
 
     pub fn name(self) -> &'static str {
@@ -58,6 +62,7 @@ impl Output {
             Output::Semantic => "semantic",
             Output::Objects => "objects",
             Output::Background => "background",
+            Output::Unseen => "unseen",
         }
     }
 
@@ -78,9 +83,10 @@ impl Output {
             "semantic" => Output::Semantic,
             "objects" | "layers" => Output::Objects,
             "background" => Output::Background,
+            "unseen" => Output::Unseen,
             other => {
                 return Err(format!(
-                    "unknown output {other:?}; expected rgb, depth, panoptic, semantic, objects, background"
+                    "unknown output {other:?}; expected rgb, depth, panoptic, semantic, objects, background, unseen"
                 ));
             }
         })
@@ -208,6 +214,8 @@ pub struct ViewImages<'a> {
     pub layers: &'a [Layer<'a>],
     /// The background node alone, RGB.
     pub background: Option<&'a [f32]>,
+    /// Per pixel, whether no ray met a sample there (its colour and depth filled).
+    pub unseen: Option<&'a [bool]>,
 }
 
 /// Semantic classes of `instances`: distinct labels in id order of first appearance,
@@ -407,6 +415,11 @@ impl DatasetWriter {
                     Some(b) if b.len() != 3 * n => return bad("background", b.len(), 3 * n),
                     _ => {}
                 },
+                Output::Unseen => match v.unseen {
+                    None => return bad("unseen", 0, n),
+                    Some(u) if u.len() != n => return bad("unseen", u.len(), n),
+                    _ => {}
+                },
                 _ => {}
             }
         }
@@ -484,6 +497,11 @@ impl DatasetWriter {
                 Output::Background => {
                     let b = v.background.expect("checked above");
                     write_rgb_png(&file(o, "png"), &rgb(b))?;
+                }
+                Output::Unseen => {
+                    let u = v.unseen.expect("checked above");
+                    let mask: Vec<u8> = u.iter().map(|&x| if x { 255 } else { 0 }).collect();
+                    write_gray8_png(&file(o, "png"), w, h, &mask)?;
                 }
             }
         }
@@ -613,6 +631,7 @@ mod tests {
         let depth: Vec<f32> = (0..n).map(|k| 1.0 + k as f32 * 0.25).collect();
         let ids: Vec<u16> = [0, 3, 7, 9].repeat(3);
         let op = vec![0.5; n];
+        let unseen: Vec<bool> = (0..n).map(|k| k % 5 == 2).collect();
         let layers = [Layer {
             id: 3,
             rgb: &rgb,
@@ -626,6 +645,7 @@ mod tests {
             panoptic: &ids,
             layers: &layers,
             background: Some(&rgb),
+            unseen: Some(&unseen),
         };
         // Written out of order: transforms.json keeps the index order.
         w.write(1, "b", &camera(), &v).unwrap();
@@ -659,6 +679,9 @@ mod tests {
         assert_eq!(legend["2"], "book");
         assert!(dir.join("objects/3/b.png").is_file());
         assert!(dir.join("background/a.png").is_file());
+        let mask = image::open(dir.join("unseen/a.png")).unwrap().to_luma8();
+        let want: Vec<u8> = unseen.iter().map(|&u| if u { 255 } else { 0 }).collect();
+        assert_eq!(mask.into_raw(), want);
 
         // A non-empty folder is refused without force; a wrong-sized view is an error.
         assert!(matches!(
@@ -672,6 +695,12 @@ mod tests {
         };
         let e = w.write(0, "c", &camera(), &short).unwrap_err().to_string();
         assert!(e.contains("depth") && e.contains("expected 12"), "{e}");
+        let without = ViewImages { unseen: None, ..v };
+        let e = w
+            .write(0, "c", &camera(), &without)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("unseen"), "{e}");
         assert!(w.write(0, "../x", &camera(), &v).is_err());
         std::fs::remove_dir_all(&dir).unwrap();
     }

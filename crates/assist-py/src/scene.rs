@@ -349,7 +349,9 @@ impl Scene {
 
     /// Renders `camera`: a dict with any of `rgb` (H×W×3 float32 in [0, 1]), `depth`
     /// (H×W float32 z-depth in metres, 0 where nothing is hit), `instance` (H×W uint16,
-    /// 0 = background) and `opacity` (H×W float32). `width`/`height` rescale the camera.
+    /// 0 = background), `opacity` (H×W float32) and `unseen` (H×W bool: no ray met a
+    /// sample, its colour and depth continued from the seen pixels around it).
+    /// `width`/`height` rescale the camera.
     /// The selected node, if any, is highlighted as `assist render` does.
     #[pyo3(signature = (camera, outputs=vec!["rgb".to_string(), "depth".to_string(), "instance".to_string()], width=None, height=None))]
     fn render<'py>(
@@ -370,9 +372,9 @@ impl Scene {
             }
         }
         for o in &outputs {
-            if !["rgb", "depth", "instance", "opacity"].contains(&o.as_str()) {
+            if !["rgb", "depth", "instance", "opacity", "unseen"].contains(&o.as_str()) {
                 return Err(err(format!(
-                    "outputs: unknown output {o:?}; expected rgb, depth, instance or opacity"
+                    "outputs: unknown output {o:?}; expected rgb, depth, instance, opacity or unseen"
                 )));
             }
         }
@@ -409,10 +411,16 @@ impl Scene {
             mut depth,
             opacity,
             panoptic,
+            unseen,
             ..
         } = frame;
-        let (mut rgb, mut depth_m, mut opacity, mut panoptic) =
-            (Some(rgb), Some(&mut depth), Some(opacity), Some(panoptic));
+        let (mut rgb, mut depth_m, mut opacity, mut panoptic, mut unseen) = (
+            Some(rgb),
+            Some(&mut depth),
+            Some(opacity),
+            Some(panoptic),
+            Some(unseen),
+        );
         let d = PyDict::new(py);
         for o in &outputs {
             match o.as_str() {
@@ -435,6 +443,11 @@ impl Scene {
                 "instance" => {
                     if let Some(v) = panoptic.take() {
                         d.set_item("instance", PyArray1::from_vec(py, v).reshape([h, w])?)?
+                    }
+                }
+                "unseen" => {
+                    if let Some(v) = unseen.take() {
+                        d.set_item("unseen", PyArray1::from_vec(py, v).reshape([h, w])?)?
                     }
                 }
                 _ => {

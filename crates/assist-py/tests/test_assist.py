@@ -89,8 +89,11 @@ def test_cameras_from_numpy_and_orbit(trained):
     a = scene.render(mine, outputs=["rgb"])["rgb"]
     b = scene.render(ds_cam, outputs=["rgb"])["rgb"]
     assert np.array_equal(a, b)
-    small = scene.render(mine, outputs=["rgb", "opacity"], width=24)
+    small = scene.render(mine, outputs=["rgb", "opacity", "unseen"], width=24)
     assert small["rgb"].shape == (18, 24, 3) and small["opacity"].shape == (18, 24)
+    # What no ray met has no opacity.
+    assert small["unseen"].dtype == np.bool_ and small["unseen"].shape == (18, 24)
+    assert np.all(small["opacity"][small["unseen"]] == 0)
     orbit = assist.orbit(scene, frames=3, width=32, height=24)
     assert len(orbit) == 3 and orbit[0].width == 32
 

@@ -66,20 +66,28 @@ pub struct DragCache {
     batches: Vec<Batch>,
     /// The last image rendered with this cache.
     image: Option<RenderedImage>,
-    tape: Tape,
-    out: BatchOutput,
-    /// Work buffers of an update: the moving node's new samples, the affected rays and
-    /// their samples.
-    fresh: NodeSamples,
-    affected: Vec<usize>,
-    /// The rays whose shading alone changed: coloured again without compositing.
-    recoloured: Vec<usize>,
-    /// The moving node as the last render saw it, the cells of its shadow grid that
-    /// shaded nothing there, and per ray whether its shading changed since.
+    /// The moving node as the last render saw it, and the cells of its shadow grid that
+    /// shaded nothing there.
     moved: Option<SceneNode>,
     moved_lit: Option<LitCells>,
-    shade_changed: Vec<bool>,
+    work: Work,
+}
+
+/// Work buffers of an update.
+#[derive(Default)]
+struct Work {
+    tape: Tape,
+    out: BatchOutput,
+    /// The moving node's new samples.
+    fresh: NodeSamples,
+    /// The rays composited again (the node crosses them, before or after) and their
+    /// samples.
+    affected: Vec<usize>,
     sub: Traced,
+    /// The rays whose shading alone changed: coloured again without compositing.
+    recoloured: Vec<usize>,
+    /// Per ray, whether its shading changed.
+    shade_changed: Vec<bool>,
     pixels: Vec<usize>,
     cos: Vec<f32>,
     prune: PruneScratch,
@@ -194,12 +202,13 @@ pub fn render_camera_moving(
         let casters = bg.map(|_| crate::shade::casters(scene)).unwrap_or_default();
         let now_lit = crate::shade::lit_cells_of(&casters, k);
         let before_lit = c.moved_lit.take();
+        let w = &mut c.work;
         for b in c.batches.iter_mut() {
-            sample_rays_node(scene, k, &b.rays, &so, &mut c.fresh);
+            sample_rays_node(scene, k, &b.rays, &so, &mut w.fresh);
             // Only the samples in the moved node's shadow region, before or after, can
             // change their shading; without the node as it was, all are shaded again.
-            c.shade_changed.clear();
-            c.shade_changed.resize(b.rays.len(), false);
+            w.shade_changed.clear();
+            w.shade_changed.resize(b.rays.len(), false);
             let mut old_shade = None;
             if let Some(bi) = bg {
                 let done = match (&before, &before_lit, &now_lit) {
@@ -211,7 +220,7 @@ pub fn render_camera_moving(
                         k,
                         (n, was),
                         now,
-                        &mut c.shade_changed,
+                        &mut w.shade_changed,
                     ),
                     _ => false,
                 };
@@ -224,7 +233,7 @@ pub fn render_camera_moving(
             let old = &b.traced.nodes[k];
             let bg_ns = bg.map(|bi| &b.traced.nodes[bi]);
             let shade_changed = |r: usize| {
-                c.shade_changed[r]
+                w.shade_changed[r]
                     || old_shade.as_ref().is_some_and(|was| {
                         bg_ns.is_some_and(|ns| {
                             // The ray's three factors per sample, before and after (a
@@ -244,89 +253,24 @@ pub fn render_camera_moving(
                     .filter(|n| !n.shade.is_empty())
                     .count()
                     == 1;
-            c.affected.clear();
-            c.recoloured.clear();
+            w.affected.clear();
+            w.recoloured.clear();
             for r in 0..b.rays.len() {
-                if !old.range(r).is_empty() || !c.fresh.range(r).is_empty() {
-                    c.affected.push(r);
+                if !old.range(r).is_empty() || !w.fresh.range(r).is_empty() {
+                    w.affected.push(r);
                 } else if shade_changed(r) {
                     if keeps_weights {
-                        c.recoloured.push(r);
+                        w.recoloured.push(r);
                     } else {
-                        c.affected.push(r);
+                        w.affected.push(r);
                     }
                 }
             }
-            if !c.recoloured.is_empty() {
-                let colours: Vec<Option<[f32; 3]>> = c
-                    .recoloured
-                    .par_iter()
-                    .map(|&r| {
-                        let kept = (b.unshaded[r], b.last[r], img.opacity[b.pixels[r]]);
-                        crate::batch::recolour(&b.traced, r, behind, kept)
-                    })
-                    .collect();
-                for (&r, rgb) in c.recoloured.iter().zip(colours) {
-                    match rgb {
-                        Some(rgb) => img.set_colour(scene, b.pixels[r], rgb),
-                        None => c.affected.push(r),
-                    }
-                }
-                c.affected.sort_unstable();
+            recolour_rays(scene, b, behind, w, &mut img);
+            if !w.affected.is_empty() {
+                composite_again(scene, (k, bg), b, w, (opts, q, behind), &mut img);
             }
-            if !c.affected.is_empty() {
-                c.sub.rays = c.affected.len();
-                c.sub
-                    .nodes
-                    .resize_with(b.traced.nodes.len(), NodeSamples::default);
-                for (j, ns) in b.traced.nodes.iter().enumerate() {
-                    if j == k {
-                        c.fresh.gather_rays(&c.affected, false, &mut c.sub.nodes[j]);
-                        // Pruning (each ray by the node's own density) keeps for these
-                        // rays what a full render keeps.
-                        if opts.prune_eps > 0.0 {
-                            let sub = &mut c.sub.nodes[j];
-                            query_node_pruned(
-                                scene,
-                                sub,
-                                opts.prune_eps,
-                                &mut c.prune,
-                                &mut c.tape,
-                                q,
-                            );
-                        } else {
-                            query_node(scene, &mut c.sub.nodes[j], &mut c.tape, q);
-                        }
-                    } else {
-                        ns.gather_rays(&c.affected, true, &mut c.sub.nodes[j]);
-                    }
-                }
-                composite_batch(&mut c.sub, behind, &mut c.out, None);
-                c.pixels.clear();
-                c.cos.clear();
-                for &r in &c.affected {
-                    c.pixels.push(b.pixels[r]);
-                    c.cos.push(b.cos[r]);
-                }
-                img.write_batch(scene, &c.out, &c.pixels, &c.cos);
-                // What a later update recolours these rays from.
-                for (i, &r) in c.affected.iter().enumerate() {
-                    b.unshaded[r] = c.out.unshaded[i];
-                    b.last[r] = c.out.last[i];
-                }
-                if let Some(bi) = bg {
-                    let (sub, ns) = (&c.sub.nodes[bi], &mut b.traced.nodes[bi]);
-                    if sub.w.len() == sub.len() && ns.w.len() == ns.len() {
-                        for (i, &r) in c.affected.iter().enumerate() {
-                            let (from, to) = (sub.range(i), ns.range(r));
-                            ns.w[to].copy_from_slice(&sub.w[from]);
-                        }
-                    } else {
-                        ns.w.clear();
-                    }
-                }
-            }
-            std::mem::swap(&mut b.traced.nodes[k], &mut c.fresh);
+            std::mem::swap(&mut b.traced.nodes[k], &mut w.fresh);
         }
         cache.moved = Some(scene.scene.nodes[k].clone());
         cache.moved_lit = now_lit;
@@ -342,6 +286,92 @@ pub fn render_camera_moving(
     cache.image = Some(img.clone());
     img.fill_unseen();
     img
+}
+
+/// Colours again the rays of `b` whose shading alone changed (`w.recoloured`), from the
+/// weights the last composite kept; a ray that cannot be (its weights not kept) joins
+/// `w.affected`, to be composited again.
+fn recolour_rays(
+    scene: &NeuralScene,
+    b: &Batch,
+    behind: Behind,
+    w: &mut Work,
+    img: &mut RenderedImage,
+) {
+    if w.recoloured.is_empty() {
+        return;
+    }
+    let colours: Vec<Option<[f32; 3]>> = w
+        .recoloured
+        .par_iter()
+        .map(|&r| {
+            let kept = (b.unshaded[r], b.last[r], img.opacity[b.pixels[r]]);
+            crate::batch::recolour(&b.traced, r, behind, kept)
+        })
+        .collect();
+    for (&r, rgb) in w.recoloured.iter().zip(colours) {
+        match rgb {
+            Some(rgb) => img.set_colour(scene, b.pixels[r], rgb),
+            None => w.affected.push(r),
+        }
+    }
+    w.affected.sort_unstable();
+}
+
+/// Composites again the rays `w.affected` of `b`: node `k`'s new samples (`w.fresh`)
+/// queried, every other node's samples as kept; writes them into `img` and keeps what
+/// a later update recolours them from (`bg`: the shaded background's index).
+fn composite_again(
+    scene: &NeuralScene,
+    (k, bg): (usize, Option<usize>),
+    b: &mut Batch,
+    w: &mut Work,
+    (opts, q, behind): (&RenderOptions, Query, Behind),
+    img: &mut RenderedImage,
+) {
+    w.sub.rays = w.affected.len();
+    w.sub
+        .nodes
+        .resize_with(b.traced.nodes.len(), NodeSamples::default);
+    for (j, ns) in b.traced.nodes.iter().enumerate() {
+        if j == k {
+            w.fresh.gather_rays(&w.affected, false, &mut w.sub.nodes[j]);
+            // Pruning (each ray by the node's own density) keeps for these rays what a
+            // full render keeps.
+            let sub = &mut w.sub.nodes[j];
+            if opts.prune_eps > 0.0 {
+                query_node_pruned(scene, sub, opts.prune_eps, &mut w.prune, &mut w.tape, q);
+            } else {
+                query_node(scene, sub, &mut w.tape, q);
+            }
+        } else {
+            ns.gather_rays(&w.affected, true, &mut w.sub.nodes[j]);
+        }
+    }
+    composite_batch(&mut w.sub, behind, &mut w.out, None);
+    w.pixels.clear();
+    w.cos.clear();
+    for &r in &w.affected {
+        w.pixels.push(b.pixels[r]);
+        w.cos.push(b.cos[r]);
+    }
+    img.write_batch(scene, &w.out, &w.pixels, &w.cos);
+    // What a later update recolours these rays from.
+    for (i, &r) in w.affected.iter().enumerate() {
+        b.unshaded[r] = w.out.unshaded[i];
+        b.last[r] = w.out.last[i];
+    }
+    if let Some(bi) = bg {
+        let (sub, ns) = (&w.sub.nodes[bi], &mut b.traced.nodes[bi]);
+        if sub.w.len() == sub.len() && ns.w.len() == ns.len() {
+            for (i, &r) in w.affected.iter().enumerate() {
+                let (from, to) = (sub.range(i), ns.range(r));
+                ns.w[to].copy_from_slice(&sub.w[from]);
+            }
+        } else {
+            ns.w.clear();
+        }
+    }
 }
 
 /// A whole render of `camera` whose batches (samples and field outputs) `cache` keeps.
@@ -386,7 +416,7 @@ fn render_and_keep(
                 scene,
                 &mut b.traced,
                 opts.prune_eps,
-                &mut cache.prune,
+                &mut cache.work.prune,
                 &mut tapes,
                 q,
             );
@@ -394,10 +424,11 @@ fn render_and_keep(
             query_fields(scene, &mut b.traced, &mut tapes, q);
         }
         crate::shade::shade_background(scene, &b.rays, &mut b.traced);
-        composite_batch(&mut b.traced, behind, &mut cache.out, None);
-        img.write_batch(scene, &cache.out, &b.pixels, &b.cos);
-        b.unshaded = cache.out.unshaded.clone();
-        b.last = cache.out.last.clone();
+        let out = &mut cache.work.out;
+        composite_batch(&mut b.traced, behind, out, None);
+        img.write_batch(scene, out, &b.pixels, &b.cos);
+        b.unshaded = out.unshaded.clone();
+        b.last = out.last.clone();
         cache.batches.push(b);
         p = end;
     }

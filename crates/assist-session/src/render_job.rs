@@ -221,6 +221,7 @@ pub fn view_images<'a>(
         panoptic: &frame.panoptic,
         layers,
         background,
+        unseen: Some(&frame.unseen),
     }
 }
 

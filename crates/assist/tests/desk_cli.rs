@@ -177,7 +177,7 @@ fn a_moved_object_leaves_no_stain(desk: &Path, scene: &Path, root: &Path) {
     };
     let (before, after) = (root.join("before"), root.join("after"));
     render(scene, &before, "panoptic");
-    render(&moved, &after, "rgb,panoptic,background");
+    render(&moved, &after, "rgb,panoptic,background,unseen");
     let mut pixels = 0usize;
     let (mut diff, mut redder, mut stained) = (0.0f64, 0.0f64, 0usize);
     for entry in std::fs::read_dir(before.join("panoptic")).unwrap() {
@@ -190,6 +190,14 @@ fn a_moved_object_leaves_no_stain(desk: &Path, scene: &Path, root: &Path) {
         let rgb =
             |dir: &Path, what: &str| image::open(dir.join(what).join(&name)).unwrap().to_rgb8();
         let (was, now) = (ids(&before), ids(&after));
+        // What no ray met is no object's: an unseen pixel has no id.
+        let unseen = image::open(after.join("unseen").join(&name))
+            .unwrap()
+            .to_luma8();
+        assert_eq!(unseen.dimensions(), now.dimensions());
+        for (u, id) in unseen.pixels().zip(now.pixels()) {
+            assert!(u[0] == 0 || (u[0] == 255 && id[0] == 0), "{name:?}");
+        }
         let (edited, bg) = (rgb(&after, "images"), rgb(&after, "background"));
         for (x, y, p) in was.enumerate_pixels() {
             if p[0] != 3 || now.get_pixel(x, y)[0] != 0 {

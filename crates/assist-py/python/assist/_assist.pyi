@@ -142,7 +142,8 @@ class Scene:
         height: Optional[int] = None,
     ) -> dict[str, np.ndarray]:
         """rgb: H×W×3 float32 in [0, 1]; depth: H×W float32 metres; instance: H×W
-        uint16 (0 = background); opacity: H×W float32."""
+        uint16 (0 = background); opacity: H×W float32; unseen: H×W bool (no ray met a
+        sample: colour and depth continued from the seen pixels around it)."""
 
 def orbit(
     scene: Scene,
