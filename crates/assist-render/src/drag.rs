@@ -246,24 +246,13 @@ pub fn render_camera_moving(
             };
             // A ray the node crosses, before or after, is composited again; one whose
             // shading alone changed needs only its colour again, from the weights kept.
-            let keeps_weights = bg_ns.is_some_and(|ns| ns.w.len() == ns.len())
-                && b.traced
-                    .nodes
-                    .iter()
-                    .filter(|n| !n.shade.is_empty())
-                    .count()
-                    == 1;
             w.affected.clear();
             w.recoloured.clear();
             for r in 0..b.rays.len() {
                 if !old.range(r).is_empty() || !w.fresh.range(r).is_empty() {
                     w.affected.push(r);
                 } else if shade_changed(r) {
-                    if keeps_weights {
-                        w.recoloured.push(r);
-                    } else {
-                        w.affected.push(r);
-                    }
+                    w.recoloured.push(r);
                 }
             }
             recolour_rays(scene, b, behind, w, &mut img);
@@ -427,8 +416,8 @@ fn render_and_keep(
         let out = &mut cache.work.out;
         composite_batch(&mut b.traced, behind, out, None);
         img.write_batch(scene, out, &b.pixels, &b.cos);
-        b.unshaded = out.unshaded.clone();
-        b.last = out.last.clone();
+        b.unshaded = std::mem::take(&mut out.unshaded);
+        b.last = std::mem::take(&mut out.last);
         cache.batches.push(b);
         p = end;
     }

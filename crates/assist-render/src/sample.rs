@@ -110,15 +110,7 @@ impl NodeSamples {
     /// Sample `j`'s three shading factors (1 without shade).
     #[inline(always)]
     pub fn shade_at(&self, j: usize) -> [f32; 3] {
-        if self.shade.is_empty() {
-            [1.0; 3]
-        } else {
-            [
-                self.shade[3 * j],
-                self.shade[3 * j + 1],
-                self.shade[3 * j + 2],
-            ]
-        }
+        shade_factors(&self.shade, j)
     }
     pub fn samples(&self) -> assist_field::Samples<'_> {
         assist_field::Samples {
@@ -195,6 +187,16 @@ impl NodeSamples {
             self.d_rgb.clear();
             self.d_rgb.resize(3 * n, 0.0);
         }
+    }
+}
+
+/// Sample `j`'s three factors in `shade` (three per sample; empty: 1 everywhere).
+#[inline(always)]
+pub(crate) fn shade_factors(shade: &[f32], j: usize) -> [f32; 3] {
+    if shade.is_empty() {
+        [1.0; 3]
+    } else {
+        [shade[3 * j], shade[3 * j + 1], shade[3 * j + 2]]
     }
 }
 

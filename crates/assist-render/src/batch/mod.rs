@@ -136,15 +136,7 @@ struct NodeView<'a> {
 impl NodeView<'_> {
     #[inline(always)]
     fn shade(&self, j: usize) -> [f32; 3] {
-        if self.shade.is_empty() {
-            [1.0; 3]
-        } else {
-            [
-                self.shade[3 * j],
-                self.shade[3 * j + 1],
-                self.shade[3 * j + 2],
-            ]
-        }
+        crate::sample::shade_factors(self.shade, j)
     }
 }
 
