@@ -112,6 +112,12 @@ impl ShadeGrid {
     #[inline]
     pub fn corners(&self, c: [f32; 3]) -> Option<Corners> {
         let (i0, f) = self.cell(c)?;
+        Some(self.corners_of(i0, f))
+    }
+
+    /// The lattice points of the cell `i0` and their weights at `f` within it.
+    #[inline]
+    fn corners_of(&self, i0: [usize; 3], f: [f32; 3]) -> Corners {
         let r = self.res;
         let mut out = Corners {
             index: [0; 8],
@@ -125,7 +131,7 @@ impl ShadeGrid {
             let wz = if dz == 1 { f[2] } else { 1.0 - f[2] };
             out.weight[k] = wx * wy * wz;
         }
-        Some(out)
+        out
     }
 
     /// Which cells shade nothing: those whose eight corners are all exactly 1, where
@@ -188,6 +194,21 @@ impl ShadeGrid {
                 lit.bits[i / 64] >> (i % 64) & 1 == 1
             }
         }
+    }
+
+    /// The factors at `c` (box units) where they differ from 1: `None` where
+    /// [`ShadeGrid::shades_nothing_at`] holds, else [`ShadeGrid::value`] (the same bits),
+    /// with one look-up of the cell.
+    #[inline]
+    pub fn shading_at(&self, lit: &LitCells, c: [f32; 3]) -> Option<[f32; 3]> {
+        debug_assert_eq!(lit.res, self.res, "lit cells of another grid");
+        let (i0, f) = self.cell(c)?;
+        let m = self.res - 1;
+        let i = (i0[2] * m + i0[1]) * m + i0[0];
+        if lit.bits[i / 64] >> (i % 64) & 1 == 1 {
+            return None;
+        }
+        Some(self.at(&self.corners_of(i0, f)))
     }
 
     /// The factors at `c` (box units): 1 outside the region.
@@ -308,6 +329,15 @@ mod tests {
             let c = [0.0; 3].map(|_| (rng.f32() * 2.0 - 1.0) * 2.3);
             trials += 1;
             assert!(!g.shades_nothing_at(&none, c) || g.corners(c).is_none());
+            // One look-up gives what the two give, to the bit.
+            match g.shading_at(&lit, c) {
+                None => assert!(g.shades_nothing_at(&lit, c)),
+                Some(v) => {
+                    assert!(!g.shades_nothing_at(&lit, c));
+                    assert_eq!(v.map(f32::to_bits), g.value(c).map(f32::to_bits));
+                }
+            }
+            assert_eq!(g.shading_at(&none, c).is_none(), g.corners(c).is_none());
             if g.shades_nothing_at(&lit, c) {
                 marked += 1;
                 assert_eq!(g.value(c), [1.0; 3], "at {c:?}");

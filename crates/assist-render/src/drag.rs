@@ -70,6 +70,9 @@ pub struct DragCache {
     /// shaded nothing there.
     moved: Option<SceneNode>,
     moved_lit: Option<LitCells>,
+    /// Per caster of the scene ([`crate::shade::casters`]), the cells of its grid that
+    /// shade nothing; `None` for the moving node (its grid changes as it moves).
+    lits: Vec<Option<LitCells>>,
     work: Work,
 }
 
@@ -107,6 +110,7 @@ impl DragCache {
         self.image = None;
         self.moved = None;
         self.moved_lit = None;
+        self.lits.clear();
     }
 }
 
@@ -202,6 +206,18 @@ pub fn render_camera_moving(
         let casters = bg.map(|_| crate::shade::casters(scene)).unwrap_or_default();
         let now_lit = crate::shade::lit_cells_of(&casters, k);
         let before_lit = c.moved_lit.take();
+        // The other casters are as the kept frame saw them (the key holds them).
+        if c.lits.len() != casters.len() {
+            c.lits = casters
+                .iter()
+                .map(|cs| (cs.node != k).then(|| cs.grid.lit_cells()))
+                .collect();
+        }
+        let lits: Option<Vec<&LitCells>> = now_lit.as_ref().and_then(|now| {
+            (casters.iter().zip(&c.lits))
+                .map(|(cs, l)| if cs.node == k { Some(now) } else { l.as_ref() })
+                .collect()
+        });
         let w = &mut c.work;
         for b in c.batches.iter_mut() {
             sample_rays_node(scene, k, &b.rays, &so, &mut w.fresh);
@@ -211,15 +227,15 @@ pub fn render_camera_moving(
             w.shade_changed.resize(b.rays.len(), false);
             let mut old_shade = None;
             if let Some(bi) = bg {
-                let done = match (&before, &before_lit, &now_lit) {
-                    (Some(n), Some(was), Some(now)) => crate::shade::reshade_moved(
+                let done = match (&before, &before_lit, &lits) {
+                    (Some(n), Some(was), Some(lits)) => crate::shade::reshade_moved(
                         scene,
                         &b.rays,
                         &mut b.traced,
                         &casters,
+                        lits,
                         k,
                         (n, was),
-                        now,
                         &mut w.shade_changed,
                     ),
                     _ => false,

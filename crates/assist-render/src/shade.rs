@@ -261,38 +261,59 @@ pub(crate) fn lit_cells_of(cs: &[Caster], k: usize) -> Option<LitCells> {
     cs.iter().find(|c| c.node == k).map(|c| c.grid.lit_cells())
 }
 
+/// [`shade_at`] with each caster's cells that shade nothing (`lits`, one per caster of
+/// `cs`) skipped: the same bits, since such a cell's factor is exactly 1.
+#[inline]
+fn shade_at_lit(cs: &[Caster], lits: &[&LitCells], hit: &[RayCaster], t: f32) -> [f32; 3] {
+    let mut f = [1.0f32; 3];
+    let tt = t as f64;
+    for &(i, (a, b), br) in hit {
+        if tt < a || tt > b {
+            continue;
+        }
+        if let Some(v) = cs[i].grid.shading_at(lits[i], br.at(t)) {
+            for ch in 0..3 {
+                f[ch] *= v[ch];
+            }
+        }
+    }
+    f
+}
+
 /// After node `k` alone moved (it stood as `before`, its grid's cells that shade nothing
 /// then `before_lit`), the background samples' shading again where it can have changed:
-/// where `k`'s grid shades something, where it stands now (`now_lit`, from
-/// [`lit_cells_of`]) or where it stood (every other caster's grid is as it was; elsewhere
-/// `k` gave and gives exactly 1). Each such sample gets the product over all casters `cs`
-/// (from [`casters`]), in [`shade_background`]'s order (the same bits); `changed[r]` is
-/// set for every ray `r` with a factor that changed. Returns false, doing nothing, when
-/// the background's shading is not laid out as [`shade_background`] leaves it or `k`
-/// casts no shadow (then shade everything again).
+/// where `k`'s grid shades something, where it stands now or where it stood (every other
+/// caster's grid is as it was; elsewhere `k` gave and gives exactly 1). Each such sample
+/// gets the product over all casters `cs` (from [`casters`]), in [`shade_background`]'s
+/// order (the same bits); `lits` holds each caster's cells that shade nothing where it
+/// stands now ([`ShadeGrid::lit_cells`]). `changed[r]` is set for every ray `r` with a
+/// factor that changed. Returns false, doing nothing, when the background's shading is not
+/// laid out as [`shade_background`] leaves it or `k` casts no shadow (then shade
+/// everything again).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn reshade_moved(
     scene: &NeuralScene,
     rays: &RayBatch,
     traced: &mut Traced,
     cs: &[Caster],
+    lits: &[&LitCells],
     k: usize,
     (before, before_lit): (&SceneNode, &LitCells),
-    now_lit: &LitCells,
     changed: &mut [bool],
 ) -> bool {
     let Some(bi) = background(scene) else {
         return false;
     };
-    let Some(moved) = cs.iter().find(|c| c.node == k) else {
+    let Some(m) = cs.iter().position(|c| c.node == k) else {
         return false;
     };
-    let Some(ns) = traced.nodes.get(bi) else {
+    let Some(ns) = traced.nodes.get_mut(bi) else {
         return false;
     };
-    if ns.shade.len() != 3 * ns.t.len() {
+    if ns.shade.len() != 3 * ns.t.len() || lits.len() != cs.len() || changed.len() != traced.rays {
         return false;
     }
+    let (moved, now_lit) = (&cs[m], lits[m]);
     let grid = &moved.grid;
     // Where the grid shades at all, as it stands now and as it stood.
     let active =
@@ -301,49 +322,55 @@ pub(crate) fn reshade_moved(
         (moved.scene_node, active(moved.scene_node, now_lit), now_lit),
         (before, active(before, before_lit), before_lit),
     ];
-    // Per task of rays, the samples whose factors changed: (ray, sample, new factors).
-    let parts: Vec<Vec<(usize, usize, [f32; 3])>> = (0..traced.rays.div_ceil(RAYS_PER_TASK))
-        .into_par_iter()
-        .map(|task| {
-            let mut u = Vec::new();
-            let mut hit = Vec::new();
-            for r in task * RAYS_PER_TASK..((task + 1) * RAYS_PER_TASK).min(traced.rays) {
-                // The stretches of the ray inside either region's world box, and the ray
-                // in that box's units.
-                let inside = regions.map(|(n, b, lit)| {
-                    let span = ray_span(rays, r, b?)?;
-                    Some((span, BoxRay::new(n, rays, r), lit))
+    // Each task's rays, with their flags and their samples' factors, split off in order:
+    // the tasks write in place.
+    let (t, start) = (&ns.t, &ns.start);
+    let mut tasks = Vec::new();
+    let (mut shade, mut flags) = (&mut ns.shade[..], changed);
+    for task in 0..traced.rays.div_ceil(RAYS_PER_TASK) {
+        let rs = task * RAYS_PER_TASK..((task + 1) * RAYS_PER_TASK).min(traced.rays);
+        let samples = (start[rs.end] - start[rs.start]) as usize;
+        let (sh, rest) = std::mem::take(&mut shade).split_at_mut(3 * samples);
+        shade = rest;
+        let (fl, rest) = std::mem::take(&mut flags).split_at_mut(rs.len());
+        flags = rest;
+        tasks.push((rs, sh, fl));
+    }
+    tasks.into_par_iter().for_each(|(rs, sh, fl)| {
+        let base = start[rs.start] as usize;
+        let mut hit = Vec::new();
+        for r in rs.clone() {
+            // The stretches of the ray inside either region's world box, and the ray in
+            // that box's units.
+            let inside = regions.map(|(n, b, lit)| {
+                let span = ray_span(rays, r, b?)?;
+                Some((span, BoxRay::new(n, rays, r), lit))
+            });
+            if inside.iter().all(Option::is_none) {
+                continue;
+            }
+            let mut met = false;
+            for j in start[r] as usize..start[r + 1] as usize {
+                let tj = t[j];
+                let shades = inside.iter().flatten().any(|&((a, b), br, lit)| {
+                    (a..=b).contains(&(tj as f64)) && !grid.shades_nothing_at(lit, br.at(tj))
                 });
-                if inside.iter().all(Option::is_none) {
+                if !shades {
                     continue;
                 }
-                let mut met = false;
-                for j in ns.range(r) {
-                    let t = ns.t[j];
-                    let shades = inside.iter().flatten().any(|&((a, b), br, lit)| {
-                        (a..=b).contains(&(t as f64)) && !grid.shades_nothing_at(lit, br.at(t))
-                    });
-                    if !shades {
-                        continue;
-                    }
-                    if !met {
-                        ray_casters(rays, r, cs, &mut hit);
-                        met = true;
-                    }
-                    let f = shade_at(cs, &hit, t);
-                    if ns.shade[3 * j..3 * j + 3] != f {
-                        u.push((r, j, f));
-                    }
+                if !met {
+                    ray_casters(rays, r, cs, &mut hit);
+                    met = true;
+                }
+                let f = shade_at_lit(cs, lits, &hit, tj);
+                let o = 3 * (j - base);
+                if sh[o..o + 3] != f {
+                    sh[o..o + 3].copy_from_slice(&f);
+                    fl[r - rs.start] = true;
                 }
             }
-            u
-        })
-        .collect();
-    let ns = &mut traced.nodes[bi];
-    for (r, j, f) in parts.into_iter().flatten() {
-        changed[r] = true;
-        ns.shade[3 * j..3 * j + 3].copy_from_slice(&f);
-    }
+        }
+    });
     true
 }
 
