@@ -56,6 +56,8 @@ struct Batch {
     /// the unshaded samples and the last sample ([`BatchOutput::unshaded`], `last`).
     unshaded: Vec<[f32; 3]>,
     last: Vec<(u32, u32)>,
+    /// What re-shading the background after a move keeps between updates.
+    kept: crate::reshade::Kept,
 }
 
 /// The kept samples of one camera's frame (about 60 bytes per sample: a 480×360 frame of
@@ -228,19 +230,20 @@ pub fn render_camera_moving(
             let mut old_shade = None;
             if let Some(bi) = bg {
                 let done = match (&before, &before_lit, &lits) {
-                    (Some(n), Some(was), Some(lits)) => crate::shade::reshade_moved(
+                    (Some(n), Some(was), Some(lits)) => crate::reshade::reshade_moved(
                         scene,
                         &b.rays,
                         &mut b.traced,
-                        &casters,
-                        lits,
+                        (&casters, lits),
                         k,
                         (n, was),
+                        &mut b.kept,
                         &mut w.shade_changed,
                     ),
                     _ => false,
                 };
                 if !done {
+                    b.kept.forget_shaded();
                     let was = std::mem::take(&mut b.traced.nodes[bi].shade);
                     crate::shade::shade_background(scene, &b.rays, &mut b.traced);
                     old_shade = Some(was);
@@ -403,6 +406,7 @@ fn render_and_keep(
             traced: Traced::default(),
             unshaded: Vec::new(),
             last: Vec::new(),
+            kept: Default::default(),
         };
         let Some(end) = camera_batch(
             camera,

@@ -19,6 +19,7 @@ pub mod fill;
 pub mod light;
 mod prune;
 mod render;
+mod reshade;
 mod sample;
 mod shade;
 mod tables;

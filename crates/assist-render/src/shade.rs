@@ -34,7 +34,7 @@ fn region_bounds(node: &SceneNode, extent: f32) -> (DVec3, DVec3) {
 
 /// The world box around the part `(lo, hi)` (box units) of `node`'s box, grown by a
 /// relative margin as [`region_bounds`]'s.
-fn box_bounds(node: &SceneNode, (lo, hi): ([f64; 3], [f64; 3])) -> (DVec3, DVec3) {
+pub(crate) fn box_bounds(node: &SceneNode, (lo, hi): ([f64; 3], [f64; 3])) -> (DVec3, DVec3) {
     let (lo, hi) = (
         DVec3::from(lo) * node.half_size,
         DVec3::from(hi) * node.half_size,
@@ -77,13 +77,13 @@ impl std::ops::Deref for CasterGrid<'_> {
 /// three products instead of a transform into the box's frame; every path that shades a
 /// sample (render, drag, training's backward) finds its place this way, to the same bits.
 #[derive(Clone, Copy)]
-struct BoxRay {
+pub(crate) struct BoxRay {
     o: DVec3,
     d: DVec3,
 }
 
 impl BoxRay {
-    fn new(node: &SceneNode, rays: &RayBatch, r: usize) -> Self {
+    pub(crate) fn new(node: &SceneNode, rays: &RayBatch, r: usize) -> Self {
         let (o, d) = ray(rays, r);
         let pose = &node.world_from_local;
         BoxRay {
@@ -93,7 +93,7 @@ impl BoxRay {
     }
 
     #[inline]
-    fn at(&self, t: f32) -> [f32; 3] {
+    pub(crate) fn at(&self, t: f32) -> [f32; 3] {
         (self.o + self.d * t as f64).as_vec3().to_array()
     }
 }
@@ -149,7 +149,7 @@ pub fn casters(scene: &NeuralScene) -> Vec<Caster<'_>> {
 }
 
 /// The index of the background node, if the scene has one.
-fn background(scene: &NeuralScene) -> Option<usize> {
+pub(crate) fn background(scene: &NeuralScene) -> Option<usize> {
     scene.scene.nodes.iter().position(|n| n.is_background())
 }
 
@@ -161,7 +161,7 @@ pub fn casts_shadows(scene: &NeuralScene) -> bool {
 /// The stretch of ray `r` (distances along its unit direction) inside the world box
 /// `(lo, hi)`, widened a little so that rounding never leaves out a sample whose position
 /// lies inside; `None` when the ray's line misses the box.
-fn ray_span(rays: &RayBatch, r: usize, (lo, hi): (DVec3, DVec3)) -> Option<(f64, f64)> {
+pub(crate) fn ray_span(rays: &RayBatch, r: usize, (lo, hi): (DVec3, DVec3)) -> Option<(f64, f64)> {
     let (o, d) = ray(rays, r);
     let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
     for a in 0..3 {
@@ -181,10 +181,10 @@ fn ray_span(rays: &RayBatch, r: usize, (lo, hi): (DVec3, DVec3)) -> Option<(f64,
 
 /// A caster ray `r` can meet: its index, the stretch of the ray through the world box
 /// around its region, and the ray in its box's units.
-type RayCaster = (usize, (f64, f64), BoxRay);
+pub(crate) type RayCaster = (usize, (f64, f64), BoxRay);
 
 /// The casters ray `r` can meet, in their order, into `out`.
-fn ray_casters(rays: &RayBatch, r: usize, cs: &[Caster], out: &mut Vec<RayCaster>) {
+pub(crate) fn ray_casters(rays: &RayBatch, r: usize, cs: &[Caster], out: &mut Vec<RayCaster>) {
     out.clear();
     for (i, c) in cs.iter().enumerate() {
         if let Some(span) = ray_span(rays, r, c.bounds) {
@@ -197,7 +197,7 @@ fn ray_casters(rays: &RayBatch, r: usize, cs: &[Caster], out: &mut Vec<RayCaster
 /// [`ray_casters`] finds them): per channel, the product of the factors of the casters
 /// whose region holds the point, in their order.
 #[inline]
-fn shade_at(cs: &[Caster], hit: &[RayCaster], t: f32) -> [f32; 3] {
+pub(crate) fn shade_at(cs: &[Caster], hit: &[RayCaster], t: f32) -> [f32; 3] {
     let mut f = [1.0f32; 3];
     let tt = t as f64;
     for &(i, (a, b), br) in hit {
@@ -216,7 +216,7 @@ fn shade_at(cs: &[Caster], hit: &[RayCaster], t: f32) -> [f32; 3] {
 }
 
 /// Rays per parallel task of the shading passes.
-const RAYS_PER_TASK: usize = 256;
+pub(crate) const RAYS_PER_TASK: usize = 256;
 
 /// Fills the background node's [`NodeSamples::shade`](crate::NodeSamples::shade) (three
 /// factors per sample) from the objects' shadow grids (left empty — no shadow — when no
@@ -259,119 +259,6 @@ pub fn shade_background(scene: &NeuralScene, rays: &RayBatch, traced: &mut Trace
 /// that shade nothing (`None` when `k` casts no shadow).
 pub(crate) fn lit_cells_of(cs: &[Caster], k: usize) -> Option<LitCells> {
     cs.iter().find(|c| c.node == k).map(|c| c.grid.lit_cells())
-}
-
-/// [`shade_at`] with each caster's cells that shade nothing (`lits`, one per caster of
-/// `cs`) skipped: the same bits, since such a cell's factor is exactly 1.
-#[inline]
-fn shade_at_lit(cs: &[Caster], lits: &[&LitCells], hit: &[RayCaster], t: f32) -> [f32; 3] {
-    let mut f = [1.0f32; 3];
-    let tt = t as f64;
-    for &(i, (a, b), br) in hit {
-        if tt < a || tt > b {
-            continue;
-        }
-        if let Some(v) = cs[i].grid.shading_at(lits[i], br.at(t)) {
-            for ch in 0..3 {
-                f[ch] *= v[ch];
-            }
-        }
-    }
-    f
-}
-
-/// After node `k` alone moved (it stood as `before`, its grid's cells that shade nothing
-/// then `before_lit`), the background samples' shading again where it can have changed:
-/// where `k`'s grid shades something, where it stands now or where it stood (every other
-/// caster's grid is as it was; elsewhere `k` gave and gives exactly 1). Each such sample
-/// gets the product over all casters `cs` (from [`casters`]), in [`shade_background`]'s
-/// order (the same bits); `lits` holds each caster's cells that shade nothing where it
-/// stands now ([`ShadeGrid::lit_cells`]). `changed[r]` is set for every ray `r` with a
-/// factor that changed. Returns false, doing nothing, when the background's shading is not
-/// laid out as [`shade_background`] leaves it or `k` casts no shadow (then shade
-/// everything again).
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn reshade_moved(
-    scene: &NeuralScene,
-    rays: &RayBatch,
-    traced: &mut Traced,
-    cs: &[Caster],
-    lits: &[&LitCells],
-    k: usize,
-    (before, before_lit): (&SceneNode, &LitCells),
-    changed: &mut [bool],
-) -> bool {
-    let Some(bi) = background(scene) else {
-        return false;
-    };
-    let Some(m) = cs.iter().position(|c| c.node == k) else {
-        return false;
-    };
-    let Some(ns) = traced.nodes.get_mut(bi) else {
-        return false;
-    };
-    if ns.shade.len() != 3 * ns.t.len() || lits.len() != cs.len() || changed.len() != traced.rays {
-        return false;
-    }
-    let (moved, now_lit) = (&cs[m], lits[m]);
-    let grid = &moved.grid;
-    // Where the grid shades at all, as it stands now and as it stood.
-    let active =
-        |n: &SceneNode, lit: &LitCells| lit.active_box(grid.extent).map(|b| box_bounds(n, b));
-    let regions = [
-        (moved.scene_node, active(moved.scene_node, now_lit), now_lit),
-        (before, active(before, before_lit), before_lit),
-    ];
-    // Each task's rays, with their flags and their samples' factors, split off in order:
-    // the tasks write in place.
-    let (t, start) = (&ns.t, &ns.start);
-    let mut tasks = Vec::new();
-    let (mut shade, mut flags) = (&mut ns.shade[..], changed);
-    for task in 0..traced.rays.div_ceil(RAYS_PER_TASK) {
-        let rs = task * RAYS_PER_TASK..((task + 1) * RAYS_PER_TASK).min(traced.rays);
-        let samples = (start[rs.end] - start[rs.start]) as usize;
-        let (sh, rest) = std::mem::take(&mut shade).split_at_mut(3 * samples);
-        shade = rest;
-        let (fl, rest) = std::mem::take(&mut flags).split_at_mut(rs.len());
-        flags = rest;
-        tasks.push((rs, sh, fl));
-    }
-    tasks.into_par_iter().for_each(|(rs, sh, fl)| {
-        let base = start[rs.start] as usize;
-        let mut hit = Vec::new();
-        for r in rs.clone() {
-            // The stretches of the ray inside either region's world box, and the ray in
-            // that box's units.
-            let inside = regions.map(|(n, b, lit)| {
-                let span = ray_span(rays, r, b?)?;
-                Some((span, BoxRay::new(n, rays, r), lit))
-            });
-            if inside.iter().all(Option::is_none) {
-                continue;
-            }
-            let mut met = false;
-            for j in start[r] as usize..start[r + 1] as usize {
-                let tj = t[j];
-                let shades = inside.iter().flatten().any(|&((a, b), br, lit)| {
-                    (a..=b).contains(&(tj as f64)) && !grid.shades_nothing_at(lit, br.at(tj))
-                });
-                if !shades {
-                    continue;
-                }
-                if !met {
-                    ray_casters(rays, r, cs, &mut hit);
-                    met = true;
-                }
-                let f = shade_at_lit(cs, lits, &hit, tj);
-                let o = 3 * (j - base);
-                if sh[o..o + 3] != f {
-                    sh[o..o + 3].copy_from_slice(&f);
-                    fl[r - rs.start] = true;
-                }
-            }
-        }
-    });
-    true
 }
 
 /// Backward of [`shade_background`]: from the background samples' `d_shade` (written by
