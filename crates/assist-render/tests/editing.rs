@@ -425,17 +425,21 @@ fn a_drag_rerenders_the_moving_node_alone_and_bit_for_bit() {
     // Under a key light, with a second caster: the moved node's shadow is re-cast at
     // every step, and where the two regions overlap the factors multiply.
     drag_bit_for_bit(true, true);
+    // Three casters whose shadows overlap where the moved one's falls: a sample that two
+    // others shade gets the whole product again, one that one other shades the product
+    // of two factors.
+    drag_bit_for_bit_at(true, true, true, 0.0, false);
 }
 
 fn drag_bit_for_bit(shadow: bool, lit: bool) {
     // f32 without pruning; and pruned (each ray by each node's own density) on the packed
     // tables a session renders with.
     for (eps, packed) in [(0.0, false), (1e-4, true)] {
-        drag_bit_for_bit_at(shadow, lit, eps, packed);
+        drag_bit_for_bit_at(shadow, lit, false, eps, packed);
     }
 }
 
-fn drag_bit_for_bit_at(shadow: bool, lit: bool, prune_eps: f32, packed: bool) {
+fn drag_bit_for_bit_at(shadow: bool, lit: bool, crowded: bool, prune_eps: f32, packed: bool) {
     use assist_render::{DragCache, render_camera_moving};
     let mut s = base();
     if shadow {
@@ -471,6 +475,15 @@ fn drag_bit_for_bit_at(shadow: bool, lit: bool, prune_eps: f32, packed: bool) {
                 pose: learned_at,
                 strength: [0.5, 0.5, 0.5],
             });
+        }
+        if crowded {
+            // The shiny cube beside the red one, and a third red one behind both: the
+            // shading halves of all three regions overlap.
+            s.scene.nodes[2].world_from_local.translation.x = -0.3;
+            let at = DVec3::new(-0.45, 0.25, 0.05);
+            let mut third = node(3, "red", 0.25, Similarity3::from_translation(at));
+            third.label = "third".into();
+            s.scene.nodes.push(third);
         }
     }
     let cam = camera();
