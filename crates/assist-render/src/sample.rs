@@ -3,12 +3,12 @@
 //! grid. The samples of one node are stored ray after ray (structure of arrays), ready
 //! for one batched field query per node.
 
-use assist_core::geometry::intersect_local_box;
+use assist_core::geometry::{Aabb, intersect_local_box};
 use assist_core::{DVec3, NodeSpace, Ray, Rng, SceneNode};
 use assist_field::contraction::{FAR_RADIUS, contract_to_unit};
 use rayon::prelude::*;
 
-use assist_scene::NeuralScene;
+use assist_scene::{NeuralScene, NodeField};
 
 /// World rays (unit directions) and the appearance code each should use.
 #[derive(Debug, Clone, Default)]
@@ -321,11 +321,12 @@ impl assist_simd::WithSimd for SampleBlock<'_> {
     fn run(self) -> NodeSamples {
         let mut local = NodeSamples::default();
         let mut steps = Vec::new();
+        // Looked up once per block, not per ray.
+        let node = &self.scene.scene.nodes[self.k];
+        let at = (node, self.scene.field_of(self.k), node.local_aabb());
         for r in self.range {
             local.start.push(local.t.len() as u32);
-            sample_node(
-                self.scene, self.k, self.rays, r, self.opts, &mut steps, &mut local,
-            );
+            sample_node(at, self.k, self.rays, r, self.opts, &mut steps, &mut local);
         }
         local
     }
@@ -333,7 +334,7 @@ impl assist_simd::WithSimd for SampleBlock<'_> {
 
 #[inline(always)]
 fn sample_node(
-    scene: &NeuralScene,
+    (node, nf, aabb): (&SceneNode, &NodeField, Aabb),
     k: usize,
     rays: &RayBatch,
     r: usize,
@@ -341,8 +342,6 @@ fn sample_node(
     steps: &mut Vec<assist_field::Step>,
     out: &mut NodeSamples,
 ) {
-    let node = &scene.scene.nodes[k];
-    let nf = scene.field_of(k);
     let ray = Ray {
         origin: DVec3::from(rays.origin[r].map(f64::from)),
         dir: DVec3::from(rays.dir[r].map(f64::from)),
@@ -354,7 +353,7 @@ fn sample_node(
     let Some(hit) = intersect_local_box(
         &ray,
         &node.world_from_local,
-        &node.local_aabb(),
+        &aabb,
         rays.near as f64,
         f64::INFINITY,
     ) else {
