@@ -137,39 +137,43 @@ impl ShadeGrid {
     /// Which cells shade nothing: those whose eight corners are all exactly 1, where
     /// [`ShadeGrid::at`] gives exactly 1. Most of a region is such cells.
     pub fn lit_cells(&self) -> LitCells {
+        use rayon::prelude::*;
         let (r, m) = (self.res, self.res - 1);
-        // A cell is lit where its corners are: AND over each axis's pair in turn.
-        let mut one: Vec<bool> = self.values.chunks_exact(3).map(|v| v == [1.0; 3]).collect();
-        let (mut nx, mut ny) = (r, r);
-        for axis in 0..3 {
-            let stride = [1, nx, nx * ny][axis];
-            let mut next = Vec::with_capacity(one.len());
-            let (ex, ey, ez) = match axis {
-                0 => (m, ny, r),
-                1 => (nx, m, r),
-                _ => (nx, ny, m),
-            };
-            for z in 0..ez {
-                for y in 0..ey {
-                    for x in 0..ex {
-                        let i = (z * ny + y) * nx + x;
-                        next.push(one[i] && one[i + stride]);
+        let one: Vec<bool> = self
+            .values
+            .par_chunks_exact(3)
+            .map(|v| v == [1.0; 3])
+            .collect();
+        // A cell is lit where its eight corners are; one slab of cells per task.
+        let mut one_cells = vec![false; m * m * m];
+        one_cells
+            .par_chunks_mut(m * m)
+            .enumerate()
+            .for_each(|(z, slab)| {
+                for y in 0..m {
+                    for x in 0..m {
+                        let at = |dx: usize, dy: usize, dz: usize| {
+                            one[((z + dz) * r + y + dy) * r + x + dx]
+                        };
+                        slab[y * m + x] = (0..8).all(|c| at(c & 1, c >> 1 & 1, c >> 2 & 1));
                     }
                 }
-            }
-            one = next;
-            (nx, ny) = (ex, ey);
-        }
+            });
         let mut bits = vec![0u64; (m * m * m).div_ceil(64)];
         let (mut lo, mut hi) = ([m; 3], [0; 3]);
-        for (i, &lit) in one.iter().enumerate() {
-            if lit {
-                bits[i / 64] |= 1 << (i % 64);
-            } else {
-                let cell = [i % m, (i / m) % m, i / (m * m)];
-                for a in 0..3 {
-                    lo[a] = lo[a].min(cell[a]);
-                    hi[a] = hi[a].max(cell[a]);
+        let mut i = 0;
+        for z in 0..m {
+            for y in 0..m {
+                for x in 0..m {
+                    if one_cells[i] {
+                        bits[i / 64] |= 1 << (i % 64);
+                    } else {
+                        for (a, c) in [x, y, z].into_iter().enumerate() {
+                            lo[a] = lo[a].min(c);
+                            hi[a] = hi[a].max(c);
+                        }
+                    }
+                    i += 1;
                 }
             }
         }

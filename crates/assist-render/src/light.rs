@@ -13,6 +13,7 @@
 use std::sync::{Arc, Mutex};
 
 use assist_core::{DVec3, KeyLight, ShadowCast, Similarity3};
+use assist_field::shade::MIN_SHADE;
 use assist_field::{OccupancyGrid, ShadeGrid};
 use rayon::prelude::*;
 
@@ -204,7 +205,11 @@ fn recast_from(grid: &ShadeGrid, then: &[f32], here: &[f32], strength: [f32; 3])
     let n = coarse_res(grid.res);
     let coarse: Vec<f32> = here.iter().zip(then).map(|(a, b)| a - b).collect();
     let r = grid.res;
-    let mut out = grid.clone();
+    let mut out = ShadeGrid {
+        res: r,
+        extent: grid.extent,
+        values: vec![0.0; grid.values.len()],
+    };
     out.values
         .par_chunks_mut(3 * r)
         .enumerate()
@@ -226,12 +231,12 @@ fn recast_from(grid: &ShadeGrid, then: &[f32], here: &[f32], strength: [f32; 3])
                         * if dz == 1 { fz } else { 1.0 - fz };
                     dv += w * coarse[(x0 + dx) + n * ((y0 + dy) + n * (z0 + dz))];
                 }
+                let learned = &grid.values[3 * (row * r + x)..3 * (row * r + x) + 3];
                 for c in 0..3 {
-                    vals[3 * x + c] += strength[c] * dv;
+                    vals[3 * x + c] = (learned[c] + strength[c] * dv).clamp(MIN_SHADE, 1.0);
                 }
             }
         });
-    out.clamp();
     out
 }
 
