@@ -320,10 +320,16 @@ impl assist_simd::WithSimd for SampleBlock<'_> {
     #[inline(always)]
     fn run(self) -> NodeSamples {
         let mut local = NodeSamples::default();
+        local.start.reserve(self.range.len() + 1);
         let mut steps = Vec::new();
         // Looked up once per block, not per ray.
         let node = &self.scene.scene.nodes[self.k];
-        let at = (node, self.scene.field_of(self.k), node.local_aabb());
+        let at = (
+            node,
+            self.scene.field_of(self.k),
+            node.local_aabb(),
+            Sphere::around(node),
+        );
         for r in self.range {
             local.start.push(local.t.len() as u32);
             sample_node(at, self.k, self.rays, r, self.opts, &mut steps, &mut local);
@@ -334,7 +340,7 @@ impl assist_simd::WithSimd for SampleBlock<'_> {
 
 #[inline(always)]
 fn sample_node(
-    (node, nf, aabb): (&SceneNode, &NodeField, Aabb),
+    (node, nf, aabb, sphere): (&SceneNode, &NodeField, Aabb, Sphere),
     k: usize,
     rays: &RayBatch,
     r: usize,
@@ -348,6 +354,9 @@ fn sample_node(
     };
     if nf.space == NodeSpace::Contracted {
         sample_contracted(node, nf, &ray, rays, r, k, opts, steps, out);
+        return;
+    }
+    if sphere.missed_by(&ray) {
         return;
     }
     let Some(hit) = intersect_local_box(
@@ -387,6 +396,33 @@ fn sample_node(
         scale,
         1.0 / nf.unit,
     );
+}
+
+/// A world sphere holding a node's box, slightly grown: a ray whose line passes outside it
+/// misses the box, known without taking the ray into the box's frame.
+#[derive(Clone, Copy)]
+struct Sphere {
+    centre: DVec3,
+    radius_sq: f64,
+}
+
+impl Sphere {
+    fn around(node: &SceneNode) -> Sphere {
+        let r = (node.world_from_local.scale * node.half_size).length();
+        // Grown far beyond any rounding of the box test.
+        let r = r * (1.0 + 1e-6) + 1e-9;
+        Sphere {
+            centre: node.world_from_local.translation,
+            radius_sq: r * r,
+        }
+    }
+
+    #[inline(always)]
+    fn missed_by(&self, ray: &Ray) -> bool {
+        let oc = self.centre - ray.origin;
+        let along = oc.dot(ray.dir);
+        oc.length_squared() - along * along / ray.dir.length_squared() > self.radius_sq
+    }
 }
 
 /// The first sample's offset within its step: random when training, the middle otherwise.
@@ -486,4 +522,79 @@ fn sample_contracted(
         scale,
         1.0 / nf.unit,
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use assist_core::{DQuat, Similarity3};
+
+    /// The sphere test never turns away a ray the box test lets in, and turns away most
+    /// rays that pass far from the box.
+    #[test]
+    fn a_ray_the_sphere_turns_away_misses_the_box() {
+        let mut rng = Rng::new(5);
+        let mut u = |a: f64, b: f64| a + (b - a) * rng.f32() as f64;
+        let (mut hits, mut skipped) = (0, 0);
+        for _ in 0..20_000 {
+            let mut node = SceneNode {
+                id: 1,
+                label: "box".into(),
+                embedding: None,
+                class: None,
+                field: "f".into(),
+                half_size: DVec3::new(u(0.05, 0.4), u(0.05, 0.4), u(0.05, 0.4)),
+                world_from_local: Similarity3::IDENTITY,
+                space: NodeSpace::Box,
+                cast: None,
+            };
+            let axis = DVec3::new(u(-1.0, 1.0), u(-1.0, 1.0), u(-1.0, 1.0)).normalize();
+            node.world_from_local = Similarity3::new(
+                DQuat::from_axis_angle(axis, u(0.0, 6.3)),
+                DVec3::new(u(-1.0, 1.0), u(-1.0, 1.0), u(-1.0, 1.0)),
+                DVec3::new(u(0.5, 2.0), u(0.5, 2.0), u(0.5, 2.0)),
+            )
+            .unwrap();
+            // Every other ray passes just inside one of the box's corners, in any
+            // direction (the rays that graze the sphere); the others aim near the box.
+            let ray = if u(0.0, 1.0) < 0.5 {
+                let h = node.half_size * 0.999;
+                let corner = DVec3::new(
+                    h.x * u(-1.0, 1.0).signum(),
+                    h.y * u(-1.0, 1.0).signum(),
+                    h.z * u(-1.0, 1.0).signum(),
+                );
+                let at = node.world_from_local.transform_point(corner);
+                let d = DVec3::new(u(-1.0, 1.0), u(-1.0, 1.0), u(-1.0, 1.0)).normalize();
+                Ray {
+                    origin: at - d * 4.0,
+                    dir: d.as_vec3().as_dvec3(),
+                }
+            } else {
+                let origin = DVec3::new(u(-3.0, 3.0), u(-3.0, 3.0), u(-3.0, 3.0));
+                let aim = node.world_from_local.translation
+                    + DVec3::new(u(-0.8, 0.8), u(-0.8, 0.8), u(-0.8, 0.8));
+                let dir = (aim - origin).normalize().as_vec3().as_dvec3();
+                Ray { origin, dir }
+            };
+            let hit = intersect_local_box(
+                &ray,
+                &node.world_from_local,
+                &node.local_aabb(),
+                0.0,
+                f64::INFINITY,
+            );
+            let missed = Sphere::around(&node).missed_by(&ray);
+            if hit.is_some() {
+                hits += 1;
+                assert!(!missed, "{ray:?} hits {node:?}");
+            } else if missed {
+                skipped += 1;
+            }
+        }
+        assert!(
+            hits > 2_000 && skipped > 2_000,
+            "{hits} hits, {skipped} skipped"
+        );
+    }
 }
