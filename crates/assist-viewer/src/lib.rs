@@ -95,6 +95,10 @@ struct App {
     clients: std::sync::atomic::AtomicUsize,
     hello: ServerMsg,
     backend: Option<std::sync::Arc<dyn assist_session::FieldBackend>>,
+    /// Set by [`Running::close`]: every client's socket ends.
+    closing: tokio::sync::watch::Sender<bool>,
+    /// The clients' worker threads (finished ones are pruned as new ones start).
+    workers: std::sync::Mutex<Vec<std::thread::JoinHandle<()>>>,
 }
 
 /// A running viewer: its address, the token clients need (if any) and the URL to open.
@@ -103,6 +107,7 @@ pub struct Running {
     pub token: Option<String>,
     pub url: String,
     server: tokio::task::JoinHandle<std::io::Result<()>>,
+    app: Arc<App>,
 }
 
 impl Running {
@@ -112,6 +117,26 @@ impl Running {
             Ok(r) => Ok(r?),
             Err(e) => Err(ViewerError::Io(std::io::Error::other(e))),
         }
+    }
+
+    /// Stops serving: no new clients, every connected one's socket ends, and this returns
+    /// once their worker threads have ended (a frame in progress is stopped). Nothing of
+    /// the viewer's then runs, so a GPU it queried can be torn down safely.
+    pub async fn close(self) {
+        self.server.abort();
+        self.app.closing.send_replace(true);
+        // A client still opening its session registers its worker before its seat goes.
+        while self.app.clients.load(std::sync::atomic::Ordering::SeqCst) > 0 {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        let app = self.app.clone();
+        let _ = tokio::task::spawn_blocking(move || {
+            let mut workers = app.workers.lock().unwrap_or_else(|e| e.into_inner());
+            for w in workers.drain(..) {
+                let _ = w.join();
+            }
+        })
+        .await;
     }
 }
 
@@ -254,7 +279,10 @@ pub async fn start(opts: ViewerOptions) -> Result<Running, ViewerError> {
         clients: std::sync::atomic::AtomicUsize::new(0),
         hello,
         backend: opts.backend.clone(),
+        closing: tokio::sync::watch::channel(false).0,
+        workers: std::sync::Mutex::new(Vec::new()),
     });
+    let kept = app.clone();
     let router = Router::new()
         .route("/", get(index))
         .route("/ws", get(ws))
@@ -269,6 +297,7 @@ pub async fn start(opts: ViewerOptions) -> Result<Running, ViewerError> {
         token,
         url,
         server,
+        app: kept,
     })
 }
 
@@ -411,7 +440,7 @@ async fn client(mut socket: WebSocket, app: Arc<App>) {
                 .with_data(data)
                 .run(in_rx, |o| out_tx.send(o).is_ok())
         });
-    if worker.is_err() {
+    let Ok(worker) = worker else {
         send_json(
             &mut socket,
             &ServerMsg::Error {
@@ -420,10 +449,18 @@ async fn client(mut socket: WebSocket, app: Arc<App>) {
         )
         .await;
         return;
+    };
+    {
+        let mut workers = app.workers.lock().unwrap_or_else(|e| e.into_inner());
+        workers.retain(|w| !w.is_finished());
+        workers.push(worker);
     }
+    let mut closing = app.closing.subscribe();
     let mut window = (Instant::now(), 0u32);
     loop {
         tokio::select! {
+            // `wait_for` sees a close made before this client subscribed too.
+            _ = async { let _ = closing.wait_for(|c| *c).await; } => break,
             incoming = socket.recv() => {
                 let msg = match incoming {
                     Some(Ok(m)) => m,

@@ -9,7 +9,7 @@ use std::time::Duration;
 use assist_gpu::{DeviceChoice, Gpu, GpuBackend, GpuError};
 use assist_session::FieldBackend;
 use assist_testkit::TempDir;
-use assist_viewer::{ViewerOptions, start};
+use assist_viewer::{Running, ViewerOptions, start};
 use futures_util::{SinkExt, StreamExt};
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
@@ -62,12 +62,12 @@ async fn send(ws: &mut Ws, v: Value) {
     ws.send(Message::Text(v.to_string().into())).await.unwrap();
 }
 
-/// A viewer of `path` (on `backend`), connected: its socket after the first full frame of
-/// the test's view, and that frame.
+/// A viewer of `path` (on `backend`), connected: the viewer, its socket after the first
+/// full frame of the test's view, and that frame.
 async fn client(
     path: &std::path::Path,
     backend: Option<Arc<dyn FieldBackend>>,
-) -> (Ws, image::RgbImage) {
+) -> (Running, Ws, image::RgbImage) {
     let running = start(ViewerOptions {
         scene: path.to_path_buf(),
         data: None,
@@ -95,7 +95,7 @@ async fn client(
     )
     .await;
     let f = full_frame(&mut ws).await;
-    (ws, f)
+    (running, ws, f)
 }
 
 fn psnr(a: &image::RgbImage, b: &image::RgbImage) -> f64 {
@@ -110,8 +110,8 @@ async fn the_viewer_on_the_gpu_shows_the_cpu_viewers_frames() {
     let path = dir.join("scene.assist");
     let scene = assist_testkit::scenes::two_boxes(0.08);
     assist_scene::scene_file::save(&path, &scene, json!({}), false).unwrap();
-    let (mut on_cpu, a) = client(&path, None).await;
-    let (mut on_gpu, b) = client(&path, Some(gpu)).await;
+    let (cpu_viewer, mut on_cpu, a) = client(&path, None).await;
+    let (gpu_viewer, mut on_gpu, b) = client(&path, Some(gpu)).await;
     let lit = a.as_raw().iter().filter(|&&v| v > 40).count();
     assert!(lit > a.as_raw().len() / 4, "the view shows the scene");
     let q = psnr(&a, &b);
@@ -125,4 +125,11 @@ async fn the_viewer_on_the_gpu_shows_the_cpu_viewers_frames() {
     assert!(psnr(&a, &a2) < 40.0, "the move shows");
     let q = psnr(&a2, &b2);
     assert!(q > 40.0, "after the move: {q:.1} dB between the frames");
+    // The viewers' workers end before the process does: a worker still querying the GPU
+    // while the process exits would race the Vulkan driver's own teardown.
+    for v in [cpu_viewer, gpu_viewer] {
+        tokio::time::timeout(Duration::from_secs(120), v.close())
+            .await
+            .expect("the viewer closes within 120 s");
+    }
 }

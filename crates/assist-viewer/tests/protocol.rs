@@ -564,6 +564,40 @@ async fn an_oversized_message_is_answered_before_the_socket_closes() {
     assert_eq!(next(&mut ws2).await["type"], "hello");
 }
 
+/// `Running::close` ends every client's socket, returns once their workers have ended
+/// (one of them asked for a frame just before), and the viewer takes no one new.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn closing_the_viewer_ends_its_clients_and_their_workers() {
+    let dir = TempDir::new("viewer-close");
+    let path = scene_on_disk(&dir);
+    let running = start_plain(path, Ipv4Addr::LOCALHOST).await;
+    let url = socket_url(&running);
+    let (mut a, _) = tokio_tungstenite::connect_async(&url).await.unwrap();
+    let (mut b, _) = tokio_tungstenite::connect_async(&url).await.unwrap();
+    assert_eq!(next(&mut a).await["type"], "hello");
+    assert_eq!(next(&mut b).await["type"], "hello");
+    send(&mut a, view()).await;
+    tokio::time::timeout(Duration::from_secs(60), running.close())
+        .await
+        .expect("closed within 60 s");
+    for ws in [&mut a, &mut b] {
+        let ended = tokio::time::timeout(Duration::from_secs(10), async {
+            loop {
+                match ws.next().await {
+                    None | Some(Err(_)) | Some(Ok(Message::Close(_))) => return,
+                    Some(Ok(_)) => continue,
+                }
+            }
+        })
+        .await;
+        assert!(ended.is_ok(), "a client's socket stayed open after close");
+    }
+    assert!(
+        tokio_tungstenite::connect_async(&url).await.is_err(),
+        "a closed viewer took a new client"
+    );
+}
+
 /// The socket address of `running`, with its token.
 fn socket_url(running: &assist_viewer::Running) -> String {
     format!(
