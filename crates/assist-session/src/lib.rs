@@ -19,6 +19,7 @@ mod jobs;
 mod render_job;
 mod scale;
 pub mod split;
+mod train_checks;
 mod train_config;
 mod train_job;
 

@@ -370,6 +370,13 @@ impl TrainJob {
         let lr_end = c
             .lr_end
             .unwrap_or(assist_train::default_lr_end(unbounded(scene)));
+        // Left to the scene on the CPU; a GPU queries every sample (the density pass would
+        // run on this CPU).
+        let prune_eps = c.prune_eps.unwrap_or(if self.optimizers.is_some() {
+            0.0
+        } else {
+            assist_train::default_prune_eps(unbounded(scene))
+        });
         TrainOptions {
             iters: c.iters,
             max_time,
@@ -382,6 +389,7 @@ impl TrainJob {
             refine_poses: c.refine_poses,
             hidden_stop: c.hidden_stop,
             step_scale: c.step_scale,
+            prune_eps,
             lambdas,
             seed: c.seed,
             checkpoint: Some(c.out.clone()),
@@ -402,8 +410,9 @@ impl TrainJob {
                 ("dataset_fingerprint".to_string(), fingerprint.into()),
                 ("train_config".to_string(), {
                     let mut r = c.record();
-                    // The floor the run used, where it was left to the scene.
+                    // The floor and the pruning the run used, where left to the scene.
                     r["lr_end"] = lr_end.into();
+                    r["prune_eps"] = prune_eps.into();
                     if !self.masks_recorded {
                         r["masks"] = serde_json::Value::Null;
                     }

@@ -265,3 +265,54 @@ fn held_shadow_lattice_points_keep_their_values_and_the_rest_train() {
     assert!(kept, "a held lattice point changed");
     assert!(moved > 0, "no free lattice point trained");
 }
+
+/// The density pass that drops samples behind surfaces (`prune_eps`) runs on a step only
+/// when it is a look every 100 steps or the pass before it dropped at least 30% of what it
+/// queried; a contracted background (here the synth scene's, with no object nodes) has
+/// more than 32 samples per ray, so every pass queries all of its samples. A threshold of
+/// 0.5 drops enough of this short run's samples for both cases to occur.
+#[test]
+fn pruning_runs_only_while_it_pays() {
+    let ds = assist_data::load(synth(), &LoadOptions::default()).unwrap();
+    let views = load_views(&ds, Split::Train, background_color(&ds)).unwrap();
+    let setup = SetupOptions {
+        background_space: assist_train::BackgroundSpace::Contracted,
+        boxes: Vec::new(),
+        ..SetupOptions::default()
+    };
+    let mut scene = build_scene(&ds, &views, &setup).unwrap();
+    scene.scene.nodes.retain(|n| n.label == "background");
+    scene.fields.retain(|k, _| k == "background");
+    let opts = TrainOptions {
+        prune_eps: 0.5,
+        iters: 260,
+        batch_samples: 16384,
+        ..TrainOptions::default()
+    };
+    let mut t = Trainer::new(scene, views, opts).unwrap();
+    let stats: Vec<_> = (0..260).map(|_| t.step(0.0).unwrap()).collect();
+    let pays = |s: &assist_train::StepStats| s.pruned as f64 >= 0.3 * s.candidates as f64;
+    let (mut ran, mut paid) = (0, 0);
+    for (i, s) in stats.iter().enumerate() {
+        assert!(s.samples + s.pruned == s.candidates, "step {i}: {s:?}");
+        if s.pruned > 0 {
+            ran += 1;
+            assert!(
+                i % 100 == 0 || pays(&stats[i - 1]),
+                "step {i} pruned {} of {} after a pass that did not pay ({} of {})",
+                s.pruned,
+                s.candidates,
+                stats[i - 1].pruned,
+                stats[i - 1].candidates
+            );
+        }
+        paid += pays(s) as usize;
+    }
+    let f: Vec<String> = stats
+        .iter()
+        .step_by(20)
+        .map(|s| format!("{:.2}", s.pruned as f64 / s.candidates as f64))
+        .collect();
+    eprintln!("dropped share every 20 steps: {}", f.join(" "));
+    assert!(ran > 3 && paid > 0, "{ran} steps pruned, {paid} paid");
+}

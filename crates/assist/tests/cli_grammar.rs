@@ -232,6 +232,30 @@ fn config_files_give_flags_and_print_config_round_trips() {
     );
     // A floor given is kept.
     assert_eq!(lr_end(&unbounded(&["--lr-end", "2e-3"])), 2e-3);
+    // So is the pruning: off where the background is bounded, 1e-4 where it is not.
+    let prune = |info: &serde_json::Value| info["options"]["prune_eps"].as_f64().unwrap() as f32;
+    assert_eq!(prune(&common::scene_info(&t)), 0.0);
+    let info = unbounded(&[]);
+    assert_eq!(prune(&info), 1e-4, "{info}");
+    assert_eq!(
+        info["train_config"]["prune_eps"].as_f64().unwrap() as f32,
+        1e-4
+    );
+    assert_eq!(prune(&unbounded(&["--prune-eps", "0"])), 0.0);
+    let o = run(&[
+        "train",
+        s(&data),
+        "--out",
+        s(&u),
+        "--prune-eps",
+        "1",
+        "--force",
+    ]);
+    assert!(
+        !o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--prune-eps"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
 
     let bad = tmp.path().join("bad.toml");
     std::fs::write(&bad, "colour = 3\n").unwrap();

@@ -38,7 +38,7 @@ mod terms;
 
 pub use options::{
     EMPTY_MARGIN, KeptHistory, PhaseTimes, ResumeState, StepStats, StopReason, TrainOptions,
-    TrainReport, default_lr_end,
+    TrainReport, default_lr_end, default_prune_eps,
 };
 pub use poses::{POSE_EVERY, POSE_LR, PoseRefiner};
 use rays::Target;
@@ -75,6 +75,9 @@ pub struct Trainer {
     rays: RayBatch,
     traced: Traced,
     prune: assist_render::PruneScratch,
+    /// Whether the last density pass dropped enough to pay for itself (see
+    /// `step::PRUNE_PAYS`); while it did not, only every `PRUNE_PROBE_EVERY`-th step runs one.
+    prune_pays: bool,
     out: BatchOutput,
     targets: Vec<Target>,
     pixel_count: usize,
@@ -181,6 +184,7 @@ impl Trainer {
             rays: RayBatch::default(),
             traced: Traced::default(),
             prune: assist_render::PruneScratch::default(),
+            prune_pays: false,
             out: BatchOutput::default(),
             targets: Vec::new(),
             pixel_count,

@@ -37,9 +37,9 @@ pub struct TrainOptions {
     pub object_ray_fraction: f64,
     /// Samples behind the point where their node's transmittance falls below this are
     /// dropped after a density-only pass, before the forward and backward passes (0 =
-    /// keep all; nerfacc's early stop, see `assist_render::prune`). Off by default: the
-    /// occupancy grid already drops most of what it would, and the density pass costs more
-    /// than it saves on real captures (BENCHMARKS.md).
+    /// keep all; nerfacc's early stop, see `assist_render::prune`). The pass runs only
+    /// while it drops enough to pay for itself (`PRUNE_PAYS`). 0 here; runs choose by
+    /// their scene ([`default_prune_eps`]).
     pub prune_eps: f32,
     /// The background's samples whose transmittance through the objects in front of them
     /// is below this learn only from the background's own terms (its prior), not from the
@@ -313,5 +313,17 @@ pub fn default_lr_end(unbounded: bool) -> f32 {
         3e-3
     } else {
         TrainOptions::default().lr_end
+    }
+}
+
+/// The pruning threshold a run uses unless told: 1e-4 where a node is unbounded (a
+/// contracted background marches on through the room behind the first surface it meets,
+/// and those samples carry no weight), else off (bounded nodes march few samples, and
+/// nodes under 32 samples per ray are never pruned anyway). Measured in BENCHMARKS.md.
+pub fn default_prune_eps(unbounded: bool) -> f32 {
+    if unbounded {
+        1e-4
+    } else {
+        TrainOptions::default().prune_eps
     }
 }

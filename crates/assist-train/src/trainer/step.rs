@@ -14,6 +14,16 @@ use super::{
 };
 use crate::error::{Result, TrainError};
 
+/// The share of the density pass's samples that must be dropped for the pass to pay: it
+/// costs about a fifth of a training sample's forward and backward passes, and the
+/// compaction a little more (BENCHMARKS.md: gold_cape drops half and trains 1.8× the steps
+/// in its time; fern drops a seventh and trained fewer rays per second with it).
+pub(crate) const PRUNE_PAYS: f64 = 0.3;
+
+/// While pruning does not pay, every this many steps one runs the density pass to look
+/// again (what lies behind surfaces grows as the scene sharpens).
+pub(crate) const PRUNE_PROBE_EVERY: usize = 100;
+
 impl Trainer {
     fn progress(&self, elapsed: f64) -> f64 {
         let by_iter = self.iteration as f64 / self.opts.iters.max(1) as f64;
@@ -70,10 +80,14 @@ impl Trainer {
         for (k, ns) in self.traced.nodes.iter().take(4).enumerate() {
             s.samples_per_ray[k] = ns.len() as f32 / s.rays.max(1) as f32;
         }
-        // Adapt the ray count towards the target sample count.
-        // A sample through the density pass costs about half a full one more (the
+        // Adapt the ray count towards the target sample count, for the next step's way of
+        // tracing. A sample through the density pass costs about half a full one more (the
         // hash-grid encoding and the density net, no tape).
-        let per_ray = (s.samples as f64 + 0.5 * pruned.queried as f64) / s.rays.max(1) as f64;
+        let per_ray = if self.prune_pays {
+            s.samples as f64 + 0.5 * pruned.queried as f64
+        } else {
+            (s.samples + pruned.dropped) as f64
+        } / s.rays.max(1) as f64;
         let want = (self.opts.batch_samples as f64 / per_ray.max(1.0)) as usize;
         self.rays_per_batch = ((self.rays_per_batch + want) / 2).clamp(256, 1 << 16);
         Ok(s)
@@ -92,13 +106,16 @@ impl Trainer {
         };
         sample_rays(&self.scene, &self.rays, &so, &mut self.traced);
         let candidates = self.traced.total_samples();
-        let pruned = if self.opts.prune_eps > 0.0 {
-            assist_render::prune_occluded(
+        let probe = self.iteration.is_multiple_of(PRUNE_PROBE_EVERY);
+        let pruned = if self.opts.prune_eps > 0.0 && (self.prune_pays || probe) {
+            let p = assist_render::prune_occluded(
                 &self.scene,
                 &mut self.traced,
                 self.opts.prune_eps,
                 &mut self.prune,
-            )
+            );
+            self.prune_pays = p.dropped as f64 >= PRUNE_PAYS * p.queried.max(1) as f64;
+            p
         } else {
             assist_render::PruneStats::default()
         };
