@@ -316,13 +316,14 @@ pub fn default_lr_end(unbounded: bool) -> f32 {
     }
 }
 
-/// The pruning threshold a run uses unless told: 1e-4 where a node is unbounded (a
+/// The pruning threshold a run uses unless told: `PRUNE_EPS` where a node is unbounded (a
 /// contracted background marches on through the room behind the first surface it meets,
 /// and those samples carry no weight), else off (bounded nodes march few samples, and
-/// nodes under 32 samples per ray are never pruned anyway). Measured in BENCHMARKS.md.
+/// nodes under `PRUNE_MIN_PER_RAY` samples per ray are never pruned). Measured in
+/// BENCHMARKS.md.
 pub fn default_prune_eps(unbounded: bool) -> f32 {
     if unbounded {
-        1e-4
+        assist_render::PRUNE_EPS
     } else {
         TrainOptions::default().prune_eps
     }

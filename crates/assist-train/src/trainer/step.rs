@@ -14,10 +14,9 @@ use super::{
 };
 use crate::error::{Result, TrainError};
 
-/// The share of the density pass's samples that must be dropped for the pass to pay: it
-/// costs about a fifth of a training sample's forward and backward passes, and the
-/// compaction a little more (BENCHMARKS.md: gold_cape drops half and trains 1.8× the steps
-/// in its time; fern drops a seventh and trained fewer rays per second with it).
+/// The share of the density pass's samples that must be dropped for the pass to pay: a
+/// sample's density pass costs a fraction of its forward and backward passes, and the
+/// compaction adds to it (the captures measured either way are in BENCHMARKS.md).
 pub(crate) const PRUNE_PAYS: f64 = 0.3;
 
 /// While pruning does not pay, every this many steps one runs the density pass to look
