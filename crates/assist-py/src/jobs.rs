@@ -164,7 +164,7 @@ pub(crate) fn train<'py>(
         cfg.max_time = Some(t);
     }
     if let Some(n) = whole_opt::<usize>("iters", iters)? {
-        cfg.iters = n;
+        cfg.iters = Some(n);
     }
     let job = assist_session::TrainJob::new(cfg);
     job.validate().map_err(err)?;
@@ -276,7 +276,7 @@ pub(crate) fn process<'py>(
 /// "step"); returns the objects made (id, label, box), the masks' summary and the
 /// held-out figure of the fine-tune.
 #[pyfunction]
-#[pyo3(signature = (scene, out, boxes=Vec::new(), clicks=Vec::new(), labels=Vec::new(), iters=Whole::of(assist_session::split::SPLIT_ITERS as i64), max_time=None, data=None, masks_out=None, no_train=false, force=false, sam=None, callback=None))]
+#[pyo3(signature = (scene, out, boxes=Vec::new(), clicks=Vec::new(), labels=Vec::new(), iters=None, max_time=None, data=None, masks_out=None, no_train=false, force=false, sam=None, callback=None))]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn split<'py>(
     py: Python<'py>,
@@ -285,7 +285,7 @@ pub(crate) fn split<'py>(
     boxes: Vec<String>,
     clicks: Vec<String>,
     labels: Vec<String>,
-    iters: Whole,
+    iters: Option<Whole>,
     max_time: Option<f64>,
     data: Option<PathBuf>,
     masks_out: Option<PathBuf>,
@@ -309,7 +309,7 @@ pub(crate) fn split<'py>(
         ..Objects::default()
     };
     let mut config = SplitConfig::new(scene, out, objects);
-    config.iters = iters.get("iters")?;
+    config.iters = whole_opt::<usize>("iters", iters)?;
     config.max_time = max_time;
     config.data = data;
     config.masks_out = masks_out;

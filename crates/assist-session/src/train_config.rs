@@ -197,9 +197,9 @@ pub struct TrainConfig {
     #[arg(skip)]
     pub out: PathBuf,
     /// Iterations to train in all (a resumed run continues up to this count); --max-time
-    /// may end the run first.
-    #[arg(long, help_heading = RUN, default_value_t = TrainOptions::default().iters)]
-    pub iters: usize,
+    /// may end the run first [default: 5000, or no limit when --max-time is given].
+    #[arg(long, help_heading = RUN, value_name = "N")]
+    pub iters: Option<usize>,
     /// Stop after this many seconds (the learning-rate schedule then runs on time). With
     /// --resume, this many seconds more than the scene was trained already.
     #[arg(long, help_heading = RUN, value_name = "SECONDS")]
@@ -341,7 +341,15 @@ impl Default for TrainConfig {
 }
 
 impl TrainConfig {
-    /// Whether objects learn shadow grids.
+    /// The iteration budget: --iters, else none when the run is timed, else the default.
+    pub fn iters_limit(&self) -> usize {
+        match (self.iters, self.max_time) {
+            (Some(n), _) => n,
+            (None, Some(_)) => usize::MAX,
+            (None, None) => TrainOptions::default().iters,
+        }
+    }
+
     /// Whether objects learn shadows on a capture with (`depth`) or without depth maps.
     pub fn learns_shadows(&self, depth: bool) -> bool {
         self.shadows.resolve(depth) != Shadows::Off
@@ -497,7 +505,13 @@ mod tests {
     #[test]
     fn defaults_round_trip_through_serde_and_clap() {
         let d = TrainConfig::default();
-        assert_eq!(d.iters, TrainOptions::default().iters);
+        assert_eq!(d.iters, None);
+        assert_eq!(d.iters_limit(), TrainOptions::default().iters);
+        let timed = TrainConfig {
+            max_time: Some(60.0),
+            ..TrainConfig::default()
+        };
+        assert_eq!(timed.iters_limit(), usize::MAX);
         assert_eq!(d.shadows, Shadows::Auto);
         assert_eq!(d.shadows.resolve(true), Shadows::Fixed);
         assert_eq!(d.shadows.resolve(false), Shadows::Off);

@@ -378,7 +378,7 @@ impl TrainJob {
             assist_train::default_prune_eps(unbounded(scene))
         });
         TrainOptions {
-            iters: c.iters,
+            iters: c.iters_limit(),
             max_time,
             lr_start: c.lr_start,
             lr_end,
@@ -481,7 +481,7 @@ impl TrainJob {
                     ),
                 ));
             }
-            if state.iteration >= c.iters {
+            if state.iteration >= c.iters_limit() {
                 return Err(request(
                     "iters",
                     format!(

@@ -122,7 +122,7 @@ fn the_viewer_works_in_a_real_browser() {
         data: data.clone(),
         out: scene.clone(),
         // Bounded by iterations, not time: the scene is as good on a loaded host.
-        iters: 300,
+        iters: Some(300),
         ..TrainConfig::default()
     })
     .run(|_| {})
@@ -218,7 +218,7 @@ fn new_object_mode_works_in_a_real_browser() {
     TrainJob::new(TrainConfig {
         data: data.clone(),
         out: scene.clone(),
-        iters: 800,
+        iters: Some(800),
         no_objects: true,
         ..TrainConfig::default()
     })

@@ -48,7 +48,6 @@ fn train(data: &Path, out: &Path, seconds: f64, seed: u64, no_objects: bool) -> 
     let cfg = TrainConfig {
         data: data.to_path_buf(),
         out: out.to_path_buf(),
-        iters: 1_000_000,
         max_time: Some(seconds),
         appearance: Appearance::Off,
         seed,

@@ -459,12 +459,14 @@ fn print_report(a: &TrainArgs, outcome: &assist_session::TrainOutcome) -> anyhow
         );
     } else {
         let why = match report.stopped_by {
-            StopReason::Iterations => format!("reached --iters {}", a.train.iters),
-            StopReason::Time => format!(
-                "--max-time {} s was spent before --iters {}",
-                a.train.max_time.unwrap_or_default(),
-                a.train.iters
-            ),
+            StopReason::Iterations => format!("reached --iters {}", a.train.iters_limit()),
+            StopReason::Time => match a.train.iters {
+                Some(n) => format!(
+                    "--max-time {} s was spent before --iters {n}",
+                    a.train.max_time.unwrap_or_default()
+                ),
+                None => format!("--max-time {} s", a.train.max_time.unwrap_or_default()),
+            },
             StopReason::Cancelled => "interrupted".to_string(),
         };
         eprintln!(

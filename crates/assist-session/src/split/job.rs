@@ -34,9 +34,9 @@ pub struct SplitConfig {
     /// The dataset (default: the one the scene was trained on, as it records).
     #[arg(long)]
     pub data: Option<PathBuf>,
-    /// Fine-tune steps.
-    #[arg(long, default_value_t = SPLIT_ITERS)]
-    pub iters: usize,
+    /// Fine-tune steps [default: 2000, or no limit when --max-time is given].
+    #[arg(long, value_name = "N")]
+    pub iters: Option<usize>,
     /// Stop the fine-tune after this many seconds.
     #[arg(long, value_name = "SECONDS")]
     pub max_time: Option<f64>,
@@ -67,7 +67,7 @@ impl SplitConfig {
             out,
             objects,
             data: None,
-            iters: SPLIT_ITERS,
+            iters: None,
             max_time: None,
             lr_start: None,
             lr_end: None,
@@ -268,7 +268,11 @@ impl SplitJob {
         record.boxes = None;
         record.resume = false;
         record.force = c.force;
-        record.iters = c.iters;
+        record.iters = Some(match (c.iters, c.max_time) {
+            (Some(n), _) => n,
+            (None, Some(_)) => usize::MAX,
+            (None, None) => SPLIT_ITERS,
+        });
         record.max_time = c.max_time;
         if let Some((start, end)) = c.lr_start.zip(c.lr_end) {
             (record.lr_start, record.lr_end) = (start, Some(end));

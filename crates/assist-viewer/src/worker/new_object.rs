@@ -139,7 +139,7 @@ impl Worker {
         };
         let mut config = SplitConfig::new(self.scene_path.clone(), out.clone(), objects);
         config.data = Some(data);
-        config.iters = iters;
+        config.iters = Some(iters);
         let job = SplitJob::new(config).with_cancel(self.stop.clone());
         let progress = |task: &str, done: f64| {
             send(Outgoing::Json(ServerMsg::Progress {
