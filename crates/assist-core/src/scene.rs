@@ -271,6 +271,12 @@ pub struct Scene {
     /// The light that casts the objects' shadows, when estimated (see [`ShadowCast`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub light: Option<KeyLight>,
+    /// Whether an object moved or turned from where it was photographed is shaded by
+    /// [`Scene::light`] where it stands now, rather than keeping the shading it was
+    /// photographed with (assist-render's `relight`). Needs the light and the objects'
+    /// [`ShadowCast`]s.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub relight: bool,
 }
 
 fn is_zero(v: &f64) -> bool {
@@ -291,6 +297,7 @@ impl Scene {
             near: 0.0,
             classes: Vec::new(),
             light: None,
+            relight: false,
         }
     }
     /// The classes of objects not yet in `classes`, in id order of first appearance.
@@ -388,6 +395,7 @@ mod tests {
             near: 0.0,
             classes: Vec::new(),
             light: None,
+            relight: false,
         };
         assert_eq!(s.fresh_id(), 1);
     }

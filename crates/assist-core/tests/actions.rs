@@ -34,6 +34,7 @@ fn scene() -> Scene {
         near: 0.0,
         classes: Vec::new(),
         light: None,
+        relight: false,
     }
 }
 

@@ -37,8 +37,10 @@ struct Key {
     layers: bool,
     near: f64,
     /// What the shading and the backdrop read from the scene besides its nodes: the key
-    /// light (re-cast shadows), the up it faces, the backdrop.
+    /// light (re-cast shadows), whether it relights moved objects, the up it faces, the
+    /// backdrop.
     light: Option<assist_core::KeyLight>,
+    relight: bool,
     up: assist_core::DVec3,
     behind: Behind,
     /// Every node but the moving one.
@@ -157,6 +159,7 @@ fn key(
         layers: opts.layers,
         near: scene.scene.near,
         light: scene.scene.light,
+        relight: scene.scene.relight,
         up: scene.scene.up,
         behind: Behind::of(&scene.scene),
         others: scene

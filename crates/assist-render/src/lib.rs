@@ -18,6 +18,7 @@ mod drag;
 pub mod fill;
 pub mod light;
 mod prune;
+pub mod relight;
 mod render;
 mod reshade;
 mod sample;

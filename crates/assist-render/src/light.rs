@@ -247,8 +247,15 @@ const CACHE_ENTRIES: usize = 8;
 /// The visibilities where grids were learned, which a drag does not change.
 static LEARNED: Mutex<Vec<(u64, Arc<Vec<f32>>)>> = Mutex::new(Vec::new());
 
+/// A cache of values by the hash of what they were made from, the oldest dropped first.
+pub(crate) type Cache<T> = Mutex<Vec<(u64, Arc<T>)>>;
+
 /// The entry of `cache` for `id`, made by `make` (and kept, the oldest dropped) if none.
-fn cached<T>(cache: &Mutex<Vec<(u64, Arc<T>)>>, id: u64, make: impl FnOnce() -> T) -> Arc<T> {
+pub(crate) fn cached<T>(
+    cache: &Mutex<Vec<(u64, Arc<T>)>>,
+    id: u64,
+    make: impl FnOnce() -> T,
+) -> Arc<T> {
     if let Some((_, v)) = cache.lock().expect("cache").iter().find(|(k, _)| *k == id) {
         return v.clone();
     }

@@ -227,6 +227,7 @@ pub fn query_fields(scene: &NeuralScene, traced: &mut Traced, tapes: &mut Vec<Ta
         && query_all_on(b, scene, traced)
     {
         for ns in &mut traced.nodes {
+            relight(scene, ns.node, &ns.pos, &mut ns.rgb);
             add_highlight(scene, ns.node, &mut ns.rgb, highlight);
         }
         return;
@@ -266,6 +267,63 @@ fn query_all_on(backend: &dyn FieldBackend, scene: &NeuralScene, traced: &mut Tr
         ns.rgb = rgb;
     }
     ok
+}
+
+/// Node `node`'s colours shaded by the scene's light where the node stands now, when the
+/// scene relights and the node stands elsewhere than where it was photographed
+/// ([`crate::relight`]).
+fn relight(scene: &NeuralScene, node: usize, pos: &[Vec<f32>; 3], rgb: &mut [f32]) {
+    let s = &scene.scene;
+    let n = &s.nodes[node];
+    if let (true, Some(light), Some(cast)) = (s.relight, &s.light, &n.cast)
+        && cast.pose != n.world_from_local
+        && !rgb.is_empty()
+    {
+        let lights = crate::light::light_points(light, s.up);
+        let nf = scene.field_of(node);
+        // The key light's share as the object's own shading shows it, else as its shadow
+        // does.
+        let colour = |pos: &[[f32; 3]], dirs: &[[f32; 3]]| {
+            let axis = |v: &[[f32; 3]], a: usize| v.iter().map(|p| p[a]).collect::<Vec<f32>>();
+            let (p, d) = (
+                [0, 1, 2].map(|a| axis(pos, a)),
+                [0, 1, 2].map(|a| axis(dirs, a)),
+            );
+            let image = vec![u32::MAX; pos.len()];
+            let samples = assist_field::Samples {
+                pos: [&p[0], &p[1], &p[2]],
+                dir: [&d[0], &d[1], &d[2]],
+                image: &image,
+            };
+            let (mut sigma, mut rgb) = (vec![0.0; pos.len()], vec![0.0; 3 * pos.len()]);
+            nf.field.forward(&samples, &mut sigma, &mut rgb);
+            rgb.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+        };
+        let strength = crate::relight::strength_cached(
+            &n.field,
+            &nf.occupancy,
+            n.half_size,
+            &cast.pose,
+            &lights,
+            s.up,
+            colour,
+        )
+        .unwrap_or(cast.strength);
+        let cast = assist_core::ShadowCast {
+            pose: cast.pose,
+            strength,
+        };
+        let grid = crate::relight::relight_cached(
+            &n.field,
+            &nf.occupancy,
+            n.half_size,
+            &n.world_from_local,
+            &cast,
+            &lights,
+            s.up,
+        );
+        grid.apply(pos, rgb);
+    }
 }
 
 /// Adds the highlight's colour to node `node`'s samples when it is the one highlighted.
@@ -337,6 +395,7 @@ pub(crate) fn query_node_with(
                 nf.field
                     .forward_at(precision, tables, &ns.samples(), tape, &mut sigma, &mut rgb);
             }
+            relight(scene, ns.node, &ns.pos, &mut rgb);
             add_highlight(scene, ns.node, &mut rgb, highlight);
         }
     }

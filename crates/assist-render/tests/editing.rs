@@ -431,6 +431,18 @@ fn a_drag_rerenders_the_moving_node_alone_and_bit_for_bit() {
     drag_bit_for_bit_at(true, true, true, 0.0, false);
 }
 
+/// The same with the scene relighting moved objects: the moved node's colours change
+/// with its pose at every update, as a full render's do.
+#[test]
+fn a_relit_drag_is_bit_for_bit_too() {
+    RELIGHT.with(|r| r.set(true));
+    drag_bit_for_bit_at(true, true, false, 0.0, false);
+}
+
+thread_local! {
+    static RELIGHT: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
 fn drag_bit_for_bit(shadow: bool, lit: bool) {
     // f32 without pruning; and pruned (each ray by each node's own density) on the packed
     // tables a session renders with.
@@ -475,6 +487,7 @@ fn drag_bit_for_bit_at(shadow: bool, lit: bool, crowded: bool, prune_eps: f32, p
                 pose: learned_at,
                 strength: [0.5, 0.5, 0.5],
             });
+            s.scene.relight = RELIGHT.with(|r| r.get());
         }
         if crowded {
             // The shiny cube beside the red one, and a third red one behind both: the
@@ -521,6 +534,15 @@ fn drag_bit_for_bit_at(shadow: bool, lit: bool, crowded: bool, prune_eps: f32, p
             render_camera(&unlit, &cam, u32::MAX, &opts).rgb,
             render_camera(&s, &cam, u32::MAX, &opts).rgb
         );
+        if s.scene.relight {
+            // So does the moved node's new shading.
+            let mut baked = s.clone();
+            baked.scene.relight = false;
+            assert_ne!(
+                render_camera(&baked, &cam, u32::MAX, &opts).rgb,
+                render_camera(&s, &cam, u32::MAX, &opts).rgb
+            );
+        }
         // A light moved between two updates of the same drag re-casts every shadow.
         let mut light = s.scene.light.unwrap();
         light.position += assist_core::DVec3::new(1.0, 0.6, -0.6);

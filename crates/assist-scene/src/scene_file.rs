@@ -390,6 +390,7 @@ const SCENE_KEYS: &[&str] = &[
     "near",
     "classes",
     "light",
+    "relight",
 ];
 
 /// Everything a scene (the file's, or a history snapshot) must hold to load and render:

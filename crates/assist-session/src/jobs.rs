@@ -99,6 +99,9 @@ pub struct LightJob {
     /// Where the scene with its light is written (may be `scene` itself, with `force`).
     pub out: PathBuf,
     pub force: bool,
+    /// Whether objects moved from where they were photographed are shaded by the light
+    /// where they stand now ([`assist_core::Scene::relight`]); `None` keeps the scene's.
+    pub relight: Option<bool>,
 }
 
 impl LightJob {
@@ -123,8 +126,12 @@ impl LightJob {
             .iter()
             .map(|n| (n.id, n.field.clone(), n.cast.clone()))
             .collect();
+        if let Some(r) = self.relight {
+            scene.scene.relight = r;
+        }
         for step in history.undo.iter_mut().chain(history.redo.iter_mut()) {
             step.scene.light = scene.scene.light;
+            step.scene.relight = scene.scene.relight;
             for n in &mut step.scene.nodes {
                 n.cast = casts
                     .iter()
@@ -137,7 +144,7 @@ impl LightJob {
     }
 }
 
-/// A photograph as training and evaluation see it: linear RGB in [0, 1], row-major,
+/// A photograph as training and evaluation see it: its stored (sRGB) values in [0, 1], row-major,
 /// transparent pixels over `backdrop`.
 #[derive(Debug, Clone)]
 pub struct Photograph {

@@ -185,6 +185,7 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
         near,
         classes: Vec::new(),
         light: None,
+        relight: false,
     };
     let mut scene = scene;
     scene.register_classes();

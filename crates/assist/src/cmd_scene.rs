@@ -84,6 +84,12 @@ pub struct LightArgs {
     /// Replace --out if it exists.
     #[arg(long)]
     pub force: bool,
+    /// Shade objects moved or turned from where they were photographed by the light where
+    /// they stand now (their photographed shading exchanged for the light's at the new
+    /// pose), or keep the shading they were photographed with [default: as the scene has
+    /// it, off for a scene never set]
+    #[arg(long, value_enum)]
+    pub relight: Option<assist_session::OnOff>,
     /// Machine-readable output on stdout.
     #[arg(long)]
     pub json: bool,
@@ -113,6 +119,7 @@ fn light(a: LightArgs) -> anyhow::Result<()> {
         scene: a.scene.clone(),
         out: a.out.clone(),
         force: a.force,
+        relight: a.relight.map(|r| r == assist_session::OnOff::On),
     };
     let e = job.run()?;
     if a.json {
@@ -216,6 +223,7 @@ fn info(a: InfoArgs) -> anyhow::Result<()> {
             "up": scene.up.to_array(),
             "selected": scene.selected,
             "light": scene.light,
+            "relight": scene.relight,
             "nodes": nodes,
             "history": history_json(&history),
             "training": training,
@@ -232,9 +240,14 @@ fn info(a: InfoArgs) -> anyhow::Result<()> {
     );
     match &scene.light {
         Some(l) => println!(
-            "key light: at {:.3?} m, disc radius {:.3} m (moved objects' shadows are re-cast under it)",
+            "key light: at {:.3?} m, disc radius {:.3} m (moved objects' shadows are re-cast under it{})",
             (l.position * mpu).to_array(),
-            l.radius * mpu
+            l.radius * mpu,
+            if scene.relight {
+                ", and they are shaded by it where they stand"
+            } else {
+                ""
+            }
         ),
         None => println!("key light: none (moved objects keep their shadows as learned)"),
     }

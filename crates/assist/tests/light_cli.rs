@@ -129,6 +129,34 @@ fn scene_light_finds_the_lamp_and_edits_keep_where_shadows_were_learned() {
     assert_eq!(undone["light"], scene["light"]);
     assert_eq!(undone["nodes"][2]["cast"], mug["cast"]);
 
+    // Relighting is the scene's: set, told by `scene info`, kept by an undo, set off.
+    let (f, g) = (tmp.path().join("f.assist"), tmp.path().join("g.assist"));
+    ok(&run(&[
+        "scene",
+        "light",
+        s(&d),
+        "--out",
+        s(&f),
+        "--relight",
+        "on",
+    ]));
+    assert_eq!(scene_json(&f)["relight"], true);
+    let info = String::from_utf8_lossy(&run(&["scene", "info", s(&f)]).stdout).into_owned();
+    assert!(info.contains("shaded by it where they stand"), "{info}");
+    ok(&run(&["edit", s(&f), "--undo", "1", "--out", s(&g)]));
+    assert_eq!(scene_json(&g)["relight"], true);
+    let off = ["scene", "light", s(&g), "--out", s(&g), "--force"];
+    ok(&run(&[&off[..], &["--relight", "off"]].concat()));
+    assert!(scene_json(&g).get("relight").is_none());
+    // A bad value is a usage error naming the flag and its values.
+    let o = run(&[&off[..], &["--relight", "maybe"]].concat());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--relight") && err.contains("on, off"),
+        "{err}"
+    );
+
     // Bad values in a scene file are named, nothing is written, and nothing panics.
     for (field, value, what) in [
         (
