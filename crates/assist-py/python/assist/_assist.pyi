@@ -203,6 +203,28 @@ def train(
     scene and raises KeyboardInterrupt. Returns the report (iterations, seconds,
     stopped_by, final_stats)."""
 
+def split(
+    scene: _Path,
+    out: _Path,
+    boxes: list[str] = [],
+    clicks: list[str] = [],
+    labels: list[str] = [],
+    iters: Optional[int] = None,
+    max_time: Optional[float] = None,
+    data: Optional[_Path] = None,
+    masks_out: Optional[_Path] = None,
+    no_train: bool = False,
+    force: bool = False,
+    sam: Optional[_Path] = None,
+    callback: Optional[Callable[[dict[str, Any]], None]] = None,
+) -> dict[str, Any]:
+    """Object nodes cut out of a scene trained without masks, as `assist scene split`
+    does: boxes "cx,cy,cz,sx,sy,sz[,yaw]" or clicks "VIEW:u,v", one label each. The
+    fine-tune runs `iters` steps (2000; no limit when only `max_time` is given). The
+    callback sees each event as a dict (kind "clicked", "masks", "distilled", "step").
+    Returns the objects made (id, label, box), the masks' summary and the held-out figure
+    of the fine-tune."""
+
 def generate_shard(
     spec: Union[_Path, dict[str, Any]],
     out: _Path,
