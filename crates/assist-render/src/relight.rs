@@ -28,7 +28,7 @@ use rayon::prelude::*;
 use crate::light::Occluder;
 
 /// Lattice points per axis at most (an object's shading varies smoothly).
-const MAX_RES: usize = 48;
+const MAX_RES: usize = 32;
 
 /// The weakest opacity gradient (per lattice cell) that gives a normal.
 const MIN_GRADIENT: f32 = 0.02;
@@ -160,55 +160,116 @@ pub fn relight_grid(
     lights: &[DVec3],
     up: DVec3,
 ) -> RelightGrid {
+    let learned = learned_light(occupancy, half_size, &cast.pose, lights, up);
+    combine(
+        learned.as_ref(),
+        occupancy,
+        half_size,
+        now,
+        cast,
+        lights,
+        up,
+    )
+}
+
+/// An object's surface on the lattice (index, box-frame position and outward normal of
+/// each point the opacity has a gradient at) and the light on it where it was learned:
+/// the ambient and the key terms, the key normalised by the unoccluded upward surface at
+/// the learned place.
+pub(crate) struct Learned {
+    n: usize,
+    points: Vec<(usize, DVec3, DVec3)>,
+    reference: f64,
+    terms: Vec<(f32, f32)>,
+}
+
+/// [`Learned`] for an object learned at `pose`; `None` without a density grid or a lamp
+/// above the object.
+fn learned_light(
+    occupancy: &OccupancyGrid,
+    half_size: DVec3,
+    pose: &Similarity3,
+    lights: &[DVec3],
+    up: DVec3,
+) -> Option<Learned> {
+    if occupancy.res == 0 || occupancy.density.len() != (occupancy.res as usize).pow(3) {
+        return None;
+    }
+    let up = up.normalize();
+    let reference = key(pose.translation, up, lights, None);
+    if reference <= 0.0 || lights.is_empty() {
+        return None;
+    }
     let n = lattice_res(occupancy.res as usize);
+    let alpha = opacity(occupancy, half_size, n);
+    let points: Vec<(usize, DVec3, DVec3)> = (0..n * n * n)
+        .into_par_iter()
+        .filter_map(|k| surface_at(&alpha, n, half_size, k).map(|(c, nl)| (k, c, nl)))
+        .collect();
+    let mut l = Learned {
+        n,
+        points,
+        reference,
+        terms: Vec::new(),
+    };
+    l.terms = terms(&l, occupancy, half_size, pose, lights, up);
+    Some(l)
+}
+
+/// The ambient and normalised key terms at every surface point of `l`, the object posed
+/// at `pose`.
+fn terms(
+    l: &Learned,
+    occupancy: &OccupancyGrid,
+    half_size: DVec3,
+    pose: &Similarity3,
+    lights: &[DVec3],
+    up: DVec3,
+) -> Vec<(f32, f32)> {
+    let o = Occluder {
+        occupancy,
+        half_size,
+        pose,
+    };
+    let out = (2.0 * half_size / l.n as f64).max_element() * 1.5;
+    let up = up.normalize();
+    l.points
+        .par_iter()
+        .map(|&(_, c, nl)| {
+            // Shadow rays leave the surface a cell and a half out, past its own density.
+            let (amb, key) = light_at(pose, &o, c + nl * out, nl, lights, up);
+            (amb as f32, (key / l.reference) as f32)
+        })
+        .collect()
+}
+
+/// The factors `E(now) / E(then)` at `learned`'s surface points (1 elsewhere).
+fn combine(
+    learned: Option<&Learned>,
+    occupancy: &OccupancyGrid,
+    half_size: DVec3,
+    now: &Similarity3,
+    cast: &ShadowCast,
+    lights: &[DVec3],
+    up: DVec3,
+) -> RelightGrid {
+    let n = learned.map_or(lattice_res(occupancy.res as usize), |l| l.n);
     let mut grid = RelightGrid {
         res: n,
         factors: vec![1.0; 3 * n * n * n],
     };
-    if occupancy.res == 0 || occupancy.density.len() != (occupancy.res as usize).pow(3) {
+    let Some(l) = learned else {
         return grid;
-    }
-    let up = up.normalize();
-    let alpha = opacity(occupancy, half_size, n);
-    let then = &cast.pose;
-    // The key light on an unoccluded upward surface where the object was learned.
-    let reference = key(then.translation, up, lights, None);
-    if reference <= 0.0 || lights.is_empty() {
-        return grid;
-    }
-    let o_then = Occluder {
-        occupancy,
-        half_size,
-        pose: then,
     };
-    let o_now = Occluder {
-        occupancy,
-        half_size,
-        pose: now,
-    };
-    let step = 2.0 * half_size / n as f64;
-    grid.factors
-        .par_chunks_mut(3)
-        .enumerate()
-        .for_each(|(k, f)| {
-            let Some((c, n_local)) = surface_at(&alpha, n, half_size, k) else {
-                return;
-            };
-            // Shadow rays leave the surface a cell and a half out, past its own density.
-            let c_out = c + n_local * 1.5 * step.max_element();
-            let irradiance = |p: &Similarity3, o: &Occluder| {
-                let (amb, key) = light_at(p, o, c_out, n_local, lights, up);
-                (amb as f32, (key / reference) as f32)
-            };
-            let (amb0, key0) = irradiance(then, &o_then);
-            let (amb1, key1) = irradiance(now, &o_now);
-            for ch in 0..3 {
-                let s = cast.strength[ch].clamp(0.0, 1.0);
-                let e0 = (1.0 - s) * amb0 + s * key0;
-                let e1 = (1.0 - s) * amb1 + s * key1;
-                f[ch] = (e1 / e0.max(1e-6)).clamp(FACTOR_RANGE.0, FACTOR_RANGE.1);
-            }
-        });
+    let here = terms(l, occupancy, half_size, now, lights, up);
+    for ((&(k, _, _), &(amb0, key0)), &(amb1, key1)) in l.points.iter().zip(&l.terms).zip(&here) {
+        for ch in 0..3 {
+            let s = cast.strength[ch].clamp(0.0, 1.0);
+            let e0 = (1.0 - s) * amb0 + s * key0;
+            let e1 = (1.0 - s) * amb1 + s * key1;
+            grid.factors[3 * k + ch] = (e1 / e0.max(1e-6)).clamp(FACTOR_RANGE.0, FACTOR_RANGE.1);
+        }
+    }
     grid
 }
 
@@ -405,27 +466,50 @@ pub fn relight_cached(
             x.to_bits().hash(&mut h);
         }
     };
-    for p in [&cast.pose, now] {
-        f64s(&p.rotation.to_array());
-        f64s(&p.translation.to_array());
-        f64s(&p.scale.to_array());
-    }
+    let p = &cast.pose;
+    f64s(&p.rotation.to_array());
+    f64s(&p.translation.to_array());
+    f64s(&p.scale.to_array());
     f64s(&half_size.to_array());
     f64s(&up.to_array());
     for l in lights {
         f64s(&l.to_array());
     }
-    for s in cast.strength {
-        s.to_bits().hash(&mut h);
-    }
     (occupancy.res, occupancy.density.len()).hash(&mut h);
     for v in occupancy.density.iter().step_by(59) {
         v.to_bits().hash(&mut h);
     }
+    let learned_id = h.finish();
+    for s in cast.strength {
+        s.to_bits().hash(&mut h);
+    }
+    for x in now
+        .rotation
+        .to_array()
+        .iter()
+        .chain(&now.translation.to_array())
+        .chain(&now.scale.to_array())
+    {
+        x.to_bits().hash(&mut h);
+    }
     crate::light::cached(&CACHE, h.finish(), || {
-        relight_grid(occupancy, half_size, now, cast, lights, up)
+        let learned = crate::light::cached(&LEARNED, learned_id, || {
+            learned_light(occupancy, half_size, &cast.pose, lights, up)
+        });
+        combine(
+            learned.as_ref().as_ref(),
+            occupancy,
+            half_size,
+            now,
+            cast,
+            lights,
+            up,
+        )
     })
 }
+
+/// The surfaces and their learned light, which a drag does not change.
+static LEARNED: crate::light::Cache<Option<Learned>> = std::sync::Mutex::new(Vec::new());
 
 /// [`fit_strength`], remembered by its inputs as [`relight_cached`] is (the field by its
 /// key and its density).
