@@ -459,26 +459,7 @@ pub fn relight_cached(
     up: DVec3,
 ) -> Arc<RelightGrid> {
     use std::hash::{Hash, Hasher};
-    let mut h = std::collections::hash_map::DefaultHasher::new();
-    key.hash(&mut h);
-    let mut f64s = |v: &[f64]| {
-        for x in v {
-            x.to_bits().hash(&mut h);
-        }
-    };
-    let p = &cast.pose;
-    f64s(&p.rotation.to_array());
-    f64s(&p.translation.to_array());
-    f64s(&p.scale.to_array());
-    f64s(&half_size.to_array());
-    f64s(&up.to_array());
-    for l in lights {
-        f64s(&l.to_array());
-    }
-    (occupancy.res, occupancy.density.len()).hash(&mut h);
-    for v in occupancy.density.iter().step_by(59) {
-        v.to_bits().hash(&mut h);
-    }
+    let mut h = learned_hash(key, occupancy, half_size, &cast.pose, lights, up);
     let learned_id = h.finish();
     for s in cast.strength {
         s.to_bits().hash(&mut h);
@@ -508,6 +489,35 @@ pub fn relight_cached(
     })
 }
 
+/// A hash of what an object's learned light depends on: its field (by its key and a
+/// sample of its density), its box, where it was learned, the lamp and the up.
+fn learned_hash(
+    key: &str,
+    occupancy: &OccupancyGrid,
+    half_size: DVec3,
+    learned: &Similarity3,
+    lights: &[DVec3],
+    up: DVec3,
+) -> std::collections::hash_map::DefaultHasher {
+    use std::hash::Hash;
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    key.hash(&mut h);
+    let vectors = [learned.translation, learned.scale, half_size, up];
+    let values = learned
+        .rotation
+        .to_array()
+        .into_iter()
+        .chain(vectors.iter().chain(lights).flat_map(|v| v.to_array()));
+    for x in values {
+        x.to_bits().hash(&mut h);
+    }
+    (occupancy.res, occupancy.density.len()).hash(&mut h);
+    for v in occupancy.density.iter().step_by(59) {
+        v.to_bits().hash(&mut h);
+    }
+    h
+}
+
 /// The surfaces and their learned light, which a drag does not change.
 static LEARNED: crate::light::Cache<Option<Learned>> = std::sync::Mutex::new(Vec::new());
 
@@ -522,26 +532,8 @@ pub fn strength_cached(
     up: DVec3,
     colour: impl FnOnce(&[[f32; 3]], &[[f32; 3]]) -> Vec<[f32; 3]>,
 ) -> Option<[f32; 3]> {
-    use std::hash::{Hash, Hasher};
-    let mut h = std::collections::hash_map::DefaultHasher::new();
-    key.hash(&mut h);
-    let mut f64s = |v: &[f64]| {
-        for x in v {
-            x.to_bits().hash(&mut h);
-        }
-    };
-    f64s(&learned.rotation.to_array());
-    f64s(&learned.translation.to_array());
-    f64s(&learned.scale.to_array());
-    f64s(&half_size.to_array());
-    f64s(&up.to_array());
-    for l in lights {
-        f64s(&l.to_array());
-    }
-    (occupancy.res, occupancy.density.len()).hash(&mut h);
-    for v in occupancy.density.iter().step_by(59) {
-        v.to_bits().hash(&mut h);
-    }
+    use std::hash::Hasher;
+    let h = learned_hash(key, occupancy, half_size, learned, lights, up);
     *crate::light::cached(&STRENGTHS, h.finish(), || {
         fit_strength(occupancy, half_size, learned, lights, up, colour)
     })
