@@ -340,14 +340,20 @@ impl Default for TrainConfig {
     }
 }
 
+/// A run's step budget: `iters` when given, else none when the run is timed, else
+/// `default` (`train` and `scene split` alike).
+pub fn step_limit(iters: Option<usize>, max_time: Option<f64>, default: usize) -> usize {
+    match (iters, max_time) {
+        (Some(n), _) => n,
+        (None, Some(_)) => usize::MAX,
+        (None, None) => default,
+    }
+}
+
 impl TrainConfig {
     /// The iteration budget: --iters, else none when the run is timed, else the default.
     pub fn iters_limit(&self) -> usize {
-        match (self.iters, self.max_time) {
-            (Some(n), _) => n,
-            (None, Some(_)) => usize::MAX,
-            (None, None) => TrainOptions::default().iters,
-        }
+        step_limit(self.iters, self.max_time, TrainOptions::default().iters)
     }
 
     /// Whether objects learn shadows on a capture with (`depth`) or without depth maps.

@@ -268,11 +268,11 @@ impl SplitJob {
         record.boxes = None;
         record.resume = false;
         record.force = c.force;
-        record.iters = Some(match (c.iters, c.max_time) {
-            (Some(n), _) => n,
-            (None, Some(_)) => usize::MAX,
-            (None, None) => SPLIT_ITERS,
-        });
+        record.iters = Some(crate::train_config::step_limit(
+            c.iters,
+            c.max_time,
+            SPLIT_ITERS,
+        ));
         record.max_time = c.max_time;
         if let Some((start, end)) = c.lr_start.zip(c.lr_end) {
             (record.lr_start, record.lr_end) = (start, Some(end));
