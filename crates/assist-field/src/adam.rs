@@ -85,9 +85,15 @@ impl Adam {
                 if decays || partly {
                     general(h, p, g, m, v, base, wd, &dr, &sr);
                 } else if sparse {
-                    assist_simd::simd(|| sparse_block(h, p, g, m, v));
+                    assist_simd::simd(
+                        #[inline(always)]
+                        || sparse_block(h, p, g, m, v),
+                    );
                 } else {
-                    assist_simd::simd(|| dense_block(h, p, g, m, v));
+                    assist_simd::simd(
+                        #[inline(always)]
+                        || dense_block(h, p, g, m, v),
+                    );
                 }
             });
     }

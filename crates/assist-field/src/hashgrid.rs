@@ -241,9 +241,10 @@ fn encode_f<const F: usize>(
             .par_chunks_mut(block * chunks_per_task)
             .enumerate()
             .for_each(|(t, dst)| {
-                assist_simd::simd(|| {
-                    encode_task::<F>(lv, table, li, pos, n, t * chunks_per_task, block, dst)
-                })
+                assist_simd::simd(
+                    #[inline(always)]
+                    || encode_task::<F>(lv, table, li, pos, n, t * chunks_per_task, block, dst),
+                )
             });
     }
 }
@@ -341,7 +342,10 @@ fn backward_f<const F: usize>(
         rest = tail;
     }
     slices.into_par_iter().for_each(|(li, lv, g)| {
-        assist_simd::simd(|| backward_level::<F>(li, lv, g, pos, n, block, d_out))
+        assist_simd::simd(
+            #[inline(always)]
+            || backward_level::<F>(li, lv, g, pos, n, block, d_out),
+        )
     });
 }
 

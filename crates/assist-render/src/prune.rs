@@ -23,7 +23,6 @@ pub const PRUNE_MIN_PER_RAY: f32 = 32.0;
 #[derive(Debug, Default)]
 pub struct PruneScratch {
     sigma: Vec<f32>,
-    enc: Vec<f32>,
     keep: Vec<u32>,
     kept: Vec<u32>,
 }
@@ -31,15 +30,19 @@ pub struct PruneScratch {
 /// Drops, in every node of `traced` with at least [`PRUNE_MIN_PER_RAY`] samples per ray
 /// reaching it, the samples behind the point where the node's own transmittance falls
 /// below `eps`. Returns how many samples went through the density pass and how many of
-/// them were dropped.
+/// them were dropped. Training's pass: each pruned node's encoding of the samples it
+/// keeps is left in its tape (`tapes`, one per node of `traced`), so the forward pass
+/// that follows does not encode them again.
 pub fn prune_occluded(
     scene: &NeuralScene,
     traced: &mut Traced,
     eps: f32,
     sc: &mut PruneScratch,
+    tapes: &mut Vec<assist_field::Tape>,
 ) -> PruneStats {
     let mut stats = PruneStats::default();
-    for ns in traced.nodes.iter_mut() {
+    tapes.resize_with(traced.nodes.len(), Default::default);
+    for (ns, tape) in traced.nodes.iter_mut().zip(tapes.iter_mut()) {
         if !worth_pruning(ns) {
             continue;
         }
@@ -47,18 +50,30 @@ pub fn prune_occluded(
         stats.queried += n;
         let nf = scene.field_of(ns.node);
         sc.sigma.resize(n, 0.0);
-        nf.field.density_with(
+        nf.field.density_encoded(
             [&ns.pos[0], &ns.pos[1], &ns.pos[2]],
             &mut sc.sigma[..n],
-            &mut sc.enc,
+            tape,
         );
         let total = keep_counts(ns, &sc.sigma, eps, &mut sc.keep);
         if total < n {
+            kept_indices(ns, &sc.keep, &mut sc.kept);
             compact(ns, &sc.keep);
+            nf.field
+                .keep_encoded(tape, &sc.kept, [&ns.pos[0], &ns.pos[1], &ns.pos[2]]);
             stats.dropped += n - total;
         }
     }
     stats
+}
+
+/// The indices of the samples `keep` keeps (the first `keep[r]` of each ray `r`), in order.
+fn kept_indices(ns: &NodeSamples, keep: &[u32], kept: &mut Vec<u32>) {
+    kept.clear();
+    for (r, &k) in keep.iter().enumerate() {
+        let a = ns.start[r];
+        kept.extend(a..a + k);
+    }
 }
 
 /// Rendering's pruned query of every node ([`query_node_pruned`]).
@@ -124,11 +139,7 @@ pub fn query_node_pruned(
     let total = keep_counts(ns, &sc.sigma, eps, &mut sc.keep);
     if total < n {
         // The kept samples' indices, in order, for the stored outputs.
-        sc.kept.clear();
-        for (r, &k) in sc.keep.iter().enumerate() {
-            let a = ns.start[r];
-            sc.kept.extend(a..a + k);
-        }
+        kept_indices(ns, &sc.keep, &mut sc.kept);
         compact(ns, &sc.keep);
         field.keep_features(tape, &sc.kept);
         stats.dropped = n - total;

@@ -209,7 +209,7 @@ fn the_pruned_query_reuses_the_density_pass_encoding_exactly() {
         backend: None,
     };
     let (mut sc, mut tapes) = (PruneScratch::default(), Vec::new());
-    let before = prune_occluded(&s, &mut two_pass, 1e-4, &mut sc);
+    let before = prune_occluded(&s, &mut two_pass, 1e-4, &mut sc, &mut tapes);
     query_fields(&s, &mut two_pass, &mut tapes, q);
     let (mut sc, mut tapes) = (PruneScratch::default(), Vec::new());
     let fused = query_pruned(&s, &mut traced, 1e-4, &mut sc, &mut tapes, q);

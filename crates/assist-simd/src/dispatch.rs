@@ -45,8 +45,9 @@ unsafe fn run_avx2<W: WithSimd>(w: W) -> W::Output {
     w.run()
 }
 
-/// A closure as a [`WithSimd`] body (the closure is inlined into each variant by the
-/// optimiser when small enough; put large bodies in `#[inline(always)]` functions).
+/// A closure as a [`WithSimd`] body. Mark the closure `#[inline(always)]`: otherwise the
+/// optimiser inlines it into the variants only when it is small, and a larger one is
+/// compiled once, at the baseline level (SSE2), whatever the CPU.
 pub struct Closure<F>(pub F);
 
 impl<R, F: FnOnce() -> R> WithSimd for Closure<F> {
@@ -57,7 +58,8 @@ impl<R, F: FnOnce() -> R> WithSimd for Closure<F> {
     }
 }
 
-/// Runs the closure compiled for the dispatched SIMD level.
+/// Runs the closure compiled for the dispatched SIMD level (write it
+/// `simd(#[inline(always)] || …)`, see [`Closure`]).
 #[inline]
 pub fn simd<R>(f: impl FnOnce() -> R) -> R {
     dispatch(Closure(f))

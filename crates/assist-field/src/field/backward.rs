@@ -27,6 +27,27 @@ pub struct Tape {
     pub times: PhaseTimes,
     pub(super) scratch: Vec<std::sync::Mutex<Scratch>>,
     pub(super) scratch_sizes: (usize, usize, usize, usize),
+    /// `enc` already holds the encoding of the samples with this [`fingerprint`] (left
+    /// by training's density pass, [`Field::density_encoded`]): the next
+    /// `forward_train` on them does not encode again.
+    pub(super) encoded: Option<(usize, u64)>,
+}
+
+/// What identifies a batch of sample positions for [`Tape::encoded`]: their count and a
+/// hash of every coordinate's bits, in order (cheap beside encoding them).
+pub(super) fn fingerprint(pos: [&[f32]; 3]) -> (usize, u64) {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    for axis in pos {
+        let mut a = 0u64;
+        for (i, x) in axis.iter().enumerate() {
+            a = a.wrapping_add(
+                (x.to_bits() as u64 ^ (i as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15))
+                    .wrapping_mul(0xff51_afd7_ed55_8ccd),
+            );
+        }
+        h = (h ^ a).wrapping_mul(0x1000_0000_01b3);
+    }
+    (pos[0].len(), h)
 }
 
 /// Per-thread buffers of the backward pass: the thread's MLP gradient and work rows.
@@ -70,21 +91,26 @@ impl Field {
         let rows = self.rows();
         let nc = n.div_ceil(CHUNK);
         let enc_len = Layout { width }.len(n);
+        let encoded = tape.encoded.take() == Some(fingerprint(s.pos));
         if tape.enc.len() < enc_len {
             tape.enc.resize(enc_len, 0.0);
+        }
+        if tape.d_enc.len() < enc_len {
             tape.d_enc.resize(enc_len, 0.0);
         }
         if tape.act.len() < nc * rows.total * CHUNK {
             tape.act.resize(nc * rows.total * CHUNK, 0.0);
         }
         tape.n = n;
-        // Lanes past the end of the last chunk are zeroed so they stay finite.
-        if !n.is_multiple_of(CHUNK) {
-            let last = &mut tape.enc[(nc - 1) * width * CHUNK..nc * width * CHUNK];
-            last.fill(0.0);
-        }
         let t0 = std::time::Instant::now();
-        encode(&self.layout.grid, &self.params, s.pos, width, &mut tape.enc);
+        if !encoded {
+            // Lanes past the end of the last chunk are zeroed so they stay finite.
+            if !n.is_multiple_of(CHUNK) {
+                let last = &mut tape.enc[(nc - 1) * width * CHUNK..nc * width * CHUNK];
+                last.fill(0.0);
+            }
+            encode(&self.layout.grid, &self.params, s.pos, width, &mut tape.enc);
+        }
         let t1 = std::time::Instant::now();
         tape.times.encode_forward += (t1 - t0).as_secs_f64();
         let biases = self.code_biases();
@@ -224,11 +250,14 @@ impl Field {
             .enumerate()
             .for_each(|(slot, d_run)| {
                 let mut guard = scratch[slot].lock().unwrap_or_else(|p| p.into_inner());
-                assist_simd::simd(|| {
-                    for (k, d_enc) in d_run.chunks_mut(block).enumerate() {
-                        chunk.run(slot * per + k, d_enc, &mut guard);
-                    }
-                });
+                assist_simd::simd(
+                    #[inline(always)]
+                    || {
+                        for (k, d_enc) in d_run.chunks_mut(block).enumerate() {
+                            chunk.run(slot * per + k, d_enc, &mut guard);
+                        }
+                    },
+                );
             });
         let mut sums = vec![0.0f32; sizes.3];
         for sc in scratch {

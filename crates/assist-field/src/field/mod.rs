@@ -374,10 +374,13 @@ impl Field {
         sig: &mut [f32],
         col: &mut [f32],
     ) {
-        assist_simd::simd(|| {
-            self.chunk_forward(s, c * CHUNK, enc, act, rows, biases, fast, false);
-            write_outputs(act, rows, sig, col);
-        })
+        assist_simd::simd(
+            #[inline(always)]
+            || {
+                self.chunk_forward(s, c * CHUNK, enc, act, rows, biases, fast, false);
+                write_outputs(act, rows, sig, col);
+            },
+        )
     }
 
     fn rows(&self) -> Rows {
@@ -477,23 +480,26 @@ impl Field {
                 },
                 |(act, bp), (c, (sig, col))| {
                     let input = &input[c * block..(c + 1) * block];
-                    assist_simd::simd(|| {
-                        if from_dens {
-                            act[rows.dens * CHUNK..rows.cin * CHUNK].copy_from_slice(input);
-                        }
-                        let fast = packed.as_deref().map(|p| (p, bp.as_mut_slice()));
-                        self.chunk_forward(
-                            s,
-                            c * CHUNK,
-                            input,
-                            act,
-                            &rows,
-                            &biases,
-                            fast,
-                            from_dens,
-                        );
-                        write_outputs(act, &rows, sig, col);
-                    })
+                    assist_simd::simd(
+                        #[inline(always)]
+                        || {
+                            if from_dens {
+                                act[rows.dens * CHUNK..rows.cin * CHUNK].copy_from_slice(input);
+                            }
+                            let fast = packed.as_deref().map(|p| (p, bp.as_mut_slice()));
+                            self.chunk_forward(
+                                s,
+                                c * CHUNK,
+                                input,
+                                act,
+                                &rows,
+                                &biases,
+                                fast,
+                                from_dens,
+                            );
+                            write_outputs(act, &rows, sig, col);
+                        },
+                    )
                 },
             );
     }

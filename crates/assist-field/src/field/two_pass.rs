@@ -4,6 +4,7 @@
 
 use rayon::prelude::*;
 
+use super::backward::fingerprint;
 use super::{Field, MAX_RAW_DENSITY, PackedTables, Precision, Samples, Tape};
 use crate::hashgrid::{CHUNK, Layout};
 
@@ -57,6 +58,7 @@ impl Field {
             tape.act.resize(len, 0.0);
         }
         tape.n = 0;
+        tape.encoded = None;
         let feats = &mut tape.act[..len];
         let enc = self.encode_blocked(pos, tables, &mut tape.enc);
         let width = self.config.encoding_rows();
@@ -70,40 +72,64 @@ impl Field {
                 || vec![0.0f32; d1.out * CHUNK],
                 |h, (c, (sig, o))| {
                     let e = &enc[c * width * CHUNK..(c + 1) * width * CHUNK];
-                    assist_simd::simd(|| {
-                        d1.forward(&self.params, e, h, true);
-                        d2.forward(&self.params, h, o, false);
-                        for l in 0..sig.len() {
-                            sig[l] = assist_simd::math::exp(o[l].min(MAX_RAW_DENSITY));
-                        }
-                    })
+                    assist_simd::simd(
+                        #[inline(always)]
+                        || {
+                            d1.forward(&self.params, e, h, true);
+                            d2.forward(&self.params, h, o, false);
+                            for l in 0..sig.len() {
+                                sig[l] = assist_simd::math::exp(o[l].min(MAX_RAW_DENSITY));
+                            }
+                        },
+                    )
                 },
             );
+    }
+
+    /// Training's density pass ([`density_with`](Self::density_with)) with the encoding
+    /// kept in `tape`: the [`forward_train`](Self::forward_train) that follows on the same
+    /// samples, or on those [`keep_encoded`](Self::keep_encoded) leaves, reads it instead
+    /// of encoding them again (the result is bit for bit the same).
+    pub fn density_encoded(&self, pos: [&[f32]; 3], sigma: &mut [f32], tape: &mut Tape) {
+        self.density_with(pos, sigma, &mut tape.enc);
+        tape.encoded = Some(fingerprint(pos));
+    }
+
+    /// Keeps in `tape`'s encoding (from [`density_encoded`](Self::density_encoded)) only
+    /// the samples `kept` (ascending indices), in that order; `pos` are the kept samples'
+    /// positions, the ones the next `forward_train` is given.
+    pub fn keep_encoded(&self, tape: &mut Tape, kept: &[u32], pos: [&[f32]; 3]) {
+        let width = self.config.encoding_rows();
+        compact_rows(&mut tape.enc, width, kept);
+        tape.encoded = Some(fingerprint(pos));
     }
 
     /// Keeps in `tape` (from [`density_features`](Self::density_features)) only the
     /// samples `kept` (ascending indices), in that order, as if only they had been queried.
     pub fn keep_features(&self, tape: &mut Tape, kept: &[u32]) {
-        let lay = Layout {
-            width: self.density_rows(),
-        };
-        let buf = &mut tape.act;
-        // Ascending sources, each at or after its destination: in place, front to back.
-        for (j, &i) in kept.iter().enumerate() {
-            let i = i as usize;
-            debug_assert!(i >= j);
-            if i != j {
-                for f in 0..lay.width {
-                    buf[lay.at(j, f)] = buf[lay.at(i, f)];
-                }
+        compact_rows(&mut tape.act, self.density_rows(), kept);
+    }
+}
+
+/// Keeps in chunk-blocked `buf` (`width` rows per sample) only the samples `kept`
+/// (ascending indices), in that order; the lanes after the last one in its chunk are
+/// zeroed so they stay finite.
+fn compact_rows(buf: &mut [f32], width: usize, kept: &[u32]) {
+    let lay = Layout { width };
+    // Ascending sources, each at or after its destination: in place, front to back.
+    for (j, &i) in kept.iter().enumerate() {
+        let i = i as usize;
+        debug_assert!(i >= j);
+        if i != j {
+            for f in 0..lay.width {
+                buf[lay.at(j, f)] = buf[lay.at(i, f)];
             }
         }
-        // Lanes past the last kept sample in its chunk: zero, so they stay finite.
-        let n = kept.len();
-        for j in n..n.div_ceil(CHUNK) * CHUNK {
-            for f in 0..lay.width {
-                buf[lay.at(j, f)] = 0.0;
-            }
+    }
+    let n = kept.len();
+    for j in n..n.div_ceil(CHUNK) * CHUNK {
+        for f in 0..lay.width {
+            buf[lay.at(j, f)] = 0.0;
         }
     }
 }

@@ -112,6 +112,7 @@ impl Trainer {
                 &mut self.traced,
                 self.opts.prune_eps,
                 &mut self.prune,
+                &mut self.tapes,
             );
             self.prune_pays = p.dropped as f64 >= PRUNE_PAYS * p.queried.max(1) as f64;
             p
