@@ -13,9 +13,7 @@ fn the_colour_pass_on_kept_samples_is_the_full_query_of_them() {
     let mut sigma_all = vec![0.0; n];
     field.density_features([&pos[0], &pos[1], &pos[2]], None, &mut sigma_all, &mut tape);
     field.keep_features(&mut tape, &kept);
-    let pick = |v: &[f32]| kept.iter().map(|&i| v[i as usize]).collect::<Vec<f32>>();
-    let (kp, kd) = (pos.clone().map(|v| pick(&v)), dir.clone().map(|v| pick(&v)));
-    let ki: Vec<u32> = kept.iter().map(|&i| image[i as usize]).collect();
+    let (kp, kd, ki) = pick_kept(&pos, &dir, &image, &kept);
     let s = Samples {
         pos: [&kp[0], &kp[1], &kp[2]],
         dir: [&kd[0], &kd[1], &kd[2]],
@@ -106,6 +104,27 @@ fn setup(n: usize) -> (Field, [Vec<f32>; 3], [Vec<f32>; 3], Vec<u32>, Vec<u32>) 
     (field, pos, dir, image, kept)
 }
 
+/// The positions, directions and images of the samples `kept`, in order.
+#[allow(clippy::type_complexity)]
+fn pick_kept(
+    pos: &[Vec<f32>; 3],
+    dir: &[Vec<f32>; 3],
+    image: &[u32],
+    kept: &[u32],
+) -> ([Vec<f32>; 3], [Vec<f32>; 3], Vec<u32>) {
+    let pick = |v: &Vec<f32>| kept.iter().map(|&i| v[i as usize]).collect::<Vec<f32>>();
+    let ki = kept.iter().map(|&i| image[i as usize]).collect();
+    (pos.each_ref().map(pick), dir.each_ref().map(pick), ki)
+}
+
+/// Training's density pass over `pos`: the densities in `sigma`, the tape holding the
+/// encoding.
+fn density_pass(field: &Field, pos: &[Vec<f32>; 3], sigma: &mut [f32]) -> Tape {
+    let mut tape = Tape::default();
+    field.density_encoded([&pos[0], &pos[1], &pos[2]], sigma, &mut tape);
+    tape
+}
+
 /// Training's forward and backward on one tape: outputs and the parameters' gradient.
 fn train_pass(field: &Field, s: &Samples, tape: &mut Tape) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     let m = s.len();
@@ -122,17 +141,14 @@ fn train_pass(field: &Field, s: &Samples, tape: &mut Tape) -> (Vec<f32>, Vec<f32
 fn training_reads_the_density_pass_encoding_of_the_kept_samples() {
     let n = 1000;
     let (mut field, pos, dir, image, kept) = setup(n);
-    let pick = |v: &[f32]| kept.iter().map(|&i| v[i as usize]).collect::<Vec<f32>>();
-    let (kp, kd) = (pos.clone().map(|v| pick(&v)), dir.clone().map(|v| pick(&v)));
-    let ki: Vec<u32> = kept.iter().map(|&i| image[i as usize]).collect();
+    let (kp, kd, ki) = pick_kept(&pos, &dir, &image, &kept);
     let s = Samples {
         pos: [&kp[0], &kp[1], &kp[2]],
         dir: [&kd[0], &kd[1], &kd[2]],
         image: &ki,
     };
-    let mut tape = Tape::default();
     let mut sigma_all = vec![0.0; n];
-    field.density_encoded([&pos[0], &pos[1], &pos[2]], &mut sigma_all, &mut tape);
+    let mut tape = density_pass(&field, &pos, &mut sigma_all);
     field.keep_encoded(&mut tape, &kept, s.pos);
     let (sig2, rgb2, grad2) = train_pass(&field, &s, &mut tape);
     let (sig1, rgb1, grad1) = train_pass(&field, &s, &mut Tape::default());
@@ -162,8 +178,7 @@ fn training_reads_the_density_pass_encoding_of_the_kept_samples() {
 
     // The forward read the stored encoding rather than encoding again: with the table
     // changed between the passes, its outputs are those of the table as it was.
-    let mut tape = Tape::default();
-    field.density_encoded([&pos[0], &pos[1], &pos[2]], &mut sigma_all, &mut tape);
+    let mut tape = density_pass(&field, &pos, &mut sigma_all);
     field.keep_encoded(&mut tape, &kept, s.pos);
     let grid = field.layout.grid.param_count();
     for p in &mut field.params[..grid] {
@@ -186,9 +201,7 @@ fn a_stored_encoding_of_other_samples_is_not_read() {
         dir: [&dir[0], &dir[1], &dir[2]],
         image: &image,
     };
-    let mut tape = Tape::default();
-    let mut sigma = vec![0.0; n];
-    field.density_encoded([&pos[0], &pos[1], &pos[2]], &mut sigma, &mut tape);
+    let mut tape = density_pass(&field, &pos, &mut vec![0.0; n]);
     let (sig2, rgb2, grad2) = train_pass(&field, &s, &mut tape);
     let (sig1, rgb1, grad1) = train_pass(&field, &s, &mut Tape::default());
     assert_eq!(sig1, sig2);
