@@ -39,6 +39,7 @@ fn synth_scene_trains_to_stated_quality() {
     t.opts.iters = 350;
     let start = std::time::Instant::now();
     let report = t.run(|_, _| {}).unwrap();
+    assert_eq!((report.iterations, report.steps), (350, 350));
     let r = assist_train::evaluate(&t.scene, &ds, Some(Split::Test), 1, |_, _| {}).unwrap();
     eprintln!(
         "synth: {} iterations in {:.1} s; test PSNR {:.2} dB, SSIM {:.3}, panoptic mIoU {:?}, background {:?} / occluded {:?}",
@@ -315,4 +316,18 @@ fn pruning_runs_only_while_it_pays() {
         .collect();
     eprintln!("dropped share every 20 steps: {}", f.join(" "));
     assert!(ran > 3 && paid > 0, "{ran} steps pruned, {paid} paid");
+}
+
+/// A run that continues a scene (as `train --resume` does) reports its own steps beside
+/// the total: its phase times and rates are over its own steps.
+#[test]
+fn a_continued_run_counts_its_own_steps() {
+    let ds = assist_data::load(synth(), &LoadOptions::default()).unwrap();
+    let mut t = setup(&ds);
+    t.opts.iters = 3;
+    let first = t.run(|_, _| {}).unwrap();
+    t.opts.iters = 5;
+    let second = t.run(|_, _| {}).unwrap();
+    assert_eq!((first.iterations, first.steps), (3, 3));
+    assert_eq!((second.iterations, second.steps), (5, 2));
 }

@@ -484,7 +484,7 @@ fn print_report(a: &TrainArgs, outcome: &assist_session::TrainOutcome) -> anyhow
             },
             outcome.out.display()
         );
-        let per_step = 1e3 / report.iterations.max(1) as f64;
+        let per_step = 1e3 / report.steps.max(1) as f64;
         let parts: Vec<String> = report
             .phases
             .named()

@@ -282,6 +282,7 @@ impl Trainer {
     /// step; checkpoints atomically every `checkpoint_every` seconds when configured.
     pub fn run(&mut self, mut on_step: impl FnMut(&StepStats, &Trainer)) -> Result<TrainReport> {
         let start = Instant::now();
+        let first = self.iteration;
         let mut last_ckpt = Instant::now();
         let mut last = StepStats::default();
         let (mut rays, mut samples) = (0usize, 0usize);
@@ -336,6 +337,7 @@ impl Trainer {
         phases.other = secs - phases.total();
         Ok(TrainReport {
             iterations: self.iteration,
+            steps: self.iteration - first,
             seconds: self.elapsed_before + secs,
             final_stats: last,
             rays_per_sec: rays as f64 / secs.max(1e-9),

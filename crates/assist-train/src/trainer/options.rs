@@ -132,6 +132,9 @@ pub struct StepStats {
 #[derive(Debug, Clone, Serialize)]
 pub struct TrainReport {
     pub iterations: usize,
+    /// Steps taken by this run: fewer than `iterations` when it resumed a scene. The
+    /// phase times and rates are over these.
+    pub steps: usize,
     pub seconds: f64,
     pub final_stats: StepStats,
     pub rays_per_sec: f64,
