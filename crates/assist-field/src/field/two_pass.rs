@@ -89,7 +89,9 @@ impl Field {
     /// Training's density pass ([`density_with`](Self::density_with)) with the encoding
     /// kept in `tape`: the [`forward_train`](Self::forward_train) that follows on the same
     /// samples, or on those [`keep_encoded`](Self::keep_encoded) leaves, reads it instead
-    /// of encoding them again (the result is bit for bit the same).
+    /// of encoding them again. On the same samples the bits are the same; on kept ones
+    /// they can differ in the last bits, as a sample's encoding rounds by its place in
+    /// the batch (the vector body or the scalar tail).
     pub fn density_encoded(&self, pos: [&[f32]; 3], sigma: &mut [f32], tape: &mut Tape) {
         self.density_with(pos, sigma, &mut tape.enc);
         tape.encoded = Some(fingerprint(pos));
