@@ -10,7 +10,7 @@ use assist_scene::NeuralScene;
 use serde::Serialize;
 
 use crate::error::Result;
-use crate::metrics::{IouAccumulator, mse_to_psnr, squared_error, ssim};
+use crate::metrics::{IouAccumulator, color_corrected, mse_to_psnr, squared_error, ssim};
 use crate::views::load_view;
 
 #[derive(Debug, Clone, Serialize)]
@@ -18,6 +18,8 @@ pub struct ImageScore {
     pub name: String,
     pub psnr: f64,
     pub ssim: f64,
+    /// PSNR after the render's best gain and offset per channel ([`color_corrected`]).
+    pub color_corrected_psnr: f64,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -27,6 +29,9 @@ pub struct EvalReport {
     /// Mean of per-image PSNR.
     pub psnr: f64,
     pub ssim: f64,
+    /// Mean of per-image PSNR after each render's best gain and offset per channel (what
+    /// the views' exposure and white balance alone cost: the gap to `psnr`).
+    pub color_corrected_psnr: f64,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub panoptic_miou: Option<f64>,
     /// IoU of each instance id (0 = background) whose mean is `panoptic_miou`.
@@ -133,10 +138,12 @@ pub fn evaluate_each(
         let img = render_camera(scene, &f.camera, u32::MAX, opts);
         let rgb: Vec<f32> = img.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect();
         let (se, n) = squared_error(&rgb, &v.rgb, 3, None);
+        let (cse, cn) = squared_error(&color_corrected(&rgb, &v.rgb, 3), &v.rgb, 3, None);
         per_image.push(ImageScore {
             name: f.name.clone(),
             psnr: mse_to_psnr(se / n as f64),
             ssim: ssim(&rgb, &v.rgb, v.width, v.height, 3),
+            color_corrected_psnr: mse_to_psnr(cse / cn as f64),
         });
         on_view(EvaluatedView {
             truth: &v.rgb,
@@ -185,6 +192,11 @@ pub fn evaluate_each(
         images: per_image.len(),
         psnr: per_image.iter().map(|s| s.psnr).sum::<f64>() / m,
         ssim: per_image.iter().map(|s| s.ssim).sum::<f64>() / m,
+        color_corrected_psnr: per_image
+            .iter()
+            .map(|s| s.color_corrected_psnr)
+            .sum::<f64>()
+            / m,
         panoptic_miou: if any_ids { iou.mean() } else { None },
         panoptic_iou: any_ids.then(|| iou.per_class()),
         object_pixels_psnr: pooled_psnr(split_se[0]),

@@ -28,6 +28,35 @@ pub fn squared_error(a: &[f32], b: &[f32], channels: usize, mask: Option<&[bool]
     (se, n)
 }
 
+/// `render` with each channel mapped through the gain and offset that fit it best to
+/// `truth` (least squares over the image), clamped to [0, 1]: the render as a photograph
+/// of other exposure and white balance would show it. What stays wrong after this is
+/// structure, not exposure. A flat channel keeps only the offset (the truth's mean).
+pub fn color_corrected(render: &[f32], truth: &[f32], channels: usize) -> Vec<f32> {
+    assert_eq!(render.len(), truth.len());
+    let mut out = render.to_vec();
+    let n = (render.len() / channels.max(1)) as f64;
+    for c in 0..channels {
+        let (mut sr, mut st, mut srr, mut srt) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        for (x, y) in render.chunks(channels).zip(truth.chunks(channels)) {
+            let (r, t) = (x[c] as f64, y[c] as f64);
+            sr += r;
+            st += t;
+            srr += r * r;
+            srt += r * t;
+        }
+        let (mr, mt) = (sr / n.max(1.0), st / n.max(1.0));
+        let var = srr / n.max(1.0) - mr * mr;
+        let cov = srt / n.max(1.0) - mr * mt;
+        let gain = if var > 1e-12 { cov / var } else { 0.0 };
+        let offset = mt - gain * mr;
+        for x in out.chunks_mut(channels) {
+            x[c] = ((gain * x[c] as f64 + offset) as f32).clamp(0.0, 1.0);
+        }
+    }
+    out
+}
+
 pub fn mse_to_psnr(mse: f64) -> f64 {
     if mse <= 0.0 {
         f64::INFINITY
@@ -177,6 +206,45 @@ mod tests {
             .collect();
         let s = ssim(&a, &n, w, h, 1);
         assert!(s < 0.95 && s > 0.0, "{s}");
+    }
+
+    #[test]
+    fn color_correction_removes_gain_and_offset_only() {
+        // Two channels; the render is the truth under another gain and offset per channel
+        // (within [0, 1], so the clamp does not bite): corrected, it is the truth again.
+        let truth: Vec<f32> = (0..200)
+            .map(|i| 0.1 + 0.8 * ((i * 37 % 97) as f32) / 96.0)
+            .collect();
+        let render: Vec<f32> = truth
+            .chunks(2)
+            .flat_map(|p| [0.5 * p[0] + 0.2, 0.9 * p[1] - 0.05])
+            .collect();
+        let c = color_corrected(&render, &truth, 2);
+        let (se, n) = squared_error(&c, &truth, 2, None);
+        assert!(se / (n as f64) < 1e-10, "{}", se / n as f64);
+        let (se0, _) = squared_error(&render, &truth, 2, None);
+        assert!(se0 / (n as f64) > 1e-3);
+        // Structure stays: a render with the pixels shuffled is corrected to no better than
+        // its channel means (a gain of ~0), far from the truth.
+        let shuffled: Vec<f32> = (0..100)
+            .flat_map(|i| {
+                let j = (i * 61) % 100;
+                [render[2 * j], render[2 * j + 1]]
+            })
+            .collect();
+        let c = color_corrected(&shuffled, &truth, 2);
+        let (se, _) = squared_error(&c, &truth, 2, None);
+        let var: f64 = truth
+            .iter()
+            .map(|&t| (t as f64 - truth.iter().map(|&v| v as f64).sum::<f64>() / 200.0).powi(2))
+            .sum::<f64>();
+        assert!(se > 0.5 * var, "{se} {var}");
+        // A flat render takes the truth's mean; the truth itself is left as it is.
+        let flat = color_corrected(&[0.3; 6], &[0.1, 0.2, 0.3, 0.5, 0.6, 0.7], 3);
+        assert_eq!(flat, [0.3, 0.4, 0.5, 0.3, 0.4, 0.5]);
+        let same = color_corrected(&truth, &truth, 2);
+        let (se, _) = squared_error(&same, &truth, 2, None);
+        assert!(se < 1e-10);
     }
 
     #[test]

@@ -97,6 +97,10 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
             r.images, r.split, r.seconds
         );
         eprintln!("PSNR {:.2} dB  SSIM {:.4}", r.psnr, r.ssim);
+        eprintln!(
+            "PSNR {:.2} dB after each view's best colour gain and offset (what exposure costs)",
+            r.color_corrected_psnr
+        );
         if let Some(m) = r.panoptic_miou {
             let per: Vec<String> = r
                 .panoptic_iou

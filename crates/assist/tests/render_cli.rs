@@ -252,7 +252,8 @@ fn select_takes_a_name_as_edit_does() {
 }
 
 /// `assist eval --sheet`: a row per measured view (photograph, render, depth), the
-/// masks' split of the error in the report, and an existing sheet kept without `--force`.
+/// masks' split of the error and the colour-corrected PSNR in the report, and an existing
+/// sheet kept without `--force`.
 #[test]
 fn eval_writes_a_contact_sheet_and_the_masks_split() {
     let tmp = assist_testkit::TempDir::new("eval-sheet");
@@ -279,6 +280,12 @@ fn eval_writes_a_contact_sheet_and_the_masks_split() {
     for k in ["object_pixels_psnr", "other_pixels_psnr"] {
         assert!(r[k].as_f64().is_some_and(f64::is_finite), "{k}: {r}");
     }
+    // A view's best gain and offset can only bring its render nearer the photograph.
+    let (p, c) = (
+        r["psnr"].as_f64().unwrap(),
+        r["color_corrected_psnr"].as_f64(),
+    );
+    assert!(c.is_some_and(|c| c.is_finite() && c >= p - 1e-9), "{r}");
     let img = image::open(&sheet).unwrap();
     // Three tiles of 32 pixels and their 2-pixel gaps a row; a row per view.
     assert_eq!(img.width(), 3 * (32 + 2));
