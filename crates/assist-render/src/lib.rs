@@ -30,8 +30,8 @@ pub use batch::{BatchOutput, Behind, CompositeGrad, GradFn, RayOutputs, composit
 pub use composite::{Composite, RaySample, composite, composite_backward};
 pub use drag::{DragCache, render_camera_moving};
 pub use prune::{
-    PRUNE_EPS, PRUNE_MIN_PER_RAY, PruneScratch, PruneStats, prune_occluded, query_node_pruned,
-    query_pruned,
+    PRUNE_EPS, PRUNE_MIN_PER_RAY, PruneBy, PruneScratch, PruneStats, prune_occluded,
+    query_node_pruned, query_pruned,
 };
 pub use render::{
     HIGHLIGHT, NodeLayer, Query, RenderOptions, RenderScratch, RenderStats, RenderedImage,

@@ -1,10 +1,11 @@
 //! Dropping the samples that cannot matter before the expensive passes: a density-only
 //! query of a node's samples (hash grid + density net, no colour net, no tape), then, per
-//! ray, every sample after the node's own transmittance has fallen below `eps` is dropped
-//! (nerfacc's early stop in training). The composite transmittance is at most the node's
-//! own, so a dropped sample's weight in any output is below `eps`: the change to colour,
-//! depth and opacity is below `eps`, and so is its gradient. Behind an opaque wall a
-//! background ray keeps a handful of samples instead of hundreds.
+//! ray, every sample after the transmittance has fallen below `eps` is dropped (nerfacc's
+//! early stop in training) — the node's own transmittance, or the ray's through every
+//! node's samples merged in depth ([`PruneBy`]). The composite transmittance is at most
+//! either, so a dropped sample's weight in any output is below `eps`: the change to
+//! colour, depth and opacity is below `eps`, and so is its gradient. Behind an opaque wall
+//! a background ray keeps a handful of samples instead of hundreds.
 
 use rayon::prelude::*;
 
@@ -23,48 +24,134 @@ pub const PRUNE_MIN_PER_RAY: f32 = 32.0;
 #[derive(Debug, Default)]
 pub struct PruneScratch {
     sigma: Vec<f32>,
+    /// Training's densities per node, and each ray's stop distance ([`PruneBy::Ray`]).
+    sigmas: Vec<Vec<f32>>,
+    stop: Vec<f32>,
     keep: Vec<u32>,
     kept: Vec<u32>,
 }
 
-/// Drops, in every node of `traced` with at least [`PRUNE_MIN_PER_RAY`] samples per ray
-/// reaching it, the samples behind the point where the node's own transmittance falls
-/// below `eps`. Returns how many samples went through the density pass and how many of
-/// them were dropped. Training's pass: each pruned node's encoding of the samples it
-/// keeps is left in its tape (`tapes`, one per node of `traced`), so the forward pass
-/// that follows does not encode them again.
+/// Whose transmittance decides what [`prune_occluded`] drops.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PruneBy {
+    /// Each node's own: a background sample behind an object node is kept (the render's
+    /// pruned query, [`query_pruned`], which runs each node's colour net right after its
+    /// density pass, works this way).
+    Node,
+    /// The ray's, through every node's samples merged in depth: a background sample behind
+    /// an opaque object node is dropped too. Every node with samples goes through the
+    /// density pass once any node is worth pruning.
+    Ray,
+}
+
+/// Drops the samples behind the point where the transmittance falls below `eps` (by
+/// `by`: the node's own, or the ray's through all nodes), in the nodes with at least
+/// [`PRUNE_MIN_PER_RAY`] samples per ray reaching them (with [`PruneBy::Ray`], in every
+/// node once one has). Returns how many samples went through the density pass and how
+/// many of them were dropped. Training's pass: each queried node's encoding of the
+/// samples it keeps is left in its tape (`tapes`, one per node of `traced`), so the
+/// forward pass that follows does not encode them again.
 pub fn prune_occluded(
     scene: &NeuralScene,
     traced: &mut Traced,
     eps: f32,
+    by: PruneBy,
     sc: &mut PruneScratch,
     tapes: &mut Vec<assist_field::Tape>,
 ) -> PruneStats {
     let mut stats = PruneStats::default();
-    tapes.resize_with(traced.nodes.len(), Default::default);
-    for (ns, tape) in traced.nodes.iter_mut().zip(tapes.iter_mut()) {
-        if !worth_pruning(ns) {
+    let nodes = traced.nodes.len();
+    tapes.resize_with(nodes, Default::default);
+    let worth: Vec<bool> = traced.nodes.iter().map(worth_pruning).collect();
+    let query: Vec<bool> = match by {
+        PruneBy::Node => worth,
+        PruneBy::Ray if worth.contains(&true) => {
+            traced.nodes.iter().map(|n| !n.is_empty()).collect()
+        }
+        PruneBy::Ray => return stats,
+    };
+    sc.sigmas.resize_with(nodes, Vec::new);
+    for (k, (ns, tape)) in traced.nodes.iter().zip(tapes.iter_mut()).enumerate() {
+        sc.sigmas[k].clear();
+        if !query[k] {
             continue;
         }
         let n = ns.len();
         stats.queried += n;
+        sc.sigmas[k].resize(n, 0.0);
         let nf = scene.field_of(ns.node);
-        sc.sigma.resize(n, 0.0);
         nf.field.density_encoded(
             [&ns.pos[0], &ns.pos[1], &ns.pos[2]],
-            &mut sc.sigma[..n],
+            &mut sc.sigmas[k],
             tape,
         );
-        let total = keep_counts(ns, &sc.sigma, eps, &mut sc.keep);
+    }
+    if by == PruneBy::Ray {
+        stop_distances(&traced.nodes, &sc.sigmas, eps, &mut sc.stop);
+    }
+    for (k, (ns, tape)) in traced.nodes.iter_mut().zip(tapes.iter_mut()).enumerate() {
+        if !query[k] {
+            continue;
+        }
+        let n = ns.len();
+        let total = match by {
+            PruneBy::Node => keep_counts(ns, &sc.sigmas[k], eps, &mut sc.keep),
+            PruneBy::Ray => keep_before(ns, &sc.stop, &mut sc.keep),
+        };
         if total < n {
             kept_indices(ns, &sc.keep, &mut sc.kept);
             compact(ns, &sc.keep);
+            let nf = scene.field_of(ns.node);
             nf.field
                 .keep_encoded(tape, &sc.kept, [&ns.pos[0], &ns.pos[1], &ns.pos[2]]);
             stats.dropped += n - total;
         }
     }
     stats
+}
+
+/// Per ray, the distance of the first sample (of any node, the queried nodes' samples
+/// merged in depth) before which the optical depth exceeds `-ln eps`: from there on every
+/// sample's weight in the composite is below `eps`. Infinite where the ray never gets
+/// there. `sigmas[k]` holds node `k`'s densities, or nothing where it was not queried.
+fn stop_distances(nodes: &[NodeSamples], sigmas: &[Vec<f32>], eps: f32, stop: &mut Vec<f32>) {
+    let limit = -eps.ln();
+    let rays = nodes.first().map_or(0, |ns| ns.start.len() - 1);
+    stop.clear();
+    stop.resize(rays, f32::INFINITY);
+    stop.par_iter_mut()
+        .enumerate()
+        .for_each_init(Vec::new, |buf: &mut Vec<(f32, f32)>, (r, s)| {
+            buf.clear();
+            for (ns, sigma) in nodes.iter().zip(sigmas) {
+                if sigma.len() == ns.len() {
+                    let (a, b) = (ns.start[r] as usize, ns.start[r + 1] as usize);
+                    buf.extend((a..b).map(|i| (ns.t[i], sigma[i] * ns.dt[i])));
+                }
+            }
+            // One node's samples are in order already (the sort then only checks).
+            buf.sort_by(|x, y| x.0.total_cmp(&y.0));
+            let mut tau = 0.0f32;
+            for &(t, d) in buf.iter() {
+                if tau > limit {
+                    *s = t;
+                    break;
+                }
+                tau += d;
+            }
+        });
+}
+
+/// Per ray of `ns`, how many leading samples lie before the ray's stop distance `stop`.
+/// Returns the total kept.
+fn keep_before(ns: &NodeSamples, stop: &[f32], keep: &mut Vec<u32>) -> usize {
+    let rays = ns.start.len() - 1;
+    keep.resize(rays, 0);
+    keep.par_iter_mut().enumerate().for_each(|(r, k)| {
+        let (a, b) = (ns.start[r] as usize, ns.start[r + 1] as usize);
+        *k = ns.t[a..b].partition_point(|&t| t < stop[r]) as u32;
+    });
+    keep.iter().map(|&k| k as usize).sum()
 }
 
 /// The indices of the samples `keep` keeps (the first `keep[r]` of each ray `r`), in order.

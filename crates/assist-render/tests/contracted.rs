@@ -183,7 +183,7 @@ fn textured_field(seed: u64, ln_sigma: f32) -> assist_field::Field {
 #[test]
 fn the_pruned_query_reuses_the_density_pass_encoding_exactly() {
     use assist_field::Precision;
-    use assist_render::{PruneScratch, Query, prune_occluded, query_fields, query_pruned};
+    use assist_render::{PruneBy, PruneScratch, Query, prune_occluded, query_fields, query_pruned};
     let s = bg_and_object(textured_field(1, 3.0), textured_field(2, 5.0));
     let camera = oblique(24, 18);
     let mut rays = RayBatch::default();
@@ -209,7 +209,7 @@ fn the_pruned_query_reuses_the_density_pass_encoding_exactly() {
         backend: None,
     };
     let (mut sc, mut tapes) = (PruneScratch::default(), Vec::new());
-    let before = prune_occluded(&s, &mut two_pass, 1e-4, &mut sc, &mut tapes);
+    let before = prune_occluded(&s, &mut two_pass, 1e-4, PruneBy::Node, &mut sc, &mut tapes);
     query_fields(&s, &mut two_pass, &mut tapes, q);
     let (mut sc, mut tapes) = (PruneScratch::default(), Vec::new());
     let fused = query_pruned(&s, &mut traced, 1e-4, &mut sc, &mut tapes, q);
@@ -253,6 +253,95 @@ fn the_pruned_query_reuses_the_density_pass_encoding_exactly() {
             a.node
         );
     }
+}
+
+/// Training's pruning by the ray's transmittance: a sample is dropped exactly when the
+/// optical depth before it, through every node's samples merged in depth, exceeds
+/// `-ln eps` (checked against a brute-force merge of the densities); the background
+/// behind the opaque object loses samples the node's own transmittance keeps; and with
+/// one node it drops what the node's own rule drops.
+#[test]
+fn pruning_by_the_ray_drops_what_lies_behind_any_node() {
+    use assist_field::Precision;
+    use assist_render::{PruneBy, PruneScratch, Query, prune_occluded, query_fields};
+    let eps = 1e-4f32;
+    let limit = -eps.ln();
+    let s = bg_and_object(textured_field(1, 1.0), textured_field(2, 6.0));
+    let camera = oblique(24, 18);
+    let mut rays = RayBatch::default();
+    for j in 0..camera.height() {
+        for i in 0..camera.width() {
+            rays.push(&camera.pixel_ray(i, j).unwrap(), u32::MAX);
+        }
+    }
+    rays.near = 0.01;
+    let so = SampleOptions {
+        jitter: false,
+        seed: 0,
+        max_per_node: 1024,
+        step_scale: 1.0,
+    };
+    let mut all = Traced::default();
+    sample_rays(&s, &rays, &so, &mut all);
+    let q = Query::Render {
+        precision: Precision::F32,
+        highlight: None,
+        tables: None,
+        backend: None,
+    };
+    let prune = |scene: &NeuralScene, traced: &Traced, by: PruneBy| {
+        let mut t = traced.clone();
+        let (mut sc, mut tapes) = (PruneScratch::default(), Vec::new());
+        let st = prune_occluded(scene, &mut t, eps, by, &mut sc, &mut tapes);
+        (t, st)
+    };
+    let (by_node, sn) = prune(&s, &all, PruneBy::Node);
+    let (by_ray, sr) = prune(&s, &all, PruneBy::Ray);
+    assert!(sr.dropped > sn.dropped, "{sr:?} {sn:?}");
+    // The reference: every sample's densities, merged per ray in depth.
+    let mut full = all.clone();
+    query_fields(&s, &mut full, &mut Vec::new(), q);
+    let rays_n = full.nodes[0].start.len() - 1;
+    let (mut checked, mut behind_object) = (0, 0);
+    for r in 0..rays_n {
+        let mut merged: Vec<(f32, f32, usize)> = Vec::new();
+        for (k, ns) in full.nodes.iter().enumerate() {
+            let (a, b) = (ns.start[r] as usize, ns.start[r + 1] as usize);
+            merged.extend((a..b).map(|i| (ns.t[i], ns.sigma[i] * ns.dt[i], k)));
+        }
+        merged.sort_by(|x, y| x.0.total_cmp(&y.0));
+        let mut tau = 0.0f32;
+        for &(t, d, k) in &merged {
+            let (ns, pn) = (&by_ray.nodes[k], &by_node.nodes[k]);
+            let kept = ns.t[ns.start[r] as usize..ns.start[r + 1] as usize].contains(&t);
+            // (Densities from the render's query and the density pass differ in their last
+            // bits: samples within a hair of the limit are not judged.)
+            if (tau - limit).abs() > 1e-3 * limit {
+                assert_eq!(kept, tau <= limit, "ray {r} node {k} t {t}: depth {tau}");
+                checked += 1;
+                let own = pn.t[pn.start[r] as usize..pn.start[r + 1] as usize].contains(&t);
+                if k == 0 && own && !kept {
+                    behind_object += 1;
+                }
+            }
+            tau += d;
+        }
+    }
+    assert!(
+        checked > 1000 && behind_object > 0,
+        "{checked} {behind_object}"
+    );
+    // One node: the ray's transmittance is the node's own.
+    let mut bg_only = s.clone();
+    bg_only.scene.nodes.truncate(1);
+    let mut one = Traced::default();
+    sample_rays(&bg_only, &rays, &so, &mut one);
+    let (a, sa) = prune(&bg_only, &one, PruneBy::Node);
+    let (b, sb) = prune(&bg_only, &one, PruneBy::Ray);
+    assert!(sa.dropped > 0);
+    assert_eq!((sa.queried, sa.dropped), (sb.queried, sb.dropped));
+    assert_eq!(a.nodes[0].start, b.nodes[0].start);
+    assert_eq!(a.nodes[0].t, b.nodes[0].t);
 }
 
 /// The packed (bf16) hash tables a render reads at `Precision::Bf16`: a frame within the

@@ -111,6 +111,7 @@ impl Trainer {
                 &self.scene,
                 &mut self.traced,
                 self.opts.prune_eps,
+                assist_render::PruneBy::Ray,
                 &mut self.prune,
                 &mut self.tapes,
             );
