@@ -180,11 +180,8 @@ fn textured_field(seed: u64, ln_sigma: f32) -> assist_field::Field {
     f
 }
 
-#[test]
-fn the_pruned_query_reuses_the_density_pass_encoding_exactly() {
-    use assist_field::Precision;
-    use assist_render::{PruneBy, PruneScratch, Query, prune_occluded, query_fields, query_pruned};
-    let s = bg_and_object(textured_field(1, 3.0), textured_field(2, 5.0));
+/// The samples of `s` along every pixel's ray of a 24 × 18 [`oblique`] view (no jitter).
+fn oblique_samples(s: &NeuralScene) -> Traced {
     let camera = oblique(24, 18);
     let mut rays = RayBatch::default();
     for j in 0..camera.height() {
@@ -200,14 +197,27 @@ fn the_pruned_query_reuses_the_density_pass_encoding_exactly() {
         step_scale: 1.0,
     };
     let mut traced = Traced::default();
-    sample_rays(&s, &rays, &so, &mut traced);
-    let mut two_pass = traced.clone();
-    let q = Query::Render {
-        precision: Precision::F32,
+    sample_rays(s, &rays, &so, &mut traced);
+    traced
+}
+
+/// A render's query at f32.
+fn f32_query() -> assist_render::Query<'static> {
+    assist_render::Query::Render {
+        precision: assist_field::Precision::F32,
         highlight: None,
         tables: None,
         backend: None,
-    };
+    }
+}
+
+#[test]
+fn the_pruned_query_reuses_the_density_pass_encoding_exactly() {
+    use assist_render::{PruneBy, PruneScratch, prune_occluded, query_fields, query_pruned};
+    let s = bg_and_object(textured_field(1, 3.0), textured_field(2, 5.0));
+    let mut traced = oblique_samples(&s);
+    let mut two_pass = traced.clone();
+    let q = f32_query();
     let (mut sc, mut tapes) = (PruneScratch::default(), Vec::new());
     let before = prune_occluded(&s, &mut two_pass, 1e-4, PruneBy::Node, &mut sc, &mut tapes);
     query_fields(&s, &mut two_pass, &mut tapes, q);
@@ -262,33 +272,12 @@ fn the_pruned_query_reuses_the_density_pass_encoding_exactly() {
 /// one node it drops what the node's own rule drops.
 #[test]
 fn pruning_by_the_ray_drops_what_lies_behind_any_node() {
-    use assist_field::Precision;
-    use assist_render::{PruneBy, PruneScratch, Query, prune_occluded, query_fields};
+    use assist_render::{PruneBy, PruneScratch, prune_occluded, query_fields};
     let eps = 1e-4f32;
     let limit = -eps.ln();
     let s = bg_and_object(textured_field(1, 1.0), textured_field(2, 6.0));
-    let camera = oblique(24, 18);
-    let mut rays = RayBatch::default();
-    for j in 0..camera.height() {
-        for i in 0..camera.width() {
-            rays.push(&camera.pixel_ray(i, j).unwrap(), u32::MAX);
-        }
-    }
-    rays.near = 0.01;
-    let so = SampleOptions {
-        jitter: false,
-        seed: 0,
-        max_per_node: 1024,
-        step_scale: 1.0,
-    };
-    let mut all = Traced::default();
-    sample_rays(&s, &rays, &so, &mut all);
-    let q = Query::Render {
-        precision: Precision::F32,
-        highlight: None,
-        tables: None,
-        backend: None,
-    };
+    let all = oblique_samples(&s);
+    let q = f32_query();
     let prune = |scene: &NeuralScene, traced: &Traced, by: PruneBy| {
         let mut t = traced.clone();
         let (mut sc, mut tapes) = (PruneScratch::default(), Vec::new());
@@ -334,8 +323,7 @@ fn pruning_by_the_ray_drops_what_lies_behind_any_node() {
     // One node: the ray's transmittance is the node's own.
     let mut bg_only = s.clone();
     bg_only.scene.nodes.truncate(1);
-    let mut one = Traced::default();
-    sample_rays(&bg_only, &rays, &so, &mut one);
+    let one = oblique_samples(&bg_only);
     let (a, sa) = prune(&bg_only, &one, PruneBy::Node);
     let (b, sb) = prune(&bg_only, &one, PruneBy::Ray);
     assert!(sa.dropped > 0);
