@@ -7,10 +7,61 @@ use assist_core::{DVec3, InstanceId};
 
 use crate::{Result, Session, request};
 
+/// A connected part of the occupied cells smaller than this share of the largest is left
+/// out of an object's extent (haze the field left around it).
+pub const MAIN_PART_SHARE: f64 = 0.1;
+
+/// The cells of an `r`³ grid (x fastest) for which `occupied` holds, in the parts
+/// (26-connected) of at least [`MAIN_PART_SHARE`] of the largest part's size.
+fn main_parts(r: usize, occupied: impl Fn(usize) -> bool) -> Vec<usize> {
+    let n = r * r * r;
+    let mut part = vec![u32::MAX; n];
+    let mut sizes: Vec<usize> = Vec::new();
+    let mut stack = Vec::new();
+    for seed in (0..n).filter(|&c| occupied(c)) {
+        if part[seed] != u32::MAX {
+            continue;
+        }
+        let id = sizes.len() as u32;
+        let mut size = 0;
+        part[seed] = id;
+        stack.push(seed);
+        while let Some(c) = stack.pop() {
+            size += 1;
+            let (x, y, z) = (c % r, (c / r) % r, c / (r * r));
+            for dz in -1i64..=1 {
+                for dy in -1i64..=1 {
+                    for dx in -1i64..=1 {
+                        let (u, v, w) = (x as i64 + dx, y as i64 + dy, z as i64 + dz);
+                        let inside = |a: i64| (0..r as i64).contains(&a);
+                        if !(inside(u) && inside(v) && inside(w)) {
+                            continue;
+                        }
+                        let d = u as usize + r * (v as usize + r * w as usize);
+                        if part[d] == u32::MAX && occupied(d) {
+                            part[d] = id;
+                            stack.push(d);
+                        }
+                    }
+                }
+            }
+        }
+        sizes.push(size);
+    }
+    let largest = sizes.iter().copied().max().unwrap_or(0);
+    (0..n)
+        .filter(|&c| {
+            part[c] != u32::MAX
+                && sizes[part[c] as usize] as f64 >= MAIN_PART_SHARE * largest as f64
+        })
+        .collect()
+}
+
 impl Session {
     /// The height along the scene's up of what node `id`'s field occupies (its occupancy
-    /// grid's occupied cells, corner to corner), in world units; its box's height when
-    /// nothing is occupied.
+    /// grid's occupied cells, corner to corner: the largest connected part and any other
+    /// at least [`MAIN_PART_SHARE`] its size, so that a wisp of haze apart from the object
+    /// does not count), in world units; its box's height when nothing is occupied.
     pub fn occupied_height(&self, id: InstanceId) -> Result<f64> {
         let node = self
             .node(id)
@@ -30,7 +81,7 @@ impl Session {
         let g = &self.scene().fields[&node.field].occupancy;
         let r = g.res as usize;
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-        for c in (0..r * r * r).filter(|&c| g.is_occupied_cell(c)) {
+        for c in main_parts(r, |c| g.is_occupied_cell(c)) {
             let v = DVec3::new((c % r) as f64, ((c / r) % r) as f64, (c / (r * r)) as f64);
             for corner in 0..8 {
                 let d = DVec3::new(
@@ -185,5 +236,47 @@ mod tests {
         assert!(s.set_meters_per_unit(0.0, "x").is_err());
         let bg = s.nodes().iter().find(|n| n.is_background()).unwrap().id;
         assert!(s.occupied_height(bg).is_err());
+    }
+
+    /// A stray occupied cell apart from the object does not count in its height; a part
+    /// of it the size of the object does.
+    #[test]
+    fn haze_apart_from_the_object_is_not_its_height() {
+        let scene = assist_testkit::scenes::two_boxes(0.08);
+        let node = scene
+            .scene
+            .nodes
+            .iter()
+            .find(|n| !n.is_background())
+            .unwrap()
+            .clone();
+        let (id, key) = (node.id, node.field.clone());
+        let grid = |cells: &[[usize; 3]]| {
+            let mut g = assist_field::OccupancyGrid::new(16);
+            let mut empty = vec![true; g.cells()];
+            for &[x, y, z] in cells {
+                empty[x + 16 * (y + 16 * z)] = false;
+            }
+            g.set_empty(&empty);
+            g
+        };
+        // The object: a 4 × 4 × 4 block at the bottom; haze: one cell near the top.
+        let block: Vec<[usize; 3]> = (0..64)
+            .map(|i| [6 + i % 4, 6 + i / 4 % 4, 1 + i / 16])
+            .collect();
+        let mut with_haze = block.clone();
+        with_haze.push([2, 2, 14]);
+        let mut two = block.clone();
+        two.extend(block.iter().map(|&[x, y, z]| [x, y, z + 10]));
+        let height = |cells: &[[usize; 3]]| {
+            let mut sc = scene.clone();
+            std::sync::Arc::make_mut(sc.fields.get_mut(&key).unwrap()).occupancy = grid(cells);
+            Session::new(sc).occupied_height(id).unwrap()
+        };
+        let box_h = 2.0 * node.half_size.z * node.world_from_local.scale.z;
+        let cells_h = |k: f64| k / 16.0 * box_h;
+        assert!((height(&block) - cells_h(4.0)).abs() < 1e-9);
+        assert!((height(&with_haze) - cells_h(4.0)).abs() < 1e-9);
+        assert!((height(&two) - cells_h(14.0)).abs() < 1e-9);
     }
 }
