@@ -176,7 +176,7 @@ const SNAP_PX: f64 = 8.0;
 const NEAR_PX: f64 = 40.0;
 
 /// The 3D point under a pixel of a frame: the COLMAP point seen there (within
-/// [`SNAP_PX`]), else the pixel's viewing ray at the median depth of the points seen
+/// [`SNAP_PX`]) unless it is a lone outlier in depth ([`shares_a_surface`]), else the pixel's viewing ray at the median depth of the points seen
 /// within [`NEAR_PX`] (at least three; the ray's direction interpolated from theirs, which
 /// carries the camera's intrinsics and distortion). A rerun of COLMAP triangulates other
 /// points, and a user's click rarely lands on one.
@@ -212,15 +212,15 @@ fn known_point(
             image.name
         )));
     };
-    if q.distance(at) <= SNAP_PX {
-        return Ok(nearest);
-    }
     let near: Vec<_> = seen
         .iter()
         .take_while(|(q, _)| q.distance(at) <= NEAR_PX)
         .copied()
         .collect();
     let (world_from_cam, centre) = camera(image);
+    if q.distance(at) <= SNAP_PX && shares_a_surface(nearest, &near, world_from_cam, centre) {
+        return Ok(nearest);
+    }
     near_ray_point(&near, at, world_from_cam, centre).ok_or_else(|| {
         ProcessError::ScaleBy(format!(
             "no COLMAP point within {SNAP_PX} pixels of ({}, {}) in {}, and too few within {NEAR_PX} to place it: the nearest is at ({:.0}, {:.0}); pick a textured spot (the points are in {})",
@@ -232,6 +232,34 @@ fn known_point(
             model_dir.display()
         ))
     })
+}
+
+/// Depth, as a share of a point's own, within which two points seen near one pixel lie on
+/// one surface.
+const SAME_SURFACE: f64 = 0.1;
+
+/// Whether `point` lies on a surface that another of the points seen `near` it (the point
+/// itself among them) shares, by depth from the camera at `centre`, or too few points are
+/// near to judge. A lone point at another depth than all its neighbours is a
+/// mistriangulated one (a wrong match far in front or behind), not what the user clicked;
+/// one at a depth edge still shares its depth with its own side's points.
+fn shares_a_surface(
+    point: DVec3,
+    near: &[(assist_core::DVec2, DVec3)],
+    world_from_cam: DMat3,
+    centre: DVec3,
+) -> bool {
+    let depth = |x: DVec3| (world_from_cam.transpose() * (x - centre)).z;
+    let d = depth(point);
+    let others: Vec<f64> = near
+        .iter()
+        .filter(|(_, x)| *x != point)
+        .map(|(_, x)| depth(*x))
+        .collect();
+    others.len() < 2
+        || others
+            .iter()
+            .any(|o| (o - d).abs() <= SAME_SURFACE * d.abs())
 }
 
 /// The point on pixel `at`'s viewing ray at the median depth of the points `near` (their
@@ -313,6 +341,42 @@ mod tests {
             .map(|&(u, v)| (assist_core::DVec2::new(u, v), on_plane(u, v)))
             .collect();
         assert!(near_ray_point(&line, at, world_from_cam, centre).is_none());
+    }
+
+    /// A lone point far behind its neighbours (a wrong match) is not the point under a
+    /// pixel; a point at a depth edge, on the near side with one neighbour of its own, is.
+    #[test]
+    fn a_lone_outlier_in_depth_is_not_snapped_to() {
+        let world_from_cam = DMat3::from_quat(DQuat::from_rotation_x(-0.2));
+        let centre = DVec3::new(0.1, 0.4, -0.3);
+        let at_depth = |u: f64, v: f64, z: f64| {
+            let px = assist_core::DVec2::new(u, v);
+            (
+                px,
+                centre + world_from_cam * DVec3::new(u * 0.002 * z, v * 0.002 * z, z),
+            )
+        };
+        let wall: Vec<_> = [(10.0, 5.0), (-12.0, 8.0), (4.0, -15.0), (-6.0, -9.0)]
+            .iter()
+            .map(|&(u, v)| at_depth(u, v, 2.0 + 0.01 * u))
+            .collect();
+        let outlier = at_depth(1.0, 1.0, 7.5).1;
+        assert!(!shares_a_surface(outlier, &wall, world_from_cam, centre));
+        for (_, x) in &wall {
+            assert!(shares_a_surface(*x, &wall, world_from_cam, centre));
+        }
+        // The near side of an edge: one other point shares its depth.
+        let mut edge = wall.clone();
+        edge.push(at_depth(3.0, 3.0, 1.0));
+        let corner = at_depth(2.0, 2.0, 1.02).1;
+        assert!(shares_a_surface(corner, &edge, world_from_cam, centre));
+        // Too few neighbours to judge: the point is taken.
+        assert!(shares_a_surface(
+            outlier,
+            &wall[..1],
+            world_from_cam,
+            centre
+        ));
     }
 
     #[test]

@@ -195,8 +195,9 @@ fn a_video_and_photographs_become_posed_datasets() {
     // three frames.
     let photos = root.join("from-photos");
     let mut tried = Vec::new();
-    let (o, arg, metres) = loop {
-        let (arg, metres) = known_distance(&out, &order, &given, tried.len());
+    let (o, arg, metres, intended) = loop {
+        let (arg, metres, intended) =
+            known_distance(&out, &order, &given, &truth.bounds, tried.len());
         let o = run(&[
             "process",
             s(&out.join("images")),
@@ -214,7 +215,7 @@ fn a_video_and_photographs_become_posed_datasets() {
             tried.push(arg);
             continue;
         }
-        break (o, arg, metres);
+        break (o, arg, metres, intended);
     };
     ok(&o);
     let summary: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
@@ -241,12 +242,24 @@ fn a_video_and_photographs_become_posed_datasets() {
     let given_m = record["scale_by"]["meters"].as_f64().unwrap();
     assert!((given_m - metres).abs() < 1e-5, "{given_m} recorded");
     let measured = point("a").distance(point("b"));
+    // Where the rerun's points lie against the first model's (both in the capture's
+    // frame): their misses, not assist's arithmetic, are what move the scale below. A
+    // point under the pixel on another surface, or a mistriangulated one, misses by a
+    // large share of the extent; two reconstructions of the same surface by about their
+    // cameras' errors.
+    assert!(metres >= 0.15 * extent, "known distance {metres} too short");
+    for (k, want) in ["a", "b"].iter().zip(intended) {
+        let miss = fit.apply(point(k)).distance(want);
+        eprintln!("known point {k}: {miss:.4} from the first model's (extent {extent:.3})");
+        assert!(miss < 0.15 * extent, "known point {k} missed by {miss}");
+    }
     assert!(
         (measured - given_m).abs() < 1e-9 * given_m,
         "known points {measured} apart, given {given_m}"
     );
     // Against the capture, only a scale far off: which physical points lie under the
-    // pixels in a second, different COLMAP reconstruction varies (0.56 to 2.54 seen).
+    // pixels in a second, different COLMAP reconstruction varies (0.56 to 2.54 seen, and
+    // 0.24 once, before points outside the capture's bounds were left out).
     assert!(fit.scale > 0.25 && fit.scale < 4.0, "scale {}", fit.scale);
 
     // Unrelated --out content is never replaced, and a re-run needs --force.
@@ -297,8 +310,10 @@ fn known_distance(
     out: &Path,
     order: &[PathBuf],
     given: &std::collections::HashMap<String, DVec3>,
+    bounds: &assist_data::SceneBounds,
     rank: usize,
-) -> (String, f64) {
+) -> (String, f64, [DVec3; 2]) {
+    let extent = (bounds.max - bounds.min).length();
     let record: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("process.json")).unwrap()).unwrap();
     let model_dir = out.join(record["colmap_model"].as_str().unwrap());
@@ -311,16 +326,16 @@ fn known_distance(
         from.push(-(r.transpose() * DVec3::from_array(img.tvec)));
         to.push(truth_of(&img.name, order, given));
     }
-    let scale = assist_session::process::compare::fit_similarity(&from, &to)
-        .unwrap()
-        .scale;
+    let onto_capture = assist_session::process::compare::fit_similarity(&from, &to).unwrap();
+    let scale = onto_capture.scale;
     // The frame seeing the most triangulated points (the rerun registers it best), or
     // the `rank`-th most.
     let mut frames: Vec<_> = model.images.iter().collect();
     frames.sort_by_key(|i| std::cmp::Reverse(i.points2d.iter().filter(|(_, id)| *id >= 0).count()));
     let frame = frames[rank.min(frames.len() - 1)];
     // Points seen in many frames: a rerun of the (multi-threaded, so not repeatable)
-    // mapper triangulates them again, so `--scale-by` finds them.
+    // mapper triangulates them again, so `--scale-by` finds them. Only points inside the
+    // capture's bounds: the farthest pair is otherwise a stray point metres away.
     let mut track: std::collections::HashMap<i64, usize> = Default::default();
     for img in &model.images {
         for (_, id) in img.points2d.iter().filter(|(_, id)| *id >= 0) {
@@ -333,6 +348,10 @@ fn known_distance(
             .iter()
             .filter(|(_, id)| *id >= 0 && track[id] >= min)
             .map(|(px, id)| (*px, model.points[&(*id as u64)].xyz))
+            .filter(|(_, x)| {
+                let p = onto_capture.apply(*x);
+                p.cmpge(bounds.min).all() && p.cmple(bounds.max).all()
+            })
             .take(300)
             .collect()
     };
@@ -359,7 +378,13 @@ fn known_distance(
         })
         .copied()
         .collect();
-    if smooth.len() >= 10 {
+    // Each filter is kept only while two of its points stay 15% of the capture's
+    // extent apart: the found points' misses in the rerun are a few hundredths of the
+    // extent, so a short distance would measure them rather than the scale.
+    let long_enough = |set: &[(assist_core::DVec2, DVec3)]| {
+        set.len() >= 10 && farthest(set).0 * scale >= 0.15 * extent
+    };
+    if long_enough(&smooth) {
         seen = smooth;
     }
     // Only points in densely textured parts of the frame (eight others within 40 px), as a
@@ -369,18 +394,10 @@ fn known_distance(
         .filter(|(px, _)| seen.iter().filter(|(q, _)| q.distance(*px) < 40.0).count() > 8)
         .copied()
         .collect();
-    if dense.len() >= 10 {
+    if long_enough(&dense) {
         seen = dense;
     }
-    let mut best = (0.0, 0, 0);
-    for i in 0..seen.len() {
-        for j in i + 1..seen.len() {
-            let d = seen[i].1.distance(seen[j].1);
-            if d > best.0 {
-                best = (d, i, j);
-            }
-        }
-    }
+    let best = farthest(&seen);
     let (a, b) = (seen[best.1].0, seen[best.2].0);
     (
         format!(
@@ -388,7 +405,22 @@ fn known_distance(
             frame.name, a.x, a.y, b.x, b.y
         ),
         best.0 * scale,
+        [seen[best.1].1, seen[best.2].1].map(|x| onto_capture.apply(x)),
     )
+}
+
+/// The two points of `set` farthest apart: their distance and indices.
+fn farthest(set: &[(assist_core::DVec2, DVec3)]) -> (f64, usize, usize) {
+    let mut best = (0.0, 0, 0);
+    for i in 0..set.len() {
+        for j in i + 1..set.len() {
+            let d = set[i].1.distance(set[j].1);
+            if d > best.0 {
+                best = (d, i, j);
+            }
+        }
+    }
+    best
 }
 
 /// The capture's camera centre of processed frame `frame_0000k.jpg`: the k-th view in
