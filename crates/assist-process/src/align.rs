@@ -176,9 +176,10 @@ const SNAP_PX: f64 = 8.0;
 const NEAR_PX: f64 = 40.0;
 
 /// The 3D point under a pixel of a frame: the COLMAP point seen there (within
-/// [`SNAP_PX`]) unless it is a lone outlier in depth ([`shares_a_surface`]), else the pixel's viewing ray at the median depth of the points seen
-/// within [`NEAR_PX`] (at least three; the ray's direction interpolated from theirs, which
-/// carries the camera's intrinsics and distortion). A rerun of COLMAP triangulates other
+/// [`SNAP_PX`]) unless it is a lone outlier in depth ([`shares_a_surface`]), else the
+/// pixel's viewing ray at the median depth of the points seen within [`NEAR_PX`] (at least
+/// three; the ray's direction interpolated from theirs, which carries the camera's
+/// intrinsics and distortion). A rerun of COLMAP triangulates other
 /// points, and a user's click rarely lands on one.
 fn known_point(
     model: &ColmapModel,
