@@ -4,7 +4,9 @@
 //!
 //! Register-blocked micro-kernels: AVX-512 computes 8 rows × 32 columns (16 zmm
 //! accumulators), AVX2 6 rows × 16 columns (12 ymm accumulators), both with A broadcast
-//! and B loaded along rows. Edges fall back to the scalar kernel on the remainder.
+//! and B loaded along rows; the rows left over below a multiple of the block height go
+//! through the same kernel at their own height. Columns left over go one vector per row,
+//! then scalar.
 
 use crate::Level;
 
@@ -99,6 +101,39 @@ mod x86 {
     use super::{Gemm, gemm_scalar_region};
     use std::arch::x86_64::*;
 
+    /// `R` rows × 32 columns of C from row `i`, column `j` (R ≤ 8 zmm pairs).
+    ///
+    /// # Safety
+    /// Needs AVX-512F and FMA; rows `i..i + R` < m and columns `j..j + 32` ≤ n of a `g`
+    /// that passed `Gemm::check` for `c`.
+    #[inline(always)]
+    unsafe fn block512<const R: usize>(g: &Gemm, cp: *mut f32, i: usize, j: usize) {
+        let (a, b) = (g.a.as_ptr(), g.b.as_ptr());
+        // SAFETY: every offset is within the rows and columns the caller guarantees.
+        unsafe {
+            let mut acc = [[_mm512_setzero_ps(); 2]; R];
+            if g.accumulate {
+                for (r, row) in acc.iter_mut().enumerate() {
+                    row[0] = _mm512_loadu_ps(cp.add((i + r) * g.ldc + j));
+                    row[1] = _mm512_loadu_ps(cp.add((i + r) * g.ldc + j + 16));
+                }
+            }
+            for p in 0..g.k {
+                let b0 = _mm512_loadu_ps(b.add(p * g.ldb + j));
+                let b1 = _mm512_loadu_ps(b.add(p * g.ldb + j + 16));
+                for (r, row) in acc.iter_mut().enumerate() {
+                    let av = _mm512_set1_ps(*a.add((i + r) * g.lda + p));
+                    row[0] = _mm512_fmadd_ps(av, b0, row[0]);
+                    row[1] = _mm512_fmadd_ps(av, b1, row[1]);
+                }
+            }
+            for (r, row) in acc.iter().enumerate() {
+                _mm512_storeu_ps(cp.add((i + r) * g.ldc + j), row[0]);
+                _mm512_storeu_ps(cp.add((i + r) * g.ldc + j + 16), row[1]);
+            }
+        }
+    }
+
     /// # Safety
     /// Needs AVX-512F and FMA; `g` must pass `Gemm::check` for `c`.
     #[target_feature(enable = "avx512f,fma")]
@@ -107,84 +142,87 @@ mod x86 {
         const NR: usize = 32;
         let (m_main, n_main) = (g.m / MR * MR, g.n / NR * NR);
         let (a, b, cp) = (g.a.as_ptr(), g.b.as_ptr(), c.as_mut_ptr());
-        let mut i = 0;
-        while i < m_main {
-            let mut j = 0;
-            while j < n_main {
-                // SAFETY (whole block): rows i..i+8 < m and columns j..j+32 ≤ n, so every
-                // a/b/c offset below is within the lengths checked by `Gemm::check`.
-                unsafe {
-                    let mut acc = [[_mm512_setzero_ps(); 2]; MR];
-                    if g.accumulate {
-                        for (r, row) in acc.iter_mut().enumerate() {
-                            row[0] = _mm512_loadu_ps(cp.add((i + r) * g.ldc + j));
-                            row[1] = _mm512_loadu_ps(cp.add((i + r) * g.ldc + j + 16));
-                        }
-                    }
-                    for p in 0..g.k {
-                        let b0 = _mm512_loadu_ps(b.add(p * g.ldb + j));
-                        let b1 = _mm512_loadu_ps(b.add(p * g.ldb + j + 16));
-                        for (r, row) in acc.iter_mut().enumerate() {
-                            let av = _mm512_set1_ps(*a.add((i + r) * g.lda + p));
-                            row[0] = _mm512_fmadd_ps(av, b0, row[0]);
-                            row[1] = _mm512_fmadd_ps(av, b1, row[1]);
-                        }
-                    }
-                    for (r, row) in acc.iter().enumerate() {
-                        _mm512_storeu_ps(cp.add((i + r) * g.ldc + j), row[0]);
-                        _mm512_storeu_ps(cp.add((i + r) * g.ldc + j + 16), row[1]);
-                    }
-                }
-                j += NR;
+        let mut j = 0;
+        while j < n_main {
+            let mut i = 0;
+            while i < m_main {
+                // SAFETY: rows i..i+8 ≤ m, columns j..j+32 ≤ n.
+                unsafe { block512::<MR>(g, cp, i, j) };
+                i += MR;
             }
-            i += MR;
-        }
-        // Remaining rows in blocks of one row × 16 columns, then scalar edges.
-        let n16 = g.n / 16 * 16;
-        for i in m_main..g.m {
-            let mut j = 0;
-            while j < n16 {
-                // SAFETY: row i < m, columns j..j+16 ≤ n.
-                unsafe {
-                    let mut acc = if g.accumulate {
-                        _mm512_loadu_ps(cp.add(i * g.ldc + j))
-                    } else {
-                        _mm512_setzero_ps()
-                    };
-                    for p in 0..g.k {
-                        let av = _mm512_set1_ps(*a.add(i * g.lda + p));
-                        acc = _mm512_fmadd_ps(av, _mm512_loadu_ps(b.add(p * g.ldb + j)), acc);
-                    }
-                    _mm512_storeu_ps(cp.add(i * g.ldc + j), acc);
+            // The last m mod 8 rows in one block of that height (an MLP's output layer
+            // of 3, or 15 + 1 rows), not row by row: each B vector loaded serves them all.
+            // SAFETY: rows m_main..m, columns j..j+32 ≤ n.
+            unsafe {
+                match g.m - m_main {
+                    0 => {}
+                    1 => block512::<1>(g, cp, m_main, j),
+                    2 => block512::<2>(g, cp, m_main, j),
+                    3 => block512::<3>(g, cp, m_main, j),
+                    4 => block512::<4>(g, cp, m_main, j),
+                    5 => block512::<5>(g, cp, m_main, j),
+                    6 => block512::<6>(g, cp, m_main, j),
+                    _ => block512::<7>(g, cp, m_main, j),
                 }
-                j += 16;
             }
+            j += NR;
         }
         if n_main < g.n {
-            if n16 > n_main {
-                // Columns n_main..n16 of the first m_main rows (one 16-wide vector each).
-                for i in 0..m_main {
-                    let mut j = n_main;
-                    while j < n16 {
-                        // SAFETY: row i < m, columns j..j+16 ≤ n.
-                        unsafe {
-                            let mut acc = if g.accumulate {
-                                _mm512_loadu_ps(cp.add(i * g.ldc + j))
-                            } else {
-                                _mm512_setzero_ps()
-                            };
-                            for p in 0..g.k {
-                                let av = _mm512_set1_ps(*a.add(i * g.lda + p));
-                                acc =
-                                    _mm512_fmadd_ps(av, _mm512_loadu_ps(b.add(p * g.ldb + j)), acc);
-                            }
-                            _mm512_storeu_ps(cp.add(i * g.ldc + j), acc);
+            // Columns n_main..n16 of every row (one 16-wide vector each), then scalar.
+            let n16 = g.n / 16 * 16;
+            for i in 0..g.m {
+                let mut j = n_main;
+                while j < n16 {
+                    // SAFETY: row i < m, columns j..j+16 ≤ n.
+                    unsafe {
+                        let mut acc = if g.accumulate {
+                            _mm512_loadu_ps(cp.add(i * g.ldc + j))
+                        } else {
+                            _mm512_setzero_ps()
+                        };
+                        for p in 0..g.k {
+                            let av = _mm512_set1_ps(*a.add(i * g.lda + p));
+                            acc = _mm512_fmadd_ps(av, _mm512_loadu_ps(b.add(p * g.ldb + j)), acc);
                         }
-                        j += 16;
+                        _mm512_storeu_ps(cp.add(i * g.ldc + j), acc);
                     }
+                    j += 16;
                 }
             }
             gemm_scalar_region(g, c, 0, g.m, n16, g.n);
+        }
+    }
+
+    /// `R` rows × 16 columns of C from row `i`, column `j` (R ≤ 6 ymm pairs).
+    ///
+    /// # Safety
+    /// Needs AVX2 and FMA; rows `i..i + R` < m and columns `j..j + 16` ≤ n of a `g` that
+    /// passed `Gemm::check` for `c`.
+    #[inline(always)]
+    unsafe fn block256<const R: usize>(g: &Gemm, cp: *mut f32, i: usize, j: usize) {
+        let (a, b) = (g.a.as_ptr(), g.b.as_ptr());
+        // SAFETY: every offset is within the rows and columns the caller guarantees.
+        unsafe {
+            let mut acc = [[_mm256_setzero_ps(); 2]; R];
+            if g.accumulate {
+                for (r, row) in acc.iter_mut().enumerate() {
+                    row[0] = _mm256_loadu_ps(cp.add((i + r) * g.ldc + j));
+                    row[1] = _mm256_loadu_ps(cp.add((i + r) * g.ldc + j + 8));
+                }
+            }
+            for p in 0..g.k {
+                let b0 = _mm256_loadu_ps(b.add(p * g.ldb + j));
+                let b1 = _mm256_loadu_ps(b.add(p * g.ldb + j + 8));
+                for (r, row) in acc.iter_mut().enumerate() {
+                    let av = _mm256_broadcast_ss(&*a.add((i + r) * g.lda + p));
+                    row[0] = _mm256_fmadd_ps(av, b0, row[0]);
+                    row[1] = _mm256_fmadd_ps(av, b1, row[1]);
+                }
+            }
+            for (r, row) in acc.iter().enumerate() {
+                _mm256_storeu_ps(cp.add((i + r) * g.ldc + j), row[0]);
+                _mm256_storeu_ps(cp.add((i + r) * g.ldc + j + 8), row[1]);
+            }
         }
     }
 
@@ -196,64 +234,50 @@ mod x86 {
         const NR: usize = 16;
         let (m_main, n_main) = (g.m / MR * MR, g.n / NR * NR);
         let (a, b, cp) = (g.a.as_ptr(), g.b.as_ptr(), c.as_mut_ptr());
-        let mut i = 0;
-        while i < m_main {
-            let mut j = 0;
-            while j < n_main {
-                // SAFETY: rows i..i+6 < m, columns j..j+16 ≤ n; offsets within checked lengths.
-                unsafe {
-                    let mut acc = [[_mm256_setzero_ps(); 2]; MR];
-                    if g.accumulate {
-                        for (r, row) in acc.iter_mut().enumerate() {
-                            row[0] = _mm256_loadu_ps(cp.add((i + r) * g.ldc + j));
-                            row[1] = _mm256_loadu_ps(cp.add((i + r) * g.ldc + j + 8));
-                        }
-                    }
-                    for p in 0..g.k {
-                        let b0 = _mm256_loadu_ps(b.add(p * g.ldb + j));
-                        let b1 = _mm256_loadu_ps(b.add(p * g.ldb + j + 8));
-                        for (r, row) in acc.iter_mut().enumerate() {
-                            let av = _mm256_broadcast_ss(&*a.add((i + r) * g.lda + p));
-                            row[0] = _mm256_fmadd_ps(av, b0, row[0]);
-                            row[1] = _mm256_fmadd_ps(av, b1, row[1]);
-                        }
-                    }
-                    for (r, row) in acc.iter().enumerate() {
-                        _mm256_storeu_ps(cp.add((i + r) * g.ldc + j), row[0]);
-                        _mm256_storeu_ps(cp.add((i + r) * g.ldc + j + 8), row[1]);
-                    }
-                }
-                j += NR;
+        let mut j = 0;
+        while j < n_main {
+            let mut i = 0;
+            while i < m_main {
+                // SAFETY: rows i..i+6 ≤ m, columns j..j+16 ≤ n.
+                unsafe { block256::<MR>(g, cp, i, j) };
+                i += MR;
             }
-            i += MR;
-        }
-        let n8 = g.n / 8 * 8;
-        let row_block = |i: usize, j0: usize, c: &mut [f32]| {
-            let cp = c.as_mut_ptr();
-            let mut j = j0;
-            while j < n8 {
-                // SAFETY: row i < m, columns j..j+8 ≤ n.
-                unsafe {
-                    let mut acc = if g.accumulate {
-                        _mm256_loadu_ps(cp.add(i * g.ldc + j))
-                    } else {
-                        _mm256_setzero_ps()
-                    };
-                    for p in 0..g.k {
-                        let av = _mm256_broadcast_ss(&*a.add(i * g.lda + p));
-                        acc = _mm256_fmadd_ps(av, _mm256_loadu_ps(b.add(p * g.ldb + j)), acc);
-                    }
-                    _mm256_storeu_ps(cp.add(i * g.ldc + j), acc);
+            // The last m mod 6 rows (4 of an MLP's 64 or 16, 2 of 32, 3 of an output
+            // layer) in one block of that height, not row by row.
+            // SAFETY: rows m_main..m, columns j..j+16 ≤ n.
+            unsafe {
+                match g.m - m_main {
+                    0 => {}
+                    1 => block256::<1>(g, cp, m_main, j),
+                    2 => block256::<2>(g, cp, m_main, j),
+                    3 => block256::<3>(g, cp, m_main, j),
+                    4 => block256::<4>(g, cp, m_main, j),
+                    _ => block256::<5>(g, cp, m_main, j),
                 }
-                j += 8;
             }
-        };
-        for i in m_main..g.m {
-            row_block(i, 0, c);
+            j += NR;
         }
         if n_main < g.n {
-            for i in 0..m_main {
-                row_block(i, n_main, c);
+            // Columns n_main..n8 of every row (one 8-wide vector each), then scalar.
+            let n8 = g.n / 8 * 8;
+            for i in 0..g.m {
+                let mut j = n_main;
+                while j < n8 {
+                    // SAFETY: row i < m, columns j..j+8 ≤ n.
+                    unsafe {
+                        let mut acc = if g.accumulate {
+                            _mm256_loadu_ps(cp.add(i * g.ldc + j))
+                        } else {
+                            _mm256_setzero_ps()
+                        };
+                        for p in 0..g.k {
+                            let av = _mm256_broadcast_ss(&*a.add(i * g.lda + p));
+                            acc = _mm256_fmadd_ps(av, _mm256_loadu_ps(b.add(p * g.ldb + j)), acc);
+                        }
+                        _mm256_storeu_ps(cp.add(i * g.ldc + j), acc);
+                    }
+                    j += 8;
+                }
             }
             gemm_scalar_region(g, c, 0, g.m, n8, g.n);
         }
@@ -310,6 +334,11 @@ mod tests {
                 (1, 1, 1),
                 (9, 100, 64),
                 (64, 16, 128),
+                // Every leftover height of both kernels (m mod 6, m mod 8).
+                (11, 48, 7),
+                (14, 40, 9),
+                (12, 32, 5),
+                (32, 64, 16),
                 (0, 5, 3),
                 (4, 0, 3),
                 (5, 4, 0),
