@@ -1,5 +1,6 @@
 //! Poses by the real COLMAP (never reimplemented): SIFT features on the CPU, one OPENCV
-//! camera for the whole capture (a phone's lens, distortion included), sequential
+//! camera for the whole capture (a phone's lens, distortion included) or one
+//! SIMPLE_RADIAL camera per frame ([`Cameras`]), sequential
 //! matching for a video's frames or exhaustive matching for a set of photographs, then
 //! the incremental mapper. Of the models the mapper writes, the one that registers the
 //! most images is kept.
@@ -24,6 +25,35 @@ pub enum Matcher {
     Exhaustive,
 }
 
+/// How many cameras COLMAP solves for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Cameras {
+    /// One OPENCV camera (focal lengths, centre, radial and tangential distortion) shared
+    /// by every frame: one lens at one zoom.
+    Shared,
+    /// One SIMPLE_RADIAL camera (one focal length, centre, one radial term) per frame:
+    /// for frames whose focal length changes (a phone refocusing as it moves, photographs
+    /// from several cameras or zooms). More unknowns, so each needs more matches.
+    PerFrame,
+}
+
+impl Cameras {
+    /// COLMAP's `--ImageReader.single_camera` and `--ImageReader.camera_model`.
+    fn reader_args(self) -> [&'static str; 4] {
+        let (single, model) = match self {
+            Cameras::Shared => ("1", "OPENCV"),
+            Cameras::PerFrame => ("0", "SIMPLE_RADIAL"),
+        };
+        [
+            "--ImageReader.single_camera",
+            single,
+            "--ImageReader.camera_model",
+            model,
+        ]
+    }
+}
+
 /// Photographs above which `auto` matches sequentially even for a folder: exhaustive
 /// matching grows with the square of the count.
 pub const MAX_EXHAUSTIVE: usize = 200;
@@ -34,6 +64,7 @@ pub fn reconstruct(
     images: &Path,
     work: &Path,
     matcher: Matcher,
+    cameras: Cameras,
     count: usize,
     cancel: &AtomicBool,
     on_event: &mut dyn FnMut(&ProcessEvent),
@@ -61,8 +92,7 @@ pub fn reconstruct(
             .arg(&db)
             .arg("--image_path")
             .arg(images)
-            .args(["--ImageReader.single_camera", "1"])
-            .args(["--ImageReader.camera_model", "OPENCV"])
+            .args(cameras.reader_args())
             .args(["--SiftExtraction.use_gpu", "0"]),
         &runner,
         count,

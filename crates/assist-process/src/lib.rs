@@ -19,7 +19,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 pub use align::ScaleBy;
-pub use colmap::Matcher;
+pub use colmap::{Cameras, Matcher};
 
 /// Default number of frames taken from a video.
 pub const DEFAULT_FRAMES: usize = 150;
@@ -77,6 +77,8 @@ pub struct ProcessJob {
     /// How to pair images for matching; `None` = sequential for a video or a folder of
     /// more than [`colmap::MAX_EXHAUSTIVE`] images, exhaustive otherwise.
     pub matcher: Option<Matcher>,
+    /// One camera for the capture, or one per frame.
+    pub cameras: Cameras,
     /// One known distance, for metres.
     pub scale_by: Option<ScaleBy>,
     /// Replace `out` if assist wrote it.
@@ -134,6 +136,7 @@ pub struct ProcessSummary {
     /// Names of the frames COLMAP did not register (left out of the dataset).
     pub not_registered: Vec<String>,
     pub matcher: Matcher,
+    pub cameras: Cameras,
     pub points: usize,
     /// Metres per unit, when `--scale-by` gave one; `None`: COLMAP's arbitrary unit.
     pub meters_per_unit: Option<f64>,
@@ -200,8 +203,15 @@ impl ProcessJob {
             },
         );
         let t1 = Instant::now();
-        let (model, model_dir) =
-            colmap::reconstruct(&images, &work, matcher, names.len(), &self.cancel, on_event)?;
+        let (model, model_dir) = colmap::reconstruct(
+            &images,
+            &work,
+            matcher,
+            self.cameras,
+            names.len(),
+            &self.cancel,
+            on_event,
+        )?;
         seconds.push((Stage::Mapping, t1.elapsed().as_secs_f64()));
         let registered: std::collections::BTreeSet<&str> =
             model.images.iter().map(|i| i.name.as_str()).collect();
@@ -228,7 +238,7 @@ impl ProcessJob {
         });
         let aligned = align::align(&model, self.scale_by.as_ref(), &model_dir)?;
         let camera = model.cameras.values().next().ok_or(ProcessError::NoModel)?;
-        write::dataset_files(&dir, camera, &aligned)?;
+        write::dataset_files(&dir, &model, &aligned)?;
         // Frames COLMAP could not pose are not part of the dataset.
         for n in &not_registered {
             let p = images.join(n);
@@ -248,6 +258,7 @@ impl ProcessJob {
             registered: registered.len(),
             not_registered,
             matcher,
+            cameras: self.cameras,
             points: aligned.points.len(),
             meters_per_unit: aligned.meters_per_unit,
             width: camera.width,

@@ -1,5 +1,5 @@
-//! The processed capture as a nerfstudio dataset: `transforms.json` (one OPENCV camera,
-//! distortion kept, OpenGL camera-to-world per frame, `world_up`, `meters_per_unit` when
+//! The processed capture as a nerfstudio dataset: `transforms.json` (OPENCV cameras,
+//! one for the capture or one per frame, distortion kept, OpenGL camera-to-world per frame, `world_up`, `meters_per_unit` when
 //! known, `ply_file_path` to the sparse points), `split.json` (every 8th frame held out,
 //! as `assist train` would choose), `sparse_pc.ply`, and `images_2/`, `images_4/`,
 //! `images_8/` copies (each side divided and rounded down, each pixel the mean of its
@@ -7,7 +7,8 @@
 
 use std::path::Path;
 
-use assist_data::colmap::ColmapCamera;
+use assist_core::Distortion;
+use assist_data::colmap::{ColmapCamera, ColmapModel};
 use serde_json::json;
 
 use crate::ProcessError;
@@ -24,39 +25,47 @@ fn io(path: &Path) -> impl Fn(std::io::Error) -> ProcessError + '_ {
 }
 
 /// `transforms.json`, `split.json` and `sparse_pc.ply` for `aligned` frames whose images
-/// are in `dir/images/`.
+/// are in `dir/images/`; each frame's camera is its image's in `model`: written once at
+/// the top level when every frame shares one, in each frame otherwise.
 pub fn dataset_files(
     dir: &Path,
-    camera: &ColmapCamera,
+    model: &ColmapModel,
     aligned: &Aligned,
 ) -> Result<(), ProcessError> {
-    let p = &camera.params;
-    let [fx, fy, cx, cy, k1, k2, p1, p2] = p[..] else {
-        return Err(ProcessError::Tool {
-            tool: "colmap",
-            what: "mapping".into(),
-            message: format!(
-                "camera {} is {} with {} parameters, expected OPENCV's 8",
-                camera.id,
-                camera.model,
-                p.len()
-            ),
-        });
+    let camera_of = |name: &str| -> Result<&ColmapCamera, ProcessError> {
+        model
+            .images
+            .iter()
+            .find(|i| i.name == name)
+            .and_then(|i| model.cameras.get(&i.camera_id))
+            .ok_or_else(|| ProcessError::Tool {
+                tool: "colmap",
+                what: "mapping".into(),
+                message: format!("image {name} has no camera in the model"),
+            })
     };
-    let frames: Vec<serde_json::Value> = aligned
-        .frames
-        .iter()
-        .map(|f| json!({"file_path": format!("images/{}", f.name), "transform_matrix": f.c2w}))
-        .collect();
+    let first = aligned.frames.first().ok_or(ProcessError::NoModel)?;
+    let camera = camera_of(&first.name)?;
+    let shared = model.cameras.len() == 1;
+    let mut frames = Vec::with_capacity(aligned.frames.len());
+    for f in &aligned.frames {
+        let mut frame =
+            json!({"file_path": format!("images/{}", f.name), "transform_matrix": f.c2w});
+        if !shared {
+            opencv_fields(dir, camera_of(&f.name)?, &mut frame)?;
+        }
+        frames.push(frame);
+    }
     let mut t = json!({
         "camera_model": "OPENCV",
-        "fl_x": fx, "fl_y": fy, "cx": cx, "cy": cy,
         "w": camera.width, "h": camera.height,
-        "k1": k1, "k2": k2, "p1": p1, "p2": p2,
         "world_up": [0.0, 0.0, 1.0],
         "ply_file_path": "sparse_pc.ply",
         "frames": frames,
     });
+    if shared {
+        opencv_fields(dir, camera, &mut t)?;
+    }
     if let Some(m) = aligned.meters_per_unit {
         t["meters_per_unit"] = json!(m);
     }
@@ -69,6 +78,51 @@ pub fn dataset_files(
     std::fs::write(&path, json!({"train": train, "test": test}).to_string()).map_err(io(&path))?;
     let path = dir.join("sparse_pc.ply");
     std::fs::write(&path, points_ply(&aligned.points)).map_err(io(&path))?;
+    Ok(())
+}
+
+/// Sets nerfstudio's OPENCV fields (`fl_x` … `p2`) of `camera` in `obj`: any COLMAP
+/// model without fisheye or third radial term (those `process` asks COLMAP for).
+fn opencv_fields(
+    dir: &Path,
+    camera: &ColmapCamera,
+    obj: &mut serde_json::Value,
+) -> Result<(), ProcessError> {
+    let bad = |message: String| ProcessError::Tool {
+        tool: "colmap",
+        what: "mapping".into(),
+        message,
+    };
+    let i = assist_data::colmap::intrinsics(camera, &dir.join("colmap"))
+        .map_err(|e| bad(e.to_string()))?;
+    let (k1, k2, p1, p2) = match i.distortion {
+        Distortion::None => (0.0, 0.0, 0.0, 0.0),
+        Distortion::OpenCv {
+            k1,
+            k2,
+            k3: 0.0,
+            p1,
+            p2,
+        } => (k1, k2, p1, p2),
+        _ => {
+            return Err(bad(format!(
+                "camera {} is {}, which nerfstudio's OPENCV model cannot hold",
+                camera.id, camera.model
+            )));
+        }
+    };
+    for (k, v) in [
+        ("fl_x", i.fx),
+        ("fl_y", i.fy),
+        ("cx", i.cx),
+        ("cy", i.cy),
+        ("k1", k1),
+        ("k2", k2),
+        ("p1", p1),
+        ("p2", p2),
+    ] {
+        obj[k] = json!(v);
+    }
     Ok(())
 }
 
@@ -127,4 +181,131 @@ pub fn downscaled_copies(dir: &Path, names: &[String]) -> Result<(), ProcessErro
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::align::Posed;
+    use assist_data::colmap::ColmapImage;
+
+    fn model(cameras: &[(&str, Vec<f64>)]) -> (ColmapModel, Aligned) {
+        let mut model = ColmapModel::default();
+        let mut frames = Vec::new();
+        for (k, (kind, params)) in cameras.iter().enumerate() {
+            let id = k as u32 + 1;
+            model.cameras.insert(
+                id,
+                ColmapCamera {
+                    id,
+                    model: kind.to_string(),
+                    width: 64,
+                    height: 48,
+                    params: params.clone(),
+                },
+            );
+        }
+        for k in 0..3 {
+            let name = format!("f{k}.png");
+            model.images.push(ColmapImage {
+                id: k + 1,
+                qvec: [1.0, 0.0, 0.0, 0.0],
+                tvec: [0.0; 3],
+                camera_id: if cameras.len() == 1 { 1 } else { k + 1 },
+                name: name.clone(),
+                points2d: vec![],
+            });
+            let mut c2w = [[0.0; 4]; 4];
+            for (a, row) in c2w.iter_mut().enumerate() {
+                row[a] = 1.0;
+            }
+            c2w[0][3] = k as f64;
+            frames.push(Posed { name, c2w });
+        }
+        let aligned = Aligned {
+            frames,
+            points: vec![],
+            meters_per_unit: None,
+            known: None,
+        };
+        (model, aligned)
+    }
+
+    fn written(dir: &Path, model: &ColmapModel, aligned: &Aligned) -> assist_data::Dataset {
+        std::fs::create_dir_all(dir.join("images")).unwrap();
+        for f in &aligned.frames {
+            image::RgbImage::new(64, 48)
+                .save(dir.join("images").join(&f.name))
+                .unwrap();
+        }
+        dataset_files(dir, model, aligned).unwrap();
+        assist_data::nerfstudio::load(&dir.join("transforms.json")).unwrap()
+    }
+
+    /// One camera per frame (COLMAP's SIMPLE_RADIAL): each frame's focal length and
+    /// radial term come back from the written dataset as they were solved.
+    #[test]
+    fn each_frame_keeps_its_own_camera() {
+        let cams: Vec<(&str, Vec<f64>)> = (0..3)
+            .map(|k| {
+                (
+                    "SIMPLE_RADIAL",
+                    vec![50.0 + k as f64, 31.0, 23.5, 0.01 * k as f64],
+                )
+            })
+            .collect();
+        let (model, aligned) = model(&cams);
+        let dir = assist_testkit::TempDir::new("per-frame-cameras");
+        let data = written(dir.path(), &model, &aligned);
+        let text = std::fs::read_to_string(dir.path().join("transforms.json")).unwrap();
+        let t: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert!(t.get("fl_x").is_none(), "no top-level focal length: {t}");
+        assert_eq!(data.frames.len(), 3);
+        for (k, f) in data.frames.iter().enumerate() {
+            let i = &f.camera.intrinsics;
+            assert_eq!(
+                (i.fx, i.fy, i.cx, i.cy),
+                (50.0 + k as f64, 50.0 + k as f64, 31.0, 23.5)
+            );
+            let want = if k == 0 {
+                Distortion::None
+            } else {
+                Distortion::OpenCv {
+                    k1: 0.01 * k as f64,
+                    k2: 0.0,
+                    k3: 0.0,
+                    p1: 0.0,
+                    p2: 0.0,
+                }
+            };
+            assert_eq!(i.distortion, want, "frame {k}");
+        }
+    }
+
+    /// One shared OPENCV camera is written once, at the top level, with all its terms.
+    #[test]
+    fn a_shared_camera_is_written_once() {
+        let p = vec![52.0, 51.0, 32.0, 24.0, 0.02, -0.01, 0.001, 0.002];
+        let (model, aligned) = model(&[("OPENCV", p)]);
+        let dir = assist_testkit::TempDir::new("shared-camera");
+        let data = written(dir.path(), &model, &aligned);
+        let text = std::fs::read_to_string(dir.path().join("transforms.json")).unwrap();
+        let t: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(t["fl_x"], 52.0);
+        assert!(t["frames"][0].get("fl_x").is_none());
+        for f in &data.frames {
+            let i = &f.camera.intrinsics;
+            assert_eq!((i.fx, i.fy, i.cx, i.cy), (52.0, 51.0, 32.0, 24.0));
+            assert_eq!(
+                i.distortion,
+                Distortion::OpenCv {
+                    k1: 0.02,
+                    k2: -0.01,
+                    k3: 0.0,
+                    p1: 0.001,
+                    p2: 0.002
+                }
+            );
+        }
+    }
 }

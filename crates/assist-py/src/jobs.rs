@@ -225,18 +225,29 @@ impl<'a> Relay<'a> {
 /// COLMAP), as `assist process` does; `callback` gets each event (a dict with `kind`
 /// "stage" or "progress"); Ctrl+C stops the running program and writes nothing.
 #[pyfunction]
-#[pyo3(signature = (input, out, frames=Whole::of(assist_session::process::DEFAULT_FRAMES as i64), matcher=None, scale_by=None, force=false, callback=None))]
+#[pyo3(signature = (input, out, frames=Whole::of(assist_session::process::DEFAULT_FRAMES as i64), matcher=None, cameras=None, scale_by=None, force=false, callback=None))]
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn process<'py>(
     py: Python<'py>,
     input: PathBuf,
     out: PathBuf,
     frames: Whole,
     matcher: Option<&str>,
+    cameras: Option<&str>,
     scale_by: Option<&str>,
     force: bool,
     callback: Option<Py<PyAny>>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    use assist_session::process::{Matcher, ProcessJob, ScaleBy};
+    use assist_session::process::{Cameras, Matcher, ProcessJob, ScaleBy};
+    let cameras = match cameras {
+        None | Some("shared") => Cameras::Shared,
+        Some("per-frame") => Cameras::PerFrame,
+        Some(c) => {
+            return Err(err(format!(
+                "cameras: expected shared or per-frame, got {c:?}"
+            )));
+        }
+    };
     let matcher = match matcher {
         None | Some("auto") => None,
         Some("sequential") => Some(Matcher::Sequential),
@@ -258,6 +269,7 @@ pub(crate) fn process<'py>(
         out,
         frames: frames.get("frames")?,
         matcher,
+        cameras,
         scale_by,
         force,
         cancel: Default::default(),

@@ -17,6 +17,9 @@ pub struct ProcessBenchArgs {
     /// How COLMAP pairs images (as `assist process --matcher`).
     #[arg(long, value_enum, default_value_t = crate::cmd_process::MatcherArg::Auto)]
     pub matcher: crate::cmd_process::MatcherArg,
+    /// One camera or one per frame (as `assist process --cameras`).
+    #[arg(long, value_enum, default_value_t = crate::cmd_process::CamerasArg::Shared)]
+    pub cameras: crate::cmd_process::CamerasArg,
     /// Frames to keep (as `assist process --frames`).
     #[arg(long, default_value_t = assist_session::process::DEFAULT_FRAMES)]
     pub frames: usize,
@@ -48,6 +51,7 @@ pub fn run(a: ProcessBenchArgs) -> anyhow::Result<()> {
         out: out.clone(),
         frames: a.frames.max(given.frames.len()),
         matcher: a.matcher.matcher(),
+        cameras: a.cameras.into(),
         scale_by: None,
         force: a.out.is_some(),
         cancel: Default::default(),

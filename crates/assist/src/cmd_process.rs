@@ -5,7 +5,9 @@
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
-use assist_session::process::{DEFAULT_FRAMES, Matcher, ProcessEvent, ProcessJob, ScaleBy, Stage};
+use assist_session::process::{
+    Cameras, DEFAULT_FRAMES, Matcher, ProcessEvent, ProcessJob, ScaleBy, Stage,
+};
 use clap::{Args, ValueEnum};
 
 #[derive(Args, Debug)]
@@ -23,6 +25,11 @@ pub struct ProcessArgs {
     /// photographs, exhaustive otherwise.
     #[arg(long, value_enum, default_value_t = MatcherArg::Auto)]
     pub matcher: MatcherArg,
+    /// How many cameras COLMAP solves for: shared = one OPENCV camera for every frame (one
+    /// lens at one zoom); per-frame = one SIMPLE_RADIAL camera per frame, whose focal
+    /// length may change (a phone refocusing, photographs from several cameras).
+    #[arg(long, value_enum, default_value_t = CamerasArg::Shared)]
+    pub cameras: CamerasArg,
     /// One known distance, for metres: "FRAME:x,y FRAME:x,y DISTANCE" — two pixels (a
     /// frame's index in name order or its file name, then the pixel) showing the ends of
     /// a distance, e.g. "3:410,220 17:388,610 0.30m" (m, cm or mm). Without it the unit
@@ -44,6 +51,21 @@ pub enum MatcherArg {
     Exhaustive,
 }
 
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum CamerasArg {
+    Shared,
+    PerFrame,
+}
+
+impl From<CamerasArg> for Cameras {
+    fn from(c: CamerasArg) -> Cameras {
+        match c {
+            CamerasArg::Shared => Cameras::Shared,
+            CamerasArg::PerFrame => Cameras::PerFrame,
+        }
+    }
+}
+
 impl MatcherArg {
     pub fn matcher(self) -> Option<Matcher> {
         match self {
@@ -60,6 +82,7 @@ pub fn run(a: ProcessArgs) -> anyhow::Result<()> {
         out: a.out.clone(),
         frames: a.frames,
         matcher: a.matcher.matcher(),
+        cameras: a.cameras.into(),
         scale_by: a.scale_by.clone(),
         force: a.force,
         cancel: Default::default(),

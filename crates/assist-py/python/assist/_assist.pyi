@@ -180,15 +180,18 @@ def process(
     out: _Path,
     frames: int = 150,
     matcher: Optional[str] = None,
+    cameras: Optional[str] = None,
     scale_by: Optional[str] = None,
     force: bool = False,
     callback: Optional[Callable[[dict[str, Any]], None]] = None,
 ) -> dict[str, Any]:
     """A video or a folder of photographs → a posed dataset, as `assist process` does
-    (Debian's ffmpeg and colmap): matcher "auto", "sequential" or "exhaustive"; scale_by
+    (Debian's ffmpeg and colmap): matcher "auto", "sequential" or "exhaustive"; cameras
+    "shared" (one for the capture, the default) or "per-frame"; scale_by
     "FRAME:x,y FRAME:x,y 0.30m" for metres. The callback sees each event as a dict
     (kind "stage" or "progress"). Ctrl+C stops it and writes nothing. Returns the summary
-    (frames, registered, not_registered, matcher, points, meters_per_unit, seconds)."""
+    (frames, registered, not_registered, matcher, cameras, points, meters_per_unit,
+    seconds)."""
 
 def train(
     data: _Path,
