@@ -428,6 +428,8 @@ def test_process_checks_its_arguments_and_calls_back(trained, tmp_path):
     cap, _, _ = trained
     with pytest.raises(assist.AssistError, match="matcher"):
         assist.process(cap / "images", tmp_path / "d", matcher="nearest")
+    with pytest.raises(assist.AssistError, match="cameras"):
+        assist.process(cap / "images", tmp_path / "d", cameras="per-image")
     with pytest.raises(assist.AssistError, match="scale_by"):
         assist.process(cap / "images", tmp_path / "d", scale_by="3:1,2 4:5,6 1ft")
     with pytest.raises(assist.AssistError, match="frames"):

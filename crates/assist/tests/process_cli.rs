@@ -131,6 +131,7 @@ fn a_video_and_photographs_become_posed_datasets() {
     eprintln!("process: {summary}");
     assert_eq!(summary["frames"], 48, "{summary}");
     assert_eq!(summary["matcher"], "sequential");
+    assert_eq!(summary["cameras"], "shared");
     let registered = summary["registered"].as_u64().unwrap();
     assert!(
         registered >= 44,
