@@ -3,8 +3,9 @@
 //! ffmpeg) becomes a posed dataset whose cameras match the capture's own after a
 //! similarity, that `dataset info` validates; a folder of photographs with one known
 //! distance comes out in metres; bad input — one photograph, a video of a blank wall, a
-//! missing program — is refused by name with nothing written. Skips loudly without
-//! ffmpeg and colmap unless `ASSIST_REQUIRE_COLMAP` is set (CI installs both).
+//! missing program — is refused by name with nothing written; `assist bench process`
+//! measures fern's photographs against their own poses and COLMAP against itself. Skips
+//! loudly without ffmpeg and colmap unless `ASSIST_REQUIRE_COLMAP` is set (CI installs both).
 
 mod common;
 
@@ -439,4 +440,38 @@ fn truth_of(
         .unwrap()
         .to_string_lossy()
         .into_owned()]
+}
+
+/// `assist bench process` on a real capture: fern's 20 photographs, their poses stripped,
+/// processed twice; each run's cameras lie within 1% of fern's extent of its own poses
+/// after a similarity, and the second run's within 1% of the first's (COLMAP against
+/// itself, reported as `between_runs`).
+#[test]
+fn bench_process_measures_fern_against_its_poses_and_itself() {
+    if !tools_present() {
+        return;
+    }
+    let Some(fern) = assist_testkit::shared_dataset("process_cli bench", "fern") else {
+        return;
+    };
+    let o = run(&["bench", "process", s(&fern), "--runs", "2", "--json"]);
+    ok(&o);
+    let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    eprintln!("bench process: {r}");
+    let runs = r["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 2, "{r}");
+    for run in runs {
+        assert_eq!(run["registered"], 20, "{run}");
+        let share = run["poses"]["max_share"].as_f64().unwrap();
+        assert!(
+            share < 0.01,
+            "a camera {share} of the extent from fern's own: {run}"
+        );
+    }
+    assert_eq!(r["registered"], runs[0]["registered"]);
+    let between = r["between_runs"].as_array().unwrap();
+    assert_eq!(between.len(), 1, "{r}");
+    assert_eq!(between[0]["matched"], 20);
+    let share = between[0]["max_share"].as_f64().unwrap();
+    assert!(share < 0.01, "two runs {share} of the extent apart: {r}");
 }
