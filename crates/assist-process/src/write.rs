@@ -168,19 +168,36 @@ pub fn downscaled_copies(dir: &Path, names: &[String]) -> Result<(), ProcessErro
                 .map(|v| v.round().clamp(0.0, 255.0) as u8)
                 .collect();
             let out = dir.join(format!("images_{f}")).join(name);
-            image::RgbImage::from_raw(sw as u32, sh as u32, bytes)
-                .ok_or_else(|| ProcessError::Io {
-                    path: out.clone(),
-                    message: "downscaled image has the wrong size".into(),
-                })?
-                .save(&out)
-                .map_err(|e| ProcessError::Io {
-                    path: out.clone(),
-                    message: e.to_string(),
+            let small =
+                image::RgbImage::from_raw(sw as u32, sh as u32, bytes).ok_or_else(|| {
+                    ProcessError::Io {
+                        path: out.clone(),
+                        message: "downscaled image has the wrong size".into(),
+                    }
                 })?;
+            save_copy(&small, &out).map_err(|e| ProcessError::Io {
+                path: out.clone(),
+                message: e.to_string(),
+            })?;
         }
     }
     Ok(())
+}
+
+/// Saves a downscaled copy in its name's format; JPEG at quality 95 (the encoder's
+/// default, 75, would add visible blocking to what training and evaluation read).
+fn save_copy(img: &image::RgbImage, out: &Path) -> image::ImageResult<()> {
+    let ext = out
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or_default()
+        .to_ascii_lowercase();
+    if ext == "jpg" || ext == "jpeg" {
+        let file = std::io::BufWriter::new(std::fs::File::create(out)?);
+        image::codecs::jpeg::JpegEncoder::new_with_quality(file, 95).encode_image(img)
+    } else {
+        img.save(out)
+    }
 }
 
 #[cfg(test)]
@@ -305,6 +322,60 @@ mod tests {
                     p1: 0.001,
                     p2: 0.002
                 }
+            );
+        }
+    }
+}
+
+#[cfg(test)]
+mod copies {
+    use super::*;
+
+    /// The downscaled copies hold each block's mean with no more loss than a
+    /// high-quality JPEG adds (the encoder's default quality, 75, fails this on texture).
+    #[test]
+    fn downscaled_copies_keep_the_block_means() {
+        let dir = assist_testkit::TempDir::new("downscaled-copies");
+        std::fs::create_dir_all(dir.path().join("images")).unwrap();
+        let (w, h) = (128u32, 96u32);
+        let mut state = 7u32;
+        let img = image::RgbImage::from_fn(w, h, |x, y| {
+            state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            let n = (state >> 24) as f32 / 255.0;
+            let v = |k: f32| {
+                let t = 0.5 + 0.3 * ((x as f32 * 0.21 + k).sin() * (y as f32 * 0.17).cos());
+                ((t + 0.2 * (n - 0.5)) * 255.0).clamp(0.0, 255.0) as u8
+            };
+            image::Rgb([v(0.0), v(1.0), v(2.0)])
+        });
+        img.save(dir.path().join("images/a.png")).unwrap();
+        // A JPEG source (quality 100): its copies are JPEG too.
+        let file = std::fs::File::create(dir.path().join("images/b.jpg")).unwrap();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(file, 100)
+            .encode_image(&img)
+            .unwrap();
+        downscaled_copies(dir.path(), &["a.png".into(), "b.jpg".into()]).unwrap();
+        for (name, min_db) in [("a.png", 60.0), ("b.jpg", 38.0)] {
+            let src = image::open(dir.path().join("images").join(name))
+                .unwrap()
+                .to_rgb8();
+            let data: Vec<f32> = src.as_raw().iter().map(|&v| f32::from(v)).collect();
+            let want = assist_data::downscale::reduce_mean(&data, w as usize, h as usize, 3, 2);
+            let got = image::open(dir.path().join("images_2").join(name))
+                .unwrap()
+                .to_rgb8();
+            assert_eq!((got.width(), got.height()), (w / 2, h / 2));
+            let mse = got
+                .as_raw()
+                .iter()
+                .zip(&want)
+                .map(|(&g, &e)| (f64::from(g) - f64::from(e.round())).powi(2))
+                .sum::<f64>()
+                / want.len() as f64;
+            let psnr = 10.0 * (255.0f64.powi(2) / mse.max(1e-12)).log10();
+            assert!(
+                psnr > min_db,
+                "{name}: {psnr:.1} dB from the exact block means"
             );
         }
     }
