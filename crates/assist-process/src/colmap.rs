@@ -25,12 +25,23 @@ pub enum Matcher {
     Exhaustive,
 }
 
-/// How many cameras COLMAP solves for.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+/// How many cameras COLMAP solves for (`process --cameras`; the same names in Python).
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    serde::Serialize,
+    serde::Deserialize,
+    clap::ValueEnum,
+)]
 #[serde(rename_all = "kebab-case")]
 pub enum Cameras {
     /// One OPENCV camera (focal lengths, centre, radial and tangential distortion) shared
     /// by every frame: one lens at one zoom.
+    #[default]
     Shared,
     /// One SIMPLE_RADIAL camera (one focal length, centre, one radial term) per frame:
     /// for frames whose focal length changes (a phone refocusing as it moves, photographs
@@ -267,6 +278,19 @@ fn parse_progress(stage: Stage, line: &str, count: usize) -> Option<(usize, usiz
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The flag's names (clap) and the JSON/Python names (serde) are the same words.
+    #[test]
+    fn camera_modes_read_the_same_on_the_command_line_and_in_json() {
+        use clap::ValueEnum;
+        for c in Cameras::value_variants() {
+            let name = c.to_possible_value().unwrap().get_name().to_string();
+            let back: Cameras =
+                serde_json::from_value(serde_json::Value::from(name.clone())).unwrap();
+            assert_eq!(back, *c, "{name}");
+        }
+        assert!(serde_json::from_value::<Cameras>(serde_json::Value::from("per-image")).is_err());
+    }
 
     #[test]
     fn colmap_log_lines_give_progress() {

@@ -240,13 +240,9 @@ pub(crate) fn process<'py>(
 ) -> PyResult<Bound<'py, PyAny>> {
     use assist_session::process::{Cameras, Matcher, ProcessJob, ScaleBy};
     let cameras = match cameras {
-        None | Some("shared") => Cameras::Shared,
-        Some("per-frame") => Cameras::PerFrame,
-        Some(c) => {
-            return Err(err(format!(
-                "cameras: expected shared or per-frame, got {c:?}"
-            )));
-        }
+        None => Cameras::default(),
+        Some(c) => serde_json::from_value(serde_json::Value::from(c))
+            .map_err(|e| err(format!("cameras: {e}")))?,
     };
     let matcher = match matcher {
         None | Some("auto") => None,

@@ -151,7 +151,7 @@ mod x86 {
                 i += MR;
             }
             // The last m mod 8 rows in one block of that height (an MLP's output layer
-            // of 3, or 15 + 1 rows), not row by row: each B vector loaded serves them all.
+            // of 3), not row by row: each B vector loaded serves them all.
             // SAFETY: rows m_main..m, columns j..j+32 ≤ n.
             unsafe {
                 match g.m - m_main {

@@ -22,8 +22,8 @@ pub struct ProcessBenchArgs {
     #[arg(long, value_enum, default_value_t = crate::cmd_process::MatcherArg::Auto)]
     pub matcher: crate::cmd_process::MatcherArg,
     /// One camera or one per frame (as `assist process --cameras`).
-    #[arg(long, value_enum, default_value_t = crate::cmd_process::CamerasArg::Shared)]
-    pub cameras: crate::cmd_process::CamerasArg,
+    #[arg(long, value_enum, default_value_t)]
+    pub cameras: assist_session::process::Cameras,
     /// Frames to keep (as `assist process --frames`).
     #[arg(long, default_value_t = assist_session::process::DEFAULT_FRAMES)]
     pub frames: usize,
@@ -145,7 +145,7 @@ fn one_run(
         out: out.to_path_buf(),
         frames: a.frames.max(given.frames.len()),
         matcher: a.matcher.matcher(),
-        cameras: a.cameras.into(),
+        cameras: a.cameras,
         scale_by: None,
         force: a.out.is_some(),
         cancel: Default::default(),

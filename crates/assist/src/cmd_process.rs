@@ -25,11 +25,9 @@ pub struct ProcessArgs {
     /// photographs, exhaustive otherwise.
     #[arg(long, value_enum, default_value_t = MatcherArg::Auto)]
     pub matcher: MatcherArg,
-    /// How many cameras COLMAP solves for: shared = one OPENCV camera for every frame (one
-    /// lens at one zoom); per-frame = one SIMPLE_RADIAL camera per frame, whose focal
-    /// length may change (a phone refocusing, photographs from several cameras).
-    #[arg(long, value_enum, default_value_t = CamerasArg::Shared)]
-    pub cameras: CamerasArg,
+    /// How many cameras COLMAP solves for.
+    #[arg(long, value_enum, default_value_t)]
+    pub cameras: Cameras,
     /// One known distance, for metres: "FRAME:x,y FRAME:x,y DISTANCE" — two pixels (a
     /// frame's index in name order or its file name, then the pixel) showing the ends of
     /// a distance, e.g. "3:410,220 17:388,610 0.30m" (m, cm or mm). Without it the unit
@@ -51,21 +49,6 @@ pub enum MatcherArg {
     Exhaustive,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum CamerasArg {
-    Shared,
-    PerFrame,
-}
-
-impl From<CamerasArg> for Cameras {
-    fn from(c: CamerasArg) -> Cameras {
-        match c {
-            CamerasArg::Shared => Cameras::Shared,
-            CamerasArg::PerFrame => Cameras::PerFrame,
-        }
-    }
-}
-
 impl MatcherArg {
     pub fn matcher(self) -> Option<Matcher> {
         match self {
@@ -82,7 +65,7 @@ pub fn run(a: ProcessArgs) -> anyhow::Result<()> {
         out: a.out.clone(),
         frames: a.frames,
         matcher: a.matcher.matcher(),
-        cameras: a.cameras.into(),
+        cameras: a.cameras,
         scale_by: a.scale_by.clone(),
         force: a.force,
         cancel: Default::default(),
