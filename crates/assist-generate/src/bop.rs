@@ -74,13 +74,16 @@ pub(crate) fn write_sample(dir: &Path, s: &Sample) -> Result<()> {
     )
 }
 
+/// The folder of a run's object models (BOP's `models/`).
+pub const MODELS: &str = "models";
+
 impl Generator {
     /// Writes `out/models/`: one mesh per class (object id = class id), from the first
     /// node of that class in the base scenes or the library, in millimetres in the
     /// node's box frame, and `models_info.json`. Classes whose field has no surface get
     /// no model and are listed in `models_info.json`'s `"missing"` file beside it.
     pub(crate) fn write_models(&self, out: &Path) -> Result<()> {
-        let target = out.join("models");
+        let target = out.join(MODELS);
         if target.join("models_info.json").is_file() {
             return Ok(());
         }

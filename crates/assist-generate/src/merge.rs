@@ -219,6 +219,7 @@ pub const GENERATED: &[&str] = &[
     "generate.json",
     "index.json",
     "plans",
+    crate::bop::MODELS,
     shards::SHARDS,
 ];
 

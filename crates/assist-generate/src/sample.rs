@@ -341,24 +341,17 @@ impl Generator {
     ) -> Result<(Vec<View>, Vec<Value>)> {
         let mut views = Vec::new();
         let mut views_json = Vec::new();
-        let background = if self.outputs.contains(&assist_data::Output::Background) {
-            let mut bg = session.scene().clone();
-            bg.scene.nodes.retain(|n| n.is_background());
-            Some(bg)
-        } else {
-            None
-        };
+        // Every output from one render: the background alone from the same samples.
         let req = RenderRequest {
             layers: true,
+            background: self.outputs.contains(&assist_data::Output::Background),
             ..Default::default()
         };
-        // The background alone shares the scene's fields, so their packed tables too.
-        let bg_opts = session.base_options();
         for c in cameras {
-            let frame = session.render(&c.camera, &req)?;
-            let bg = background
-                .as_ref()
-                .map(|b| assist_session::render_camera(b, &c.camera, u32::MAX, &bg_opts).rgb);
+            let mut frame = session.render(&c.camera, &req)?;
+            let bg = req
+                .background
+                .then(|| std::mem::take(&mut frame.background));
             let (annotations, unobserved, coco_panoptic) =
                 self.annotate(base, session, &c.name, &c.camera, &frame);
             views_json.push(annotations);

@@ -90,6 +90,9 @@ pub fn reconstruct(
         let mut c = Command::new(&colmap);
         // COLMAP links Qt even for its command line; no display is needed or wanted.
         c.env("QT_QPA_PLATFORM", "offscreen");
+        // Its solver's glog lines go to the captured stderr (`colmap.log`), not to log
+        // files left in the system's temporary folder.
+        c.env("GLOG_logtostderr", "1");
         c
     };
     step(

@@ -82,11 +82,10 @@ def close(a, b, tol=1e-4):
     return err
 
 
-def test_tokens_equal_open_clips():
+def test_tokens_equal_open_clips(tmp_path):
     tok = open_clip.get_tokenizer("ViT-B-32")
     ref = tok(PHRASES).numpy()
-    d = Path(pytest.importorskip("tempfile").mkdtemp())
-    _, path, _, _ = open_clip_model(d, False)
+    _, path, _, _ = open_clip_model(tmp_path, False)
     clip = assist.Clip(path)
     for i, p in enumerate(PHRASES):
         assert list(clip.tokenize(p)) == list(ref[i]), p

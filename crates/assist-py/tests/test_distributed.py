@@ -6,6 +6,7 @@ driver cannot see are refused with what to do. Skipped when Ray is not installed
 ASSIST_REQUIRE_RAY is set (CI sets it)."""
 
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -83,6 +84,7 @@ def cluster():
                     p.wait(timeout=30)
                 except subprocess.TimeoutExpired:
                     os.killpg(p.pid, signal.SIGKILL)
+        shutil.rmtree(temp, ignore_errors=True)
 
 
 def tree(d):

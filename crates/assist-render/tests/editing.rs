@@ -451,44 +451,51 @@ fn drag_bit_for_bit(shadow: bool, lit: bool) {
     }
 }
 
+/// The red cube casts a shadow on the floor (half of its grid shades nothing, as in
+/// trained grids, the rest varies); `lit`: under a key light, the shiny cube casting too,
+/// moved since its shadow was learned.
+fn cast_shadows(s: &mut NeuralScene, lit: bool) {
+    // Half of the region shades nothing (factors exactly 1, as in trained grids,
+    // which a drag skips), the rest varies.
+    let mut g = assist_field::ShadeGrid::new(5, 2.5);
+    for (i, v) in g.values.iter_mut().enumerate() {
+        let x = (i / 3) % 5;
+        *v = if x <= 2 {
+            1.0
+        } else {
+            0.3 + 0.07 * (i % 10) as f32
+        };
+    }
+    Arc::make_mut(s.fields.get_mut("red").unwrap()).shade = Some(g.clone());
+    if lit {
+        let key = s.scene.nodes[2].field.clone();
+        Arc::make_mut(s.fields.get_mut(&key).unwrap()).shade = Some(g);
+        s.scene.light = Some(assist_core::KeyLight {
+            position: s.scene.nodes[1].world_from_local.translation
+                + assist_core::DVec3::new(0.5, -0.3, 1.5),
+            radius: 0.2,
+        });
+        s.scene.nodes[1].cast = Some(assist_core::ShadowCast {
+            pose: s.scene.nodes[1].world_from_local,
+            strength: [0.6, 0.5, 0.4],
+        });
+        // The other caster was moved since its shadow was learned: its grid is
+        // re-cast under the light too.
+        let mut learned_at = s.scene.nodes[2].world_from_local;
+        learned_at.translation.x += 0.05;
+        s.scene.nodes[2].cast = Some(assist_core::ShadowCast {
+            pose: learned_at,
+            strength: [0.5, 0.5, 0.5],
+        });
+        s.scene.relight = RELIGHT.with(|r| r.get());
+    }
+}
+
 fn drag_bit_for_bit_at(shadow: bool, lit: bool, crowded: bool, prune_eps: f32, packed: bool) {
     use assist_render::{DragCache, render_camera_moving};
     let mut s = base();
     if shadow {
-        // Half of the region shades nothing (factors exactly 1, as in trained grids,
-        // which a drag skips), the rest varies.
-        let mut g = assist_field::ShadeGrid::new(5, 2.5);
-        for (i, v) in g.values.iter_mut().enumerate() {
-            let x = (i / 3) % 5;
-            *v = if x <= 2 {
-                1.0
-            } else {
-                0.3 + 0.07 * (i % 10) as f32
-            };
-        }
-        Arc::make_mut(s.fields.get_mut("red").unwrap()).shade = Some(g.clone());
-        if lit {
-            let key = s.scene.nodes[2].field.clone();
-            Arc::make_mut(s.fields.get_mut(&key).unwrap()).shade = Some(g);
-            s.scene.light = Some(assist_core::KeyLight {
-                position: s.scene.nodes[1].world_from_local.translation
-                    + assist_core::DVec3::new(0.5, -0.3, 1.5),
-                radius: 0.2,
-            });
-            s.scene.nodes[1].cast = Some(assist_core::ShadowCast {
-                pose: s.scene.nodes[1].world_from_local,
-                strength: [0.6, 0.5, 0.4],
-            });
-            // The other caster was moved since its shadow was learned: its grid is
-            // re-cast under the light too.
-            let mut learned_at = s.scene.nodes[2].world_from_local;
-            learned_at.translation.x += 0.05;
-            s.scene.nodes[2].cast = Some(assist_core::ShadowCast {
-                pose: learned_at,
-                strength: [0.5, 0.5, 0.5],
-            });
-            s.scene.relight = RELIGHT.with(|r| r.get());
-        }
+        cast_shadows(&mut s, lit);
         if crowded {
             // The shiny cube beside the red one, and a third red one behind both: the
             // shading halves of all three regions overlap.
@@ -559,4 +566,59 @@ fn drag_bit_for_bit_at(shadow: bool, lit: bool, crowded: bool, prune_eps: f32, p
     let cached = render_camera_moving(&s, &cam, u32::MAX, &opts, 1, &mut cache);
     assert!(!cache.is_warm());
     assert_eq!(cached.rgb, render_camera(&s, &cam, u32::MAX, &opts).rgb);
+}
+
+/// The background alone, taken from the samples of the full render (one pass), is the
+/// render of the scene without its objects, bit for bit: with the objects' shadows on the
+/// floor and a key light (which darken only the full image), over a colour or the last
+/// sample (rays that miss the floor show what no view saw, filled), pruned on the packed
+/// tables or not.
+#[test]
+fn the_background_alone_comes_from_the_same_pass_bit_for_bit() {
+    // Wide enough that the corner rays miss the floor.
+    let cam = Camera {
+        intrinsics: Intrinsics::from_fov_x(W / 2, W / 2, 16f64.to_radians()),
+        ..camera()
+    };
+    for backdrop in [
+        assist_core::Backdrop::Color,
+        assist_core::Backdrop::LastSample,
+    ] {
+        for (prune_eps, packed) in [(0.0, false), (1e-4, true)] {
+            let mut s = base();
+            cast_shadows(&mut s, true);
+            s.scene.backdrop = backdrop;
+            let opts = RenderOptions {
+                rays_per_batch: 1000,
+                prune_eps,
+                precision: assist_field::Precision::Bf16,
+                tables: packed.then(|| Arc::new(assist_render::SceneTables::of(&s))),
+                ..RenderOptions::default()
+            };
+            let with = RenderOptions {
+                background_alone: true,
+                layers: true,
+                ..opts.clone()
+            };
+            let full = render_camera(&s, &cam, u32::MAX, &with);
+            let mut bg = s.clone();
+            bg.scene.nodes.retain(|n| n.is_background());
+            let alone = render_camera(&bg, &cam, u32::MAX, &opts);
+            let case = format!("{backdrop:?}, pruned at {prune_eps}");
+            assert_eq!(full.background, alone.rgb, "{case}");
+            // The rest of the frame is what it is without the option.
+            assert_eq!(
+                full.rgb,
+                render_camera(&s, &cam, u32::MAX, &opts).rgb,
+                "{case}"
+            );
+            // The objects are gone from it, and the floor's shadows with them.
+            assert_ne!(full.background, full.rgb, "{case}");
+            let missed = alone.unseen.iter().filter(|&&u| u).count();
+            match backdrop {
+                assist_core::Backdrop::LastSample => assert!(missed > 0, "{case}"),
+                assist_core::Backdrop::Color => assert_eq!(missed, 0, "{case}"),
+            }
+        }
+    }
 }

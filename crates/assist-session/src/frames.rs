@@ -28,6 +28,8 @@ pub struct RenderRequest {
     pub size: Option<(u32, u32)>,
     /// Each node's own colour and opacity too.
     pub layers: bool,
+    /// The background alone too ([`Frame::background`]).
+    pub background: bool,
     /// Highlight the selected node.
     pub highlight: bool,
     /// Appearance code of a training image; `None` = the average.
@@ -39,6 +41,7 @@ impl Session {
         RenderOptions {
             cancel: req.cancel.clone(),
             layers: req.layers,
+            background_alone: req.background,
             highlight: if req.highlight {
                 self.editor.scene.scene.selected.map(|id| (id, HIGHLIGHT))
             } else {

@@ -5,7 +5,6 @@ use std::path::PathBuf;
 use assist_core::InstanceId;
 use assist_data::{DatasetWriter, Layer, Output, ViewImages};
 use assist_render::{HIGHLIGHT, RenderOptions, render_camera};
-use assist_scene::NeuralScene;
 use serde::{Deserialize, Serialize};
 
 use crate::cameras::{CameraSource, NamedCamera};
@@ -136,27 +135,18 @@ impl Session {
                 Some(id)
             }
         };
-        let background = if writer.wants(Output::Background) {
-            let mut s: NeuralScene = scene.clone();
-            s.scene.nodes.retain(|n| n.is_background());
-            if s.scene.nodes.is_empty() {
-                return Err(request(
-                    "outputs",
-                    "background: the scene has no background node".into(),
-                ));
-            }
-            Some(s)
-        } else {
-            None
-        };
+        let background = writer.wants(Output::Background);
+        if background && !scene.scene.nodes.iter().any(|n| n.is_background()) {
+            return Err(request(
+                "outputs",
+                "background: the scene has no background node".into(),
+            ));
+        }
         let opts = RenderOptions {
             highlight: highlight.map(|id| (id, HIGHLIGHT)),
             layers: layers || writer.wants(Output::Objects),
+            background_alone: background,
             step_scale: job.quality.step_scale(),
-            ..self.base_options()
-        };
-        let bg_opts = RenderOptions {
-            step_scale: opts.step_scale,
             ..self.base_options()
         };
         for c in cameras {
@@ -166,9 +156,6 @@ impl Session {
         let total = cameras.len();
         for (k, c) in cameras.iter().enumerate() {
             let img = render_camera(scene, &c.camera, u32::MAX, &opts);
-            let bg = background
-                .as_ref()
-                .map(|s| render_camera(s, &c.camera, u32::MAX, &bg_opts));
             let layers = frame_layers(&img);
             let v = view_images(
                 &img,
@@ -177,7 +164,7 @@ impl Session {
                 } else {
                     &[]
                 },
-                bg.as_ref().map(|b| b.rgb.as_slice()),
+                background.then_some(img.background.as_slice()),
             );
             writer
                 .write(k, &c.name, &c.camera, &v)

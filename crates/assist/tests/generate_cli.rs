@@ -560,4 +560,20 @@ fn generate_shards_replays_and_annotations() {
     assert_eq!(c["info"]["masks"], "rle");
     assert!(c["annotations"][0]["segmentation"]["counts"].is_string());
     pycoco_check(&full, table);
+
+    // `--force` replaces a whole run made from another spec: everything in it (the BOP
+    // models included) is assist's own.
+    assert!(full.join("models/models_info.json").is_file());
+    ok(&run(&[
+        "generate",
+        "--spec",
+        s(&other),
+        "--out",
+        s(&full),
+        "--count",
+        "1",
+        "--force",
+    ]));
+    assert!(!full.join("samples/000001").exists());
+    assert!(full.join("samples/000000/sample.json").is_file());
 }

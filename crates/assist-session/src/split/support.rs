@@ -310,6 +310,7 @@ mod tests {
             panoptic: vec![0; w * h],
             layers: Vec::new(),
             unseen: vec![false; w * h],
+            background: Vec::new(),
         };
         let cube = |p: DVec3| p.x.abs() < 0.2 && p.y.abs() < 0.2;
         for y in 0..h {
