@@ -12,6 +12,7 @@
 
 #![forbid(unsafe_code)]
 
+mod alone;
 mod batch;
 mod composite;
 mod drag;

@@ -178,65 +178,6 @@ impl RenderedImage {
     }
 }
 
-/// The background alone of a render that has a background node
-/// ([`RenderOptions::background_alone`]).
-struct BackgroundAlone {
-    /// The background node's index in the scene.
-    node: usize,
-    rgb: Vec<f32>,
-    unseen: Vec<bool>,
-}
-
-impl BackgroundAlone {
-    /// For `scene` when it has a background node (`None` otherwise).
-    fn of(scene: &NeuralScene, pixels: usize) -> Option<Self> {
-        let node = scene.scene.nodes.iter().position(|n| n.is_background())?;
-        Some(BackgroundAlone {
-            node,
-            rgb: vec![0.0; 3 * pixels],
-            unseen: vec![false; pixels],
-        })
-    }
-
-    /// A batch's rays: the background node composited alone (the batch's per-node
-    /// composite) over the backdrop a scene of that node alone shows, the colour of its
-    /// own last sample or the scene's colour, by the same formulas as the full composite.
-    fn write_batch(&mut self, scene: &NeuralScene, sc: &RenderScratch, pixels: &[usize]) {
-        let behind = crate::batch::Behind::of(&scene.scene);
-        let nn = sc.out.n_nodes;
-        let ns = sc.traced.nodes.iter().find(|ns| ns.node == self.node);
-        for (r, &q) in pixels.iter().enumerate() {
-            let a = sc.out.nodes[r * nn + self.node];
-            let backdrop = match (behind, ns.map(|ns| ns.range(r))) {
-                (crate::batch::Behind::Color(c), _) => c,
-                (crate::batch::Behind::LastSample, Some(rg)) if !rg.is_empty() => {
-                    let j = rg.end - 1;
-                    let c = &ns.expect("a range comes from its node").rgb[3 * j..3 * j + 3];
-                    [c[0], c[1], c[2]]
-                }
-                (crate::batch::Behind::LastSample, _) => [0.0; 3],
-            };
-            let mut rgb = a.rgb;
-            for c in 0..3 {
-                rgb[c] += (1.0 - a.opacity) * backdrop[c];
-            }
-            self.unseen[q] =
-                behind == crate::batch::Behind::LastSample && a.opacity == 0.0 && rgb == [0.0; 3];
-            self.rgb[3 * q..3 * q + 3].copy_from_slice(&rgb);
-        }
-    }
-
-    /// The image, with what no view saw filled as [`RenderedImage::fill_unseen`] fills it.
-    fn finish(mut self, width: u32, height: u32) -> Vec<f32> {
-        if self.unseen.iter().any(|&u| u) {
-            let seen: Vec<bool> = self.unseen.iter().map(|u| !u).collect();
-            let (w, h) = (width as usize, height as usize);
-            crate::fill::pull_push(w, h, 3, &mut self.rgb, &seen, &self.unseen);
-        }
-        self.rgb
-    }
-}
-
 impl RenderedImage {
     /// Pixel `q`'s colour, its opacity already set.
     fn set_rgb(&mut self, last_sample: bool, q: usize, rgb: [f32; 3]) {
@@ -594,7 +535,7 @@ pub fn render_camera_timed(
     // The background's image alone comes from this render's samples; a scene without a
     // background node (or with it highlighted) renders its image alone apart.
     let mut alone = match opts.background_alone {
-        true => BackgroundAlone::of(scene, pixels_n).filter(|a| {
+        true => crate::alone::BackgroundAlone::of(scene, pixels_n).filter(|a| {
             // A highlighted background is not the background alone.
             opts.highlight.map(|(id, _)| id) != Some(scene.scene.nodes[a.node].id)
         }),
@@ -620,15 +561,7 @@ pub fn render_camera_timed(
     if let Some(a) = alone {
         img.background = a.finish(img.width, img.height);
     } else if opts.background_alone && !opts.cancelled() {
-        let mut bg = scene.clone();
-        bg.scene.nodes.retain(|n| n.is_background());
-        let o = RenderOptions {
-            background_alone: false,
-            layers: false,
-            highlight: None,
-            ..opts.clone()
-        };
-        img.background = render_camera(&bg, camera, image, &o).rgb;
+        img.background = crate::alone::render_apart(scene, camera, image, opts);
     }
     (img, stats)
 }
