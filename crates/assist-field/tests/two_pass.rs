@@ -1,60 +1,8 @@
-//! Rendering's two-pass inference (density for every sample, the colour net for the ones
-//! kept) against the one-pass query of the kept samples alone, and training's density pass
-//! whose encoding the forward pass reads.
+//! Training's density pass, whose encoding the forward pass reads: of the samples kept,
+//! and never of other samples.
 
 use assist_core::Rng;
-use assist_field::{Field, FieldConfig, Precision, Samples, Tape};
-
-#[test]
-fn the_colour_pass_on_kept_samples_is_the_full_query_of_them() {
-    let n = 1000;
-    let (field, pos, dir, image, kept) = setup(n);
-    let mut tape = Tape::default();
-    let mut sigma_all = vec![0.0; n];
-    field.density_features([&pos[0], &pos[1], &pos[2]], None, &mut sigma_all, &mut tape);
-    field.keep_features(&mut tape, &kept);
-    let (kp, kd, ki) = pick_kept(&pos, &dir, &image, &kept);
-    let s = Samples {
-        pos: [&kp[0], &kp[1], &kp[2]],
-        dir: [&kd[0], &kd[1], &kd[2]],
-        image: &ki,
-    };
-    let m = kept.len();
-    let (mut sig2, mut rgb2) = (vec![0.0; m], vec![0.0; 3 * m]);
-    field.forward_from_features(Precision::F32, &s, &tape, &mut sig2, &mut rgb2);
-    let (mut sig1, mut rgb1) = (vec![0.0; m], vec![0.0; 3 * m]);
-    field.forward_at(
-        Precision::F32,
-        None,
-        &s,
-        &mut Tape::default(),
-        &mut sig1,
-        &mut rgb1,
-    );
-
-    // Equal but for the last bits: the encoding's vector body and its scalar tail round
-    // differently, and a sample's place in the batch differs between the two.
-    let close = |x: f32, y: f32| (x - y).abs() <= 1e-5 * x.abs().max(y.abs()).max(1.0);
-    for j in 0..m {
-        assert!(
-            close(sig1[j], sig2[j]),
-            "σ of kept {j}: {} vs {}",
-            sig1[j],
-            sig2[j]
-        );
-        assert!(
-            close(sig1[j], sigma_all[kept[j] as usize]),
-            "first pass σ {j}"
-        );
-        for c in 0..3 {
-            let (a, b) = (rgb1[3 * j + c], rgb2[3 * j + c]);
-            assert!(close(a, b), "rgb of kept {j}: {a} vs {b}");
-        }
-    }
-    let spread = sig1.iter().cloned().fold(f32::MIN, f32::max)
-        - sig1.iter().cloned().fold(f32::MAX, f32::min);
-    assert!(spread > 0.1, "densities vary with position: {spread}");
-}
+use assist_field::{Field, FieldConfig, Samples, Tape};
 
 /// A small field with table entries of ±1 and `n` random samples (positions, directions,
 /// images), and about two in five kept, in runs as along rays.

@@ -23,12 +23,16 @@ pub const PRUNE_MIN_PER_RAY: f32 = 32.0;
 /// Reusable buffers.
 #[derive(Debug, Default)]
 pub struct PruneScratch {
-    sigma: Vec<f32>,
     /// Training's densities per node, and each ray's stop distance ([`PruneBy::Ray`]).
     sigmas: Vec<Vec<f32>>,
     stop: Vec<f32>,
     keep: Vec<u32>,
     kept: Vec<u32>,
+    /// Rendering's rounds: each ray's optical depth so far, the rays still open, and the
+    /// samples of the round in hand ([`query_node_pruned`]).
+    tau: Vec<f32>,
+    live: Vec<u32>,
+    round: NodeSamples,
 }
 
 /// Whose transmittance decides what [`prune_occluded`] drops.
@@ -183,13 +187,13 @@ pub fn query_pruned(
     stats
 }
 
-/// Rendering's pruned query of one node: a density pass (encoding and density net) over
-/// its samples, then each ray's samples behind the point where the node's own
-/// transmittance falls below `eps` are dropped and the colour net runs on the kept ones
-/// from the density net's stored outputs. No sample is encoded twice and a dropped one
-/// never meets the colour net; the compaction is the extra work, so it pays only where
-/// many samples lie behind surfaces (BENCHMARKS.md). What a ray keeps depends on that ray
-/// alone (a drag's re-rendered rays match a full render's).
+/// Rendering's pruned query of one node, in rounds along the rays: each round queries
+/// the next samples of every ray whose node's own transmittance is still above `eps`
+/// (a handful in the first round, more in later ones), so a ray that has met its surface
+/// gets no further query, density or colour. What a ray keeps is the prefix of its samples
+/// up to the round in which its transmittance fell below `eps` — every sample
+/// [`keep_counts`] keeps, and a few more — and depends on that ray alone (a drag's
+/// re-rendered rays match a full render's).
 pub fn query_node_pruned(
     scene: &NeuralScene,
     ns: &mut NodeSamples,
@@ -207,34 +211,91 @@ pub fn query_node_pruned(
         }
     );
     if ns.is_empty() || elsewhere {
-        // A backend (a GPU) queries every sample: no density pass here.
+        // A backend (a GPU) queries every sample: no rounds here.
         stats.queried = ns.len();
         crate::render::query_node(scene, ns, tape, q);
         return stats;
     }
-    let t = std::time::Instant::now();
+    let t0 = std::time::Instant::now();
     let n = ns.len();
-    stats.queried = n;
-    let field = &scene.field_of(ns.node).field;
-    sc.sigma.resize(n, 0.0);
-    field.density_features(
-        [&ns.pos[0], &ns.pos[1], &ns.pos[2]],
-        crate::tables::for_node(scene, ns.node, &q),
-        &mut sc.sigma[..n],
-        tape,
-    );
-    let total = keep_counts(ns, &sc.sigma, eps, &mut sc.keep);
+    let rays = ns.start.len() - 1;
+    let limit = -eps.ln();
+    sc.keep.clear();
+    sc.keep.resize(rays, 0);
+    sc.tau.clear();
+    sc.tau.resize(rays, 0.0);
+    sc.live.clear();
+    sc.live
+        .extend((0..rays as u32).filter(|&r| ns.start[r as usize + 1] > ns.start[r as usize]));
+    // The outputs, by the samples' places before compaction.
+    let mut sigma = std::mem::take(&mut ns.sigma);
+    let mut rgb = std::mem::take(&mut ns.rgb);
+    sigma.clear();
+    sigma.resize(n, 0.0);
+    rgb.clear();
+    rgb.resize(3 * n, 0.0);
+    let mut sub = std::mem::take(&mut sc.round);
+    sub.node = ns.node;
+    let mut queried_s = 0.0;
+    for round in 0.. {
+        if sc.live.is_empty() {
+            break;
+        }
+        let width = ROUND_FIRST << round.min(ROUND_DOUBLINGS);
+        // The round's samples of every live ray, ray after ray.
+        sub.clear();
+        for &r in &sc.live {
+            let a = ns.start[r as usize] as usize + sc.keep[r as usize] as usize;
+            let b = (a + width).min(ns.start[r as usize + 1] as usize);
+            sub.start.push(sub.t.len() as u32);
+            for axis in 0..3 {
+                sub.pos[axis].extend_from_slice(&ns.pos[axis][a..b]);
+                sub.dir[axis].extend_from_slice(&ns.dir[axis][a..b]);
+            }
+            sub.image.extend_from_slice(&ns.image[a..b]);
+            sub.t.extend_from_slice(&ns.t[a..b]);
+            sub.dt.extend_from_slice(&ns.dt[a..b]);
+        }
+        sub.start.push(sub.t.len() as u32);
+        let tq = std::time::Instant::now();
+        crate::render::query_node(scene, &mut sub, tape, q);
+        queried_s += tq.elapsed().as_secs_f64();
+        // Each live ray's outputs into place and its optical depth so far; a ray past
+        // the limit, or out of samples, is done.
+        let mut still = 0;
+        for k in 0..sc.live.len() {
+            let r = sc.live[k] as usize;
+            let (i0, i1) = (sub.start[k] as usize, sub.start[k + 1] as usize);
+            let a = ns.start[r] as usize + sc.keep[r] as usize;
+            let b = a + (i1 - i0);
+            sigma[a..b].copy_from_slice(&sub.sigma[i0..i1]);
+            rgb[3 * a..3 * b].copy_from_slice(&sub.rgb[3 * i0..3 * i1]);
+            sc.tau[r] += (i0..i1).map(|i| sub.sigma[i] * sub.dt[i]).sum::<f32>();
+            sc.keep[r] = (b - ns.start[r] as usize) as u32;
+            if sc.tau[r] <= limit && b < ns.start[r + 1] as usize {
+                sc.live[still] = r as u32;
+                still += 1;
+            }
+        }
+        sc.live.truncate(still);
+    }
+    sc.round = sub;
+    let total: usize = sc.keep.iter().map(|&k| k as usize).sum();
+    stats.queried = total;
+    ns.sigma = sigma;
+    ns.rgb = rgb;
     if total < n {
-        // The kept samples' indices, in order, for the stored outputs.
-        kept_indices(ns, &sc.keep, &mut sc.kept);
-        compact(ns, &sc.keep);
-        field.keep_features(tape, &sc.kept);
+        compact_with_outputs(ns, &sc.keep);
         stats.dropped = n - total;
     }
-    stats.density_s = t.elapsed().as_secs_f64();
-    crate::render::query_node_with(scene, ns, tape, q, true);
+    stats.density_s = t0.elapsed().as_secs_f64() - queried_s;
     stats
 }
+
+/// Samples per ray in a pruned query's first round; each later round doubles it, up to
+/// [`ROUND_DOUBLINGS`] times.
+const ROUND_FIRST: usize = 16;
+const ROUND_DOUBLINGS: usize = 3;
 
 /// Whether node samples `ns` have enough samples per ray reaching the node for the
 /// density pass to pay ([`PRUNE_MIN_PER_RAY`]).
@@ -278,6 +339,22 @@ pub struct PruneStats {
     pub dropped: usize,
     /// Seconds in the density pass and the choice of samples ([`query_pruned`]).
     pub density_s: f64,
+}
+
+/// [`compact`], the samples' field outputs (`sigma`, `rgb`) moved with them.
+fn compact_with_outputs(ns: &mut NodeSamples, keep: &[u32]) {
+    let mut w = 0usize;
+    for (r, &k) in keep.iter().enumerate() {
+        let (a, k) = (ns.start[r] as usize, k as usize);
+        if w != a {
+            ns.sigma.copy_within(a..a + k, w);
+            ns.rgb.copy_within(3 * a..3 * (a + k), 3 * w);
+        }
+        w += k;
+    }
+    ns.sigma.truncate(w);
+    ns.rgb.truncate(3 * w);
+    compact(ns, keep);
 }
 
 /// Keeps the first `keep[r]` samples of each ray `r`.

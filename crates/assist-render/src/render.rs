@@ -355,18 +355,6 @@ fn add_highlight(
 
 /// Queries one node's samples (see [`query_fields`]).
 pub fn query_node(scene: &NeuralScene, ns: &mut NodeSamples, tape: &mut Tape, q: Query) {
-    query_node_with(scene, ns, tape, q, false)
-}
-
-/// [`query_node`]; `encoded`: a render query whose samples' density-net outputs are in
-/// `tape` already (a pruning pass's, see [`crate::prune::query_pruned`]).
-pub(crate) fn query_node_with(
-    scene: &NeuralScene,
-    ns: &mut NodeSamples,
-    tape: &mut Tape,
-    q: Query,
-    encoded: bool,
-) {
     ns.prepare_outputs(matches!(q, Query::Train));
     if ns.is_empty() {
         return;
@@ -387,20 +375,11 @@ pub(crate) fn query_node_with(
         } => {
             let tables = crate::tables::for_node(scene, ns.node, &q);
             // A backend that fails falls back to this CPU (it keeps its error to report).
-            let elsewhere = !encoded
-                && backend.is_some_and(|b| {
-                    b.forward(&nf.field, &ns.samples(), &mut sigma, &mut rgb)
-                        .is_ok()
-                });
-            if encoded {
-                nf.field.forward_from_features(
-                    precision,
-                    &ns.samples(),
-                    tape,
-                    &mut sigma,
-                    &mut rgb,
-                );
-            } else if !elsewhere {
+            let elsewhere = backend.is_some_and(|b| {
+                b.forward(&nf.field, &ns.samples(), &mut sigma, &mut rgb)
+                    .is_ok()
+            });
+            if !elsewhere {
                 nf.field
                     .forward_at(precision, tables, &ns.samples(), tape, &mut sigma, &mut rgb);
             }

@@ -119,7 +119,7 @@ impl NodeSamples {
             image: &self.image,
         }
     }
-    fn clear(&mut self) {
+    pub(crate) fn clear(&mut self) {
         for a in 0..3 {
             self.pos[a].clear();
             self.dir[a].clear();

@@ -211,57 +211,50 @@ fn f32_query() -> assist_render::Query<'static> {
     }
 }
 
+/// Rendering's pruned query, in rounds along the rays: each ray keeps a prefix of its
+/// samples holding every sample whose optical depth in front (through its node) is at
+/// most `-ln eps`, drops only samples past that (each weighs less than `eps`), and its
+/// kept samples' outputs are those of a full query of every sample.
 #[test]
-fn the_pruned_query_reuses_the_density_pass_encoding_exactly() {
-    use assist_render::{PruneBy, PruneScratch, prune_occluded, query_fields, query_pruned};
+fn the_pruned_query_keeps_a_prefix_and_drops_only_what_weighs_nothing() {
+    use assist_render::{PruneScratch, query_fields, query_pruned};
     let s = bg_and_object(textured_field(1, 3.0), textured_field(2, 5.0));
+    let eps = 1e-4f32;
     let mut traced = oblique_samples(&s);
-    let mut two_pass = traced.clone();
+    let mut full = traced.clone();
     let q = f32_query();
     let (mut sc, mut tapes) = (PruneScratch::default(), Vec::new());
-    let before = prune_occluded(&s, &mut two_pass, 1e-4, PruneBy::Node, &mut sc, &mut tapes);
-    query_fields(&s, &mut two_pass, &mut tapes, q);
-    let (mut sc, mut tapes) = (PruneScratch::default(), Vec::new());
-    let fused = query_pruned(&s, &mut traced, 1e-4, &mut sc, &mut tapes, q);
+    query_fields(&s, &mut full, &mut tapes, q);
+    let rounds = query_pruned(&s, &mut traced, eps, &mut sc, &mut tapes, q);
     assert!(
-        fused.dropped > 0 && fused.dropped < fused.queried,
-        "{fused:?}"
+        rounds.dropped > 0 && rounds.dropped < rounds.queried,
+        "{rounds:?}"
     );
-    assert_eq!(
-        (fused.queried, fused.dropped),
-        (before.queried, before.dropped)
-    );
-    for (a, b) in traced.nodes.iter().zip(&two_pass.nodes) {
-        assert_eq!(a.start, b.start);
-        assert_eq!(a.t, b.t);
-        assert_eq!(a.sigma.len(), b.sigma.len());
-        // Equal but for the last bits: the encoding's vector body and its scalar tail
-        // (the last samples of a batch) round differently, and a sample can be in the
-        // body of one batch and the tail of the other.
-        let close = |x: f32, y: f32| (x - y).abs() <= 1e-5 * x.abs().max(y.abs()).max(1.0);
-        let bad: Vec<(usize, f32, f32)> = (0..a.sigma.len())
-            .filter(|&i| {
-                !close(a.sigma[i], b.sigma[i])
-                    || (0..3).any(|c| !close(a.rgb[3 * i + c], b.rgb[3 * i + c]))
-            })
-            .map(|i| (i, a.sigma[i], b.sigma[i]))
-            .collect();
-        assert!(
-            bad.is_empty(),
-            "node {}: {} of {} differ, first {:?}",
-            a.node,
-            bad.len(),
-            a.sigma.len(),
-            &bad[..bad.len().min(5)]
-        );
-        let same = (0..a.sigma.len())
-            .filter(|&i| a.sigma[i] == b.sigma[i])
-            .count();
-        assert!(
-            same + 64 >= a.sigma.len(),
-            "node {}: {same} bit-equal",
-            a.node
-        );
+    // Equal but for the last bits: the encoding's vector body and its scalar tail (the
+    // last samples of a batch) round differently.
+    let close = |x: f32, y: f32| (x - y).abs() <= 1e-5 * x.abs().max(y.abs()).max(1.0);
+    let limit = -eps.ln();
+    for (a, f) in traced.nodes.iter().zip(&full.nodes) {
+        assert_eq!(a.sigma.len(), a.len());
+        for ray in 0..a.start.len() - 1 {
+            let (kept, all) = (a.range(ray), f.range(ray));
+            assert!(kept.len() <= all.len(), "ray {ray}");
+            assert_eq!(a.t[kept.clone()], f.t[all.start..all.start + kept.len()]);
+            for (i, j) in kept.clone().zip(all.clone()) {
+                assert!(close(a.sigma[i], f.sigma[j]), "ray {ray}");
+                assert!((0..3).all(|c| close(a.rgb[3 * i + c], f.rgb[3 * j + c])));
+            }
+            // The optical depth in front of each sample: the first dropped one lies past
+            // the limit, every kept one before it need not.
+            let mut tau = 0.0f32;
+            for (n, j) in all.clone().enumerate() {
+                if n == kept.len() {
+                    assert!(tau > limit, "ray {ray}: dropped at optical depth {tau}");
+                    break;
+                }
+                tau += f.sigma[j] * f.dt[j];
+            }
+        }
     }
 }
 

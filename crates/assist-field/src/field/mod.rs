@@ -285,7 +285,6 @@ impl Field {
         rows: &Rows,
         biases: &[f32],
         fast: Option<(&[PackedA], &mut [u32])>,
-        from_dens: bool,
     ) {
         let lay = &self.layout;
         let p = &self.params;
@@ -304,13 +303,10 @@ impl Field {
         let (h, rest) = act.split_at_mut(rows.dens * CHUNK);
         let (d0, d1) = (&lay.density[0], &lay.density[1]);
         let (dens, rest) = rest.split_at_mut((rows.cin - rows.dens) * CHUNK);
-        // `from_dens`: the density rows are in place already (a pruning pass's).
-        if !from_dens {
-            product(0, d0, enc, h, d0.inp_pad);
-            bias_act(&mut h[..d0.out * CHUNK], &p[d0.b..d0.b + d0.out], true);
-            product(1, d1, h, dens, d1.inp_pad);
-            bias_act(&mut dens[..d1.out * CHUNK], &p[d1.b..d1.b + d1.out], false);
-        }
+        product(0, d0, enc, h, d0.inp_pad);
+        bias_act(&mut h[..d0.out * CHUNK], &p[d0.b..d0.b + d0.out], true);
+        product(1, d1, h, dens, d1.inp_pad);
+        bias_act(&mut dens[..d1.out * CHUNK], &p[d1.b..d1.b + d1.out], false);
         let (cin, rest) = rest.split_at_mut((rows.color[0] - rows.cin) * CHUNK);
         self.color_input(s, c0, dens, cin);
         // Colour layers: cin → hidden… → rgb (pre-activation into the rgb rows).
@@ -377,7 +373,7 @@ impl Field {
         assist_simd::simd(
             #[inline(always)]
             || {
-                self.chunk_forward(s, c * CHUNK, enc, act, rows, biases, fast, false);
+                self.chunk_forward(s, c * CHUNK, enc, act, rows, biases, fast);
                 write_outputs(act, rows, sig, col);
             },
         )
@@ -442,19 +438,16 @@ impl Field {
         scratch.n = 0;
         let enc = &mut scratch.enc[..need];
         self.encode(s.pos, tables, enc);
-        self.nets(precision, s, &*enc, width, false, sigma, rgb);
+        self.nets(precision, s, &*enc, width, sigma, rgb);
     }
 
-    /// The nets over every chunk of `s`: from the encoding (`width` rows per chunk) or,
-    /// `from_dens`, from the density net's stored outputs (`width` = its rows).
-    #[allow(clippy::too_many_arguments)]
+    /// The nets over every chunk of `s`, from the encoding (`width` rows per chunk).
     fn nets(
         &self,
         precision: Precision,
         s: &Samples,
         input: &[f32],
         width: usize,
-        from_dens: bool,
         sigma: &mut [f32],
         rgb: &mut [f32],
     ) {
@@ -483,20 +476,8 @@ impl Field {
                     assist_simd::simd(
                         #[inline(always)]
                         || {
-                            if from_dens {
-                                act[rows.dens * CHUNK..rows.cin * CHUNK].copy_from_slice(input);
-                            }
                             let fast = packed.as_deref().map(|p| (p, bp.as_mut_slice()));
-                            self.chunk_forward(
-                                s,
-                                c * CHUNK,
-                                input,
-                                act,
-                                &rows,
-                                &biases,
-                                fast,
-                                from_dens,
-                            );
+                            self.chunk_forward(s, c * CHUNK, input, act, &rows, &biases, fast);
                             write_outputs(act, &rows, sig, col);
                         },
                     )
