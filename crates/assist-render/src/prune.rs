@@ -1,4 +1,4 @@
-//! Dropping the samples that cannot matter before the expensive passes: a density-only
+//! Dropping the samples that cannot matter. Training: a density-only
 //! query of a node's samples (hash grid + density net, no colour net, no tape), then, per
 //! ray, every sample after the transmittance has fallen below `eps` is dropped (nerfacc's
 //! early stop in training) — the node's own transmittance, or the ray's through every
@@ -15,9 +15,9 @@ use assist_scene::NeuralScene;
 /// Default transmittance below which samples are dropped.
 pub const PRUNE_EPS: f32 = 1e-4;
 
-/// Nodes with fewer samples than this per ray that reaches them are left as they are: the
-/// density pass costs about half a full query per sample (the hash-grid encoding is most
-/// of both), so it can pay only where many samples lie behind surfaces.
+/// Training leaves nodes with fewer samples than this per ray that reaches them as they
+/// are: the density pass costs about half a full query per sample (the hash-grid encoding
+/// is most of both), so it can pay only where many samples lie behind surfaces.
 pub const PRUNE_MIN_PER_RAY: f32 = 32.0;
 
 /// Reusable buffers.
@@ -39,8 +39,7 @@ pub struct PruneScratch {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PruneBy {
     /// Each node's own: a background sample behind an object node is kept (the render's
-    /// pruned query, [`query_pruned`], which runs each node's colour net right after its
-    /// density pass, works this way).
+    /// pruned query, [`query_pruned`], keeps by this rule too, in rounds along the rays).
     Node,
     /// The ray's, through every node's samples merged in depth: a background sample behind
     /// an opaque object node is dropped too. Every node with samples goes through the
@@ -191,9 +190,9 @@ pub fn query_pruned(
 /// the next samples of every ray whose node's own transmittance is still above `eps`
 /// (a handful in the first round, more in later ones), so a ray that has met its surface
 /// gets no further query, density or colour. What a ray keeps is the prefix of its samples
-/// up to the round in which its transmittance fell below `eps` — every sample
-/// [`keep_counts`] keeps, and a few more — and depends on that ray alone (a drag's
-/// re-rendered rays match a full render's).
+/// up to the round in which its transmittance fell below `eps` — every sample before
+/// that point, and a few after it — and depends on that ray alone (a drag's re-rendered
+/// rays match a full render's).
 pub fn query_node_pruned(
     scene: &NeuralScene,
     ns: &mut NodeSamples,
@@ -330,14 +329,16 @@ fn keep_counts(ns: &NodeSamples, sigma: &[f32], eps: f32, keep: &mut Vec<u32>) -
     keep.iter().map(|&k| k as usize).sum()
 }
 
-/// What [`prune_occluded`] did.
+/// What [`prune_occluded`] or [`query_pruned`] did.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct PruneStats {
-    /// Samples that went through the density pass.
+    /// Training: the samples that went through the density pass. Rendering: the samples
+    /// queried (those kept).
     pub queried: usize,
-    /// Of those, the samples dropped.
+    /// The samples dropped.
     pub dropped: usize,
-    /// Seconds in the density pass and the choice of samples ([`query_pruned`]).
+    /// Rendering: seconds spent choosing and moving samples, outside the queries
+    /// ([`query_pruned`]).
     pub density_s: f64,
 }
 

@@ -26,8 +26,9 @@ pub struct RenderOptions {
     /// bf16 MLP products where the CPU has AVX-512 BF16; `ASSIST_PRECISION=f32` for f32).
     pub precision: Precision,
     /// Samples behind the point where their node's transmittance falls below this are
-    /// dropped after a density-only pass (0 = keep all, the default: see [`crate::prune_occluded`]
-    /// for when it pays).
+    /// not queried: the samples are queried in rounds along the rays, and a ray stops after
+    /// the round that takes it below (0 = keep all, the default; see
+    /// [`crate::query_node_pruned`]).
     pub prune_eps: f32,
     /// Marching steps times this (see [`SampleOptions::step_scale`]): 1, the default, as
     /// trained; 2 is `render --quality draft`.
@@ -409,9 +410,8 @@ pub struct RenderStats {
     pub marched: usize,
     /// Samples whose fields were queried in full (after pruning).
     pub queried: usize,
-    /// Seconds: marching, the pruning density pass (with the choice of samples kept),
-    /// the field queries (the nets where pruning encoded already), shading and
-    /// compositing.
+    /// Seconds: marching, pruning's choosing and moving of samples between its rounds,
+    /// the field queries, shading and compositing.
     pub sample_s: f64,
     pub prune_s: f64,
     pub query_s: f64,

@@ -372,9 +372,9 @@ fn packed_tables_render_close_to_f32_and_are_never_stale() {
     if !assist_simd::bf16::available() {
         assert_eq!(at(&s, Precision::Bf16, None, 0.0).rgb, exact.rgb);
     }
-    // Pruning's density pass runs the density net in f32: on a CPU with AVX-512 BF16 the
-    // unpruned render's products are bf16, so the two differ by up to their rounding too
-    // (bounded by the f32-against-bf16 change above).
+    // Pruning's rounds query the samples in other batches than the unpruned render, which
+    // can round their bf16 products differently; allowed up to the f32-against-bf16
+    // change above.
     let rounding = if assist_simd::bf16::available() {
         worst
     } else {

@@ -1,6 +1,6 @@
 //! `assist bench render SCENE --data DATA`: what a rendered frame costs and where its time
-//! goes — samples marched and queried per ray, seconds per stage (marching, the pruning
-//! density pass, the field queries, shading and compositing) — for each renderer setting
+//! goes — samples marched and queried per ray, seconds per stage (marching, pruning's
+//! rounds, the field queries, shading and compositing) — for each renderer setting
 //! asked for, on the same held-out views; and what each setting costs in PSNR, against the
 //! photographs and against the first setting's render. With `--device gpu` (or auto
 //! finding one) a last setting queries the fields on the GPU.
@@ -33,7 +33,7 @@ pub struct RenderBenchArgs {
     #[arg(long, value_parser = clap::value_parser!(u32).range(16..=16384))]
     pub width: Option<u32>,
     /// Pruning thresholds to compare (the transmittance below which a node's samples are
-    /// dropped after a density pass; 0 = off), comma-separated.
+    /// no longer queried; 0 = off), comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "0,1e-4")]
     pub prune_eps: Vec<f32>,
     /// Occupancy thresholds to compare, each as the opacity one smallest step through a
