@@ -35,26 +35,23 @@ impl BackgroundAlone {
         sc: &RenderScratch,
         pixels: &[usize],
     ) {
-        let behind = crate::batch::Behind::of(&scene.scene);
+        use crate::batch::{Behind, backdrop_colour, with_backdrop};
+        let behind = Behind::of(&scene.scene);
         let nn = sc.out.n_nodes;
         let ns = sc.traced.nodes.iter().find(|ns| ns.node == self.node);
         for (r, &q) in pixels.iter().enumerate() {
             let a = sc.out.nodes[r * nn + self.node];
-            let backdrop = match (behind, ns.map(|ns| ns.range(r))) {
-                (crate::batch::Behind::Color(c), _) => c,
-                (crate::batch::Behind::LastSample, Some(rg)) if !rg.is_empty() => {
-                    let j = rg.end - 1;
-                    let c = &ns.expect("a range comes from its node").rgb[3 * j..3 * j + 3];
-                    [c[0], c[1], c[2]]
-                }
-                (crate::batch::Behind::LastSample, _) => [0.0; 3],
+            // The node's own last sample, unshaded (no objects to shade it).
+            let last = ns.and_then(|ns| {
+                let j = ns.range(r).last()?;
+                Some(backdrop_colour(&ns.rgb[3 * j..3 * j + 3], [1.0; 3]))
+            });
+            let backdrop = match behind {
+                Behind::Color(c) => c,
+                Behind::LastSample => last.unwrap_or([0.0; 3]),
             };
-            let mut rgb = a.rgb;
-            for c in 0..3 {
-                rgb[c] += (1.0 - a.opacity) * backdrop[c];
-            }
-            self.unseen[q] =
-                behind == crate::batch::Behind::LastSample && a.opacity == 0.0 && rgb == [0.0; 3];
+            let rgb = with_backdrop(a.rgb, a.opacity, backdrop);
+            self.unseen[q] = behind == Behind::LastSample && a.opacity == 0.0 && rgb == [0.0; 3];
             self.rgb[3 * q..3 * q + 3].copy_from_slice(&rgb);
         }
     }

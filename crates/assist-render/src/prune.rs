@@ -234,7 +234,6 @@ pub fn query_node_pruned(
     rgb.clear();
     rgb.resize(3 * n, 0.0);
     let mut sub = std::mem::take(&mut sc.round);
-    sub.node = ns.node;
     let mut queried_s = 0.0;
     for round in 0.. {
         if sc.live.is_empty() {
@@ -242,20 +241,12 @@ pub fn query_node_pruned(
         }
         let width = ROUND_FIRST << round.min(ROUND_DOUBLINGS);
         // The round's samples of every live ray, ray after ray.
-        sub.clear();
-        for &r in &sc.live {
-            let a = ns.start[r as usize] as usize + sc.keep[r as usize] as usize;
-            let b = (a + width).min(ns.start[r as usize + 1] as usize);
-            sub.start.push(sub.t.len() as u32);
-            for axis in 0..3 {
-                sub.pos[axis].extend_from_slice(&ns.pos[axis][a..b]);
-                sub.dir[axis].extend_from_slice(&ns.dir[axis][a..b]);
-            }
-            sub.image.extend_from_slice(&ns.image[a..b]);
-            sub.t.extend_from_slice(&ns.t[a..b]);
-            sub.dt.extend_from_slice(&ns.dt[a..b]);
-        }
-        sub.start.push(sub.t.len() as u32);
+        let (keep, start) = (&sc.keep, &ns.start);
+        let round_of = |&r: &u32| {
+            let a = start[r as usize] as usize + keep[r as usize] as usize;
+            a..(a + width).min(start[r as usize + 1] as usize)
+        };
+        ns.gather(sc.live.iter().map(round_of), false, &mut sub);
         let tq = std::time::Instant::now();
         crate::render::query_node(scene, &mut sub, tape, q);
         queried_s += tq.elapsed().as_secs_f64();

@@ -147,14 +147,24 @@ impl NodeSamples {
     /// queried (positions, directions, images), or, `with_outputs`, to be composited as
     /// they are (field outputs and shading instead).
     pub(crate) fn gather_rays(&self, rays: &[usize], with_outputs: bool, out: &mut NodeSamples) {
+        self.gather(rays.iter().map(|&r| self.range(r)), with_outputs, out);
+    }
+
+    /// The samples `ranges` (each a part of one ray's, in that order) as a batch of one
+    /// ray per range (see [`Self::gather_rays`]).
+    pub(crate) fn gather(
+        &self,
+        ranges: impl Iterator<Item = std::ops::Range<usize>>,
+        with_outputs: bool,
+        out: &mut NodeSamples,
+    ) {
         out.node = self.node;
         out.clear();
         out.sigma.clear();
         out.rgb.clear();
         let shaded = with_outputs && !self.shade.is_empty();
-        for &r in rays {
+        for g in ranges {
             out.start.push(out.t.len() as u32);
-            let g = self.range(r);
             if !with_outputs {
                 for a in 0..3 {
                     out.pos[a].extend_from_slice(&self.pos[a][g.clone()]);

@@ -507,13 +507,13 @@ fn join_parts(unshaded: [f32; 3], shaded: [f32; 3]) -> [f32; 3] {
 
 /// The last sample's colour as the backdrop shows it.
 #[inline(always)]
-fn backdrop_colour(rgb: &[f32], sh: [f32; 3]) -> [f32; 3] {
+pub(crate) fn backdrop_colour(rgb: &[f32], sh: [f32; 3]) -> [f32; 3] {
     [rgb[0] * sh[0], rgb[1] * sh[1], rgb[2] * sh[2]]
 }
 
 /// `rgb` with the backdrop behind what is left of the transmittance.
 #[inline(always)]
-fn with_backdrop(mut rgb: [f32; 3], opacity: f32, background: [f32; 3]) -> [f32; 3] {
+pub(crate) fn with_backdrop(mut rgb: [f32; 3], opacity: f32, background: [f32; 3]) -> [f32; 3] {
     for c in 0..3 {
         rgb[c] += (1.0 - opacity) * background[c];
     }
