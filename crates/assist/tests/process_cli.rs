@@ -344,11 +344,19 @@ fn known_distance(
             *track.entry(*id).or_default() += 1;
         }
     }
+    // Only pixels whose 40-px neighbourhood lies inside the frame: `--scale-by` places a
+    // pixel within 40 px of the border about three times less surely (half of its
+    // neighbourhood is missing; docs/history.md, session 51).
+    let cam = &model.cameras[&frame.camera_id];
+    let (w, h) = (cam.width as f64, cam.height as f64);
+    let inside = |px: &assist_core::DVec2| {
+        px.x >= 40.0 && px.y >= 40.0 && px.x <= w - 40.0 && px.y <= h - 40.0
+    };
     let observed = |min: usize| -> Vec<(assist_core::DVec2, DVec3)> {
         frame
             .points2d
             .iter()
-            .filter(|(_, id)| *id >= 0 && track[id] >= min)
+            .filter(|(px, id)| *id >= 0 && track[id] >= min && inside(px))
             .map(|(px, id)| (*px, model.points[&(*id as u64)].xyz))
             .filter(|(_, x)| {
                 let p = onto_capture.apply(*x);
