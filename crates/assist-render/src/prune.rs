@@ -32,6 +32,8 @@ pub struct PruneScratch {
     /// samples of the round in hand ([`query_node_pruned`]).
     tau: Vec<f32>,
     live: Vec<u32>,
+    /// Each live ray's optical depth through the round in hand.
+    depth: Vec<f32>,
     round: NodeSamples,
 }
 
@@ -227,11 +229,10 @@ pub fn query_node_pruned(
     sc.live
         .extend((0..rays as u32).filter(|&r| ns.start[r as usize + 1] > ns.start[r as usize]));
     // The outputs, by the samples' places before compaction.
+    // (Not cleared: every sample kept is written, and the rest are compacted away.)
     let mut sigma = std::mem::take(&mut ns.sigma);
     let mut rgb = std::mem::take(&mut ns.rgb);
-    sigma.clear();
     sigma.resize(n, 0.0);
-    rgb.clear();
     rgb.resize(3 * n, 0.0);
     let mut sub = std::mem::take(&mut sc.round);
     let mut queried_s = 0.0;
@@ -250,23 +251,46 @@ pub fn query_node_pruned(
         let tq = std::time::Instant::now();
         crate::render::query_node(scene, &mut sub, tape, q);
         queried_s += tq.elapsed().as_secs_f64();
-        // Each live ray's outputs into place and its optical depth so far; a ray past
-        // the limit, or out of samples, is done.
+        // Each live ray's outputs into place (the two arrays and the round's optical
+        // depths each a task of their own) and its optical depth so far; a ray past the
+        // limit, or out of samples, is done.
+        let (live, keep) = (&sc.live, &sc.keep);
+        let place = |k: usize| ns.start[live[k] as usize] as usize + keep[live[k] as usize] as usize;
+        let mut depth = std::mem::take(&mut sc.depth);
+        rayon::scope(|s| {
+            s.spawn(|_| {
+                for k in 0..live.len() {
+                    let (i0, i1) = (sub.start[k] as usize, sub.start[k + 1] as usize);
+                    sigma[place(k)..place(k) + i1 - i0].copy_from_slice(&sub.sigma[i0..i1]);
+                }
+            });
+            s.spawn(|_| {
+                for k in 0..live.len() {
+                    let (i0, i1) = (sub.start[k] as usize, sub.start[k + 1] as usize);
+                    let a = 3 * place(k);
+                    rgb[a..a + 3 * (i1 - i0)].copy_from_slice(&sub.rgb[3 * i0..3 * i1]);
+                }
+            });
+            s.spawn(|_| {
+                depth.clear();
+                depth.extend((0..live.len()).map(|k| {
+                    (sub.start[k] as usize..sub.start[k + 1] as usize)
+                        .map(|i| sub.sigma[i] * sub.dt[i])
+                        .sum::<f32>()
+                }));
+            });
+        });
         let mut still = 0;
         for k in 0..sc.live.len() {
             let r = sc.live[k] as usize;
-            let (i0, i1) = (sub.start[k] as usize, sub.start[k + 1] as usize);
-            let a = ns.start[r] as usize + sc.keep[r] as usize;
-            let b = a + (i1 - i0);
-            sigma[a..b].copy_from_slice(&sub.sigma[i0..i1]);
-            rgb[3 * a..3 * b].copy_from_slice(&sub.rgb[3 * i0..3 * i1]);
-            sc.tau[r] += (i0..i1).map(|i| sub.sigma[i] * sub.dt[i]).sum::<f32>();
-            sc.keep[r] = (b - ns.start[r] as usize) as u32;
-            if sc.tau[r] <= limit && b < ns.start[r + 1] as usize {
+            sc.tau[r] += depth[k];
+            sc.keep[r] += sub.start[k + 1] - sub.start[k];
+            if sc.tau[r] <= limit && sc.keep[r] < ns.start[r + 1] - ns.start[r] {
                 sc.live[still] = r as u32;
                 still += 1;
             }
         }
+        sc.depth = depth;
         sc.live.truncate(still);
     }
     sc.round = sub;
@@ -335,45 +359,52 @@ pub struct PruneStats {
 
 /// [`compact`], the samples' field outputs (`sigma`, `rgb`) moved with them.
 fn compact_with_outputs(ns: &mut NodeSamples, keep: &[u32]) {
-    let mut w = 0usize;
-    for (r, &k) in keep.iter().enumerate() {
-        let (a, k) = (ns.start[r] as usize, k as usize);
-        if w != a {
-            ns.sigma.copy_within(a..a + k, w);
-            ns.rgb.copy_within(3 * a..3 * (a + k), 3 * w);
-        }
-        w += k;
-    }
-    ns.sigma.truncate(w);
-    ns.rgb.truncate(3 * w);
+    let (start, sigma, rgb) = (&ns.start, &mut ns.sigma, &mut ns.rgb);
+    rayon::join(
+        || keep_prefixes(sigma, start, keep, 1),
+        || keep_prefixes(rgb, start, keep, 3),
+    );
     compact(ns, keep);
 }
 
-/// Keeps the first `keep[r]` samples of each ray `r`.
+/// Keeps the first `keep[r]` samples of each ray `r` (each array a task of its own).
 fn compact(ns: &mut NodeSamples, keep: &[u32]) {
-    let mut w = 0usize;
-    let rays = keep.len();
-    for r in 0..rays {
-        let a = ns.start[r] as usize;
-        let k = keep[r] as usize;
-        ns.start[r] = w as u32;
-        if w != a {
-            for axis in 0..3 {
-                ns.pos[axis].copy_within(a..a + k, w);
-                ns.dir[axis].copy_within(a..a + k, w);
-            }
-            ns.image.copy_within(a..a + k, w);
-            ns.t.copy_within(a..a + k, w);
-            ns.dt.copy_within(a..a + k, w);
+    let NodeSamples {
+        pos,
+        dir,
+        image,
+        t,
+        dt,
+        start,
+        ..
+    } = ns;
+    let st = &start[..];
+    rayon::scope(|s| {
+        s.spawn(|_| keep_prefixes(image, st, keep, 1));
+        s.spawn(|_| keep_prefixes(t, st, keep, 1));
+        s.spawn(|_| keep_prefixes(dt, st, keep, 1));
+        for a in pos.iter_mut().chain(dir.iter_mut()) {
+            s.spawn(|_| keep_prefixes(a, st, keep, 1));
         }
+    });
+    let mut w = 0u32;
+    for (r, &k) in keep.iter().enumerate() {
+        start[r] = w;
         w += k;
     }
-    ns.start[rays] = w as u32;
-    for axis in 0..3 {
-        ns.pos[axis].truncate(w);
-        ns.dir[axis].truncate(w);
+    start[keep.len()] = w;
+}
+
+/// `v` (`k` values per sample, rays by `start`) cut to the first `keep[r]` samples of each
+/// ray `r`, in place.
+fn keep_prefixes<T: Copy>(v: &mut Vec<T>, start: &[u32], keep: &[u32], k: usize) {
+    let mut w = 0usize;
+    for (r, &m) in keep.iter().enumerate() {
+        let (a, m) = (k * start[r] as usize, k * m as usize);
+        if w != a {
+            v.copy_within(a..a + m, w);
+        }
+        w += m;
     }
-    ns.image.truncate(w);
-    ns.t.truncate(w);
-    ns.dt.truncate(w);
+    v.truncate(w);
 }

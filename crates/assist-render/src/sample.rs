@@ -151,7 +151,8 @@ impl NodeSamples {
     }
 
     /// The samples `ranges` (each a part of one ray's, in that order) as a batch of one
-    /// ray per range (see [`Self::gather_rays`]).
+    /// ray per range (see [`Self::gather_rays`]). Each array is copied by a task of its
+    /// own.
     pub(crate) fn gather(
         &self,
         ranges: impl Iterator<Item = std::ops::Range<usize>>,
@@ -159,31 +160,50 @@ impl NodeSamples {
         out: &mut NodeSamples,
     ) {
         out.node = self.node;
-        out.clear();
-        out.sigma.clear();
-        out.rgb.clear();
-        let shaded = with_outputs && !self.shade.is_empty();
-        for g in ranges {
-            out.start.push(out.t.len() as u32);
-            if !with_outputs {
-                for a in 0..3 {
-                    out.pos[a].extend_from_slice(&self.pos[a][g.clone()]);
-                    out.dir[a].extend_from_slice(&self.dir[a][g.clone()]);
-                }
-                out.image.extend_from_slice(&self.image[g.clone()]);
-            }
-            out.t.extend_from_slice(&self.t[g.clone()]);
-            out.dt.extend_from_slice(&self.dt[g.clone()]);
-            if with_outputs {
-                out.sigma.extend_from_slice(&self.sigma[g.clone()]);
-                out.rgb.extend_from_slice(&self.rgb[3 * g.start..3 * g.end]);
-            }
-            if shaded {
-                out.shade
-                    .extend_from_slice(&self.shade[3 * g.start..3 * g.end]);
-            }
+        out.start.clear();
+        out.w.clear();
+        let mut ranges: Vec<std::ops::Range<usize>> = ranges.collect();
+        let mut n = 0u32;
+        for g in &ranges {
+            out.start.push(n);
+            n += g.len() as u32;
         }
-        out.start.push(out.t.len() as u32);
+        out.start.push(n);
+        // Adjacent ranges (whole rays in order) copy as one.
+        ranges.dedup_by(|b, a| {
+            let joined = a.end == b.start;
+            if joined {
+                a.end = b.end;
+            }
+            joined
+        });
+        let shaded = with_outputs && !self.shade.is_empty();
+        let g = &ranges[..];
+        let NodeSamples {
+            pos,
+            dir,
+            image,
+            t,
+            dt,
+            sigma,
+            rgb,
+            shade,
+            ..
+        } = out;
+        rayon::scope(|s| {
+            s.spawn(|_| column(t, &self.t, g, 1, true));
+            s.spawn(|_| column(dt, &self.dt, g, 1, true));
+            s.spawn(|_| column(sigma, &self.sigma, g, 1, with_outputs));
+            s.spawn(|_| column(rgb, &self.rgb, g, 3, with_outputs));
+            s.spawn(|_| column(shade, &self.shade, g, 3, shaded));
+            s.spawn(|_| column(image, &self.image, g, 1, !with_outputs));
+            for (dst, src) in pos.iter_mut().zip(&self.pos) {
+                s.spawn(|_| column(dst, src, g, 1, !with_outputs));
+            }
+            for (dst, src) in dir.iter_mut().zip(&self.dir) {
+                s.spawn(|_| column(dst, src, g, 1, !with_outputs));
+            }
+        });
     }
 
     /// Sizes the output and gradient buffers to the sample count (zeroed gradients).
@@ -196,6 +216,17 @@ impl NodeSamples {
             self.d_sigma.resize(n, 0.0);
             self.d_rgb.clear();
             self.d_rgb.resize(3 * n, 0.0);
+        }
+    }
+}
+
+/// `dst` made the `ranges` of `src` (`k` values per sample) one after another; empty
+/// unless `wanted`.
+fn column<T: Copy>(dst: &mut Vec<T>, src: &[T], ranges: &[std::ops::Range<usize>], k: usize, wanted: bool) {
+    dst.clear();
+    if wanted {
+        for g in ranges {
+            dst.extend_from_slice(&src[k * g.start..k * g.end]);
         }
     }
 }
