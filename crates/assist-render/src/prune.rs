@@ -255,7 +255,8 @@ pub fn query_node_pruned(
         // depths each a task of their own) and its optical depth so far; a ray past the
         // limit, or out of samples, is done.
         let (live, keep) = (&sc.live, &sc.keep);
-        let place = |k: usize| ns.start[live[k] as usize] as usize + keep[live[k] as usize] as usize;
+        let place =
+            |k: usize| ns.start[live[k] as usize] as usize + keep[live[k] as usize] as usize;
         let mut depth = std::mem::take(&mut sc.depth);
         rayon::scope(|s| {
             s.spawn(|_| {

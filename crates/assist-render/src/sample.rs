@@ -131,17 +131,45 @@ impl NodeSamples {
         self.shade.clear();
         self.w.clear();
     }
-    fn append(&mut self, o: &NodeSamples) {
-        let base = self.t.len() as u32;
-        for a in 0..3 {
-            self.pos[a].extend_from_slice(&o.pos[a]);
-            self.dir[a].extend_from_slice(&o.dir[a]);
+    /// The blocks' samples after this one's, the rays' starts ended (each array copied by
+    /// a task of its own). A block's `start` holds the block-local start of each of its
+    /// rays, with no trailing end.
+    fn append_all(&mut self, blocks: &[NodeSamples]) {
+        let mut base = self.t.len() as u32;
+        for o in blocks {
+            self.start.extend(o.start.iter().map(|s| s + base));
+            base += o.t.len() as u32;
         }
-        self.image.extend_from_slice(&o.image);
-        self.t.extend_from_slice(&o.t);
-        self.dt.extend_from_slice(&o.dt);
-        // `o.start` holds the block-local start of each of its rays (no trailing end).
-        self.start.extend(o.start.iter().map(|s| s + base));
+        self.start.push(base);
+        let NodeSamples {
+            pos,
+            dir,
+            image,
+            t,
+            dt,
+            ..
+        } = self;
+        fn cat<T: Copy + Send>(
+            dst: &mut Vec<T>,
+            blocks: &[NodeSamples],
+            of: impl Fn(&NodeSamples) -> &[T],
+        ) {
+            dst.reserve(blocks.iter().map(|b| of(b).len()).sum());
+            for b in blocks {
+                dst.extend_from_slice(of(b));
+            }
+        }
+        rayon::scope(|s| {
+            s.spawn(|_| cat(image, blocks, |b| &b.image));
+            s.spawn(|_| cat(t, blocks, |b| &b.t));
+            s.spawn(|_| cat(dt, blocks, |b| &b.dt));
+            for (a, dst) in pos.iter_mut().enumerate() {
+                s.spawn(move |_| cat(dst, blocks, |b| &b.pos[a]));
+            }
+            for (a, dst) in dir.iter_mut().enumerate() {
+                s.spawn(move |_| cat(dst, blocks, |b| &b.dir[a]));
+            }
+        });
     }
     /// The samples of rays `rays` (in that order) as a batch of `rays.len()` rays: to be
     /// queried (positions, directions, images), or, `with_outputs`, to be composited as
@@ -222,7 +250,13 @@ impl NodeSamples {
 
 /// `dst` made the `ranges` of `src` (`k` values per sample) one after another; empty
 /// unless `wanted`.
-fn column<T: Copy>(dst: &mut Vec<T>, src: &[T], ranges: &[std::ops::Range<usize>], k: usize, wanted: bool) {
+fn column<T: Copy>(
+    dst: &mut Vec<T>,
+    src: &[T],
+    ranges: &[std::ops::Range<usize>],
+    k: usize,
+    wanted: bool,
+) {
     dst.clear();
     if wanted {
         for g in ranges {
@@ -341,10 +375,7 @@ pub fn sample_rays_node(
             })
         })
         .collect();
-    for blk in &blocks {
-        ns.append(blk);
-    }
-    ns.start.push(ns.t.len() as u32);
+    ns.append_all(&blocks);
 }
 
 /// The samples of node `k` along rays `range` (block-local starts, no trailing end).
