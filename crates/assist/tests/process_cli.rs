@@ -247,13 +247,14 @@ fn a_video_and_photographs_become_posed_datasets() {
     // Where the rerun's points lie against the first model's (both in the capture's
     // frame): their misses, not assist's arithmetic, are what move the scale below. A
     // point under the pixel on another surface, or a mistriangulated one, misses by a
-    // large share of the extent; two reconstructions of the same surface by about their
-    // cameras' errors.
+    // large share of the extent (0.62 and 7.3 units in failed runs); two reconstructions
+    // of the same surface by a few hundredths of its depth, and one pixel in a hundred by
+    // a tenth or more (docs/history.md, session 51: up to 0.28 units here).
     assert!(metres >= 0.15 * extent, "known distance {metres} too short");
     for (k, want) in ["a", "b"].iter().zip(intended) {
         let miss = fit.apply(point(k)).distance(want);
         eprintln!("known point {k}: {miss:.4} from the first model's (extent {extent:.3})");
-        assert!(miss < 0.15 * extent, "known point {k} missed by {miss}");
+        assert!(miss < 0.25 * extent, "known point {k} missed by {miss}");
     }
     assert!(
         (measured - given_m).abs() < 1e-9 * given_m,
