@@ -29,6 +29,9 @@ pub struct Aligned {
     /// The two points `--scale-by` found under its pixels, in the new frame (so the
     /// user, and the tests, can see what was measured): `meters` apart.
     pub known: Option<[DVec3; 2]>,
+    /// What the user should know about the result (a `--scale-by` pixel near a frame's
+    /// border).
+    pub warnings: Vec<String>,
 }
 
 /// One known distance: two pixels, each in a frame (index in capture order or file
@@ -123,10 +126,22 @@ pub fn align(
         .normalize_or(DVec3::Z);
     let turn = DQuat::from_rotation_arc(up, DVec3::Z);
     let centre = cams.iter().map(|(_, c)| *c).sum::<DVec3>() / cams.len().max(1) as f64;
+    let mut warnings = Vec::new();
     let (s, known) = match scale {
         Some(by) => {
             let a = known_point(model, &images, &by.a, model_dir)?;
             let b = known_point(model, &images, &by.b, model_dir)?;
+            for (frame, px) in [&by.a, &by.b] {
+                let image = frame_named(&images, frame)?;
+                if let Some(cam) = model.cameras.get(&image.camera_id)
+                    && near_border(*px, cam.width, cam.height)
+                {
+                    warnings.push(format!(
+                        "--scale-by: ({}, {}) in {} lies within {NEAR_PX} px of the frame's border, where COLMAP's points are fewer and less certain (such a pixel is placed about three times less surely); one further inside measures the distance better",
+                        px[0], px[1], image.name
+                    ));
+                }
+            }
             let d = a.distance(b);
             if d < 1e-9 {
                 return Err(ProcessError::ScaleBy(
@@ -167,6 +182,7 @@ pub fn align(
         points,
         meters_per_unit: scale.map(|_| 1.0),
         known,
+        warnings,
     })
 }
 
@@ -187,18 +203,7 @@ fn known_point(
     (frame, px): &(String, [f64; 2]),
     model_dir: &Path,
 ) -> Result<DVec3, ProcessError> {
-    let image = images
-        .iter()
-        .find(|i| {
-            i.name == *frame || Path::new(&i.name).file_stem().and_then(|s| s.to_str()) == Some(frame)
-        })
-        .or_else(|| frame.parse::<usize>().ok().and_then(|k| images.get(k)))
-        .ok_or_else(|| {
-            ProcessError::ScaleBy(format!(
-                "no registered frame {frame:?} (a frame's index from 0 to {} in name order, or its file name)",
-                images.len().saturating_sub(1)
-            ))
-        })?;
+    let image = frame_named(images, frame)?;
     let at = assist_core::DVec2::from_array(*px);
     let mut seen: Vec<(assist_core::DVec2, DVec3)> = image
         .points2d
@@ -233,6 +238,34 @@ fn known_point(
             model_dir.display()
         ))
     })
+}
+
+/// Frame `frame` of `images` (in name order): its file name, its name without extension,
+/// or its index.
+fn frame_named<'a>(
+    images: &[&'a ColmapImage],
+    frame: &str,
+) -> Result<&'a ColmapImage, ProcessError> {
+    images
+        .iter()
+        .find(|i| {
+            i.name == frame || Path::new(&i.name).file_stem().and_then(|s| s.to_str()) == Some(frame)
+        })
+        .or_else(|| frame.parse::<usize>().ok().and_then(|k| images.get(k)))
+        .ok_or_else(|| {
+            ProcessError::ScaleBy(format!(
+                "no registered frame {frame:?} (a frame's index from 0 to {} in name order, or its file name)",
+                images.len().saturating_sub(1)
+            ))
+        })
+        .copied()
+}
+
+/// Whether pixel `px` lies within [`NEAR_PX`] of the border of a `width` × `height` frame,
+/// where its neighbourhood is cut off.
+fn near_border(px: [f64; 2], width: u32, height: u32) -> bool {
+    let (w, h) = (width as f64, height as f64);
+    px[0] < NEAR_PX || px[1] < NEAR_PX || px[0] > w - NEAR_PX || px[1] > h - NEAR_PX
 }
 
 /// Depth, as a share of a point's own, within which two points seen near one pixel lie on
@@ -398,7 +431,7 @@ mod tests {
     }
 
     /// Cameras on a ring looking inward, all tilted the same way: after alignment their
-    /// mean up is +Z, their mean centre the origin, and a known distance sets metres.
+    /// mean up is +Z and their mean centre the origin; then a known distance sets metres.
     #[test]
     fn cameras_come_out_upright_centred_and_scaled() {
         let tilt = DQuat::from_rotation_x(0.4) * DQuat::from_rotation_y(-0.3);
@@ -447,5 +480,55 @@ mod tests {
             assert!((c.length() - 3.0).abs() < 1e-9);
         }
         assert_eq!(out.meters_per_unit, None);
+        assert!(out.warnings.is_empty());
+
+        // A known distance: points of a plane 2 units in front of frame f0 (a 640×480
+        // pinhole camera), seen at pixels around each end. The two ends come out the given
+        // metres apart, and a pixel near the border is warned about, one inside is not.
+        let (f, cx, cy) = (500.0, 320.0, 240.0);
+        model.cameras.insert(
+            1,
+            assist_data::colmap::ColmapCamera {
+                id: 1,
+                model: "PINHOLE".into(),
+                width: 640,
+                height: 480,
+                params: vec![f, f, cx, cy],
+            },
+        );
+        let (wfc, centre) = camera(&model.images[0]);
+        let mut seen = vec![];
+        for (k, (u, v)) in [(100.0, 100.0), (20.0, 300.0)]
+            .iter()
+            .flat_map(|&(u, v)| {
+                [(0.0, 0.0), (12.0, 3.0), (-5.0, 14.0), (9.0, -11.0)]
+                    .map(|(du, dv)| (u + du, v + dv))
+            })
+            .enumerate()
+        {
+            let x = centre + wfc * DVec3::new((u - cx) / f * 2.0, (v - cy) / f * 2.0, 2.0);
+            model.points.insert(
+                k as u64,
+                assist_data::colmap::ColmapPoint {
+                    id: k as u64,
+                    xyz: x,
+                    rgb: [0; 3],
+                    error: 0.5,
+                },
+            );
+            seen.push((assist_core::DVec2::new(u, v), k as i64));
+        }
+        model.images[0].points2d = seen;
+        let by: ScaleBy = "f0.jpg:100,100 f0:20,300 0.5m".parse().unwrap();
+        let out = align(&model, Some(&by), Path::new("m")).unwrap();
+        let [a, b] = out.known.unwrap();
+        assert!((a.distance(b) - 0.5).abs() < 1e-9, "{}", a.distance(b));
+        assert_eq!(out.meters_per_unit, Some(1.0));
+        assert_eq!(out.warnings.len(), 1, "{:?}", out.warnings);
+        assert!(
+            out.warnings[0].contains("(20, 300) in f0.jpg") && out.warnings[0].contains("border"),
+            "{:?}",
+            out.warnings
+        );
     }
 }

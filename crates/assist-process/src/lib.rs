@@ -144,6 +144,9 @@ pub struct ProcessSummary {
     pub height: u32,
     /// Seconds per stage, in order.
     pub seconds: Vec<(Stage, f64)>,
+    /// What the user should know about the result (e.g. a `--scale-by` pixel near a
+    /// frame's border).
+    pub warnings: Vec<String>,
 }
 
 fn io(path: &Path) -> impl Fn(std::io::Error) -> ProcessError + '_ {
@@ -264,6 +267,7 @@ impl ProcessJob {
             width: camera.width,
             height: camera.height,
             seconds,
+            warnings: aligned.warnings.clone(),
         };
         let record = serde_json::json!({
             "input": self.input,

@@ -244,6 +244,7 @@ mod tests {
             points: vec![],
             meters_per_unit: None,
             known: None,
+            warnings: vec![],
         };
         (model, aligned)
     }

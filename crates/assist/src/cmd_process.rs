@@ -112,6 +112,9 @@ pub fn run(a: ProcessArgs) -> anyhow::Result<()> {
             done.not_registered.join(", ")
         );
     }
+    for w in &done.warnings {
+        eprintln!("warning: {w}");
+    }
     match done.meters_per_unit {
         Some(_) => eprintln!("unit: metres (from --scale-by)"),
         None => eprintln!(
