@@ -34,7 +34,18 @@ pub struct PruneScratch {
     live: Vec<u32>,
     /// Each live ray's optical depth through the round in hand.
     depth: Vec<f32>,
+    /// Per node (by index): query its next batch whole and cut each ray afterwards, as
+    /// its last batch's rounds dropped too little to pay ([`ROUNDS_PAY`]).
+    in_place: Vec<bool>,
     round: NodeSamples,
+}
+
+impl PruneScratch {
+    /// Queries the next batch of each of `nodes` nodes whole and cuts it afterwards, as
+    /// after a batch whose rounds did not pay: for tests and benchmarks of the two ways.
+    pub fn query_whole(&mut self, nodes: usize) {
+        self.in_place = vec![true; nodes];
+    }
 }
 
 /// Whose transmittance decides what [`prune_occluded`] drops.
@@ -221,6 +232,25 @@ pub fn query_node_pruned(
     let n = ns.len();
     let rays = ns.start.len() - 1;
     let limit = -eps.ln();
+    if sc.in_place.len() <= ns.node {
+        sc.in_place.resize(ns.node + 1, false);
+    }
+    if sc.in_place[ns.node] {
+        // Every sample in one query, then each ray cut where its rounds would have
+        // stopped it: the same samples and bits as the rounds, without their copying.
+        let tq = std::time::Instant::now();
+        crate::render::query_node(scene, ns, tape, q);
+        let queried_s = tq.elapsed().as_secs_f64();
+        let total = rounds_keep(ns, limit, &mut sc.keep);
+        stats.queried = n;
+        if total < n {
+            compact_with_outputs(ns, &sc.keep);
+            stats.dropped = n - total;
+        }
+        sc.in_place[ns.node] = stats.dropped < (ROUNDS_PAY * n as f64) as usize;
+        stats.density_s = t0.elapsed().as_secs_f64() - queried_s;
+        return stats;
+    }
     sc.keep.clear();
     sc.keep.resize(rays, 0);
     sc.tau.clear();
@@ -304,7 +334,41 @@ pub fn query_node_pruned(
         stats.dropped = n - total;
     }
     stats.density_s = t0.elapsed().as_secs_f64() - queried_s;
+    sc.in_place[ns.node] = stats.dropped < (ROUNDS_PAY * n as f64) as usize;
     stats
+}
+
+/// The share of a node's samples the rounds must drop for them to pay for their copying;
+/// below it, the node's next batch is queried whole and cut afterwards ([`rounds_keep`]).
+const ROUNDS_PAY: f64 = 0.2;
+
+/// Per ray of `ns` (every sample's outputs in place), how many leading samples the rounds
+/// of [`query_node_pruned`] keep: whole rounds, until the one after which the optical
+/// depth exceeds `limit`, each round's summed as the rounds sum it (so the same bits
+/// decide). Returns the total kept.
+fn rounds_keep(ns: &NodeSamples, limit: f32, keep: &mut Vec<u32>) -> usize {
+    let rays = ns.start.len() - 1;
+    keep.resize(rays, 0);
+    let (start, sigma, dt) = (&ns.start, &ns.sigma, &ns.dt);
+    keep.par_iter_mut().enumerate().for_each(|(r, k)| {
+        let (a, len) = (start[r] as usize, (start[r + 1] - start[r]) as usize);
+        let (mut kept, mut tau) = (0usize, 0.0f32);
+        for round in 0.. {
+            if kept >= len {
+                break;
+            }
+            let end = (kept + (ROUND_FIRST << round.min(ROUND_DOUBLINGS))).min(len);
+            tau += (a + kept..a + end).map(|i| sigma[i] * dt[i]).sum::<f32>();
+            kept = end;
+            // As the rounds judge it (a NaN depth stops the ray there too).
+            let open = tau <= limit;
+            if !open {
+                break;
+            }
+        }
+        *k = kept as u32;
+    });
+    keep.iter().map(|&k| k as usize).sum()
 }
 
 /// Samples per ray in a pruned query's first round; each later round doubles it, up to

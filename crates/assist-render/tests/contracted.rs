@@ -258,6 +258,40 @@ fn the_pruned_query_keeps_a_prefix_and_drops_only_what_weighs_nothing() {
     }
 }
 
+/// A node whose rounds dropped too little to pay is queried whole and each ray cut
+/// afterwards where its rounds would have stopped it: the same samples, the same bits.
+#[test]
+fn a_whole_query_cut_afterwards_keeps_what_the_rounds_keep() {
+    use assist_render::{PruneScratch, SceneTables, query_pruned};
+    let s = bg_and_object(textured_field(1, 3.0), textured_field(2, 5.0));
+    let tables = SceneTables::of(&s);
+    let q = assist_render::Query::Render {
+        precision: assist_field::Precision::Bf16,
+        highlight: None,
+        tables: Some(&tables),
+        backend: None,
+    };
+    let eps = 1e-4f32;
+    let traced = oblique_samples(&s);
+    let all: usize = traced.nodes.iter().map(|n| n.len()).sum();
+    let (mut rounds, mut whole) = (traced.clone(), traced.clone());
+    let mut sc = PruneScratch::default();
+    let r = query_pruned(&s, &mut rounds, eps, &mut sc, &mut Vec::new(), q);
+    let mut sc = PruneScratch::default();
+    sc.query_whole(traced.nodes.len());
+    let w = query_pruned(&s, &mut whole, eps, &mut sc, &mut Vec::new(), q);
+    assert!(r.dropped > 0 && r.queried < all, "{r:?}");
+    assert_eq!((w.queried, w.dropped), (all, r.dropped), "{w:?} {r:?}");
+    for (a, b) in rounds.nodes.iter().zip(&whole.nodes) {
+        assert_eq!(a.start, b.start);
+        assert_eq!(a.t, b.t);
+        assert_eq!(a.dt, b.dt);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&a.sigma), bits(&b.sigma));
+        assert_eq!(bits(&a.rgb), bits(&b.rgb));
+    }
+}
+
 /// Training's pruning by the ray's transmittance: a sample is dropped exactly when the
 /// optical depth before it, through every node's samples merged in depth, exceeds
 /// `-ln eps` (checked against a brute-force merge of the densities); the background
