@@ -34,17 +34,18 @@ pub struct PruneScratch {
     live: Vec<u32>,
     /// Each live ray's optical depth through the round in hand.
     depth: Vec<f32>,
-    /// Per node (by index): query its next batch whole and cut each ray afterwards, as
-    /// its last batch's rounds dropped too little to pay ([`ROUNDS_PAY`]).
-    in_place: Vec<bool>,
+    /// Per node (by index): query its next batch in rounds, as its last batch dropped
+    /// enough to pay for them ([`ROUNDS_PAY`]); otherwise (and first) whole, each ray cut
+    /// afterwards where the rounds would have stopped it.
+    in_rounds: Vec<bool>,
     round: NodeSamples,
 }
 
 impl PruneScratch {
-    /// Queries the next batch of each of `nodes` nodes whole and cuts it afterwards, as
-    /// after a batch whose rounds did not pay: for tests and benchmarks of the two ways.
-    pub fn query_whole(&mut self, nodes: usize) {
-        self.in_place = vec![true; nodes];
+    /// Queries the next batch of each of `nodes` nodes in rounds, as after a batch that
+    /// dropped enough for them to pay: for tests and benchmarks of the two ways.
+    pub fn query_in_rounds(&mut self, nodes: usize) {
+        self.in_rounds = vec![true; nodes];
     }
 }
 
@@ -205,7 +206,10 @@ pub fn query_pruned(
 /// gets no further query, density or colour. What a ray keeps is the prefix of its samples
 /// up to the round in which its transmittance fell below `eps` — every sample before
 /// that point, and a few after it — and depends on that ray alone (a drag's re-rendered
-/// rays match a full render's).
+/// rays match a full render's). The rounds' copying pays only where many rays stop early:
+/// a node's first batch, and any after a batch that dropped less than [`ROUNDS_PAY`] of
+/// its samples, is queried whole and each ray cut afterwards to what its rounds would
+/// keep (the same samples and bits; `sc` carries the choice from batch to batch).
 pub fn query_node_pruned(
     scene: &NeuralScene,
     ns: &mut NodeSamples,
@@ -232,10 +236,10 @@ pub fn query_node_pruned(
     let n = ns.len();
     let rays = ns.start.len() - 1;
     let limit = -eps.ln();
-    if sc.in_place.len() <= ns.node {
-        sc.in_place.resize(ns.node + 1, false);
+    if sc.in_rounds.len() <= ns.node {
+        sc.in_rounds.resize(ns.node + 1, false);
     }
-    if sc.in_place[ns.node] {
+    if !sc.in_rounds[ns.node] {
         // Every sample in one query, then each ray cut where its rounds would have
         // stopped it: the same samples and bits as the rounds, without their copying.
         let tq = std::time::Instant::now();
@@ -247,7 +251,7 @@ pub fn query_node_pruned(
             compact_with_outputs(ns, &sc.keep);
             stats.dropped = n - total;
         }
-        sc.in_place[ns.node] = stats.dropped < (ROUNDS_PAY * n as f64) as usize;
+        sc.in_rounds[ns.node] = stats.dropped >= (ROUNDS_PAY * n as f64) as usize;
         stats.density_s = t0.elapsed().as_secs_f64() - queried_s;
         return stats;
     }
@@ -334,12 +338,13 @@ pub fn query_node_pruned(
         stats.dropped = n - total;
     }
     stats.density_s = t0.elapsed().as_secs_f64() - queried_s;
-    sc.in_place[ns.node] = stats.dropped < (ROUNDS_PAY * n as f64) as usize;
+    sc.in_rounds[ns.node] = stats.dropped >= (ROUNDS_PAY * n as f64) as usize;
     stats
 }
 
-/// The share of a node's samples the rounds must drop for them to pay for their copying;
-/// below it, the node's next batch is queried whole and cut afterwards ([`rounds_keep`]).
+/// The share of a node's samples a batch must drop for rounds to pay for their copying
+/// on its next batch; below it, the next batch is queried whole and cut afterwards
+/// ([`rounds_keep`]).
 const ROUNDS_PAY: f64 = 0.2;
 
 /// Per ray of `ns` (every sample's outputs in place), how many leading samples the rounds

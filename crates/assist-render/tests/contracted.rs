@@ -258,8 +258,9 @@ fn the_pruned_query_keeps_a_prefix_and_drops_only_what_weighs_nothing() {
     }
 }
 
-/// A node whose rounds dropped too little to pay is queried whole and each ray cut
-/// afterwards where its rounds would have stopped it: the same samples, the same bits.
+/// A node's batch queried whole (the first, or after one that dropped too little for
+/// rounds to pay) has each ray cut afterwards where its rounds would have stopped it: the
+/// same samples, the same bits as the rounds.
 #[test]
 fn a_whole_query_cut_afterwards_keeps_what_the_rounds_keep() {
     use assist_render::{PruneScratch, SceneTables, query_pruned};
@@ -276,9 +277,9 @@ fn a_whole_query_cut_afterwards_keeps_what_the_rounds_keep() {
     let all: usize = traced.nodes.iter().map(|n| n.len()).sum();
     let (mut rounds, mut whole) = (traced.clone(), traced.clone());
     let mut sc = PruneScratch::default();
+    sc.query_in_rounds(traced.nodes.len());
     let r = query_pruned(&s, &mut rounds, eps, &mut sc, &mut Vec::new(), q);
     let mut sc = PruneScratch::default();
-    sc.query_whole(traced.nodes.len());
     let w = query_pruned(&s, &mut whole, eps, &mut sc, &mut Vec::new(), q);
     assert!(r.dropped > 0 && r.queried < all, "{r:?}");
     assert_eq!((w.queried, w.dropped), (all, r.dropped), "{w:?} {r:?}");
