@@ -332,10 +332,10 @@ fn known_distance(
     let onto_capture = assist_session::process::compare::fit_similarity(&from, &to).unwrap();
     let scale = onto_capture.scale;
     // The frame seeing the most triangulated points (the rerun registers it best), or
-    // the `rank`-th most.
+    // the `rank`-th most; the next one while a frame's chosen points lie too close
+    // together (a poor first model can leave a frame few points inside the capture).
     let mut frames: Vec<_> = model.images.iter().collect();
     frames.sort_by_key(|i| std::cmp::Reverse(i.points2d.iter().filter(|(_, id)| *id >= 0).count()));
-    let frame = frames[rank.min(frames.len() - 1)];
     // Points seen in many frames: a rerun of the (multi-threaded, so not repeatable)
     // mapper triangulates them again, so `--scale-by` finds them. Only points inside the
     // capture's bounds: the farthest pair is otherwise a stray point metres away.
@@ -345,79 +345,89 @@ fn known_distance(
             *track.entry(*id).or_default() += 1;
         }
     }
-    // Only pixels whose 40-px neighbourhood lies inside the frame: `--scale-by` places a
-    // pixel within 40 px of the border about three times less surely (half of its
-    // neighbourhood is missing; docs/history.md, session 51).
-    let cam = &model.cameras[&frame.camera_id];
-    let (w, h) = (cam.width as f64, cam.height as f64);
-    let inside = |px: &assist_core::DVec2| {
-        px.x >= 40.0 && px.y >= 40.0 && px.x <= w - 40.0 && px.y <= h - 40.0
-    };
-    let observed = |min: usize| -> Vec<(assist_core::DVec2, DVec3)> {
-        frame
-            .points2d
+    let pick = |frame: &assist_data::colmap::ColmapImage| -> Option<(String, f64, [DVec3; 2])> {
+        // Only pixels whose 40-px neighbourhood lies inside the frame: `--scale-by` places a
+        // pixel within 40 px of the border about three times less surely (half of its
+        // neighbourhood is missing; docs/history.md, session 51).
+        let cam = &model.cameras[&frame.camera_id];
+        let (w, h) = (cam.width as f64, cam.height as f64);
+        let inside = |px: &assist_core::DVec2| {
+            px.x >= 40.0 && px.y >= 40.0 && px.x <= w - 40.0 && px.y <= h - 40.0
+        };
+        let observed = |min: usize| -> Vec<(assist_core::DVec2, DVec3)> {
+            frame
+                .points2d
+                .iter()
+                .filter(|(px, id)| *id >= 0 && track[id] >= min && inside(px))
+                .map(|(px, id)| (*px, model.points[&(*id as u64)].xyz))
+                .filter(|(_, x)| {
+                    let p = onto_capture.apply(*x);
+                    p.cmpge(bounds.min).all() && p.cmple(bounds.max).all()
+                })
+                .take(300)
+                .collect()
+        };
+        let mut seen = observed(8);
+        if seen.len() < 10 {
+            seen = observed(1);
+        }
+        // Only points on smooth surfaces: the other points seen within 40 px (the radius
+        // `--scale-by` looks in) lie within 5% of its depth. A point at a depth edge is often
+        // another physical point in the second reconstruction, which set the scale wrong
+        // (0.56 once in CI).
+        let depth = |x: DVec3| {
+            let [w, qx, qy, qz] = frame.qvec;
+            let r = assist_core::DMat3::from_quat(assist_core::DQuat::from_xyzw(qx, qy, qz, w));
+            (r * x + DVec3::from_array(frame.tvec)).z
+        };
+        let smooth: Vec<(assist_core::DVec2, DVec3)> = seen
             .iter()
-            .filter(|(px, id)| *id >= 0 && track[id] >= min && inside(px))
-            .map(|(px, id)| (*px, model.points[&(*id as u64)].xyz))
-            .filter(|(_, x)| {
-                let p = onto_capture.apply(*x);
-                p.cmpge(bounds.min).all() && p.cmple(bounds.max).all()
+            .filter(|(px, x)| {
+                let d = depth(*x);
+                seen.iter()
+                    .filter(|(q, _)| q.distance(*px) < 40.0)
+                    .all(|(_, y)| (depth(*y) - d).abs() < 0.05 * d)
             })
-            .take(300)
-            .collect()
+            .copied()
+            .collect();
+        // Each filter is kept only while two of its points stay 15% of the capture's
+        // extent apart: the found points' misses in the rerun are a few hundredths of the
+        // extent, so a short distance would measure them rather than the scale.
+        let long_enough = |set: &[(assist_core::DVec2, DVec3)]| {
+            set.len() >= 10 && farthest(set).0 * scale >= 0.15 * extent
+        };
+        if long_enough(&smooth) {
+            seen = smooth;
+        }
+        // Only points in densely textured parts of the frame (eight others within 40 px), as a
+        // user would click: a bare spot may have no point in the rerun's model.
+        let dense: Vec<(assist_core::DVec2, DVec3)> = seen
+            .iter()
+            .filter(|(px, _)| seen.iter().filter(|(q, _)| q.distance(*px) < 40.0).count() > 8)
+            .copied()
+            .collect();
+        if long_enough(&dense) {
+            seen = dense;
+        }
+        let best = farthest(&seen);
+        if best.0 * scale < 0.15 * extent {
+            return None;
+        }
+        let (a, b) = (seen[best.1].0, seen[best.2].0);
+        Some((
+            format!(
+                "{0}:{1:.2},{2:.2} {0}:{3:.2},{4:.2}",
+                frame.name, a.x, a.y, b.x, b.y
+            ),
+            best.0 * scale,
+            [seen[best.1].1, seen[best.2].1].map(|x| onto_capture.apply(x)),
+        ))
     };
-    let mut seen = observed(8);
-    if seen.len() < 10 {
-        seen = observed(1);
-    }
-    // Only points on smooth surfaces: the other points seen within 40 px (the radius
-    // `--scale-by` looks in) lie within 5% of its depth. A point at a depth edge is often
-    // another physical point in the second reconstruction, which set the scale wrong
-    // (0.56 once in CI).
-    let depth = |x: DVec3| {
-        let [w, qx, qy, qz] = frame.qvec;
-        let r = assist_core::DMat3::from_quat(assist_core::DQuat::from_xyzw(qx, qy, qz, w));
-        (r * x + DVec3::from_array(frame.tvec)).z
-    };
-    let smooth: Vec<(assist_core::DVec2, DVec3)> = seen
+    frames
         .iter()
-        .filter(|(px, x)| {
-            let d = depth(*x);
-            seen.iter()
-                .filter(|(q, _)| q.distance(*px) < 40.0)
-                .all(|(_, y)| (depth(*y) - d).abs() < 0.05 * d)
-        })
-        .copied()
-        .collect();
-    // Each filter is kept only while two of its points stay 15% of the capture's
-    // extent apart: the found points' misses in the rerun are a few hundredths of the
-    // extent, so a short distance would measure them rather than the scale.
-    let long_enough = |set: &[(assist_core::DVec2, DVec3)]| {
-        set.len() >= 10 && farthest(set).0 * scale >= 0.15 * extent
-    };
-    if long_enough(&smooth) {
-        seen = smooth;
-    }
-    // Only points in densely textured parts of the frame (eight others within 40 px), as a
-    // user would click: a bare spot may have no point in the rerun's model.
-    let dense: Vec<(assist_core::DVec2, DVec3)> = seen
-        .iter()
-        .filter(|(px, _)| seen.iter().filter(|(q, _)| q.distance(*px) < 40.0).count() > 8)
-        .copied()
-        .collect();
-    if long_enough(&dense) {
-        seen = dense;
-    }
-    let best = farthest(&seen);
-    let (a, b) = (seen[best.1].0, seen[best.2].0);
-    (
-        format!(
-            "{0}:{1:.2},{2:.2} {0}:{3:.2},{4:.2}",
-            frame.name, a.x, a.y, b.x, b.y
-        ),
-        best.0 * scale,
-        [seen[best.1].1, seen[best.2].1].map(|x| onto_capture.apply(x)),
-    )
+        .skip(rank)
+        .find_map(|f| pick(f))
+        .expect("no frame of the first model shows two points 15% of the extent apart")
 }
 
 /// The two points of `set` farthest apart: their distance and indices.
