@@ -26,9 +26,11 @@ pub struct RenderOptions {
     /// bf16 MLP products where the CPU has AVX-512 BF16; `ASSIST_PRECISION=f32` for f32).
     pub precision: Precision,
     /// Samples behind the point where their node's transmittance falls below this are
-    /// not queried: the samples are queried in rounds along the rays, and a ray stops after
-    /// the round that takes it below (0 = keep all, the default; see
-    /// [`crate::query_node_pruned`]).
+    /// dropped: queried in rounds along the rays where many rays stop early, each ray
+    /// stopping after the round that takes it below, else queried whole and cut where the
+    /// rounds would have stopped (see [`crate::query_node_pruned`]). Default
+    /// [`crate::PRUNE_EPS`]: each dropped sample weighs less than it in any output; 0
+    /// keeps every sample.
     pub prune_eps: f32,
     /// Marching steps times this (see [`SampleOptions::step_scale`]): 1, the default, as
     /// trained; 2 is `render --quality draft`.
@@ -73,7 +75,7 @@ impl Default for RenderOptions {
             layers: false,
             background_alone: false,
             precision: Precision::fastest(),
-            prune_eps: 0.0,
+            prune_eps: crate::prune::PRUNE_EPS,
             step_scale: 1.0,
             tables: None,
             cancel: None,
