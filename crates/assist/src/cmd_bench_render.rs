@@ -33,7 +33,7 @@ pub struct RenderBenchArgs {
     #[arg(long, value_parser = clap::value_parser!(u32).range(16..=16384))]
     pub width: Option<u32>,
     /// Pruning thresholds to compare (the transmittance below which a node's samples are
-    /// no longer queried; 0 = off), comma-separated.
+    /// dropped; rendering's default is 1e-4; 0 = off), comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "0,1e-4")]
     pub prune_eps: Vec<f32>,
     /// Occupancy thresholds to compare, each as the opacity one smallest step through a
