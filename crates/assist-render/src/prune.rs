@@ -234,27 +234,48 @@ pub fn query_node_pruned(
     }
     let t0 = std::time::Instant::now();
     let n = ns.len();
-    let rays = ns.start.len() - 1;
     let limit = -eps.ln();
     if sc.in_rounds.len() <= ns.node {
         sc.in_rounds.resize(ns.node + 1, false);
     }
-    if !sc.in_rounds[ns.node] {
+    // Either way, every kept sample's outputs end in place and `sc.keep` holds how many
+    // leading samples each ray keeps.
+    let rounds = sc.in_rounds[ns.node];
+    let queried_s = if rounds {
+        query_in_rounds(scene, ns, limit, sc, tape, q)
+    } else {
         // Every sample in one query, then each ray cut where its rounds would have
         // stopped it: the same samples and bits as the rounds, without their copying.
         let tq = std::time::Instant::now();
         crate::render::query_node(scene, ns, tape, q);
         let queried_s = tq.elapsed().as_secs_f64();
-        let total = rounds_keep(ns, limit, &mut sc.keep);
-        stats.queried = n;
-        if total < n {
-            compact_with_outputs(ns, &sc.keep);
-            stats.dropped = n - total;
-        }
-        sc.in_rounds[ns.node] = stats.dropped >= (ROUNDS_PAY * n as f64) as usize;
-        stats.density_s = t0.elapsed().as_secs_f64() - queried_s;
-        return stats;
+        rounds_keep(ns, limit, &mut sc.keep);
+        queried_s
+    };
+    let total: usize = sc.keep.iter().map(|&k| k as usize).sum();
+    stats.queried = if rounds { total } else { n };
+    if total < n {
+        compact_with_outputs(ns, &sc.keep);
+        stats.dropped = n - total;
     }
+    sc.in_rounds[ns.node] = stats.dropped >= (ROUNDS_PAY * n as f64) as usize;
+    stats.density_s = t0.elapsed().as_secs_f64() - queried_s;
+    stats
+}
+
+/// [`query_node_pruned`]'s rounds: the outputs of every sample queried put in place in
+/// `ns` (the rest left as they were), each ray's count of them in `sc.keep`. Returns the
+/// seconds spent in the queries themselves.
+fn query_in_rounds(
+    scene: &NeuralScene,
+    ns: &mut NodeSamples,
+    limit: f32,
+    sc: &mut PruneScratch,
+    tape: &mut assist_field::Tape,
+    q: crate::render::Query,
+) -> f64 {
+    let n = ns.len();
+    let rays = ns.start.len() - 1;
     sc.keep.clear();
     sc.keep.resize(rays, 0);
     sc.tau.clear();
@@ -329,17 +350,9 @@ pub fn query_node_pruned(
         sc.live.truncate(still);
     }
     sc.round = sub;
-    let total: usize = sc.keep.iter().map(|&k| k as usize).sum();
-    stats.queried = total;
     ns.sigma = sigma;
     ns.rgb = rgb;
-    if total < n {
-        compact_with_outputs(ns, &sc.keep);
-        stats.dropped = n - total;
-    }
-    stats.density_s = t0.elapsed().as_secs_f64() - queried_s;
-    sc.in_rounds[ns.node] = stats.dropped >= (ROUNDS_PAY * n as f64) as usize;
-    stats
+    queried_s
 }
 
 /// The share of a node's samples a batch must drop for rounds to pay for their copying
@@ -350,8 +363,8 @@ const ROUNDS_PAY: f64 = 0.2;
 /// Per ray of `ns` (every sample's outputs in place), how many leading samples the rounds
 /// of [`query_node_pruned`] keep: whole rounds, until the one after which the optical
 /// depth exceeds `limit`, each round's summed as the rounds sum it (so the same bits
-/// decide). Returns the total kept.
-fn rounds_keep(ns: &NodeSamples, limit: f32, keep: &mut Vec<u32>) -> usize {
+/// decide).
+fn rounds_keep(ns: &NodeSamples, limit: f32, keep: &mut Vec<u32>) {
     let rays = ns.start.len() - 1;
     keep.resize(rays, 0);
     let (start, sigma, dt) = (&ns.start, &ns.sigma, &ns.dt);
@@ -373,7 +386,6 @@ fn rounds_keep(ns: &NodeSamples, limit: f32, keep: &mut Vec<u32>) -> usize {
         }
         *k = kept as u32;
     });
-    keep.iter().map(|&k| k as usize).sum()
 }
 
 /// Samples per ray in a pruned query's first round; each later round doubles it, up to

@@ -119,7 +119,7 @@ impl NodeSamples {
             image: &self.image,
         }
     }
-    pub(crate) fn clear(&mut self) {
+    fn clear(&mut self) {
         for a in 0..3 {
             self.pos[a].clear();
             self.dir[a].clear();
@@ -149,25 +149,15 @@ impl NodeSamples {
             dt,
             ..
         } = self;
-        fn cat<T: Copy + Send>(
-            dst: &mut Vec<T>,
-            blocks: &[NodeSamples],
-            of: impl Fn(&NodeSamples) -> &[T],
-        ) {
-            dst.reserve(blocks.iter().map(|b| of(b).len()).sum());
-            for b in blocks {
-                dst.extend_from_slice(of(b));
-            }
-        }
         rayon::scope(|s| {
-            s.spawn(|_| cat(image, blocks, |b| &b.image));
-            s.spawn(|_| cat(t, blocks, |b| &b.t));
-            s.spawn(|_| cat(dt, blocks, |b| &b.dt));
+            s.spawn(|_| concat(image, blocks.iter().map(|b| &b.image[..])));
+            s.spawn(|_| concat(t, blocks.iter().map(|b| &b.t[..])));
+            s.spawn(|_| concat(dt, blocks.iter().map(|b| &b.dt[..])));
             for (a, dst) in pos.iter_mut().enumerate() {
-                s.spawn(move |_| cat(dst, blocks, |b| &b.pos[a]));
+                s.spawn(move |_| concat(dst, blocks.iter().map(|b| &b.pos[a][..])));
             }
             for (a, dst) in dir.iter_mut().enumerate() {
-                s.spawn(move |_| cat(dst, blocks, |b| &b.dir[a]));
+                s.spawn(move |_| concat(dst, blocks.iter().map(|b| &b.dir[a][..])));
             }
         });
     }
@@ -259,9 +249,15 @@ fn column<T: Copy>(
 ) {
     dst.clear();
     if wanted {
-        for g in ranges {
-            dst.extend_from_slice(&src[k * g.start..k * g.end]);
-        }
+        concat(dst, ranges.iter().map(|g| &src[k * g.start..k * g.end]));
+    }
+}
+
+/// `parts` appended to `dst`, one after another.
+fn concat<'a, T: Copy + 'a>(dst: &mut Vec<T>, parts: impl Iterator<Item = &'a [T]> + Clone) {
+    dst.reserve(parts.clone().map(|p| p.len()).sum());
+    for p in parts {
+        dst.extend_from_slice(p);
     }
 }
 
