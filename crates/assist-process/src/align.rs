@@ -129,19 +129,8 @@ pub fn align(
     let mut warnings = Vec::new();
     let (s, known) = match scale {
         Some(by) => {
-            let a = known_point(model, &images, &by.a, model_dir)?;
-            let b = known_point(model, &images, &by.b, model_dir)?;
-            for (frame, px) in [&by.a, &by.b] {
-                let image = frame_named(&images, frame)?;
-                if let Some(cam) = model.cameras.get(&image.camera_id)
-                    && near_border(*px, cam.width, cam.height)
-                {
-                    warnings.push(format!(
-                        "--scale-by: ({}, {}) in {} lies within {NEAR_PX} px of the frame's border, where COLMAP's points are fewer and less certain (such a pixel is placed about three times less surely); one further inside measures the distance better",
-                        px[0], px[1], image.name
-                    ));
-                }
-            }
+            let a = known_point(model, &images, &by.a, model_dir, &mut warnings)?;
+            let b = known_point(model, &images, &by.b, model_dir, &mut warnings)?;
             let d = a.distance(b);
             if d < 1e-9 {
                 return Err(ProcessError::ScaleBy(
@@ -196,14 +185,24 @@ const NEAR_PX: f64 = 40.0;
 /// pixel's viewing ray at the median depth of the points seen within [`NEAR_PX`] (at least
 /// three; the ray's direction interpolated from theirs, which carries the camera's
 /// intrinsics and distortion). A rerun of COLMAP triangulates other
-/// points, and a user's click rarely lands on one.
+/// points, and a user's click rarely lands on one. A pixel near the frame's border adds
+/// a warning to `warnings`.
 fn known_point(
     model: &ColmapModel,
     images: &[&ColmapImage],
     (frame, px): &(String, [f64; 2]),
     model_dir: &Path,
+    warnings: &mut Vec<String>,
 ) -> Result<DVec3, ProcessError> {
     let image = frame_named(images, frame)?;
+    if let Some(cam) = model.cameras.get(&image.camera_id)
+        && near_border(*px, cam.width, cam.height)
+    {
+        warnings.push(format!(
+            "--scale-by: ({}, {}) in {} lies within {NEAR_PX} px of the frame's border, where COLMAP's points are fewer and less certain (such a pixel is placed about three times less surely); one further inside measures the distance better",
+            px[0], px[1], image.name
+        ));
+    }
     let at = assist_core::DVec2::from_array(*px);
     let mut seen: Vec<(assist_core::DVec2, DVec3)> = image
         .points2d
