@@ -199,7 +199,7 @@ fn known_point(
         && near_border(*px, cam.width, cam.height)
     {
         warnings.push(format!(
-            "--scale-by: ({}, {}) in {} lies within {NEAR_PX} px of the frame's border, where COLMAP's points are fewer and less certain (such a pixel is placed about three times less surely); one further inside measures the distance better",
+            "--scale-by: ({}, {}) in {} lies within {NEAR_PX} px of the frame's border, where COLMAP's points are fewer and less certain (such a pixel is placed less surely); one further inside measures the distance better",
             px[0], px[1], image.name
         ));
     }

@@ -247,9 +247,9 @@ fn a_video_and_photographs_become_posed_datasets() {
     // Where the rerun's points lie against the first model's (both in the capture's
     // frame): their misses, not assist's arithmetic, are what move the scale below. A
     // point under the pixel on another surface, or a mistriangulated one, misses by a
-    // large share of the extent (0.62 and 7.3 units in failed runs); two reconstructions
-    // of the same surface by a few hundredths of its depth, and one pixel in a hundred by
-    // a tenth or more (docs/history.md, session 51: up to 0.28 units here).
+    // large share of the extent; two reconstructions of the same surface by a few
+    // hundredths of its depth, and now and then by a tenth or more (BENCHMARKS.md and
+    // docs/history.md have the measured spread).
     assert!(metres >= 0.15 * extent, "known distance {metres} too short");
     for (k, want) in ["a", "b"].iter().zip(intended) {
         let miss = fit.apply(point(k)).distance(want);
@@ -347,8 +347,7 @@ fn known_distance(
     }
     let pick = |frame: &assist_data::colmap::ColmapImage| -> Option<(String, f64, [DVec3; 2])> {
         // Only pixels whose 40-px neighbourhood lies inside the frame: `--scale-by` places a
-        // pixel within 40 px of the border about three times less surely (half of its
-        // neighbourhood is missing; docs/history.md, session 51).
+        // pixel near the border less surely (half of its neighbourhood is missing).
         let cam = &model.cameras[&frame.camera_id];
         let (w, h) = (cam.width as f64, cam.height as f64);
         let inside = |px: &assist_core::DVec2| {
