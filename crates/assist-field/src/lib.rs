@@ -32,5 +32,5 @@ pub use config::FieldConfig;
 pub use error::FieldError;
 pub use field::{Field, PackedTables, ParamLayout, PhaseTimes, Precision, Samples, Tape};
 pub use mlp::Linear;
-pub use occupancy::{OccupancyGrid, Step};
+pub use occupancy::{ConeRay, ContractedRay, Marching, OccupancyGrid, Step};
 pub use shade::{LitCells, ShadeGrid};

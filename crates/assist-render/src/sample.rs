@@ -6,6 +6,7 @@
 use assist_core::geometry::{Aabb, intersect_local_box};
 use assist_core::{DVec3, NodeSpace, Ray, Rng, SceneNode};
 use assist_field::contraction::{FAR_RADIUS, contract_to_unit};
+use assist_field::{ConeRay, ContractedRay, Marching};
 use rayon::prelude::*;
 
 use assist_scene::{NeuralScene, NodeField};
@@ -389,7 +390,6 @@ impl assist_simd::WithSimd for SampleBlock<'_> {
     fn run(self) -> NodeSamples {
         let mut local = NodeSamples::default();
         local.start.reserve(self.range.len() + 1);
-        let mut steps = Vec::new();
         // Looked up once per block, not per ray.
         let node = &self.scene.scene.nodes[self.k];
         let at = (
@@ -398,72 +398,142 @@ impl assist_simd::WithSimd for SampleBlock<'_> {
             node.local_aabb(),
             Sphere::around(node),
         );
-        for r in self.range {
-            local.start.push(local.t.len() as u32);
-            sample_node(at, self.k, self.rays, r, self.opts, &mut steps, &mut local);
+        // LANES rays marched at once (the same samples as one at a time).
+        let (rays, opts, k) = (self.rays, self.opts, self.k);
+        if at.1.space == NodeSpace::Contracted {
+            let none = ContractedRay::none();
+            march_lanes(at.1, none, self.range, rays, &mut local, |r| {
+                contracted_march(at, r, k, rays, opts)
+            });
+        } else {
+            let none = ConeRay::none();
+            march_lanes(at.1, none, self.range, rays, &mut local, |r| {
+                bounded_march(at, r, k, rays, opts)
+            });
         }
         local
     }
 }
 
+/// Rays marched together through a node's grid (see
+/// [`assist_field::OccupancyGrid::march_each`]).
+const LANES: usize = 4;
+
+/// Marches `range`'s rays through `nf`'s grid, LANES at a time, appending each ray's
+/// samples to `local` in order; `setup(r)` is ray `r`'s march and placement, or none
+/// where it misses the node.
 #[inline(always)]
-fn sample_node(
-    (node, nf, aabb, sphere): (&SceneNode, &NodeField, Aabb, Sphere),
-    k: usize,
+fn march_lanes<R: Marching + Copy>(
+    nf: &NodeField,
+    none: R,
+    range: std::ops::Range<usize>,
     rays: &RayBatch,
-    r: usize,
-    opts: &SampleOptions,
-    steps: &mut Vec<assist_field::Step>,
-    out: &mut NodeSamples,
+    local: &mut NodeSamples,
+    setup: impl Fn(usize) -> Option<(R, Placed)>,
 ) {
-    let ray = Ray {
+    let mut lanes: [Vec<assist_field::Step>; LANES] = Default::default();
+    let end = range.end;
+    for first in range.step_by(LANES) {
+        let n = LANES.min(end - first);
+        let mut marches = [none; LANES];
+        let mut placed = [None; LANES];
+        for i in 0..n {
+            if let Some((m, p)) = setup(first + i) {
+                marches[i] = m;
+                placed[i] = Some(p);
+            }
+        }
+        lanes.iter_mut().for_each(Vec::clear);
+        nf.occupancy.march_each(&mut marches, &mut lanes);
+        for i in 0..n {
+            local.start.push(local.t.len() as u32);
+            if let Some(p) = placed[i] {
+                p.push(&lanes[i], rays.image[first + i], local);
+            }
+        }
+    }
+}
+
+/// Ray `r` of `rays` in world space.
+#[inline(always)]
+fn world_ray(rays: &RayBatch, r: usize) -> Ray {
+    Ray {
         origin: DVec3::from(rays.origin[r].map(f64::from)),
         dir: DVec3::from(rays.dir[r].map(f64::from)),
-    };
-    if nf.space == NodeSpace::Contracted {
-        sample_contracted(node, nf, &ray, rays, r, k, opts, steps, out);
-        return;
     }
+}
+
+/// Ray `r`'s march through bounded node `k` (none when it misses the box), and where its
+/// steps' samples go.
+#[inline(always)]
+fn bounded_march(
+    (node, nf, aabb, sphere): (&SceneNode, &NodeField, Aabb, Sphere),
+    r: usize,
+    k: usize,
+    rays: &RayBatch,
+    opts: &SampleOptions,
+) -> Option<(ConeRay, Placed)> {
+    let ray = world_ray(rays, r);
     if sphere.missed_by(&ray) {
-        return;
+        return None;
     }
-    let Some(hit) = intersect_local_box(
+    let hit = intersect_local_box(
         &ray,
         &node.world_from_local,
         &aabb,
         rays.near as f64,
         f64::INFINITY,
-    ) else {
-        return;
-    };
+    )?;
     let size = node.half_size * 2.0;
     let o = (hit.local_ray.origin / size + 0.5).as_vec3().to_array();
-    let d_unit = hit.local_ray.dir.as_vec3().to_array();
     let d = (hit.local_ray.dir / size).as_vec3().to_array();
-    let jitter = ray_jitter(opts, r, k);
-    steps.clear();
-    nf.occupancy.march_cone(
+    let march = ConeRay::new(
         o,
         d,
         hit.local_t_in as f32,
         hit.local_t_out as f32,
         nf.step * opts.step_scale,
         nf.cone * opts.step_scale,
-        jitter,
+        ray_jitter(opts, r, k),
         opts.max_per_node,
-        steps,
     );
-    let to_unit = |t: f32| [0, 1, 2].map(|a| (o[a] + d[a] * t).clamp(0.0, 1.0));
-    let scale = (1.0 / hit.local_per_world) as f32;
-    push_samples(
-        out,
-        steps,
-        to_unit,
-        d_unit,
-        rays.image[r],
-        scale,
-        1.0 / nf.unit,
-    );
+    let placed = Placed {
+        o,
+        d,
+        contracted: false,
+        dir: hit.local_ray.dir.as_vec3().to_array(),
+        world_per_local: (1.0 / hit.local_per_world) as f32,
+        per_unit: 1.0 / nf.unit,
+    };
+    Some((march, placed))
+}
+
+/// Where a march's steps lie: the ray in [0, 1]³ box coordinates (bounded) or in box
+/// units mapped by the contraction, its canonical direction, and the scales from its
+/// parameter to world distance and box diagonals.
+#[derive(Clone, Copy)]
+struct Placed {
+    o: [f32; 3],
+    d: [f32; 3],
+    contracted: bool,
+    dir: [f32; 3],
+    world_per_local: f32,
+    per_unit: f32,
+}
+
+impl Placed {
+    #[inline(always)]
+    fn push(&self, steps: &[assist_field::Step], image: u32, out: &mut NodeSamples) {
+        let (o, d) = (self.o, self.d);
+        let (dir, scale, per_unit) = (self.dir, self.world_per_local, self.per_unit);
+        if self.contracted {
+            let to_unit = |t: f32| contract_to_unit([0, 1, 2].map(|a| o[a] + d[a] * t));
+            push_samples(out, steps, to_unit, dir, image, scale, per_unit);
+        } else {
+            let to_unit = |t: f32| [0, 1, 2].map(|a| (o[a] + d[a] * t).clamp(0.0, 1.0));
+            push_samples(out, steps, to_unit, dir, image, scale, per_unit);
+        }
+    }
 }
 
 /// A world sphere holding a node's box, slightly grown: a ray whose line passes outside it
@@ -528,25 +598,23 @@ fn push_samples(
     }
 }
 
-/// Samples a contracted node: from the near plane to [`FAR_RADIUS`] box half-sizes, the
-/// box linearly and beyond it in contracted space.
+/// Ray `r`'s march through contracted node `k`: from the near plane to [`FAR_RADIUS`] box
+/// half-sizes, the box linearly and beyond it in contracted space (none when the ray
+/// starts in the far shell).
 #[inline(always)]
-fn sample_contracted(
-    node: &SceneNode,
-    nf: &assist_scene::NodeField,
-    ray: &Ray,
-    rays: &RayBatch,
+fn contracted_march(
+    (node, nf, _, _): (&SceneNode, &NodeField, Aabb, Sphere),
     r: usize,
     k: usize,
+    rays: &RayBatch,
     opts: &SampleOptions,
-    steps: &mut Vec<assist_field::Step>,
-    out: &mut NodeSamples,
-) {
+) -> Option<(ContractedRay, Placed)> {
+    let ray = world_ray(rays, r);
     let o_local = node.world_from_local.local_from_world_point(ray.origin);
     let d_world_local = node.world_from_local.local_from_world_vector(ray.dir);
     let local_per_world = d_world_local.length();
     if local_per_world <= 0.0 || !local_per_world.is_finite() {
-        return;
+        return None;
     }
     let d_unit = d_world_local / local_per_world;
     let half = node.half_size;
@@ -554,19 +622,13 @@ fn sample_contracted(
     let d = (d_unit / half).as_vec3().to_array();
     // Where the ray leaves the box grown FAR_RADIUS times (a ray starting outside it is
     // in the far shell already: nothing to sample).
-    let Some((t_in, t_out)) = assist_core::Aabb::from_half_size(half * FAR_RADIUS as f64)
-        .intersect(
-            o_local,
-            d_unit,
-            rays.near as f64 * local_per_world,
-            f64::INFINITY,
-        )
-    else {
-        return;
-    };
-    let jitter = ray_jitter(opts, r, k);
-    steps.clear();
-    nf.occupancy.march_contracted(
+    let (t_in, t_out) = assist_core::Aabb::from_half_size(half * FAR_RADIUS as f64).intersect(
+        o_local,
+        d_unit,
+        rays.near as f64 * local_per_world,
+        f64::INFINITY,
+    )?;
+    let march = ContractedRay::new(
         o,
         d,
         t_in as f32,
@@ -574,22 +636,18 @@ fn sample_contracted(
         nf.step * opts.step_scale,
         nf.cone * opts.step_scale,
         nf.contracted_step * opts.step_scale,
-        jitter,
+        ray_jitter(opts, r, k),
         opts.max_per_node,
-        steps,
     );
-    let to_unit = |t: f32| contract_to_unit([0, 1, 2].map(|a| o[a] + d[a] * t));
-    let dir = d_unit.as_vec3().to_array();
-    let scale = (1.0 / local_per_world) as f32;
-    push_samples(
-        out,
-        steps,
-        to_unit,
-        dir,
-        rays.image[r],
-        scale,
-        1.0 / nf.unit,
-    );
+    let placed = Placed {
+        o,
+        d,
+        contracted: true,
+        dir: d_unit.as_vec3().to_array(),
+        world_per_local: (1.0 / local_per_world) as f32,
+        per_unit: 1.0 / nf.unit,
+    };
+    Some((march, placed))
 }
 
 #[cfg(test)]

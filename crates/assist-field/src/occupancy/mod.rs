@@ -9,6 +9,7 @@ use rayon::prelude::*;
 use crate::field::Field;
 
 mod march;
+pub use march::{ConeRay, ContractedRay, Marching};
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct OccupancyGrid {
@@ -518,6 +519,60 @@ mod tests {
             let (na, nb) = (a.len() as f32, b.len() as f32);
             assert!((na - nb).abs() <= 2.0 + 0.1 * nb, "{na} vs {nb} samples");
         }
+    }
+
+    #[test]
+    fn rays_marched_together_take_the_samples_each_takes_alone() {
+        let (g, _) = clumps();
+        let mut rng = assist_core::Rng::new(11);
+        // A random direction, or (even lanes) towards a point of the first clump.
+        let mut ray = |i: usize, o: [f32; 3], clump: [f32; 3]| {
+            let d = if i.is_multiple_of(2) {
+                [0, 1, 2].map(|a| clump[a] + 0.05 * (rng.f32() - 0.5) - o[a])
+            } else {
+                [0.0; 3].map(|_| rng.f32() - 0.5)
+            };
+            let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            (d.map(|v| v / n), rng.f32())
+        };
+        let mut taken = 0;
+        for round in 0..100 {
+            // Lanes of different lengths and caps, one of them with nothing to march.
+            let mut cone = [ConeRay::none(); 4];
+            let mut contracted = [ContractedRay::none(); 4];
+            let (mut want_cone, mut want_contracted) = (Vec::new(), Vec::new());
+            for i in 0..4 {
+                let max = if i == 2 { 3 + round % 5 } else { 4096 };
+                let t1 = if i == 3 { 0.0 } else { 2.0 };
+                let o = [0.1 + round as f32 * 0.008, 0.9, 0.6];
+                let (d, jitter) = ray(i, o, [0.3, 0.4, 0.5]);
+                cone[i] = ConeRay::new(o, d, 0.0, t1, 0.002, 0.004, jitter, max);
+                let mut v = Vec::new();
+                g.march_cone(o, d, 0.0, t1, 0.002, 0.004, jitter, max, &mut v);
+                want_cone.push(v);
+                // In box units (the box is [−1, 1]³, the grid over its contraction).
+                let o = [-1.5 + round as f32 * 0.03, 1.2, 0.4];
+                let (d, jitter) = ray(i, o, [-0.8, -0.4, 0.0]);
+                let (dt, cone_k, dc) = (0.01, 0.002, 1.0 / 64.0);
+                let t1 = 8.0 * t1;
+                contracted[i] = ContractedRay::new(o, d, 0.0, t1, dt, cone_k, dc, jitter, max);
+                let mut v = Vec::new();
+                g.march_contracted(o, d, 0.0, t1, dt, cone_k, dc, jitter, max, &mut v);
+                want_contracted.push(v);
+            }
+            let mut got: [Vec<Step>; 4] = Default::default();
+            g.march_each(&mut cone, &mut got);
+            assert_eq!(got.to_vec(), want_cone, "round {round}: cone marching");
+            assert!(want_cone[3].is_empty() && want_contracted[3].is_empty());
+            taken += want_cone[0].len().min(want_contracted[0].len());
+            let mut got: [Vec<Step>; 4] = Default::default();
+            g.march_each(&mut contracted, &mut got);
+            assert_eq!(got.to_vec(), want_contracted, "round {round}: contracted");
+        }
+        assert!(
+            taken > 1000,
+            "{taken}: the rays aimed at a clump should sample it"
+        );
     }
 
     #[test]
