@@ -95,22 +95,48 @@ impl Generator {
         }
         let t0 = Instant::now();
         let (mut draws, mut rejected, mut gave_up) = (0u64, 0u64, 0u64);
-        for (k, &i) in todo.iter().enumerate() {
-            let target = dir_of(i);
-            let staging = assist_fs::Staging::begin(&target, &format!("generating sample {i}"))?;
-            let report = self.make(i, staging.dir(), opts.dry_run)?;
-            integrity::write_manifest(staging.dir(), &run)?;
-            staging.commit()?;
+        let mut finished = 0u64;
+        let mut done = |report: SampleReport| {
             draws += report.draws as u64;
             rejected += report.rejected as u64;
             gave_up += report.gave_up.len() as u64;
+            finished += 1;
             on(&RunEvent::Sample {
                 report: &report,
-                finished: k as u64 + 1,
-                left: (todo.len() - k - 1) as u64,
+                finished,
+                left: todo.len() as u64 - finished,
                 elapsed: t0.elapsed().as_secs_f64(),
             });
-        }
+        };
+        // A sample's files are written while the next one renders: writing is mostly one
+        // thread encoding images, and rendering keeps every core busy otherwise.
+        std::thread::scope(|scope| -> Result<()> {
+            let mut writing = None;
+            let joined = |h: std::thread::ScopedJoinHandle<'_, Result<SampleReport>>| {
+                h.join().unwrap_or_else(|p| std::panic::resume_unwind(p))
+            };
+            for &i in &todo {
+                let made = self.sample(i, !opts.dry_run);
+                if let Some(h) = writing.take() {
+                    done(joined(h)?);
+                }
+                let sample = made?;
+                let target = dir_of(i);
+                let run = &run;
+                writing = Some(scope.spawn(move || -> Result<SampleReport> {
+                    let staging =
+                        assist_fs::Staging::begin(&target, &format!("generating sample {i}"))?;
+                    self.write_sample(&sample, staging.dir(), opts.dry_run)?;
+                    integrity::write_manifest(staging.dir(), run)?;
+                    staging.commit()?;
+                    Ok(sample.report)
+                }));
+            }
+            if let Some(h) = writing.take() {
+                done(joined(h)?);
+            }
+            Ok(())
+        })?;
         // Last: the shard's completion record (every sample it owns holds now).
         if !opts.dry_run {
             shards::write_record(out, opts.shard, self.spec.count, &run)?;

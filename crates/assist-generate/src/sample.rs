@@ -378,9 +378,8 @@ impl Generator {
         Ok((views, views_json))
     }
 
-    /// Makes sample `index` into `dir` (a staging folder the caller commits).
-    pub(crate) fn make(&self, index: u64, dir: &Path, dry_run: bool) -> Result<SampleReport> {
-        let s = self.sample(index, !dry_run)?;
+    /// Writes sample `s` into `dir` (a staging folder the caller commits).
+    pub(crate) fn write_sample(&self, s: &Sample, dir: &Path, dry_run: bool) -> Result<()> {
         std::fs::create_dir_all(dir).map_err(|e| io(dir, e))?;
         // The actions, one per line: `assist edit BASE --actions actions.jsonl` replays them.
         let mut lines = String::new();
@@ -421,10 +420,9 @@ impl Generator {
                 }
             }
             writer.finish()?;
-            crate::bop::write_sample(dir, &s)?;
+            crate::bop::write_sample(dir, s)?;
         }
-        write(&dir.join("sample.json"), &pretty(&s.record))?;
-        Ok(s.report)
+        write(&dir.join("sample.json"), &pretty(&s.record))
     }
 
     /// A rendered view's annotations: each object's visible and amodal extent, its COCO
