@@ -17,6 +17,7 @@ pub mod integrity;
 mod merge;
 pub mod place;
 mod plan;
+mod run;
 mod sample;
 pub mod shards;
 pub mod spec;
@@ -31,7 +32,8 @@ use assist_data::Output;
 use assist_session::{NamedCamera, Session, SessionError, SplitChoice};
 
 pub use coco::CocoMasks;
-pub use merge::{GENERATED, MergeSummary, RunEvent, RunOptions, RunSummary, merge};
+pub use merge::{GENERATED, MergeSummary, merge};
+pub use run::{RunEvent, RunOptions, RunSummary};
 pub use sample::{GaveUp, Sample, SampleReport, View};
 pub use shards::{ShardState, Status, status};
 pub use spec::Spec;

@@ -14,11 +14,12 @@ use assist_field::{LitCells, Precision, Tape};
 use assist_scene::NeuralScene;
 
 use crate::batch::{BatchOutput, Behind, composite_batch};
+use crate::march::{sample_rays, sample_rays_node};
 use crate::prune::{PruneScratch, query_node_pruned, query_pruned};
 use crate::render::{
     Query, RenderOptions, RenderedImage, camera_batch, query_fields, query_node, render_camera,
 };
-use crate::sample::{NodeSamples, RayBatch, SampleOptions, Traced, sample_rays, sample_rays_node};
+use crate::sample::{NodeSamples, RayBatch, SampleOptions, Traced};
 
 /// What a cached frame depends on besides the moving node's pose.
 #[derive(Debug, Clone, PartialEq)]

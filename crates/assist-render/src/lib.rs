@@ -18,6 +18,7 @@ mod composite;
 mod drag;
 pub mod fill;
 pub mod light;
+mod march;
 mod prune;
 pub mod relight;
 mod render;
@@ -30,6 +31,7 @@ pub use assist_field::{FieldBackend, Precision};
 pub use batch::{BatchOutput, Behind, CompositeGrad, GradFn, RayOutputs, composite_batch};
 pub use composite::{Composite, RaySample, composite, composite_backward};
 pub use drag::{DragCache, render_camera_moving};
+pub use march::{sample_rays, sample_rays_node};
 pub use prune::{
     PRUNE_EPS, PRUNE_MIN_PER_RAY, PruneBy, PruneScratch, PruneStats, prune_occluded,
     query_node_pruned, query_pruned,
@@ -38,9 +40,6 @@ pub use render::{
     HIGHLIGHT, NodeLayer, Query, RenderOptions, RenderScratch, RenderStats, RenderedImage,
     query_fields, query_node, render_camera, render_camera_timed, render_rays, render_rays_timed,
 };
-pub use sample::{
-    HiddenStop, NodeSamples, RayBatch, SampleOptions, Traced, distortion_distance, sample_rays,
-    sample_rays_node,
-};
+pub use sample::{HiddenStop, NodeSamples, RayBatch, SampleOptions, Traced, distortion_distance};
 pub use shade::{Caster, CasterGrid, casters, casts_shadows, shade_background, shade_backward};
 pub use tables::SceneTables;

@@ -6,7 +6,8 @@ use assist_core::{Camera, InstanceId};
 use assist_field::{FieldBackend, Precision, Tape};
 
 use crate::batch::{BatchOutput, composite_batch};
-use crate::sample::{NodeSamples, RayBatch, SampleOptions, Traced, sample_rays};
+use crate::march::sample_rays;
+use crate::sample::{NodeSamples, RayBatch, SampleOptions, Traced};
 use crate::tables::SceneTables;
 use assist_scene::NeuralScene;
 
