@@ -114,7 +114,6 @@ pub struct ConeRay {
 impl ConeRay {
     /// The march of `o + t·d` over `[t0, t1]` (see [`OccupancyGrid::march_cone`]).
     #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
     pub fn new(
         o: [f32; 3],
         d: [f32; 3],
@@ -179,7 +178,6 @@ impl OccupancyGrid {
     /// over the contracted space. Empty cells are skipped by jumping to where the ray
     /// leaves them inside the box (where the map is linear) and step by step beyond it.
     #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
     pub fn march_contracted(
         &self,
         o: [f32; 3],
@@ -219,7 +217,6 @@ pub struct ContractedRay {
 impl ContractedRay {
     /// The march of `o + t·d` over `[t0, t1]` (see [`OccupancyGrid::march_contracted`]).
     #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
     pub fn new(
         o: [f32; 3],
         d: [f32; 3],
