@@ -193,11 +193,12 @@ fn a_video_and_photographs_become_posed_datasets() {
     // similarity onto the capture's cameras has scale 1.
     // COLMAP's rerun is not repeatable: at times it triangulates nothing near the chosen
     // pixels of a frame, even one rich in points in the first model, and `--scale-by`
-    // rightly refuses them as a bare spot; then the next frame's pixels are tried, up to
-    // three frames.
+    // rightly refuses them as a bare spot; at times the point it finds under a pixel lies
+    // on another surface than the first model's. Either way the next frame's pixels are
+    // tried, up to three frames (a lookup of assist's own that is wrong misses in all).
     let photos = root.join("from-photos");
     let mut tried = Vec::new();
-    let (o, arg, metres, intended) = loop {
+    let (arg, metres, fit, record) = loop {
         let (arg, metres, intended) =
             known_distance(&out, &order, &given, &truth.bounds, tried.len());
         let o = run(&[
@@ -217,45 +218,54 @@ fn a_video_and_photographs_become_posed_datasets() {
             tried.push(arg);
             continue;
         }
-        break (o, arg, metres, intended);
+        ok(&o);
+        let summary: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(summary["input_kind"], "images");
+        assert_eq!(summary["meters_per_unit"], 1.0);
+        let (mut from, mut to) = (Vec::new(), Vec::new());
+        for (name, c) in centres(&photos) {
+            from.push(c);
+            to.push(truth_of(&name, &order, &given));
+        }
+        let fit = assist_session::process::compare::fit_similarity(&from, &to).unwrap();
+        eprintln!(
+            "--scale-by {arg} {metres:.5}m: scale to the capture {:.4}",
+            fit.scale
+        );
+        let record: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(photos.join("process.json")).unwrap()).unwrap();
+        // Where the rerun's points lie against the first model's (both in the capture's
+        // frame): their misses, not assist's arithmetic, are what move the scale below. A
+        // point under the pixel on another surface, or a mistriangulated one, misses by a
+        // large share of the extent; two reconstructions of the same surface by a few
+        // hundredths of its depth, and now and then by a tenth or more (BENCHMARKS.md and
+        // docs/history.md have the measured spread).
+        assert!(metres >= 0.15 * extent, "known distance {metres} too short");
+        let mut missed = None;
+        for (k, want) in ["a", "b"].iter().zip(intended) {
+            let miss = fit.apply(scale_point(&record, k)).distance(want);
+            eprintln!("known point {k}: {miss:.4} from the first model's (extent {extent:.3})");
+            if miss >= 0.25 * extent {
+                missed = Some(format!("known point {k} missed by {miss}"));
+            }
+        }
+        if let Some(m) = missed {
+            assert!(tried.len() < 2, "{m}, in three frames");
+            eprintln!("{m}; the next frame");
+            std::fs::remove_dir_all(&photos).unwrap();
+            tried.push(arg);
+            continue;
+        }
+        break (arg, metres, fit, record);
     };
-    ok(&o);
-    let summary: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    assert_eq!(summary["input_kind"], "images");
-    assert_eq!(summary["meters_per_unit"], 1.0);
-    let (mut from, mut to) = (Vec::new(), Vec::new());
-    for (name, c) in centres(&photos) {
-        from.push(c);
-        to.push(truth_of(&name, &order, &given));
-    }
-    let fit = assist_session::process::compare::fit_similarity(&from, &to).unwrap();
-    eprintln!(
-        "--scale-by {arg} {metres:.5}m: scale to the capture {:.4}",
-        fit.scale
-    );
     // assist's own arithmetic, exactly: the two points `--scale-by` found under the
     // pixels (recorded in process.json) are the given metres apart in the written frame.
-    let record: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(photos.join("process.json")).unwrap()).unwrap();
-    let point = |k: &str| {
-        let p = &record["scale_by"][k]["point"];
-        DVec3::from_array(std::array::from_fn(|i| p[i].as_f64().unwrap()))
-    };
     let given_m = record["scale_by"]["meters"].as_f64().unwrap();
-    assert!((given_m - metres).abs() < 1e-5, "{given_m} recorded");
-    let measured = point("a").distance(point("b"));
-    // Where the rerun's points lie against the first model's (both in the capture's
-    // frame): their misses, not assist's arithmetic, are what move the scale below. A
-    // point under the pixel on another surface, or a mistriangulated one, misses by a
-    // large share of the extent; two reconstructions of the same surface by a few
-    // hundredths of its depth, and now and then by a tenth or more (BENCHMARKS.md and
-    // docs/history.md have the measured spread).
-    assert!(metres >= 0.15 * extent, "known distance {metres} too short");
-    for (k, want) in ["a", "b"].iter().zip(intended) {
-        let miss = fit.apply(point(k)).distance(want);
-        eprintln!("known point {k}: {miss:.4} from the first model's (extent {extent:.3})");
-        assert!(miss < 0.25 * extent, "known point {k} missed by {miss}");
-    }
+    assert!(
+        (given_m - metres).abs() < 1e-5,
+        "{given_m} recorded for {arg}"
+    );
+    let measured = scale_point(&record, "a").distance(scale_point(&record, "b"));
     assert!(
         (measured - given_m).abs() < 1e-9 * given_m,
         "known points {measured} apart, given {given_m}"
@@ -492,4 +502,11 @@ fn bench_process_measures_fern_against_its_poses_and_itself() {
     assert_eq!(between[0]["matched"], 20);
     let share = between[0]["max_share"].as_f64().unwrap();
     assert!(share < 0.01, "two runs {share} of the extent apart: {r}");
+}
+
+/// A point `--scale-by` found under one of its pixels (`k` is "a" or "b"), as
+/// `process.json` records it.
+fn scale_point(record: &serde_json::Value, k: &str) -> DVec3 {
+    let p = &record["scale_by"][k]["point"];
+    DVec3::from_array(std::array::from_fn(|i| p[i].as_f64().unwrap()))
 }
