@@ -241,10 +241,11 @@ impl Session {
         self.backend.as_ref()
     }
 
-    /// The options of renders that measure the scene rather than show it: f32 fields, no
-    /// packed tables, and always on this CPU (the reference), whatever the session's
-    /// backend. What is decided from them (where the generator may place an object) is
-    /// then the same on every device; a GPU's last bits would otherwise move a support
+    /// The options of renders that measure the scene rather than show it: the hash tables
+    /// as trained (not packed), the MLP products at this CPU's rendering precision, and
+    /// always on this CPU (the reference), whatever the session's backend. What is
+    /// decided from them (where the generator may place an object) is then the same on
+    /// every device of one machine; a GPU's last bits would otherwise move a support
     /// cell's count across a threshold, and a placement by a whole cell.
     pub fn survey_options(&self) -> RenderOptions {
         RenderOptions::default()
