@@ -197,6 +197,7 @@ fn a_video_and_photographs_become_posed_datasets() {
     // on another surface than the first model's. Either way the next frame's pixels are
     // tried, up to four frames, each another frame (a lookup of assist's own that is
     // wrong misses in all).
+    const FRAMES_TRIED: usize = 4;
     let photos = root.join("from-photos");
     let mut tried: Vec<String> = Vec::new();
     let (arg, metres, fit, record) = loop {
@@ -213,7 +214,10 @@ fn a_video_and_photographs_become_posed_datasets() {
             "--json",
         ]);
         let err = String::from_utf8_lossy(&o.stderr).into_owned();
-        if !o.status.success() && err.contains("--scale-by: no COLMAP point") && tried.len() < 3 {
+        if !o.status.success()
+            && err.contains("--scale-by: no COLMAP point")
+            && tried.len() + 1 < FRAMES_TRIED
+        {
             eprintln!("rerun found no point under {arg}; the next frame");
             tried.push(arg);
             continue;
@@ -250,7 +254,10 @@ fn a_video_and_photographs_become_posed_datasets() {
             }
         }
         if let Some(m) = missed {
-            assert!(tried.len() < 3, "{m}, in four frames");
+            assert!(
+                tried.len() + 1 < FRAMES_TRIED,
+                "{m}, in {FRAMES_TRIED} frames"
+            );
             eprintln!("{m}; the next frame");
             std::fs::remove_dir_all(&photos).unwrap();
             tried.push(arg);
