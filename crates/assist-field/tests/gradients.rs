@@ -286,3 +286,39 @@ fn the_position_gradient_matches_central_differences() {
         "only {nonzero} of {checked} non-zero"
     );
 }
+
+#[test]
+fn the_backward_to_the_encoding_alone_gives_the_same_position_gradient() {
+    // A camera fitted to a frozen scene takes the encoding's gradient without the
+    // parameters': the position gradient must be the same bits, and a full backward
+    // after it the same as on a fresh tape (nothing of the nets' gradient left behind).
+    let mut rng = Rng::new(9);
+    let mut field = Field::new(small_config(), 3).unwrap();
+    for p in &mut field.params {
+        *p = 0.5 * (rng.f32() - 0.5);
+    }
+    let batch = Batch::new(300, &mut rng, false);
+    let n = batch.pos[0].len();
+    let pos_grad = |tape: &Tape| {
+        let mut g = [vec![0.0f32; n], vec![0.0f32; n], vec![0.0f32; n]];
+        let [gx, gy, gz] = &mut g;
+        field.position_grad(&batch.samples(), tape, [gx, gy, gz]);
+        g
+    };
+    let (mut sig, mut rgb) = (vec![0.0; n], vec![0.0; 3 * n]);
+    let mut full = Tape::default();
+    field.forward_train(&batch.samples(), &mut full, &mut sig, &mut rgb);
+    let mut grad = vec![0.0f32; field.param_count()];
+    field.backward(&batch.samples(), &mut full, &batch.a, &batch.b, &mut grad);
+    let want = pos_grad(&full);
+    assert!(want[0].iter().any(|&g| g != 0.0));
+
+    let mut tape = Tape::default();
+    field.forward_train(&batch.samples(), &mut tape, &mut sig, &mut rgb);
+    field.backward_to_encoding(&batch.samples(), &mut tape, &batch.a, &batch.b);
+    assert_eq!(pos_grad(&tape), want);
+    field.forward_train(&batch.samples(), &mut tape, &mut sig, &mut rgb);
+    let mut again = vec![0.0f32; field.param_count()];
+    field.backward(&batch.samples(), &mut tape, &batch.a, &batch.b, &mut again);
+    assert_eq!(again, grad);
+}

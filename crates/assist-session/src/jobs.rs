@@ -37,6 +37,8 @@ pub struct EvalJob {
     pub downscale: Option<u32>,
     /// Where the fields are queried (a GPU: `--device`; `None`: this CPU).
     pub backend: Option<std::sync::Arc<dyn assist_render::FieldBackend>>,
+    /// Fit each view's camera to its photograph before measuring (`None`: as given).
+    pub align: Option<assist_train::AlignOptions>,
 }
 
 impl EvalJob {
@@ -66,6 +68,7 @@ impl EvalJob {
                 backend: self.backend.clone(),
                 ..Default::default()
             },
+            self.align.as_ref(),
             progress,
             on_view,
         )?)

@@ -20,6 +20,9 @@ pub struct ImageScore {
     pub ssim: f64,
     /// PSNR after the render's best gain and offset per channel ([`color_corrected`]).
     pub color_corrected_psnr: f64,
+    /// The camera's fit to the photograph, when poses are aligned before measuring.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub alignment: Option<crate::AlignReport>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -75,16 +78,20 @@ pub fn evaluate(
     progress: impl FnMut(usize, usize),
 ) -> Result<EvalReport> {
     let opts = RenderOptions::default();
-    evaluate_each(scene, ds, split, stride, &opts, progress, |_| {})
+    evaluate_each(scene, ds, split, stride, &opts, None, progress, |_| {})
 }
 
-/// [`evaluate`], handing each view to `on_view` once it is measured (a contact sheet).
+/// [`evaluate`], handing each view to `on_view` once it is measured (a contact sheet);
+/// with `align`, each view's camera is first fitted to its photograph
+/// ([`crate::align_camera`]) and measured from there.
+#[allow(clippy::too_many_arguments)]
 pub fn evaluate_each(
     scene: &NeuralScene,
     ds: &Dataset,
     split: Option<Split>,
     stride: usize,
     opts: &RenderOptions,
+    align: Option<&crate::AlignOptions>,
     mut progress: impl FnMut(usize, usize),
     mut on_view: impl FnMut(EvaluatedView<'_>),
 ) -> Result<EvalReport> {
@@ -135,7 +142,10 @@ pub fn evaluate_each(
     for (i, f) in frames.iter().enumerate() {
         progress(i, frames.len());
         let v = load_view(f, u32::MAX, scene.scene.background_color)?;
-        let img = render_camera(scene, &f.camera, u32::MAX, opts);
+        let fitted =
+            align.map(|a| crate::align_camera(scene, &f.camera, &v.rgb, v.valid.as_deref(), a));
+        let camera = fitted.as_ref().map_or(&f.camera, |a| &a.camera);
+        let img = render_camera(scene, camera, u32::MAX, opts);
         let rgb: Vec<f32> = img.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect();
         let (se, n) = squared_error(&rgb, &v.rgb, 3, None);
         let (cse, cn) = squared_error(&color_corrected(&rgb, &v.rgb, 3), &v.rgb, 3, None);
@@ -144,6 +154,7 @@ pub fn evaluate_each(
             psnr: mse_to_psnr(se / n as f64),
             ssim: ssim(&rgb, &v.rgb, v.width, v.height, 3),
             color_corrected_psnr: mse_to_psnr(cse / cn as f64),
+            alignment: fitted.as_ref().map(|a| a.report),
         });
         on_view(EvaluatedView {
             truth: &v.rgb,
@@ -165,7 +176,7 @@ pub fn evaluate_each(
             && let Some(bf) = bt.frames.iter().find(|b| b.name == f.name)
         {
             let truth = load_view(bf, u32::MAX, scene.scene.background_color)?;
-            let b = render_camera(bs, &f.camera, u32::MAX, opts);
+            let b = render_camera(bs, camera, u32::MAX, opts);
             let brgb: Vec<f32> = b.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect();
             let (se, n) = squared_error(&brgb, &truth.rgb, 3, None);
             bg_se += se;

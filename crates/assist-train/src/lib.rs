@@ -7,6 +7,7 @@
 
 #![forbid(unsafe_code)]
 
+mod align;
 mod distil;
 mod error;
 mod eval;
@@ -22,6 +23,7 @@ pub mod shadow;
 mod trainer;
 mod views;
 
+pub use align::{AlignOptions, AlignReport, Alignment, align_camera};
 pub use distil::{DistilOptions, DistilReport, distil};
 pub use error::{Result, TrainError};
 pub use eval::{

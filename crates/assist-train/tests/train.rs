@@ -3,10 +3,12 @@
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+use assist_core::{Camera, DAffine3, DMat3, DVec3, Rng};
 use assist_data::synth::{SynthConfig, generate};
 use assist_data::{Dataset, LoadOptions, Split};
+use assist_render::{RenderOptions, render_camera};
 use assist_testkit::TempDir;
-use assist_train::{PriorKind, TrainError, TrainOptions, Trainer};
+use assist_train::{AlignOptions, PriorKind, TrainError, TrainOptions, Trainer, align_camera};
 use assist_train::{SetupOptions, background_color, build_scene};
 use assist_train::{fill_prior, load_views};
 
@@ -65,6 +67,107 @@ fn synth_scene_trains_to_stated_quality() {
         o > 12.0 && b > 12.0 && o.is_finite() && b.is_finite(),
         "{o} / {b}"
     );
+    // The trained scene also serves the camera fit's check (training it again would
+    // double this file's time).
+    a_disturbed_camera_is_fitted_back(&t.scene, &ds);
+}
+
+/// How far the scene's objects appear moved between two cameras: the mean distance, in
+/// pixels, between the projections of every object box's corners and centre (the
+/// rotation and the translation of a camera trade off against each other; what a
+/// camera shows does not).
+fn pixel_offset(scene: &assist_scene::NeuralScene, a: &Camera, b: &Camera) -> f64 {
+    let points: Vec<DVec3> = scene
+        .scene
+        .nodes
+        .iter()
+        .filter(|n| !n.is_background())
+        .flat_map(|n| {
+            n.world_corners()
+                .into_iter()
+                .chain([n.world_from_local.translation])
+        })
+        .collect();
+    let d: Vec<f64> = points
+        .iter()
+        .filter_map(|&p| Some((a.project(p)?.0 - b.project(p)?.0).length()))
+        .collect();
+    assert!(!d.is_empty(), "no object point in view");
+    d.iter().sum::<f64>() / d.len() as f64
+}
+
+/// Held-out cameras turned by 1° about a random axis and moved by 1% of the scene's size
+/// come back towards their true poses when fitted to their photographs, and render
+/// closer to them; a true camera stays where it is.
+fn a_disturbed_camera_is_fitted_back(scene: &assist_scene::NeuralScene, ds: &Dataset) {
+    let psnr = |camera: &assist_core::Camera, truth: &[f32]| {
+        let img = render_camera(scene, camera, u32::MAX, &RenderOptions::default());
+        let se: f64 = img
+            .rgb
+            .iter()
+            .zip(truth)
+            .map(|(a, b)| (a.clamp(0.0, 1.0) as f64 - *b as f64).powi(2))
+            .sum();
+        -10.0 * (se / truth.len() as f64).log10()
+    };
+    let size = ds
+        .frames
+        .iter()
+        .map(|f| f.camera.pose.center())
+        .fold(assist_core::Aabb::empty(), |mut b, c| {
+            b.extend(c);
+            b
+        })
+        .size()
+        .length();
+    let mut rng = Rng::new(11);
+    // Fewer, smaller steps than the default: the scene is small and CI's time is short.
+    let opts = AlignOptions {
+        steps: 100,
+        rays: 512,
+        ..Default::default()
+    };
+    for f in ds.frames.iter().filter(|f| f.split == Split::Test).take(1) {
+        let v = assist_train::load_view(f, u32::MAX, scene.scene.background_color).unwrap();
+        let axis = DVec3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
+        let dir = DVec3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
+        let turn = DMat3::from_axis_angle(axis, 1f64.to_radians());
+        let mut off = f.camera;
+        off.pose.world_from_camera = DAffine3::from_mat3_translation(
+            turn * f.camera.pose.rotation(),
+            f.camera.pose.center() + 0.01 * size * dir,
+        );
+        let fit = align_camera(scene, &off, &v.rgb, None, &opts);
+        let (exact, before, after) = (
+            psnr(&f.camera, &v.rgb),
+            psnr(&off, &v.rgb),
+            psnr(&fit.camera, &v.rgb),
+        );
+        let (moved, left) = (
+            pixel_offset(scene, &off, &f.camera),
+            pixel_offset(scene, &fit.camera, &f.camera),
+        );
+        eprintln!(
+            "{}: PSNR exact {exact:.2}, disturbed {before:.2}, fitted {after:.2} dB; objects off by {moved:.2} -> {left:.2} px; {:?}",
+            f.name, fit.report
+        );
+        assert!(fit.report.applied && fit.report.mse_after < fit.report.mse_before);
+        assert!(left < 0.25 * moved, "{}", f.name);
+        assert!(after > before + 3.0 && after > exact - 0.5, "{}", f.name);
+        // A true camera: the fit may move what it shows only by little.
+        let stay = align_camera(scene, &f.camera, &v.rgb, None, &opts);
+        let drift = pixel_offset(scene, &stay.camera, &f.camera);
+        eprintln!(
+            "{}: a true camera's fit moves its objects {drift:.2} px",
+            f.name
+        );
+        assert!(drift < 0.5, "{:?}", stay.report);
+        assert!(
+            psnr(&stay.camera, &v.rgb) > exact - 0.2,
+            "{:?}",
+            stay.report
+        );
+    }
 }
 
 #[test]

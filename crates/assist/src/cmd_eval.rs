@@ -36,6 +36,15 @@ pub struct EvalArgs {
     /// Replace an existing `--sheet` file.
     #[arg(long)]
     pub force: bool,
+    /// Fit each measured view's camera to its photograph first, with the scene frozen (a
+    /// centre shift and a turn, by gradient descent on its pixels), and measure from the
+    /// fitted camera: the protocol for poses from COLMAP or scenes trained with
+    /// `--refine-poses`. Each view's fit is in the report.
+    #[arg(long)]
+    pub align_poses: bool,
+    /// Gradient steps of each view's fit (`--align-poses`).
+    #[arg(long, default_value_t = assist_train::AlignOptions::default().steps, requires = "align_poses")]
+    pub align_steps: usize,
     #[command(flatten)]
     pub device: crate::device::DeviceArg,
 }
@@ -60,6 +69,10 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         stride: a.stride,
         downscale: a.downscale,
         backend: device.field_backend(),
+        align: a.align_poses.then(|| assist_train::AlignOptions {
+            steps: a.align_steps,
+            ..Default::default()
+        }),
     };
     let bar = crate::progress::bar(!a.json && std::io::stderr().is_terminal(), "eval");
     if let Some(p) = &a.sheet
@@ -97,6 +110,20 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
             r.images, r.split, r.seconds
         );
         eprintln!("PSNR {:.2} dB  SSIM {:.4}", r.psnr, r.ssim);
+        let fits: Vec<_> = r.per_image.iter().filter_map(|s| s.alignment).collect();
+        if !fits.is_empty() {
+            let used: Vec<_> = fits.iter().filter(|f| f.applied).collect();
+            let mean = |v: &dyn Fn(&assist_train::AlignReport) -> f64| {
+                used.iter().map(|f| v(f)).sum::<f64>() / used.len().max(1) as f64
+            };
+            eprintln!(
+                "cameras fitted to their photographs: {} of {} moved (mean {:.4} units, {:.3} deg)",
+                used.len(),
+                fits.len(),
+                mean(&|f| f.translation),
+                mean(&|f| f.rotation_deg)
+            );
+        }
         eprintln!(
             "PSNR {:.2} dB after each view's best colour gain and offset (what exposure costs)",
             r.color_corrected_psnr

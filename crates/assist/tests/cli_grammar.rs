@@ -24,6 +24,34 @@ fn the_dataset_is_data_the_report_goes_to_stderr_and_json_to_stdout() {
     ok(&out);
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert!(v["psnr"].is_number(), "{v}");
+    // --align-poses: each image's camera fit is in the report; its step count alone is
+    // refused.
+    let out = run(&[
+        "eval",
+        s(&scene),
+        "--data",
+        s(&data),
+        "--json",
+        "--align-poses",
+        "--align-steps",
+        "3",
+    ]);
+    ok(&out);
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for im in v["per_image"].as_array().unwrap() {
+        let a = &im["alignment"];
+        assert!(
+            a["mse_before"].is_number() && a["applied"].is_boolean(),
+            "{v}"
+        );
+    }
+    let out = run(&["eval", s(&scene), "--data", s(&data), "--align-steps", "3"]);
+    assert!(!out.status.success());
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("--align-poses"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 
     // render: --data names the dataset, --select takes a name, --json on stdout.
     let r = tmp.path().join("r");

@@ -191,13 +191,50 @@ impl Field {
         d_rgb: &[f32],
         grad: &mut [f32],
     ) {
+        assert!(grad.len() == self.layout.total);
+        self.backward_nets(s, tape, d_sigma, d_rgb, Some(grad));
+        let mlp0 = self.layout.mlp_start();
+        let t1 = std::time::Instant::now();
+        let width = self.config.encoding_rows();
+        encode_backward(
+            &self.layout.grid,
+            s.pos,
+            width,
+            &tape.d_enc,
+            &mut grad[..mlp0],
+        );
+        tape.times.encode_backward += t1.elapsed().as_secs_f64();
+    }
+
+    /// The backward pass through the nets alone, for a loss whose parameters stay fixed:
+    /// it leaves dL/d(encoding) in the tape for [`position_grad`](Self::position_grad)
+    /// and computes no parameter's gradient (a camera fitted to a frozen scene).
+    pub fn backward_to_encoding(
+        &self,
+        s: &Samples,
+        tape: &mut Tape,
+        d_sigma: &[f32],
+        d_rgb: &[f32],
+    ) {
+        self.backward_nets(s, tape, d_sigma, d_rgb, None);
+    }
+
+    /// The nets' backward: dL/d(encoding) into the tape and, with `grad`, the nets' and
+    /// appearance codes' gradient added into it.
+    fn backward_nets(
+        &self,
+        s: &Samples,
+        tape: &mut Tape,
+        d_sigma: &[f32],
+        d_rgb: &[f32],
+        mut grad: Option<&mut [f32]>,
+    ) {
         let n = tape.n;
         assert_eq!(
             s.len(),
             n,
             "backward: samples differ from the recorded forward"
         );
-        assert!(grad.len() == self.layout.total);
         let cfg = &self.config;
         let lay = &self.layout;
         let rows = self.rows();
@@ -262,22 +299,26 @@ impl Field {
         let mut sums = vec![0.0f32; sizes.3];
         for sc in scratch {
             let mut sc = sc.lock().unwrap_or_else(|p| p.into_inner());
-            for (g, m) in grad[mlp0..].iter_mut().zip(sc.g.iter_mut()) {
-                *g += *m;
-                *m = 0.0;
+            match grad.as_deref_mut() {
+                Some(grad) => {
+                    for (g, m) in grad[mlp0..].iter_mut().zip(sc.g.iter_mut()) {
+                        *g += *m;
+                        *m = 0.0;
+                    }
+                }
+                None => sc.g.fill(0.0),
             }
             for (t, m) in sums.iter_mut().zip(sc.code_sums.iter_mut()) {
                 *t += *m;
                 *m = 0.0;
             }
         }
-        if a > 0 {
+        if a > 0
+            && let Some(grad) = grad
+        {
             self.code_backward(&sums, grad);
         }
-        let t1 = std::time::Instant::now();
-        tape.times.mlp_backward += (t1 - t0).as_secs_f64();
-        encode_backward(&lay.grid, s.pos, width, &tape.d_enc, &mut grad[..mlp0]);
-        tape.times.encode_backward += t1.elapsed().as_secs_f64();
+        tape.times.mlp_backward += t0.elapsed().as_secs_f64();
     }
 }
 

@@ -40,7 +40,7 @@ pub use options::{
     EMPTY_MARGIN, KeptHistory, PhaseTimes, ResumeState, StepStats, StopReason, TrainOptions,
     TrainReport, default_lr_end, default_prune_eps,
 };
-pub use poses::{POSE_EVERY, POSE_LR, PoseRefiner};
+pub use poses::{POSE_EVERY, POSE_LR, PoseRefiner, scene_extent};
 use rays::Target;
 pub use terms::{Lambdas, TERMS, TermInfo, Terms, term};
 
@@ -130,13 +130,7 @@ impl Trainer {
                 (k.clone(), o)
             })
             .collect();
-        let mut ext = assist_core::Aabb::empty();
-        for n in &scene.scene.nodes {
-            for c in n.world_corners() {
-                ext.extend(c);
-            }
-        }
-        let extent = ext.size().length().max(1e-6) as f32;
+        let extent = scene_extent(&scene);
         let node_of_id = scene
             .scene
             .nodes

@@ -50,6 +50,19 @@ pub struct PoseRefiner {
     g: [Vec<f32>; 3],
 }
 
+/// The scene's extent: the diagonal of the box around every node's box (a contracted
+/// background's inner box). The unit of the corrections' translations and of the
+/// training's distance terms.
+pub fn scene_extent(scene: &NeuralScene) -> f32 {
+    let mut ext = assist_core::Aabb::empty();
+    for n in &scene.scene.nodes {
+        for c in n.world_corners() {
+            ext.extend(c);
+        }
+    }
+    ext.size().length().max(1e-6) as f32
+}
+
 /// `exp(ω)`: the rotation by `|ω|` radians about `ω`.
 fn rotation(w: DVec3) -> DMat3 {
     let angle = w.length();
