@@ -113,16 +113,20 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         let fits: Vec<_> = r.per_image.iter().filter_map(|s| s.alignment).collect();
         if !fits.is_empty() {
             let used: Vec<_> = fits.iter().filter(|f| f.applied).collect();
-            let mean = |v: &dyn Fn(&assist_train::AlignReport) -> f64| {
-                used.iter().map(|f| v(f)).sum::<f64>() / used.len().max(1) as f64
-            };
-            eprintln!(
-                "cameras fitted to their photographs: {} of {} moved (mean {:.4} units, {:.3} deg)",
+            let mut line = format!(
+                "cameras fitted to their photographs: {} of {} moved",
                 used.len(),
-                fits.len(),
-                mean(&|f| f.translation),
-                mean(&|f| f.rotation_deg)
+                fits.len()
             );
+            if !used.is_empty() {
+                let n = used.len() as f64;
+                line += &format!(
+                    " (mean {:.4} units, {:.3} deg)",
+                    used.iter().map(|f| f.translation).sum::<f64>() / n,
+                    used.iter().map(|f| f.rotation_deg).sum::<f64>() / n
+                );
+            }
+            eprintln!("{line}");
         }
         eprintln!(
             "PSNR {:.2} dB after each view's best colour gain and offset (what exposure costs)",
