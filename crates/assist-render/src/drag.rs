@@ -121,12 +121,7 @@ impl DragCache {
 
 /// How a render with `opts` samples (no jitter) and queries its fields.
 fn sampling_and_query(opts: &RenderOptions) -> (SampleOptions, Query<'_>) {
-    let so = SampleOptions {
-        jitter: false,
-        seed: 0,
-        max_per_node: opts.max_per_node,
-        step_scale: opts.step_scale,
-    };
+    let so = opts.sample_options();
     let q = Query::Render {
         precision: opts.precision,
         highlight: opts.highlight,

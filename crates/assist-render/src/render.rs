@@ -60,6 +60,16 @@ impl RenderOptions {
         .max(1)
     }
 
+    /// How a render with these options samples its rays (no jitter).
+    pub fn sample_options(&self) -> SampleOptions {
+        SampleOptions {
+            jitter: false,
+            seed: 0,
+            max_per_node: self.max_per_node,
+            step_scale: self.step_scale,
+        }
+    }
+
     pub(crate) fn cancelled(&self) -> bool {
         self.cancel
             .as_ref()
@@ -445,12 +455,7 @@ pub fn render_rays_timed(
     opts: &RenderOptions,
     sc: &mut RenderScratch,
 ) -> RenderStats {
-    let so = SampleOptions {
-        jitter: false,
-        seed: 0,
-        max_per_node: opts.max_per_node,
-        step_scale: opts.step_scale,
-    };
+    let so = opts.sample_options();
     let count = |t: &Traced| t.nodes.iter().map(|n| n.len()).sum::<usize>();
     let mut st = RenderStats {
         rays: sc.rays.len(),
