@@ -453,6 +453,9 @@ impl TrainJob {
         }
         if let Some(r) = resume {
             trainer.resume_from(r);
+        } else if self.start.is_some() {
+            // A scene given to start from (a split's fine-tune) holds trained fields.
+            trainer.warm_from = Some(trainer.iteration);
         }
         Ok(trainer)
     }

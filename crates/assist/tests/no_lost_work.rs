@@ -364,6 +364,7 @@ fn an_interrupt_saves_the_scene_and_resume_continues_it() {
 
     // --max-time on resume is additional time: it trains on.
     let before = i["elapsed_seconds"].as_f64().unwrap();
+    let log = tmp.join("resumed.jsonl");
     ok(&assist(&[
         "train",
         s(&data),
@@ -372,12 +373,33 @@ fn an_interrupt_saves_the_scene_and_resume_continues_it() {
         "--resume",
         "--max-time",
         "1",
+        "--log",
+        s(&log),
+        "--log-every",
+        "1",
     ]));
     let j = info(&out);
     assert!(j["iteration"].as_u64().unwrap() > it, "{j}");
     assert!(
         j["elapsed_seconds"].as_f64().unwrap() >= before + 0.9,
         "{j}"
+    );
+    // The moments start afresh: the learning rate ramps up from a small fraction of the
+    // schedule's (at most 1e-2) instead of jolting the trained fields.
+    let steps: Vec<serde_json::Value> = std::fs::read_to_string(&log)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .filter(|v: &serde_json::Value| v["kind"] == "step")
+        .collect();
+    let lr = |k: usize| steps[k]["lr"].as_f64().unwrap();
+    assert_eq!(steps[0]["iteration"].as_u64(), Some(it), "{}", steps[0]);
+    assert!(lr(0) < 1e-4, "{}", steps[0]);
+    assert!(
+        steps.len() < 3 || lr(2) > lr(0),
+        "{} then {}",
+        steps[0],
+        steps[2]
     );
     // Nothing left to do is an error, not a silent success.
     let n = j["iteration"].as_u64().unwrap().to_string();

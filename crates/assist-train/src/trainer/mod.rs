@@ -85,6 +85,10 @@ pub struct Trainer {
     /// `object_ray_fraction` so that small objects get enough rays.
     object_pixels: Vec<(u32, u32)>,
     elapsed_before: f64,
+    /// Where the optimisers' moments started afresh on fields trained before this run (a
+    /// resume, a split's fine-tune): the learning rate ramps up from there (see
+    /// [`warmed_lr`]). `None` for a scene trained from its first step.
+    pub warm_from: Option<usize>,
     /// The training views' pose corrections (with `refine_poses`).
     pub poses: Option<PoseRefiner>,
     /// The view each ray of the batch came from.
@@ -184,6 +188,7 @@ impl Trainer {
             pixel_count,
             object_pixels,
             elapsed_before: 0.0,
+            warm_from: None,
             poses,
             ray_views: Vec::new(),
             shade_adam: BTreeMap::new(),
@@ -193,9 +198,11 @@ impl Trainer {
     }
 
     /// Continues a run from where it was saved: the iteration count and the time already
-    /// spent (for the schedule), and the depth prior's affine map.
+    /// spent (for the schedule), and the depth prior's affine map. The moments start
+    /// afresh, so the learning rate ramps up again ([`Trainer::warm_from`]).
     pub fn resume_from(&mut self, state: &ResumeState) {
         self.iteration = state.iteration;
+        self.warm_from = Some(state.iteration);
         self.elapsed_before = state.elapsed_seconds;
         self.depth_wq = state.depth_scale_shift;
         if let (Some(p), Some(saved)) = (&mut self.poses, &state.pose_corrections) {
@@ -344,9 +351,47 @@ impl Trainer {
     }
 }
 
+/// Steps over which the learning rate ramps up when the optimisers' moments start afresh
+/// on trained fields (at most a tenth of the steps the run has left).
+pub const WARMUP_STEPS: usize = 300;
+
+/// The learning rate of `iteration` given the schedule's `lr`, in a run of `iters` steps:
+/// with fresh moments Adam's first steps move every parameter with a gradient by about the
+/// learning rate whatever the gradient's size, which shakes a trained field where few rays
+/// reach (the split desk's fine-tune without the ramp: object colours strewn on the floor
+/// beside the table, measured in BENCHMARKS.md). A linear ramp from `warm_from`.
+pub fn warmed_lr(lr: f32, iteration: usize, warm_from: Option<usize>, iters: usize) -> f32 {
+    match warm_from {
+        Some(from) => {
+            let ramp = WARMUP_STEPS.min(iters.saturating_sub(from) / 10).max(1);
+            let done = iteration.saturating_sub(from) + 1;
+            lr * (done as f32 / ramp as f32).min(1.0)
+        }
+        None => lr,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_resumed_run_ramps_its_learning_rate_up() {
+        // A scene trained from its first step: the schedule as it is.
+        assert_eq!(warmed_lr(1e-2, 0, None, 5000), 1e-2);
+        // Resumed at 2,630 of 7,890: the first step a 300th of the schedule, then linear.
+        let at = |i| warmed_lr(1e-2, i, Some(2630), 7890);
+        assert!((at(2630) - 1e-2 / WARMUP_STEPS as f32).abs() < 1e-9);
+        assert!((at(2630 + 149) - 0.5e-2).abs() < 1e-9);
+        assert_eq!(at(2630 + WARMUP_STEPS - 1), 1e-2);
+        assert_eq!(at(2630 + 5000), 1e-2);
+        assert!((1..WARMUP_STEPS).all(|k| at(2630 + k) > at(2630 + k - 1)));
+        // A short run ramps over a tenth of its steps; a run without a step limit over 300.
+        assert_eq!(warmed_lr(1e-2, 9, Some(0), 100), 1e-2);
+        assert!(warmed_lr(1e-2, 8, Some(0), 100) < 1e-2);
+        assert!(warmed_lr(1e-2, 298, Some(0), usize::MAX) < 1e-2);
+        assert_eq!(warmed_lr(1e-2, 0, Some(0), 5), 1e-2);
+    }
 
     #[test]
     fn the_depth_prior_scale_stays_positive() {

@@ -11,6 +11,7 @@ use assist_render::{CompositeGrad, RayOutputs, SampleOptions, composite_batch, s
 use super::objective::Objective;
 use super::{
     EMPTY_MARGIN, POSE_EVERY, POSE_LR, PhaseTimes, StepStats, Trainer, update_depth_affine,
+    warmed_lr,
 };
 use crate::error::{Result, TrainError};
 
@@ -37,7 +38,9 @@ impl Trainer {
     /// One training step.
     pub fn step(&mut self, elapsed: f64) -> Result<StepStats> {
         let progress = self.progress(elapsed);
-        let lr = self.opts.lr_start * (self.opts.lr_end / self.opts.lr_start).powf(progress as f32);
+        let scheduled =
+            self.opts.lr_start * (self.opts.lr_end / self.opts.lr_start).powf(progress as f32);
+        let lr = warmed_lr(scheduled, self.iteration, self.warm_from, self.opts.iters);
         let tp = Instant::now();
         let mut phase = [0.0f64; 6];
         let (candidates, pruned) = self.trace();
