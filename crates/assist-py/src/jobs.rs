@@ -340,6 +340,9 @@ pub(crate) fn split<'py>(
                 SplitEvent::Distilled { id, label, report } => serde_json::json!({
                     "kind": "distilled", "id": id, "label": label, "report": report,
                 }),
+                SplitEvent::Cleared(report) => serde_json::json!({
+                    "kind": "cleared", "report": report,
+                }),
                 SplitEvent::Train(assist_session::TrainEvent::Step { stats, .. }) => {
                     serde_json::json!({"kind": "step", "iteration": stats.iteration, "psnr": stats.psnr})
                 }

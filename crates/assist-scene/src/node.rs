@@ -4,7 +4,7 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use assist_core::{DVec3, NodeSpace, Scene};
+use assist_core::{DVec3, NodeSpace, Scene, SceneNode};
 use assist_field::{Field, OccupancyGrid, ShadeGrid};
 
 /// Default step growth with distance (instant-NGP's cone angle for large scenes).
@@ -118,25 +118,11 @@ impl NeuralScene {
         let node = &self.scene.nodes[index];
         let nf = self.field_of(index);
         let w = &node.world_from_local;
-        let half = node.half_size;
-        let far = assist_field::contraction::FAR_RADIUS as f64;
         let mut inside = Vec::with_capacity(points.len());
         let mut pos: [Vec<f32>; 3] = Default::default();
         let mut dir: [Vec<f32>; 3] = Default::default();
         for (k, p) in points.iter().enumerate() {
-            let l = w.local_from_world_point(*p);
-            let u = match nf.space {
-                NodeSpace::Box => {
-                    let ok = (l.abs() - half).max_element() <= 0.0;
-                    ok.then(|| (l / (half * 2.0) + 0.5).as_vec3().to_array())
-                }
-                NodeSpace::Contracted => {
-                    let c = l / half;
-                    (c.abs().max_element() < far).then(|| {
-                        assist_field::contraction::contract_to_unit(c.as_vec3().to_array())
-                    })
-                }
-            };
+            let u = field_position(node, nf.space, *p);
             inside.push(u.is_some());
             if let Some(u) = u {
                 let d = dirs
@@ -187,5 +173,25 @@ impl NeuralScene {
             }
         }
         (out_sigma, out_rgb)
+    }
+}
+
+/// Where world point `p` lies in the field of `node` (laid out as `space`): its position
+/// in the unit cube the field is queried on, or `None` outside the node's box (or, for a
+/// contracted node, beyond its far shell).
+pub fn field_position(node: &SceneNode, space: NodeSpace, p: DVec3) -> Option<[f32; 3]> {
+    let l = node.world_from_local.local_from_world_point(p);
+    let half = node.half_size;
+    match space {
+        NodeSpace::Box => {
+            let ok = (l.abs() - half).max_element() <= 0.0;
+            ok.then(|| (l / (half * 2.0) + 0.5).as_vec3().to_array())
+        }
+        NodeSpace::Contracted => {
+            let c = l / half;
+            let far = assist_field::contraction::FAR_RADIUS as f64;
+            (c.abs().max_element() < far)
+                .then(|| assist_field::contraction::contract_to_unit(c.as_vec3().to_array()))
+        }
     }
 }

@@ -5,7 +5,7 @@
 //! node cut out of a background trained without masks this way, so that its fine-tune
 //! begins from the object the background already shows rather than from fog.
 
-use assist_core::{DVec3, Rng, SceneNode};
+use assist_core::{DVec3, Obb, Rng, SceneNode};
 use assist_field::{Adam, Samples, Tape};
 use assist_scene::{NeuralScene, NodeField, STEPS_PER_DIAGONAL};
 
@@ -133,6 +133,126 @@ pub fn distil(
     report
 }
 
+/// Regions grow by this factor around the cleared volume: the points drawn there that are
+/// not cleared hold the field to what it was (the support under an object, the space and
+/// surfaces around it).
+const CLEAR_GROW: f64 = 1.5;
+
+/// What [`clear`] achieved: the mean `ln(1 + τ)` (τ the optical depth of one marching
+/// step) at the cleared points before and after, and the mean absolute change of it at
+/// the points held.
+#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+pub struct ClearReport {
+    pub steps: usize,
+    pub cleared_before: f32,
+    pub cleared_after: f32,
+    pub held_change: f32,
+    pub seconds: f64,
+}
+
+/// Empties node `index` of `scene` where `cleared` holds: points drawn in `regions`
+/// (world boxes, grown by [`CLEAR_GROW`]) and seen from `eyes`, its field fitted there to
+/// no density, and at the other points to its own density and colour as they were.
+/// `assist scene split` clears the background inside each new object this way: the
+/// object's field took over what the background held there, and a copy left in the
+/// background shows as a ghost where the object stood once it moves.
+pub fn clear(
+    scene: &mut NeuralScene,
+    index: usize,
+    regions: &[Obb],
+    cleared: impl Fn(DVec3) -> bool,
+    eyes: &[DVec3],
+    opts: &DistilOptions,
+) -> ClearReport {
+    let started = std::time::Instant::now();
+    let mut report = ClearReport {
+        steps: opts.steps,
+        ..Default::default()
+    };
+    if regions.is_empty() {
+        return report;
+    }
+    let node = scene.scene.nodes[index].clone();
+    let key = node.field.clone();
+    let Some(nf) = scene.fields.get_mut(&key) else {
+        return report;
+    };
+    let nf = std::sync::Arc::make_mut(nf);
+    let space = nf.space;
+    let teacher = nf.field.clone();
+    let field = &mut nf.field;
+    let mut rng = Rng::new(opts.seed);
+    let mut adam = Adam::for_field(field);
+    let mut grad = vec![0f32; field.layout.total];
+    let mut tape = Tape::default();
+    let n = opts.batch.max(1);
+    for step in 0..opts.steps {
+        let (mut pos, mut dir): ([Vec<f32>; 3], [Vec<f32>; 3]) = Default::default();
+        let mut empty = Vec::with_capacity(n);
+        while empty.len() < n {
+            let b = &regions[rng.below(regions.len() as u64) as usize];
+            let u = DVec3::new(rng.f32() as f64, rng.f32() as f64, rng.f32() as f64);
+            let p = b.center + b.rotation * ((u * 2.0 - 1.0) * b.half_size * CLEAR_GROW);
+            let Some(at) = assist_scene::field_position(&node, space, p) else {
+                continue;
+            };
+            let eye = match eyes.len() {
+                0 => p + DVec3::new(rng.normal(), rng.normal(), rng.normal()),
+                k => eyes[rng.below(k as u64) as usize],
+            };
+            let d = node
+                .world_from_local
+                .local_from_world_vector((p - eye).normalize_or(DVec3::Z))
+                .normalize_or(DVec3::Z);
+            for a in 0..3 {
+                pos[a].push(at[a]);
+                dir[a].push(d[a] as f32);
+            }
+            empty.push(cleared(p));
+        }
+        let s = Samples {
+            pos: [&pos[0], &pos[1], &pos[2]],
+            dir: [&dir[0], &dir[1], &dir[2]],
+            image: &[],
+        };
+        let (mut sigma_t, mut rgb_t) = (vec![0f32; n], vec![0f32; 3 * n]);
+        teacher.forward(&s, &mut sigma_t, &mut rgb_t);
+        let (mut sigma, mut rgb) = (vec![0f32; n], vec![0f32; 3 * n]);
+        field.forward_train(&s, &mut tape, &mut sigma, &mut rgb);
+        let (mut d_sigma, mut d_rgb) = (vec![0f32; n], vec![0f32; 3 * n]);
+        let (mut gone, mut was, mut n_gone, mut moved, mut n_held) = (0f64, 0f64, 0, 0f64, 0);
+        for i in 0..n {
+            let tau = sigma[i] / STEPS_PER_DIAGONAL;
+            let tau_was = sigma_t[i] / STEPS_PER_DIAGONAL;
+            let tau_t = if empty[i] { 0.0 } else { tau_was };
+            let diff = tau.ln_1p() - tau_t.ln_1p();
+            d_sigma[i] = 2.0 * diff / (1.0 + tau) / STEPS_PER_DIAGONAL / n as f32;
+            if empty[i] {
+                gone += tau.ln_1p() as f64;
+                was += tau_was.ln_1p() as f64;
+                n_gone += 1;
+                continue;
+            }
+            moved += diff.abs() as f64;
+            n_held += 1;
+            let weight = 1.0 - (-tau_t).exp();
+            for c in 0..3 {
+                d_rgb[3 * i + c] = 2.0 * weight * (rgb[3 * i + c] - rgb_t[3 * i + c]) / n as f32;
+            }
+        }
+        let mean = |x: f64, k: usize| (x / k.max(1) as f64) as f32;
+        if step == 0 {
+            report.cleared_before = mean(was, n_gone);
+        }
+        report.cleared_after = mean(gone, n_gone);
+        report.held_change = mean(moved, n_held);
+        field.backward(&s, &mut tape, &d_sigma, &d_rgb, &mut grad);
+        adam.update(opts.lr, &mut field.params, &mut grad);
+    }
+    report.seconds = started.elapsed().as_secs_f64();
+    report
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -187,6 +307,55 @@ mod tests {
         for (p, s) in outside.iter().zip(both.density_at_world(k, &outside)) {
             // Less than 1% opacity per marching step of the source's.
             assert!(s < 0.01 * src[0], "at {p}: {s} (the box's {})", src[0]);
+        }
+    }
+
+    /// A field distilled from the red box, then cleared over the box's far half: empty
+    /// there, and the near half as dense as before.
+    #[test]
+    fn a_cleared_field_is_empty_where_told_and_unchanged_beside_it() {
+        let scene = scenes::two_boxes(0.1);
+        let node = scenes::node(7, "part", 0.12, DVec3::new(-0.1, 0.0, 0.05));
+        let mut target = assist_scene::NodeField::new(
+            assist_field::Field::new(assist_field::FieldConfig::object(1), 7).unwrap(),
+            assist_field::OccupancyGrid::new(16),
+            node.half_size,
+        );
+        let eyes = [DVec3::new(0.0, -2.0, 0.5), DVec3::new(2.0, 0.3, 0.4)];
+        let quick = DistilOptions {
+            steps: 250,
+            ..Default::default()
+        };
+        distil(&scene, 1, &node, &mut target, &eyes, &quick);
+        let mut part = scene.clone();
+        part.scene.nodes.push(node.clone());
+        part.fields.insert(node.field.clone(), Arc::new(target));
+        let k = part.scene.nodes.len() - 1;
+        let far = [DVec3::new(-0.2, 0.0, 0.05), DVec3::new(-0.19, 0.05, 0.1)];
+        let near = [DVec3::new(-0.09, 0.0, 0.05), DVec3::new(-0.1, -0.05, 0.1)];
+        let (far_before, near_before) = (
+            part.density_at_world(k, &far),
+            part.density_at_world(k, &near),
+        );
+        let red = assist_core::Obb::new(
+            DVec3::new(-0.15, 0.0, 0.05),
+            DVec3::splat(0.2),
+            assist_core::glam::DMat3::IDENTITY,
+        );
+        let report = clear(&mut part, k, &[red], |p| p.x < -0.15, &eyes, &quick);
+        assert!(
+            report.cleared_after < 0.05 * report.cleared_before,
+            "{report:?}"
+        );
+        for (a, b) in far_before.iter().zip(part.density_at_world(k, &far)) {
+            assert!(b < 0.01 * a, "cleared: {a} → {b}");
+        }
+        for (a, b) in near_before.iter().zip(part.density_at_world(k, &near)) {
+            assert!((b / a - 1.0).abs() < 0.3, "held: {a} → {b}");
+        }
+        // The other nodes' fields are untouched.
+        for (key, f) in &scene.fields {
+            assert!(Arc::ptr_eq(f, &part.fields[key]), "{key}");
         }
     }
 }

@@ -24,7 +24,7 @@ mod trainer;
 mod views;
 
 pub use align::{AlignOptions, AlignReport, Alignment, align_camera};
-pub use distil::{DistilOptions, DistilReport, distil};
+pub use distil::{ClearReport, DistilOptions, DistilReport, clear, distil};
 pub use error::{Result, TrainError};
 pub use eval::{
     EvalReport, EvaluatedView, ImageScore, PriorReport, PriorScore, background_dataset, evaluate,

@@ -56,6 +56,14 @@ pub fn run(a: SplitArgs) -> anyhow::Result<()> {
             "{id:>3}  {label}: field started from the background's ({} steps, log-density error {:.3}, colour error {:.3}, {:.1} s)",
             report.steps, report.density_error, report.color_error, report.seconds
         ),
+        SplitEvent::Cleared(report) if text => eprintln!(
+            "background emptied inside the new objects above their supports ({} steps, log-density there {:.3} -> {:.3}, around them changed by {:.3}, {:.1} s)",
+            report.steps,
+            report.cleared_before,
+            report.cleared_after,
+            report.held_change,
+            report.seconds
+        ),
         SplitEvent::Train(TrainEvent::Step { stats, eta_seconds, .. }) => {
             bar.set_message(format!(
                 "fine-tune it {} psnr {:.2}",

@@ -378,6 +378,7 @@ fn split_the_scene(desk: &Path, root: &Path, plain: &Path, truth: &Path, test_vi
     let mut args = no_train.to_vec();
     args.extend(["--masks-out", s(&masks2)]);
     ok(&run(&args));
+    background_leaves_the_mug(plain, &later);
     ok(&run(&[
         "train",
         s(desk),
@@ -414,6 +415,78 @@ fn split_the_scene(desk: &Path, root: &Path, plain: &Path, truth: &Path, test_vi
         common::leftovers(root).is_empty(),
         "{:?}",
         common::leftovers(root)
+    );
+}
+
+/// The split empties the background inside the mug's box above the table (the mug's
+/// own field holds it now), and leaves the table beside the mug as it was.
+fn background_leaves_the_mug(plain: &Path, split: &Path) {
+    use assist_core::DVec3;
+    let (before, _) = assist_scene::scene_file::load(plain).unwrap();
+    let (after, _) = assist_scene::scene_file::load(split).unwrap();
+    // A lattice over the box's upper four fifths (the box of `split_the_scene`), and one
+    // over the table top beside it (0.1 to 0.2 further along x, about its height).
+    let lattice = |x0: f64, x1: f64, z0: f64, z1: f64| -> Vec<DVec3> {
+        let mut pts = Vec::new();
+        for i in 0..8 {
+            for j in 0..8 {
+                for k in 0..8 {
+                    let f = |a: f64, b: f64, t: usize| a + (b - a) * (t as f64 + 0.5) / 8.0;
+                    pts.push(DVec3::new(f(x0, x1, i), f(-0.19, -0.05, j), f(z0, z1, k)));
+                }
+            }
+        }
+        pts
+    };
+    let mass = |scene: &assist_scene::NeuralScene, pts: &[DVec3]| -> f64 {
+        let bg = scene
+            .scene
+            .nodes
+            .iter()
+            .position(|n| n.is_background())
+            .unwrap();
+        scene
+            .density_at_world(bg, pts)
+            .iter()
+            .map(|&d| d as f64)
+            .sum()
+    };
+    let inside = lattice(0.145, 0.295, 0.767, 0.855);
+    let (was, now) = (mass(&before, &inside), mass(&after, &inside));
+    assert!(
+        now < 0.1 * was,
+        "the background inside the mug: {was} before, {now} after"
+    );
+    // The table's opacity through 10 cm about its top, in columns beside the box.
+    let opacity = |scene: &assist_scene::NeuralScene| -> f64 {
+        let bg = scene
+            .scene
+            .nodes
+            .iter()
+            .position(|n| n.is_background())
+            .unwrap();
+        let (n, dz) = (64, 0.1 / 64.0);
+        let mut sum = 0.0;
+        for i in 0..6 {
+            for j in 0..6 {
+                let (x, y) = (0.32 + 0.02 * i as f64, -0.19 + 0.028 * j as f64);
+                let column: Vec<DVec3> = (0..n)
+                    .map(|k| DVec3::new(x, y, 0.70 + (k as f64 + 0.5) * dz))
+                    .collect();
+                let tau: f64 = scene
+                    .density_at_world(bg, &column)
+                    .iter()
+                    .map(|&d| d as f64 * dz)
+                    .sum();
+                sum += 1.0 - (-tau).exp();
+            }
+        }
+        sum / 36.0
+    };
+    let (was, now) = (opacity(&before), opacity(&after));
+    assert!(
+        was > 0.9 && now > 0.95 * was,
+        "the table beside it: opacity {was} before, {now} after"
     );
 }
 

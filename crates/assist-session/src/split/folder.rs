@@ -30,6 +30,9 @@ pub struct MasksWritten {
     /// Per new object, the height above its box's base below which surfaces are its
     /// support (world units).
     pub support_levels: Vec<f64>,
+    /// Per new object, the height above its box's base where its support's layer ends
+    /// (the object's sides reach down to it).
+    pub support_bases: Vec<f64>,
     pub objects: Vec<Owned>,
     pub seconds: f64,
     /// With a SAM checkpoint: the object masks it was asked for and those it replaced.
@@ -142,6 +145,7 @@ impl Session {
         let written = MasksWritten {
             images: n,
             support_levels: levels.iter().map(|l| l.cut).collect(),
+            support_bases: levels.iter().map(|l| l.base).collect(),
             objects: boxes
                 .iter()
                 .zip(&owned)

@@ -13,7 +13,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use assist_core::{Obb, SceneNode};
 use assist_data::{LoadOptions, Split};
-use assist_train::{DistilOptions, DistilReport, KeptHistory};
+use assist_train::{ClearReport, DistilOptions, DistilReport, KeptHistory};
 
 use super::targets::Objects;
 use super::{MaskProgress, MasksWritten, SplitBox};
@@ -97,6 +97,8 @@ pub enum SplitEvent {
         label: String,
         report: DistilReport,
     },
+    /// The background emptied inside the new objects (above their supports).
+    Cleared(ClearReport),
     Train(TrainEvent),
     Saved {
         path: PathBuf,
@@ -256,7 +258,8 @@ impl SplitJob {
             }
             None => masks_dir,
         };
-        let (scene, kept) = self.split_scene(session, &ds, &objects, &mut on)?;
+        let (scene, kept) =
+            self.split_scene(session, &ds, &objects, &masks.support_bases, &mut on)?;
         let mut record: TrainConfig = info
             .get("train_config")
             .and_then(|v| serde_json::from_value(v.clone()).ok())
@@ -313,6 +316,7 @@ impl SplitJob {
         session: &Session,
         ds: &assist_data::Dataset,
         objects: &[SplitBox],
+        support_bases: &[f64],
         on: &mut impl FnMut(SplitEvent),
     ) -> Result<(NeuralScene, KeptHistory)> {
         let before = session.scene();
@@ -394,6 +398,27 @@ impl SplitJob {
             scene.fields.insert(key, Arc::new(nf));
             scene.scene.nodes.push(node);
         }
+        // The objects' fields took over what the background held in their boxes above
+        // their supports' layers; left there too, it would stay behind as a ghost (the
+        // whole object) once they move.
+        let up = session.description().up;
+        let boxes: Vec<Obb> = objects.iter().map(|b| b.obb).collect();
+        let owned = |p| {
+            boxes
+                .iter()
+                .zip(support_bases)
+                .any(|(b, &base)| super::support::height_in(b, up, p).is_some_and(|h| h > base))
+        };
+        let report = assist_train::clear(
+            &mut scene,
+            bg,
+            &boxes,
+            owned,
+            &eyes,
+            &DistilOptions::default(),
+        );
+        on(SplitEvent::Cleared(report));
+        self.check_cancelled()?;
         scene.scene.selected = None;
         scene.scene.register_classes();
         let mut history = session.history().clone();

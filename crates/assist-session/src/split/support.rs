@@ -107,6 +107,11 @@ pub fn around_boxes(frame: &Frame, camera: &Camera, boxes: &[Obb], up: DVec3) ->
     out
 }
 
+/// Height of `p` above the base of box `b` seen along `up`, when `p` lies in the box.
+pub fn height_in(b: &Obb, up: DVec3, p: DVec3) -> Option<f64> {
+    Upright::new(b, up).height_in(b, p)
+}
+
 /// Per box, the pixels of `frame` (rendered from `camera`) whose surface lies in the box,
 /// with its height above the box's base.
 pub fn in_boxes(frame: &Frame, camera: &Camera, boxes: &[Obb], up: DVec3) -> Vec<Vec<(u32, f32)>> {

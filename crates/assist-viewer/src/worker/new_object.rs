@@ -155,6 +155,7 @@ impl Worker {
                 progress("masks", done as f64 / total.max(1) as f64)
             }
             SplitEvent::Distilled { .. } => progress("field from the background", 1.0),
+            SplitEvent::Cleared(_) => progress("background emptied in the object", 1.0),
             SplitEvent::Train(assist_session::TrainEvent::Step { stats, .. }) => {
                 progress("fine-tune", stats.progress)
             }
