@@ -259,18 +259,25 @@ mod tests {
     use assist_testkit::scenes;
     use std::sync::Arc;
 
-    /// A new node over half of a dense red box (and the empty space beside it) takes the
-    /// box's density and colour where the box is and stays empty elsewhere.
-    #[test]
-    fn a_distilled_field_reproduces_the_source_in_its_box() {
+    /// The scene of two boxes, a new node over half of its red box (and the space beside
+    /// it), a fresh field for the node, and two eyes.
+    fn over_the_red_box() -> (NeuralScene, SceneNode, NodeField, [DVec3; 2]) {
         let scene = scenes::two_boxes(0.1);
         let node = scenes::node(7, "part", 0.12, DVec3::new(-0.1, 0.0, 0.05));
-        let mut target = assist_scene::NodeField::new(
+        let target = assist_scene::NodeField::new(
             assist_field::Field::new(assist_field::FieldConfig::object(1), 7).unwrap(),
             assist_field::OccupancyGrid::new(16),
             node.half_size,
         );
         let eyes = [DVec3::new(0.0, -2.0, 0.5), DVec3::new(2.0, 0.3, 0.4)];
+        (scene, node, target, eyes)
+    }
+
+    /// A new node over half of a dense red box (and the empty space beside it) takes the
+    /// box's density and colour where the box is and stays empty elsewhere.
+    #[test]
+    fn a_distilled_field_reproduces_the_source_in_its_box() {
+        let (scene, node, mut target, eyes) = over_the_red_box();
         let one = DistilOptions {
             steps: 1,
             ..Default::default()
@@ -314,14 +321,7 @@ mod tests {
     /// there, and the near half as dense as before.
     #[test]
     fn a_cleared_field_is_empty_where_told_and_unchanged_beside_it() {
-        let scene = scenes::two_boxes(0.1);
-        let node = scenes::node(7, "part", 0.12, DVec3::new(-0.1, 0.0, 0.05));
-        let mut target = assist_scene::NodeField::new(
-            assist_field::Field::new(assist_field::FieldConfig::object(1), 7).unwrap(),
-            assist_field::OccupancyGrid::new(16),
-            node.half_size,
-        );
-        let eyes = [DVec3::new(0.0, -2.0, 0.5), DVec3::new(2.0, 0.3, 0.4)];
+        let (scene, node, mut target, eyes) = over_the_red_box();
         let quick = DistilOptions {
             steps: 250,
             ..Default::default()

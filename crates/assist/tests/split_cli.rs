@@ -418,14 +418,23 @@ fn split_the_scene(desk: &Path, root: &Path, plain: &Path, truth: &Path, test_vi
     );
 }
 
+/// The index of `scene`'s background node.
+fn background_of(scene: &assist_scene::NeuralScene) -> usize {
+    scene
+        .scene
+        .nodes
+        .iter()
+        .position(|n| n.is_background())
+        .unwrap()
+}
+
 /// The split empties the background inside the mug's box above the table (the mug's
 /// own field holds it now), and leaves the table beside the mug as it was.
 fn background_leaves_the_mug(plain: &Path, split: &Path) {
     use assist_core::DVec3;
     let (before, _) = assist_scene::scene_file::load(plain).unwrap();
     let (after, _) = assist_scene::scene_file::load(split).unwrap();
-    // A lattice over the box's upper four fifths (the box of `split_the_scene`), and one
-    // over the table top beside it (0.1 to 0.2 further along x, about its height).
+    // A lattice over the box's upper four fifths (the box of `split_the_scene`).
     let lattice = |x0: f64, x1: f64, z0: f64, z1: f64| -> Vec<DVec3> {
         let mut pts = Vec::new();
         for i in 0..8 {
@@ -439,12 +448,7 @@ fn background_leaves_the_mug(plain: &Path, split: &Path) {
         pts
     };
     let mass = |scene: &assist_scene::NeuralScene, pts: &[DVec3]| -> f64 {
-        let bg = scene
-            .scene
-            .nodes
-            .iter()
-            .position(|n| n.is_background())
-            .unwrap();
+        let bg = background_of(scene);
         scene
             .density_at_world(bg, pts)
             .iter()
@@ -459,12 +463,7 @@ fn background_leaves_the_mug(plain: &Path, split: &Path) {
     );
     // The table's opacity through 10 cm about its top, in columns beside the box.
     let opacity = |scene: &assist_scene::NeuralScene| -> f64 {
-        let bg = scene
-            .scene
-            .nodes
-            .iter()
-            .position(|n| n.is_background())
-            .unwrap();
+        let bg = background_of(scene);
         let (n, dz) = (64, 0.1 / 64.0);
         let mut sum = 0.0;
         for i in 0..6 {
