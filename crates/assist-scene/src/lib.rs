@@ -15,5 +15,7 @@ mod node;
 pub mod scene_file;
 
 pub use editor::{EditError, Editor, SceneFiles};
-pub use node::{DEFAULT_CONE, NeuralScene, NodeField, STEPS_PER_DIAGONAL, field_position};
+pub use node::{
+    DEFAULT_CONE, NeuralScene, NodeField, STEPS_PER_DIAGONAL, field_position, world_position,
+};
 pub use scene_file::SceneFileError;

@@ -176,6 +176,19 @@ impl NeuralScene {
     }
 }
 
+/// The world point at position `u` of the unit cube the field of `node` (laid out as
+/// `space`) is queried on: the inverse of [`field_position`].
+pub fn world_position(node: &SceneNode, space: NodeSpace, u: [f32; 3]) -> DVec3 {
+    let local = match space {
+        NodeSpace::Box => (DVec3::from(u.map(f64::from)) - 0.5) * node.half_size * 2.0,
+        NodeSpace::Contracted => {
+            let c = assist_field::contraction::uncontract_from_unit(u);
+            DVec3::from(c.map(f64::from)) * node.half_size
+        }
+    };
+    node.world_from_local.transform_point(local)
+}
+
 /// Where world point `p` lies in the field of `node` (laid out as `space`): its position
 /// in the unit cube the field is queried on, or `None` outside the node's box (or, for a
 /// contracted node, beyond its far shell).
@@ -193,5 +206,44 @@ pub fn field_position(node: &SceneNode, space: NodeSpace, p: DVec3) -> Option<[f
             (c.abs().max_element() < far)
                 .then(|| assist_field::contraction::contract_to_unit(c.as_vec3().to_array()))
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A world point taken into a node's field and back lands where it was, in a box
+    /// node (turned, scaled unevenly) and in a contracted one (inside its box and far
+    /// beyond it).
+    #[test]
+    fn world_position_inverts_field_position() {
+        let mut node = SceneNode::from_obb(
+            1,
+            "n",
+            "f",
+            &assist_core::Obb::new(
+                DVec3::new(0.3, -0.2, 0.5),
+                DVec3::new(0.4, 0.6, 0.2),
+                assist_core::glam::DMat3::from_rotation_z(0.7),
+            ),
+        );
+        node.world_from_local.scale = DVec3::new(1.0, 1.5, 0.8);
+        let points = [
+            DVec3::new(0.35, -0.15, 0.52),
+            DVec3::new(0.2, -0.3, 0.45),
+            DVec3::new(3.0, 2.0, -1.0),
+        ];
+        for (space, n) in [(NodeSpace::Box, 2), (NodeSpace::Contracted, 3)] {
+            for p in &points[..n] {
+                let u = field_position(&node, space, *p).expect("in the field");
+                let back = world_position(&node, space, u);
+                assert!(
+                    (back - *p).length() < 1e-4 * (1.0 + p.length()),
+                    "{space:?}: {p} → {back}"
+                );
+            }
+        }
+        assert!(field_position(&node, NodeSpace::Box, points[2]).is_none());
     }
 }

@@ -19,10 +19,23 @@ pub struct DistilOptions {
     pub seed: u64,
 }
 
+impl DistilOptions {
+    /// [`clear`]'s: gentler steps than a fresh field's, since every step moves the shared
+    /// tables and nets of a trained field everywhere (at a fresh field's rate a desk's
+    /// table top drifted far from every object).
+    pub fn clearing() -> Self {
+        DistilOptions {
+            steps: 900,
+            lr: 2e-3,
+            ..Default::default()
+        }
+    }
+}
+
 impl Default for DistilOptions {
     fn default() -> Self {
         DistilOptions {
-            steps: 600,
+            steps: 1800,
             batch: 1 << 13,
             lr: 1e-2,
             seed: 0,
@@ -42,13 +55,15 @@ pub struct DistilReport {
 }
 
 /// Fits `target` (the field of `node`, a box node not yet in `scene`) to node `source` of
-/// `scene` inside `node`'s box, viewed from the points `eyes` (the training cameras'
-/// centres; the box centre's surroundings when empty).
+/// `scene` inside `node`'s box where `owned` holds (world points; elsewhere in the box,
+/// the support it stands on, to no density), viewed from the points `eyes` (the training
+/// cameras' centres; the box centre's surroundings when empty).
 pub fn distil(
     scene: &NeuralScene,
     source: usize,
     node: &SceneNode,
     target: &mut NodeField,
+    owned: impl Fn(DVec3) -> bool,
     eyes: &[DVec3],
     opts: &DistilOptions,
 ) -> DistilReport {
@@ -70,7 +85,7 @@ pub fn distil(
         color_error: 0.0,
         seconds: 0.0,
     };
-    for _ in 0..opts.steps {
+    for step in 0..opts.steps {
         let mut world = Vec::with_capacity(n);
         let mut dirs = Vec::with_capacity(n);
         for a in 0..3 {
@@ -79,11 +94,7 @@ pub fn distil(
         }
         for _ in 0..n {
             let u = [rng.f32(), rng.f32(), rng.f32()];
-            let local = DVec3::new(
-                (u[0] as f64 - 0.5) * 2.0 * half.x,
-                (u[1] as f64 - 0.5) * 2.0 * half.y,
-                (u[2] as f64 - 0.5) * 2.0 * half.z,
-            );
+            let local = (DVec3::from(u.map(f64::from)) - 0.5) * half * 2.0;
             let p = w.transform_point(local);
             let eye = match eyes.len() {
                 0 => p + DVec3::new(rng.normal(), rng.normal(), rng.normal()),
@@ -98,7 +109,12 @@ pub fn distil(
             world.push(p);
             dirs.push(d);
         }
-        let (sigma_t, rgb_t) = scene.query_at_world(source, &world, Some(&dirs));
+        let (mut sigma_t, rgb_t) = scene.query_at_world(source, &world, Some(&dirs));
+        for (s, p) in sigma_t.iter_mut().zip(&world) {
+            if !owned(*p) {
+                *s = 0.0;
+            }
+        }
         let s = Samples {
             pos: [&pos[0], &pos[1], &pos[2]],
             dir: [&dir[0], &dir[1], &dir[2]],
@@ -127,7 +143,9 @@ pub fn distil(
         report.density_error = (dens_err / n as f64) as f32;
         report.color_error = (col_err / col_w.max(1e-12)).sqrt() as f32;
         field.backward(&s, &mut tape, &d_sigma, &d_rgb, &mut grad);
-        adam.update(opts.lr, &mut field.params, &mut grad);
+        // The rate falls tenfold over the run, so that the fit settles into detail.
+        let lr = opts.lr * 0.1f32.powf(step as f32 / opts.steps.max(1) as f32);
+        adam.update(lr, &mut field.params, &mut grad);
     }
     report.seconds = started.elapsed().as_secs_f64();
     report
@@ -140,19 +158,22 @@ const CLEAR_GROW: f64 = 1.5;
 
 /// What [`clear`] achieved: the mean `ln(1 + τ)` (τ the optical depth of one marching
 /// step) at the cleared points before and after, and the mean absolute change of it at
-/// the points held.
+/// the points held around the regions.
 #[derive(Debug, Clone, Copy, Default, serde::Serialize)]
 pub struct ClearReport {
     pub steps: usize,
     pub cleared_before: f32,
     pub cleared_after: f32,
     pub held_change: f32,
+    /// The same at the points drawn in the field's occupied cells anywhere.
+    pub held_elsewhere: f32,
     pub seconds: f64,
 }
 
 /// Empties node `index` of `scene` where `cleared` holds: points drawn in `regions`
-/// (world boxes, grown by [`CLEAR_GROW`]) and seen from `eyes`, its field fitted there to
-/// no density, and at the other points to its own density and colour as they were.
+/// (world boxes, grown by [`CLEAR_GROW`]) and in the field's occupied cells, seen from
+/// `eyes`, its field fitted to no density where `cleared` holds and elsewhere to its own
+/// density and colour as they were.
 /// `assist scene split` clears the background inside each new object this way: the
 /// object's field took over what the background held there, and a copy left in the
 /// background shows as a ghost where the object stood once it moves.
@@ -186,15 +207,36 @@ pub fn clear(
     let mut grad = vec![0f32; field.layout.total];
     let mut tape = Tape::default();
     let n = opts.batch.max(1);
+    // The field's occupied cells everywhere: half the points are drawn there, so that what
+    // the clearing moves through the shared hash tables and nets is held across the whole
+    // scene, not only around the regions (held there alone, a desk's table top drifted).
+    let occupied: Vec<u32> = (0..nf.occupancy.cells())
+        .filter(|&c| nf.occupancy.is_occupied_cell(c))
+        .map(|c| c as u32)
+        .collect();
+    let res = nf.occupancy.res as usize;
+    let near = if occupied.is_empty() {
+        n
+    } else {
+        n.div_ceil(2)
+    };
     for step in 0..opts.steps {
         let (mut pos, mut dir): ([Vec<f32>; 3], [Vec<f32>; 3]) = Default::default();
         let mut empty = Vec::with_capacity(n);
         while empty.len() < n {
-            let b = &regions[rng.below(regions.len() as u64) as usize];
-            let u = DVec3::new(rng.f32() as f64, rng.f32() as f64, rng.f32() as f64);
-            let p = b.center + b.rotation * ((u * 2.0 - 1.0) * b.half_size * CLEAR_GROW);
-            let Some(at) = assist_scene::field_position(&node, space, p) else {
-                continue;
+            let (p, at) = if empty.len() < near {
+                let b = &regions[rng.below(regions.len() as u64) as usize];
+                let u = DVec3::new(rng.f32() as f64, rng.f32() as f64, rng.f32() as f64);
+                let p = b.center + b.rotation * ((u * 2.0 - 1.0) * b.half_size * CLEAR_GROW);
+                let Some(at) = assist_scene::field_position(&node, space, p) else {
+                    continue;
+                };
+                (p, at)
+            } else {
+                let c = occupied[rng.below(occupied.len() as u64) as usize] as usize;
+                let idx = [c % res, (c / res) % res, c / (res * res)];
+                let at = [0, 1, 2].map(|a| (idx[a] as f32 + rng.f32()) / res as f32);
+                (assist_scene::world_position(&node, space, at), at)
             };
             let eye = match eyes.len() {
                 0 => p + DVec3::new(rng.normal(), rng.normal(), rng.normal()),
@@ -221,6 +263,7 @@ pub fn clear(
         field.forward_train(&s, &mut tape, &mut sigma, &mut rgb);
         let (mut d_sigma, mut d_rgb) = (vec![0f32; n], vec![0f32; 3 * n]);
         let (mut gone, mut was, mut n_gone, mut moved, mut n_held) = (0f64, 0f64, 0, 0f64, 0);
+        let (mut moved_far, mut n_far) = (0f64, 0);
         for i in 0..n {
             let tau = sigma[i] / STEPS_PER_DIAGONAL;
             let tau_was = sigma_t[i] / STEPS_PER_DIAGONAL;
@@ -233,8 +276,13 @@ pub fn clear(
                 n_gone += 1;
                 continue;
             }
-            moved += diff.abs() as f64;
-            n_held += 1;
+            if i < near {
+                moved += diff.abs() as f64;
+                n_held += 1;
+            } else {
+                moved_far += diff.abs() as f64;
+                n_far += 1;
+            }
             let weight = 1.0 - (-tau_t).exp();
             for c in 0..3 {
                 d_rgb[3 * i + c] = 2.0 * weight * (rgb[3 * i + c] - rgb_t[3 * i + c]) / n as f32;
@@ -246,6 +294,7 @@ pub fn clear(
         }
         report.cleared_after = mean(gone, n_gone);
         report.held_change = mean(moved, n_held);
+        report.held_elsewhere = mean(moved_far, n_far);
         field.backward(&s, &mut tape, &d_sigma, &d_rgb, &mut grad);
         adam.update(opts.lr, &mut field.params, &mut grad);
     }
@@ -274,20 +323,23 @@ mod tests {
     }
 
     /// A new node over half of a dense red box (and the empty space beside it) takes the
-    /// box's density and colour where the box is and stays empty elsewhere.
+    /// box's density and colour where the box is and it owns (above z = 0), and stays
+    /// empty elsewhere: beside the box, and in the box's part below z = 0 it leaves to the
+    /// source (as an object leaves the table it stands on to the background).
     #[test]
-    fn a_distilled_field_reproduces_the_source_in_its_box() {
+    fn a_distilled_field_reproduces_the_source_where_it_owns_it() {
         let (scene, node, mut target, eyes) = over_the_red_box();
         let one = DistilOptions {
             steps: 1,
             ..Default::default()
         };
-        let before = distil(&scene, 1, &node, &mut target.clone(), &eyes, &one);
+        let before = distil(&scene, 1, &node, &mut target.clone(), |_| true, &eyes, &one);
         let after = distil(
             &scene,
             1,
             &node,
             &mut target,
+            |p| p.z > 0.0,
             &eyes,
             &DistilOptions::default(),
         );
@@ -301,7 +353,12 @@ mod tests {
         let k = both.scene.nodes.len() - 1;
         // In the red box (which ends at x = −0.05), then beside it.
         let inside = [DVec3::new(-0.15, 0.0, 0.05), DVec3::new(-0.1, 0.05, 0.1)];
-        let outside = [DVec3::new(0.0, 0.0, 0.05), DVec3::new(0.01, -0.08, 0.12)];
+        let outside = [
+            DVec3::new(0.0, 0.0, 0.05),
+            DVec3::new(0.01, -0.08, 0.12),
+            DVec3::new(-0.12, 0.0, -0.03),
+            DVec3::new(-0.1, 0.05, -0.05),
+        ];
         let src = both.density_at_world(1, &inside);
         let dirs = [DVec3::X; 2];
         let (got, rgb) = both.query_at_world(k, &inside, Some(&dirs));
@@ -326,7 +383,7 @@ mod tests {
             steps: 250,
             ..Default::default()
         };
-        distil(&scene, 1, &node, &mut target, &eyes, &quick);
+        distil(&scene, 1, &node, &mut target, |_| true, &eyes, &quick);
         let mut part = scene.clone();
         part.scene.nodes.push(node.clone());
         part.fields.insert(node.field.clone(), Arc::new(target));

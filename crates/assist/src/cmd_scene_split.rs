@@ -57,11 +57,12 @@ pub fn run(a: SplitArgs) -> anyhow::Result<()> {
             report.steps, report.density_error, report.color_error, report.seconds
         ),
         SplitEvent::Cleared(report) if text => eprintln!(
-            "background emptied inside the new objects above their supports ({} steps, log-density there {:.3} -> {:.3}, around them changed by {:.3}, {:.1} s)",
+            "background emptied inside the new objects above their supports ({} steps, log-density there {:.3} -> {:.3}, around them changed by {:.3}, elsewhere by {:.3}, {:.1} s)",
             report.steps,
             report.cleared_before,
             report.cleared_after,
             report.held_change,
+            report.held_elsewhere,
             report.seconds
         ),
         SplitEvent::Train(TrainEvent::Step { stats, eta_seconds, .. }) => {

@@ -374,15 +374,20 @@ impl SplitJob {
             .filter(|f| f.split == Split::Train)
             .map(|f| f.camera.pose.center())
             .collect();
-        for b in objects {
+        let up = session.description().up;
+        for (b, &base) in objects.iter().zip(support_bases) {
             let key = fresh(&format!("object-{}", b.id), true);
             let node = SceneNode::from_obb(b.id, &b.label, &key, &b.obb);
             let mut nf = assist_train::object_field(&opts, bg_field.config.num_images, &node)?;
+            // The object is what its box holds above its support's layer; the support
+            // stays the background's alone (copied, it would show twice).
+            let owned = |p| super::support::height_in(&b.obb, up, p).is_some_and(|h| h > base);
             let report = assist_train::distil(
                 before,
                 bg,
                 &node,
                 &mut nf,
+                owned,
                 &eyes,
                 &DistilOptions {
                     seed: b.id as u64,
@@ -401,7 +406,6 @@ impl SplitJob {
         // The objects' fields took over what the background held in their boxes above
         // their supports' layers; left there too, it would stay behind as a ghost (the
         // whole object) once they move.
-        let up = session.description().up;
         let boxes: Vec<Obb> = objects.iter().map(|b| b.obb).collect();
         let owned = |p| {
             boxes
@@ -415,7 +419,7 @@ impl SplitJob {
             &boxes,
             owned,
             &eyes,
-            &DistilOptions::default(),
+            &DistilOptions::clearing(),
         );
         on(SplitEvent::Cleared(report));
         self.check_cancelled()?;
