@@ -70,7 +70,6 @@ pub fn distil(
     let started = std::time::Instant::now();
     let mut rng = Rng::new(opts.seed);
     let w = node.world_from_local;
-    let half = node.half_size;
     // Target σ per canonical diagonal from σ per world unit (see `density_at_world`).
     let node_per_world = (3.0 / w.scale.element_sum()) as f32 / target.unit;
     let field = &mut target.field;
@@ -94,8 +93,7 @@ pub fn distil(
         }
         for _ in 0..n {
             let u = [rng.f32(), rng.f32(), rng.f32()];
-            let local = (DVec3::from(u.map(f64::from)) - 0.5) * half * 2.0;
-            let p = w.transform_point(local);
+            let p = assist_scene::world_position(node, assist_core::NodeSpace::Box, u);
             let eye = match eyes.len() {
                 0 => p + DVec3::new(rng.normal(), rng.normal(), rng.normal()),
                 k => eyes[rng.below(k as u64) as usize],

@@ -381,7 +381,7 @@ fn split_the_scene(desk: &Path, root: &Path, plain: &Path, truth: &Path, test_vi
     background_leaves_the_mug(plain, &later);
     // Without a fine-tune the split scene renders nearly as the plain one did: the mug's
     // field holds what the background held, and emptying the background moved it little
-    // anywhere else (a clearing held only around the box lost 12 dB on desk here).
+    // anywhere else (a clearing held only around the box drifted the whole background).
     let unfit = psnr(desk, &later);
     eprintln!("scene split --no-train: held-out PSNR {before:.2} → {unfit:.2} dB");
     assert!(

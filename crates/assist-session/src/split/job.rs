@@ -374,14 +374,16 @@ impl SplitJob {
             .filter(|f| f.split == Split::Train)
             .map(|f| f.camera.pose.center())
             .collect();
+        // An object is what its box holds above its support's layer.
         let up = session.description().up;
+        let owns =
+            |b: &Obb, base: f64, p| super::support::height_in(b, up, p).is_some_and(|h| h > base);
         for (b, &base) in objects.iter().zip(support_bases) {
             let key = fresh(&format!("object-{}", b.id), true);
             let node = SceneNode::from_obb(b.id, &b.label, &key, &b.obb);
             let mut nf = assist_train::object_field(&opts, bg_field.config.num_images, &node)?;
-            // The object is what its box holds above its support's layer; the support
-            // stays the background's alone (copied, it would show twice).
-            let owned = |p| super::support::height_in(&b.obb, up, p).is_some_and(|h| h > base);
+            // The support stays the background's alone (copied, it would show twice).
+            let owned = |p| owns(&b.obb, base, p);
             let report = assist_train::distil(
                 before,
                 bg,
@@ -411,7 +413,7 @@ impl SplitJob {
             boxes
                 .iter()
                 .zip(support_bases)
-                .any(|(b, &base)| super::support::height_in(b, up, p).is_some_and(|h| h > base))
+                .any(|(b, &base)| owns(b, base, p))
         };
         let report = assist_train::clear(
             &mut scene,
