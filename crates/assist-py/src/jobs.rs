@@ -9,6 +9,8 @@ pub(crate) struct Samples {
     generator: std::sync::Arc<assist_generate::Generator>,
     next: u64,
     end: u64,
+    /// The GPU its renders query (`device=`), to warn when it failed part-way.
+    gpu: Option<std::sync::Arc<assist_gpu::GpuBackend>>,
 }
 
 #[pymethods]
@@ -32,6 +34,7 @@ impl Samples {
         self.next += 1;
         let g = self.generator.clone();
         let s = py.detach(move || g.sample(i, true)).map_err(err)?;
+        crate::device::report(py, &self.gpu)?;
         let d = PyDict::new(py);
         d.set_item("index", s.index)?;
         d.set_item("actions", to_py(py, &s.actions)?)?;
@@ -91,24 +94,28 @@ impl Samples {
 /// `seed` and `count` override the spec's, `start` is the first index. The same index
 /// gives the same sample as `assist generate`.
 #[pyfunction]
-#[pyo3(signature = (spec, seed=None, count=None, start=Whole::of(0)))]
+#[pyo3(signature = (spec, seed=None, count=None, start=Whole::of(0), device="cpu"))]
 pub(crate) fn generate(
     py: Python<'_>,
     spec: &Bound<'_, PyAny>,
     seed: Option<Whole>,
     count: Option<Whole>,
     start: Whole,
+    device: &str,
 ) -> PyResult<Samples> {
     let start: u64 = start.get("start")?;
+    let gpu = crate::device::open(py, device)?;
     let spec = crate::shards::load_spec(spec, seed, count)?;
     let end = spec.count;
+    let backend = crate::device::field_backend(&gpu);
     let g = py
-        .detach(|| assist_generate::Generator::prepare(spec, &mut ()))
+        .detach(|| assist_generate::Generator::prepare_on(spec, backend, &mut ()))
         .map_err(err)?;
     Ok(Samples {
         generator: std::sync::Arc::new(g),
         next: start.min(end),
         end,
+        gpu,
     })
 }
 
@@ -116,10 +123,12 @@ pub(crate) fn generate(
 /// does; `options` are `assist train`'s flags with `_` for `-` (`downscale=2`, `seed=1`,
 /// `resume=True`, `force=True`, `shadows="off"`, `lambda_obj_share=0.0`, …). `callback`, if given, is called with every
 /// event as a dict (`{"event": "step", "stats": {...}, "eta_seconds": ...}`, `loading`,
-/// `saved`, …). Ctrl+C saves the scene, then raises `KeyboardInterrupt`. Returns the
+/// `saved`, …). `device` is where the fields' forward and backward passes and Adam run
+/// ("cpu", "gpu" or "auto", as `--device`). Ctrl+C saves the scene, then raises
+/// `KeyboardInterrupt`. Returns the
 /// report: iterations, seconds, what stopped it (`stopped_by`), the last step's figures.
 #[pyfunction]
-#[pyo3(signature = (data, out, max_time=None, iters=None, callback=None, **options))]
+#[pyo3(signature = (data, out, max_time=None, iters=None, callback=None, device="cpu", **options))]
 pub(crate) fn train<'py>(
     py: Python<'py>,
     data: PathBuf,
@@ -127,6 +136,7 @@ pub(crate) fn train<'py>(
     max_time: Option<f64>,
     iters: Option<Whole>,
     callback: Option<Py<PyAny>>,
+    device: &str,
     options: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyAny>> {
     let mut cfg = match options {
@@ -166,8 +176,11 @@ pub(crate) fn train<'py>(
     if let Some(n) = whole_opt::<usize>("iters", iters)? {
         cfg.iters = Some(n);
     }
-    let job = assist_session::TrainJob::new(cfg);
+    let mut job = assist_session::TrainJob::new(cfg);
     job.validate().map_err(err)?;
+    if let Some(f) = crate::device::optimizers(&crate::device::open(py, device)?) {
+        job = job.with_optimizers(f);
+    }
     let cancel = job.cancel_handle();
     let mut relay = Relay::new(callback.as_ref(), &cancel);
     let outcome = py.detach(|| job.run(|e| relay.event(e)));

@@ -18,6 +18,7 @@ use pyo3::types::{PyDict, PyList};
 
 mod args;
 mod clip;
+mod device;
 mod jobs;
 mod scene;
 mod shards;

@@ -15,6 +15,8 @@ use std::time::Duration;
 #[pyclass(module = "assist", frozen)]
 pub(crate) struct Scene {
     session: Arc<Mutex<Session>>,
+    /// The GPU its renders query (`device=`), to warn when it failed part-way.
+    gpu: Option<Arc<assist_gpu::GpuBackend>>,
 }
 
 impl Scene {
@@ -101,13 +103,28 @@ fn actions_of(session: &Session, edits: &[assist_core::Edit]) -> Vec<Action> {
 
 #[pymethods]
 impl Scene {
-    /// Opens a `NAME.assist` scene with its history.
+    /// Opens a `NAME.assist` scene with its history; its renders query the fields on
+    /// `device` ("cpu", "gpu" or "auto", as `--device`; marching and compositing run on the
+    /// CPU either way).
     #[staticmethod]
-    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Scene> {
-        let session = py.detach(|| Session::open(&path)).map_err(err)?;
+    #[pyo3(signature = (path, device="cpu"))]
+    fn load(py: Python<'_>, path: PathBuf, device: &str) -> PyResult<Scene> {
+        let backend = crate::device::open(py, device)?;
+        let mut session = py.detach(|| Session::open(&path)).map_err(err)?;
+        session.set_backend(crate::device::field_backend(&backend));
         Ok(Scene {
             session: Arc::new(Mutex::new(session)),
+            gpu: backend,
         })
+    }
+
+    /// What queries the fields of this scene's renders: the GPU adapter's name, or "cpu".
+    #[getter]
+    fn device(&self, py: Python<'_>) -> PyResult<String> {
+        Ok(self
+            .lock(py)?
+            .backend()
+            .map_or_else(|| "cpu".to_string(), |b| b.name()))
     }
 
     /// The nodes: dicts with `id`, `label`, `class` (its semantic class: the label, or for
@@ -404,6 +421,7 @@ impl Scene {
             (s.render(&c, &req), s.description().meters_per_unit as f32)
         })?;
         let frame = frame.map_err(err)?;
+        crate::device::report(py, &self.gpu)?;
         let (w, h) = (frame.width as usize, frame.height as usize);
         // The frame's buffers become the arrays (no copy).
         let assist_session::Frame {

@@ -36,17 +36,20 @@ fn coco_masks(m: &str) -> PyResult<CocoMasks> {
     match m {
         "polygon" => Ok(CocoMasks::Polygon),
         "rle" => Ok(CocoMasks::Rle),
-        _ => Err(err(format!("coco_masks: expected polygon or rle, got {m:?}"))),
+        _ => Err(err(format!(
+            "coco_masks: expected polygon or rle, got {m:?}"
+        ))),
     }
 }
 
 /// Makes shard `shard` (`"i/n"`, 0-based; default: every sample) of the run `spec`
 /// describes into the folder `out`, as `assist generate --spec … --out … --shard i/n`
 /// does: the same files, a rerun remakes only what does not hold, a complete shard does
-/// nothing (without loading a scene), and a whole run (`"0/1"`) merges at its end.
+/// nothing (without loading a scene), and a whole run (`"0/1"`) merges at its end;
+/// `device` is where the fields are queried ("cpu", "gpu" or "auto", as `--device`).
 /// Returns the run's summary (`made`, `skipped`, `seconds`, `complete`, `record`, …).
 #[pyfunction]
-#[pyo3(signature = (spec, out, shard="0/1", seed=None, count=None, force=false, coco_masks="polygon"))]
+#[pyo3(signature = (spec, out, shard="0/1", seed=None, count=None, force=false, coco_masks="polygon", device="cpu"))]
 pub(crate) fn generate_shard<'py>(
     py: Python<'py>,
     spec: &Bound<'py, PyAny>,
@@ -56,32 +59,46 @@ pub(crate) fn generate_shard<'py>(
     count: Option<Whole>,
     force: bool,
     coco_masks: &str,
+    device: &str,
 ) -> PyResult<Bound<'py, PyAny>> {
+    device.parse::<assist_gpu::DeviceChoice>().map_err(err)?;
     let spec = load_spec(spec, seed, count)?;
     let shard = Shard::parse(shard).map_err(|m| err(format!("shard: {m}")))?;
     let masks = self::coco_masks(coco_masks)?;
     assist_fs::check_kind(&out, assist_fs::Kind::Generated).map_err(err)?;
     let record = shards::record_path(&out, shard);
-    let summary = py
-        .detach(|| -> assist_generate::Result<serde_json::Value> {
-            if !force && let Some(done) = shards::rerun_if_complete(&out, &spec, shard, masks)? {
-                return Ok(serde_json::json!({
-                    "out": out, "shard": format!("{}/{}", shard.index, shard.count),
-                    "made": 0, "skipped": done.owned, "seconds": 0.0, "merged": done.merged,
-                }));
-            }
-            let g = Generator::prepare(spec, &mut ())?;
-            let opts = RunOptions {
-                out: out.clone(),
-                shard,
-                dry_run: false,
-                force,
-                coco_masks: masks,
-            };
-            let s = g.run(&opts, |_| {})?;
-            Ok(serde_json::to_value(s).expect("a summary serialises"))
-        })
-        .map_err(err)?;
+    let done = match force {
+        true => None,
+        false => py
+            .detach(|| shards::rerun_if_complete(&out, &spec, shard, masks))
+            .map_err(err)?,
+    };
+    let summary = match done {
+        // A complete shard does nothing: no scene loaded, no device opened.
+        Some(done) => serde_json::json!({
+            "out": out, "shard": format!("{}/{}", shard.index, shard.count),
+            "made": 0, "skipped": done.owned, "seconds": 0.0, "merged": done.merged,
+        }),
+        None => {
+            let gpu = crate::device::open(py, device)?;
+            let backend = crate::device::field_backend(&gpu);
+            let s = py
+                .detach(|| -> assist_generate::Result<_> {
+                    let g = Generator::prepare_on(spec, backend, &mut ())?;
+                    let opts = RunOptions {
+                        out: out.clone(),
+                        shard,
+                        dry_run: false,
+                        force,
+                        coco_masks: masks,
+                    };
+                    g.run(&opts, |_| {})
+                })
+                .map_err(err)?;
+            crate::device::report(py, &gpu)?;
+            serde_json::to_value(s).expect("a summary serialises")
+        }
+    };
     let mut summary = summary;
     summary["complete"] = serde_json::json!(true);
     summary["record"] = serde_json::json!(record);

@@ -74,8 +74,13 @@ class Scene:
     """A trained scene in memory: nodes, edits with undo and redo, rendering."""
 
     @staticmethod
-    def load(path: _Path) -> "Scene":
-        """Opens a NAME.assist scene with its history."""
+    def load(path: _Path, device: str = "cpu") -> "Scene":
+        """Opens a NAME.assist scene with its history; its renders query the fields on
+        `device`: "cpu" (the reference), "gpu" (a GPU adapter, software ones included; an
+        error without one) or "auto" (a hardware GPU when present, else the CPU)."""
+    @property
+    def device(self) -> str:
+        """What queries the fields of this scene's renders: the adapter's name, or "cpu"."""
     @property
     def nodes(self) -> list[dict[str, Any]]:
         """Dicts with id, label, class (semantic class: the label, or for a copy
@@ -171,9 +176,11 @@ def generate(
     seed: Optional[int] = None,
     count: Optional[int] = None,
     start: int = 0,
+    device: str = "cpu",
 ) -> Samples:
     """Samples of a spec (a TOML/JSON file or a dict of the same fields, docs/generate.md),
-    without touching the disk; index i is the sample `assist generate` writes as i."""
+    without touching the disk; index i is the sample `assist generate` writes as i.
+    `device` is where the fields are queried ("cpu", "gpu" or "auto")."""
 
 def process(
     input: _Path,
@@ -199,10 +206,13 @@ def train(
     max_time: Optional[float] = None,
     iters: Optional[int] = None,
     callback: Optional[Callable[[dict[str, Any]], None]] = None,
+    device: str = "cpu",
     **options: Any,
 ) -> dict[str, Any]:
     """Trains a scene as `assist train` does; options are its flags with `_` for `-`
-    (downscale=2, seed=1, resume=True, force=True, shadows="off", lambda_obj_share=0.0, …). The callback sees every event as a dict. Ctrl+C saves the
+    (downscale=2, seed=1, resume=True, force=True, shadows="off", lambda_obj_share=0.0,
+    …); `device` is where the fields' passes and Adam run ("cpu", "gpu" or "auto"; the
+    scene file is the same whichever). The callback sees every event as a dict. Ctrl+C saves the
     scene and raises KeyboardInterrupt. Returns the report (iterations, seconds,
     stopped_by, final_stats)."""
 
@@ -236,10 +246,11 @@ def generate_shard(
     count: Optional[int] = None,
     force: bool = False,
     coco_masks: str = "polygon",
+    device: str = "cpu",
 ) -> dict[str, Any]:
     """Makes shard "i/n" of a run into the folder `out`, as `assist generate --shard i/n`
     does (a rerun remakes only what does not hold; a complete shard does nothing; "0/1"
-    merges at its end). Returns the summary (made, skipped, seconds, record, …)."""
+    merges at its end); `device` is where the fields are queried. Returns the summary (made, skipped, seconds, record, …)."""
 
 def merge(out: _Path, partial: bool = False, coco_masks: str = "polygon") -> dict[str, Any]:
     """Joins a run's samples into its COCO files and index.json, as `assist generate

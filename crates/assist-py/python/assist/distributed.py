@@ -67,10 +67,12 @@ def _where():
     return f"{socket.gethostname()} (pid {os.getpid()})"
 
 
-def _shard_task(spec, out, shard, seed, count, coco_masks):
+def _shard_task(spec, out, shard, seed, count, coco_masks, device):
     import ray
 
-    r = generate_shard(spec, out, shard=shard, seed=seed, count=count, coco_masks=coco_masks)
+    r = generate_shard(
+        spec, out, shard=shard, seed=seed, count=count, coco_masks=coco_masks, device=device
+    )
     r["node"] = _where()
     r["node_id"] = ray.get_runtime_context().get_node_id()
     return r
@@ -113,6 +115,7 @@ def generate(
     cpus_per_shard=1,
     coco_masks="polygon",
     progress=True,
+    device="cpu",
 ):
     """Makes the run `spec` describes (a TOML/JSON path or a dict; `count` and `seed`
     override its own) into the folder `out`, as `shards` Ray tasks, then merges. Default
@@ -121,6 +124,7 @@ def generate(
     not hold. The merged result is the same, file for file, as `assist generate` of the
     same spec in one process (the completion records in `out/shards/` aside). Returns a
     summary: shards, samples, seconds, samples_per_second, the merge's and each shard's.
+    `device` is where each task queries the fields ("cpu", "gpu" or "auto", on its node).
     """
     if out is None:
         raise AssistError("out: expected the output folder (shared by every node)")
@@ -149,7 +153,9 @@ def generate(
         runtime_env={"env_vars": {"RAYON_NUM_THREADS": threads}},
     )
     t0 = time.monotonic()
-    pending = {task.remote(spec, out, f"{i}/{n}", seed, count, coco_masks): i for i in range(n)}
+    pending = {
+        task.remote(spec, out, f"{i}/{n}", seed, count, coco_masks, device): i for i in range(n)
+    }
     results = {}
     while pending:
         ready, _ = ray.wait(list(pending), num_returns=1)
