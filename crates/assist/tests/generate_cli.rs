@@ -108,12 +108,7 @@ fn on_the_gpu(sp: &Path, root: &Path, full: &Path) {
         "--device",
         "gpu",
     ]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    if !o.status.success()
-        && err.contains("no GPU adapter")
-        && std::env::var("ASSIST_REQUIRE_GPU").as_deref() != Ok("1")
-    {
-        eprintln!("SKIPPED: generate --device gpu: no GPU adapter");
+    if common::no_gpu_adapter(&o, "generate --device gpu") {
         return;
     }
     ok(&o);

@@ -35,14 +35,7 @@ const SMALL: [&str; 9] = [
 
 /// Whether `out` failed for want of an adapter where that is allowed (a loud skip).
 fn no_adapter(out: &std::process::Output) -> bool {
-    let err = String::from_utf8_lossy(&out.stderr);
-    let skip = !out.status.success()
-        && err.contains("no GPU adapter")
-        && std::env::var("ASSIST_REQUIRE_GPU").as_deref() != Ok("1");
-    if skip {
-        eprintln!("SKIPPED: no GPU adapter (install mesa-vulkan-drivers for lavapipe)");
-    }
-    skip
+    common::no_gpu_adapter(out, "this --device gpu test")
 }
 
 #[test]

@@ -111,6 +111,19 @@ pub fn refused(out: &std::process::Output, needles: &[&str]) -> String {
     err
 }
 
+/// Whether `out` (a `--device gpu` command) failed for want of a GPU adapter where that
+/// is allowed: a loud skip of `what`. `ASSIST_REQUIRE_GPU=1` (CI, lavapipe) disallows it.
+pub fn no_gpu_adapter(out: &std::process::Output, what: &str) -> bool {
+    let err = String::from_utf8_lossy(&out.stderr);
+    let skip = !out.status.success()
+        && err.contains("no GPU adapter")
+        && std::env::var("ASSIST_REQUIRE_GPU").as_deref() != Ok("1");
+    if skip {
+        eprintln!("SKIPPED {what}: no GPU adapter (install mesa-vulkan-drivers for lavapipe)");
+    }
+    skip
+}
+
 /// A tiny built-in capture (8 views of 32×24, 3 objects) at `dir`.
 pub fn tiny_capture(dir: &Path, seed: u64) {
     let seed = seed.to_string();
