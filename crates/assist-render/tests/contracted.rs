@@ -403,14 +403,14 @@ fn packed_tables_render_close_to_f32_and_are_never_stale() {
     assert!(worst < 0.02 && mean < 2e-3, "{worst} {mean}");
     assert_eq!(exact.panoptic, packed.panoptic);
     // Without tables given, Bf16 reads the f32 parameters (its products are f32 here
-    // unless the CPU has AVX-512 BF16).
-    if !assist_simd::bf16::available() {
+    // unless the CPU has AVX-512 BF16 or AVX2).
+    if !assist_simd::reduced_products() {
         assert_eq!(at(&s, Precision::Bf16, None, 0.0).rgb, exact.rgb);
     }
     // Pruning's rounds query the samples in other batches than the unpruned render, which
-    // can round their bf16 products differently; allowed up to the f32-against-bf16
-    // change above.
-    let rounding = if assist_simd::bf16::available() {
+    // can round their reduced-precision products differently; allowed up to the
+    // f32-against-reduced change above.
+    let rounding = if assist_simd::reduced_products() {
         worst
     } else {
         0.0

@@ -9,6 +9,7 @@
 
 pub mod bf16;
 pub mod dispatch;
+pub mod fixed16;
 pub mod gemm;
 pub mod grid;
 pub mod math;
@@ -99,6 +100,12 @@ pub fn level() -> Level {
 /// Whether `level` can be exercised on this machine (for tests that skip loudly).
 pub fn available(level: Level) -> bool {
     level.supported()
+}
+
+/// Whether rendering's MLP products run below f32 here: bf16 (AVX-512 BF16) or 16-bit
+/// fixed point (AVX2), unless `ASSIST_PRECISION=f32`.
+pub fn reduced_products() -> bool {
+    bf16::available() || fixed16::available()
 }
 
 pub use dispatch::{WithSimd, dispatch, simd};

@@ -204,6 +204,9 @@ fn bench_one(
     let infer = infer_at(precision);
     let label = match precision {
         Precision::Bf16 if assist_simd::bf16::available() => "bf16",
+        Precision::Bf16 if assist_simd::fixed16::available() => {
+            "bf16 tables, 16-bit fixed-point products"
+        }
         Precision::Bf16 => "bf16 tables, f32 products",
         Precision::F32 => "f32",
     };
@@ -334,6 +337,25 @@ fn gemm_gflops() -> Value {
         }
         let gf = 2.0 * (m * n * k) as f64 * iters as f64 / start.elapsed().as_secs_f64() / 1e9;
         out.insert("avx512bf16 (pack + product)".to_string(), json!(gf));
+    }
+    if assist_simd::Level::Avx2.supported() {
+        // The fixed-point kernel as inference runs it where bf16 is not: activations
+        // scaled and packed, then the product.
+        use assist_simd::fixed16;
+        let level = assist_simd::Level::Avx2;
+        let qa = fixed16::QuantA::new(&a, m, k, k);
+        let (mut bp, mut sb) = (vec![0u32; k.div_ceil(2) * n], vec![0.0f32; n]);
+        let start = Instant::now();
+        let mut iters = 0u64;
+        while start.elapsed().as_secs_f64() < 0.2 {
+            for _ in 0..100 {
+                fixed16::quant_b(level, &b, k, n, n, &mut bp, &mut sb);
+                fixed16::gemm(level, &qa, &bp, &sb, n, &mut c, n);
+            }
+            iters += 100;
+        }
+        let gf = 2.0 * (m * n * k) as f64 * iters as f64 / start.elapsed().as_secs_f64() / 1e9;
+        out.insert("avx2 fixed16 (scale + product)".to_string(), json!(gf));
     }
     std::hint::black_box(&c);
     Value::Object(out)

@@ -12,6 +12,7 @@ use rayon::prelude::*;
 use crate::config::FieldConfig;
 use crate::hashgrid::{CHUNK, Layout, encode};
 use assist_simd::bf16::{self, PackedA};
+use assist_simd::fixed16::{self, QuantA};
 
 use crate::mlp::{Linear, bias_act};
 
@@ -32,9 +33,11 @@ pub enum Precision {
     /// f32 throughout: what training computes.
     F32,
     /// Rendering's: the hash tables read as bf16 pairs where the caller packed them (any
-    /// CPU; see [`PackedTables`]), and bf16 weights and activations in the MLP products
-    /// with f32 sums where the CPU has AVX-512 BF16 (f32 products elsewhere). About 3
-    /// significant digits per table entry and product operand.
+    /// CPU; see [`PackedTables`]), and the MLP products in bf16 with f32 sums where the
+    /// CPU has AVX-512 BF16, else in 16-bit fixed point with exact integer sums where it
+    /// has AVX2 (`assist_simd::fixed16`), else f32. About 3 significant digits per table
+    /// entry and bf16 operand, 4 per fixed-point operand (relative to its row's or
+    /// block's largest).
     Bf16,
 }
 
@@ -47,6 +50,12 @@ impl Precision {
             Precision::Bf16
         }
     }
+}
+
+/// The MLP weights of rendering's reduced-precision products, one entry per product.
+enum Reduced {
+    Bf16(Vec<PackedA>),
+    Fixed(Vec<QuantA>),
 }
 
 /// Largest raw density fed to `exp` (σ ≤ e^15); the gradient uses the same clamp
@@ -284,19 +293,24 @@ impl Field {
         act: &mut [f32],
         rows: &Rows,
         biases: &[f32],
-        fast: Option<(&[PackedA], &mut [u32])>,
+        fast: Option<(&Reduced, &mut [u32])>,
     ) {
         let lay = &self.layout;
         let p = &self.params;
         // Product `y = W[:, ..cols] x` of layer `i` (density 0, 1, then colour layers), in
-        // f32 or through the bf16 kernel (activations packed into `bp` first).
+        // f32 or through a reduced-precision kernel (activations packed into `bp` first).
         let simd = assist_simd::level();
         let mut fast = fast;
         let mut product =
             |i: usize, l: &Linear, x: &[f32], y: &mut [f32], cols: usize| match fast.as_mut() {
-                Some((packed, bp)) => {
+                Some((Reduced::Bf16(packed), bp)) => {
                     bf16::pack_b(simd, x, cols, CHUNK, CHUNK, bp);
                     bf16::gemm(simd, &packed[i], bp, CHUNK, y, CHUNK);
+                }
+                Some((Reduced::Fixed(q), bp)) => {
+                    let mut sb = [0.0f32; CHUNK];
+                    fixed16::quant_b(simd, x, cols, CHUNK, CHUNK, bp, &mut sb);
+                    fixed16::gemm(simd, &q[i], bp, &sb, CHUNK, y, CHUNK);
                 }
                 None => l.product(p, x, y, cols),
             };
@@ -366,7 +380,7 @@ impl Field {
         act: &mut [f32],
         rows: &Rows,
         biases: &[f32],
-        fast: Option<(&[PackedA], &mut [u32])>,
+        fast: Option<(&Reduced, &mut [u32])>,
         sig: &mut [f32],
         col: &mut [f32],
     ) {
@@ -400,19 +414,32 @@ impl Field {
         self.forward_at(Precision::F32, None, s, scratch, sigma, rgb)
     }
 
-    /// The MLP weights packed for the bf16 kernel, in product order: density 0 and 1,
-    /// then the colour layers (the first without its appearance columns).
-    fn packed_bf16(&self) -> Vec<PackedA> {
+    /// The MLP weights of each product, in product order (density 0 and 1, then the
+    /// colour layers, the first without its appearance columns), made by `pack` from the
+    /// weights, the rows, the columns and the row stride.
+    fn packed<T>(&self, pack: impl Fn(&[f32], usize, usize, usize) -> T) -> Vec<T> {
         let lay = &self.layout;
         let p = &self.params;
-        let pack = |l: &Linear, cols: usize| PackedA::new(&p[l.w..], l.out, cols, l.inp_pad);
+        let one = |l: &Linear, cols: usize| pack(&p[l.w..], l.out, cols, l.inp_pad);
         let mut v = vec![
-            pack(&lay.density[0], lay.density[0].inp_pad),
-            pack(&lay.density[1], lay.density[1].inp_pad),
-            pack(&lay.color[0], self.product_cols()),
+            one(&lay.density[0], lay.density[0].inp_pad),
+            one(&lay.density[1], lay.density[1].inp_pad),
+            one(&lay.color[0], self.product_cols()),
         ];
-        v.extend(lay.color[1..].iter().map(|l| pack(l, l.inp_pad)));
+        v.extend(lay.color[1..].iter().map(|l| one(l, l.inp_pad)));
         v
+    }
+
+    /// The weights as `precision`'s products take them on this CPU (`None`: f32).
+    fn reduced(&self, precision: Precision) -> Option<Reduced> {
+        match precision {
+            Precision::F32 => None,
+            Precision::Bf16 if bf16::available() => Some(Reduced::Bf16(self.packed(PackedA::new))),
+            Precision::Bf16 if fixed16::available() => {
+                Some(Reduced::Fixed(self.packed(QuantA::new)))
+            }
+            Precision::Bf16 => None,
+        }
     }
 
     /// Inference at a given precision of the MLP products (biases and activations are f32
@@ -454,8 +481,7 @@ impl Field {
         let n = s.len();
         let rows = self.rows();
         let biases = self.code_biases();
-        let packed =
-            (precision == Precision::Bf16 && bf16::available()).then(|| self.packed_bf16());
+        let packed = self.reduced(precision);
         let max_in = self.max_inputs();
         let block = width * CHUNK;
         sigma[..n]
@@ -476,7 +502,7 @@ impl Field {
                     assist_simd::simd(
                         #[inline(always)]
                         || {
-                            let fast = packed.as_deref().map(|p| (p, bp.as_mut_slice()));
+                            let fast = packed.as_ref().map(|p| (p, bp.as_mut_slice()));
                             self.chunk_forward(s, c * CHUNK, input, act, &rows, &biases, fast);
                             write_outputs(act, &rows, sig, col);
                         },
