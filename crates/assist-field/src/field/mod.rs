@@ -55,8 +55,14 @@ impl Precision {
 /// The MLP weights of rendering's reduced-precision products, one entry per product.
 enum Reduced {
     Bf16(Vec<PackedA>),
-    Fixed(Vec<QuantA>),
+    /// `None` for a product of fewer than [`FIXED_MIN_ROWS`] rows, which stays f32.
+    Fixed(Vec<Option<QuantA>>),
 }
+
+/// The fewest rows (outputs) of a product taken in fixed point: below it, scaling the
+/// activations costs more than the narrower arithmetic saves (density's 16 outputs, the
+/// three colours).
+const FIXED_MIN_ROWS: usize = 32;
 
 /// Largest raw density fed to `exp` (σ ≤ e^15); the gradient uses the same clamp
 /// (`trunc_exp` as in Nerfacto).
@@ -307,12 +313,13 @@ impl Field {
                     bf16::pack_b(simd, x, cols, CHUNK, CHUNK, bp);
                     bf16::gemm(simd, &packed[i], bp, CHUNK, y, CHUNK);
                 }
-                Some((Reduced::Fixed(q), bp)) => {
+                Some((Reduced::Fixed(q), bp)) if q[i].is_some() => {
+                    let q = q[i].as_ref().expect("checked");
                     let mut sb = [0.0f32; CHUNK];
                     fixed16::quant_b(simd, x, cols, CHUNK, CHUNK, bp, &mut sb);
-                    fixed16::gemm(simd, &q[i], bp, &sb, CHUNK, y, CHUNK);
+                    fixed16::gemm(simd, q, bp, &sb, CHUNK, y, CHUNK);
                 }
-                None => l.product(p, x, y, cols),
+                Some((Reduced::Fixed(_), _)) | None => l.product(p, x, y, cols),
             };
         let (h, rest) = act.split_at_mut(rows.dens * CHUNK);
         let (d0, d1) = (&lay.density[0], &lay.density[1]);
@@ -436,7 +443,9 @@ impl Field {
             Precision::F32 => None,
             Precision::Bf16 if bf16::available() => Some(Reduced::Bf16(self.packed(PackedA::new))),
             Precision::Bf16 if fixed16::available() => {
-                Some(Reduced::Fixed(self.packed(QuantA::new)))
+                Some(Reduced::Fixed(self.packed(|w, m, k, ld| {
+                    (m >= FIXED_MIN_ROWS).then(|| QuantA::new(w, m, k, ld))
+                })))
             }
             Precision::Bf16 => None,
         }
