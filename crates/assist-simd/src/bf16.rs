@@ -247,7 +247,7 @@ mod x86 {
 mod tests {
     use super::*;
 
-    use crate::test_util::rand_vec;
+    use crate::test_util::{PRODUCT_SHAPES, rand_vec};
 
     #[test]
     fn rounding() {
@@ -275,15 +275,7 @@ mod tests {
         }
         let mut seed = 9u64;
         let mut failures = Vec::new();
-        for &(m, n, k) in &[
-            (64, 64, 64),
-            (16, 64, 64),
-            (3, 64, 64),
-            (64, 64, 31),
-            (7, 48, 5),
-            (1, 16, 1),
-            (64, 128, 32),
-        ] {
+        for (m, n, k) in PRODUCT_SHAPES {
             let (lda, ldb, ldc) = (k + 3, n + 16, n + 5);
             let a = rand_vec(m * lda, &mut seed);
             let b = rand_vec(k * ldb, &mut seed);

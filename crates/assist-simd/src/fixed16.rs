@@ -325,7 +325,7 @@ mod x86 {
 mod tests {
     use super::*;
 
-    use crate::test_util::rand_vec;
+    use crate::test_util::{PRODUCT_SHAPES, rand_vec};
 
     /// The vector packing and product give the scalar reference's bits, and both are the
     /// f32 product within the scaling's rounding; over shapes with odd k, row remainders,
@@ -339,16 +339,7 @@ mod tests {
         }
         let mut seed = 11u64;
         let mut failures = Vec::new();
-        for &(m, n, k) in &[
-            (64, 64, 64),
-            (16, 64, 64),
-            (3, 64, 64),
-            (64, 64, 31),
-            (7, 48, 5),
-            (1, 16, 1),
-            (64, 128, 32),
-            (13, 64, 127),
-        ] {
+        for (m, n, k) in PRODUCT_SHAPES {
             let (lda, ldb, ldc) = (k + 3, n + 16, n + 5);
             let mut a = rand_vec(m * lda, &mut seed);
             // A row of zeros and a row a thousand times smaller than the others.

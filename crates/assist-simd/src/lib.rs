@@ -113,6 +113,19 @@ pub use dispatch::{WithSimd, dispatch, simd};
 /// Shared helpers of this crate's tests.
 #[cfg(test)]
 mod test_util {
+    /// `(m, n, k)` of the product kernels' tests: full blocks, row remainders, odd and
+    /// short k, columns beyond one block, k longer than a block.
+    pub const PRODUCT_SHAPES: [(usize, usize, usize); 8] = [
+        (64, 64, 64),
+        (16, 64, 64),
+        (3, 64, 64),
+        (64, 64, 31),
+        (7, 48, 5),
+        (1, 16, 1),
+        (64, 128, 32),
+        (13, 64, 127),
+    ];
+
     /// `n` values uniform in [−1, 1) from a linear congruential sequence.
     pub fn rand_vec(n: usize, seed: &mut u64) -> Vec<f32> {
         (0..n)
