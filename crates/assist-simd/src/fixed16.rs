@@ -47,8 +47,14 @@ fn pair(lo: i32, hi: i32) -> u32 {
     (lo as u32 & 0xffff) | (hi as u32) << 16
 }
 
-/// A weight matrix `A` (`m × k`) scaled per row and packed as i16 pairs: word `p` of row
-/// `i` holds `A[i][2p]`, `A[i][2p + 1]` (zero past `k`) over `scale[i]`.
+/// Rows of a panel: the product kernel's block height. Six rows × 16 columns keep 12
+/// accumulators, two activation vectors and a weight in AVX2's 16 registers.
+const MR: usize = 6;
+
+/// A weight matrix `A` (`m × k`) scaled per row and packed as i16 pairs in panels of
+/// [`MR`] rows (fewer in the last): word `p` of row `i` holds `A[i][2p]`, `A[i][2p + 1]`
+/// (zero past `k`) over `scale[i]`, and a panel holds its rows' words `p` side by side, so
+/// the kernel reads each step's weights from one place.
 #[derive(Debug, Clone, PartialEq)]
 pub struct QuantA {
     pub m: usize,
@@ -65,7 +71,7 @@ impl QuantA {
     pub fn new(a: &[f32], m: usize, k: usize, lda: usize) -> Self {
         assert!(lda >= k && (m == 0 || a.len() >= (m - 1) * lda + k));
         let k2 = k.div_ceil(2);
-        let mut data = Vec::with_capacity(m * k2);
+        let mut rows = Vec::with_capacity(m);
         let mut scale = Vec::with_capacity(m);
         for i in 0..m {
             let row = &a[i * lda..i * lda + k];
@@ -81,8 +87,18 @@ impl QuantA {
                     0
                 }
             };
-            data.extend((0..k2).map(|p| pair(q(2 * p), q(2 * p + 1))));
+            rows.push(
+                (0..k2)
+                    .map(|p| pair(q(2 * p), q(2 * p + 1)))
+                    .collect::<Vec<_>>(),
+            );
             scale.push(s);
+        }
+        let mut data = Vec::with_capacity(m * k2);
+        for panel in rows.chunks(MR) {
+            for p in 0..k2 {
+                data.extend(panel.iter().map(|r| r[p]));
+            }
         }
         QuantA {
             m,
@@ -95,6 +111,11 @@ impl QuantA {
     /// Words per row (`⌈k / 2⌉`), which is also the packed activations' row count.
     pub fn pairs(&self) -> usize {
         self.k2
+    }
+    /// Word `p` of row `i`.
+    fn word(&self, i: usize, p: usize) -> u32 {
+        let (start, rows) = (i / MR * MR, MR.min(self.m - i / MR * MR));
+        self.data[start * self.k2 + p * rows + (i - start)]
     }
 }
 
@@ -166,7 +187,7 @@ pub fn gemm(level: Level, a: &QuantA, bp: &[u32], sb: &[f32], n: usize, c: &mut 
         for j in 0..n {
             let mut acc = 0i32;
             for p in 0..k2 {
-                let (w, x) = (a.data[i * k2 + p], bp[p * n + j]);
+                let (w, x) = (a.word(i, p), bp[p * n + j]);
                 acc += (w as i16 as i32) * (x as i16 as i32)
                     + ((w >> 16) as i16 as i32) * ((x >> 16) as i16 as i32);
             }
@@ -241,7 +262,8 @@ mod x86 {
         }
     }
 
-    /// Rows `i..i + R` × columns `j..j + 16`: the integer sums, scaled into `c`.
+    /// Rows `i..i + R` (the panel at `a`) × columns `j..j + 16`: the integer sums, scaled
+    /// into `c`.
     ///
     /// # Safety
     /// AVX2; the rows, words and columns exist (as `gemm`'s contract).
@@ -261,14 +283,16 @@ mod x86 {
         // SAFETY: within the bounds the caller guarantees.
         unsafe {
             let mut acc = [[_mm256_setzero_si256(); 2]; R];
-            for p in 0..k2 {
-                let b0 = _mm256_loadu_si256(bp.add(p * n + j).cast());
-                let b1 = _mm256_loadu_si256(bp.add(p * n + j + 8).cast());
+            let (mut wp, mut xp) = (a, bp.add(j));
+            for _ in 0..k2 {
+                let b0 = _mm256_loadu_si256(xp.cast());
+                let b1 = _mm256_loadu_si256(xp.add(8).cast());
                 for (r, row) in acc.iter_mut().enumerate() {
-                    let w = _mm256_set1_epi32(*a.add((i + r) * k2 + p) as i32);
+                    let w = _mm256_set1_epi32(*wp.add(r) as i32);
                     row[0] = _mm256_add_epi32(row[0], _mm256_madd_epi16(b0, w));
                     row[1] = _mm256_add_epi32(row[1], _mm256_madd_epi16(b1, w));
                 }
+                (wp, xp) = (wp.add(R), xp.add(n));
             }
             let (s0, s1) = (_mm256_loadu_ps(sb.add(j)), _mm256_loadu_ps(sb.add(j + 8)));
             for (r, row) in acc.iter().enumerate() {
@@ -296,8 +320,7 @@ mod x86 {
         c: &mut [f32],
         ldc: usize,
     ) {
-        // Six rows × 16 columns: 12 accumulators, two activation vectors and a weight.
-        const MR: usize = 6;
+        use super::MR;
         let (ap, bptr, sp, cp) = (a.as_ptr(), bp.as_ptr(), sb.as_ptr(), c.as_mut_ptr());
         // SAFETY (whole function): every block stays within rows < m, words < k2 and
         // columns < n, which the caller's contract puts inside the slices.
@@ -305,6 +328,7 @@ mod x86 {
             let mut i = 0;
             while i < m {
                 let rows = (m - i).min(MR);
+                let ap = ap.add(i * k2);
                 for j in (0..n).step_by(16) {
                     match rows {
                         6 => block::<6>(ap, scale, k2, bptr, sp, n, cp, ldc, i, j),
