@@ -145,19 +145,53 @@ pub fn interp2(
     let n = check_interp(lv, pos, table.len(), i32::MAX as u32 / 2, out0, out1);
     let done = match level {
         #[cfg(target_arch = "x86_64")]
-        Level::Avx512 if level.supported() => {
+        Level::Avx512 if level.supported() => whole_vectors(16, pos, out0, out1, |p, o0, o1| {
             // SAFETY: AVX-512F is present; every index is < `lv.size` ≤ table.len() (the
-            // kernel clamps them), and lanes below `n` only are read or written.
-            unsafe { x86::interp2_avx512(lv, table, pos, out0, out1) }
-        }
+            // kernel clamps them), and lanes below the positions' length only are read or
+            // written.
+            unsafe { x86::interp2_avx512(lv, table, p, o0, o1) }
+        }),
         #[cfg(target_arch = "x86_64")]
-        Level::Avx2 if level.supported() => {
+        Level::Avx2 if level.supported() => whole_vectors(8, pos, out0, out1, |p, o0, o1| {
             // SAFETY: AVX2 is present; indices and lanes as above.
-            unsafe { x86::interp2_avx2(lv, table, pos, out0, out1) }
-        }
+            unsafe { x86::interp2_avx2(lv, table, p, o0, o1) }
+        }),
         _ => 0,
     };
     interp2_scalar(lv, table, pos, done..n, out0, out1, |e| *e);
+}
+
+/// Runs `kernel` (a vector kernel of `width` ≤ 16 lanes; it returns how many lanes it did)
+/// over every position: the whole vectors in place, then the lanes left over on a copy
+/// padded with the last position. Every position takes the vector path, so its value never
+/// depends on where it falls in a batch (a render queried in rounds gives a whole query's
+/// bits). Returns the lanes done: all of them.
+pub(crate) fn whole_vectors(
+    width: usize,
+    pos: [&[f32]; 3],
+    out0: &mut [f32],
+    out1: &mut [f32],
+    mut kernel: impl FnMut([&[f32]; 3], &mut [f32], &mut [f32]) -> usize,
+) -> usize {
+    let n = pos[0].len();
+    let done = kernel(pos, out0, out1);
+    if done >= n {
+        return done;
+    }
+    let rem = n - done;
+    assert!(rem < width && width <= 16);
+    let mut p = [[0f32; 16]; 3];
+    for (dst, src) in p.iter_mut().zip(pos) {
+        for (l, d) in dst[..width].iter_mut().enumerate() {
+            *d = src[done + l.min(rem - 1)];
+        }
+    }
+    let (mut o0, mut o1) = ([0f32; 16], [0f32; 16]);
+    let lanes = [&p[0][..width], &p[1][..width], &p[2][..width]];
+    kernel(lanes, &mut o0[..width], &mut o1[..width]);
+    out0[done..n].copy_from_slice(&o0[..rem]);
+    out1[done..n].copy_from_slice(&o1[..rem]);
+    n
 }
 
 /// The lengths an F = 2 interpolation needs (positions, table, outputs, entries within

@@ -6,7 +6,7 @@
 //!
 //! [`interp2`]: super::interp2
 
-use super::{GridLevel, check_interp, interp2_scalar};
+use super::{GridLevel, check_interp, interp2_scalar, whole_vectors};
 use crate::Level;
 
 /// f32 → bf16, rounded to nearest even (NaN stays NaN).
@@ -46,16 +46,17 @@ pub fn interp2_bf16(
     let n = check_interp(lv, pos, table.len(), i32::MAX as u32, out0, out1);
     let done = match level {
         #[cfg(target_arch = "x86_64")]
-        Level::Avx512 if level.supported() => {
+        Level::Avx512 if level.supported() => whole_vectors(16, pos, out0, out1, |p, o0, o1| {
             // SAFETY: AVX-512F is present; every index is < `lv.size` ≤ table.len() (the
-            // corner kernel clamps them), and lanes below `n` only are read or written.
-            unsafe { x86::interp2_avx512(lv, table, pos, out0, out1) }
-        }
+            // corner kernel clamps them), and lanes below the positions' length only are
+            // read or written.
+            unsafe { x86::interp2_avx512(lv, table, p, o0, o1) }
+        }),
         #[cfg(target_arch = "x86_64")]
-        Level::Avx2 if level.supported() => {
+        Level::Avx2 if level.supported() => whole_vectors(8, pos, out0, out1, |p, o0, o1| {
             // SAFETY: AVX2 is present; indices and lanes as above.
-            unsafe { x86::interp2_avx2(lv, table, pos, out0, out1) }
-        }
+            unsafe { x86::interp2_avx2(lv, table, p, o0, o1) }
+        }),
         _ => 0,
     };
     interp2_scalar(lv, table, pos, done..n, out0, out1, |e| unpack(*e));

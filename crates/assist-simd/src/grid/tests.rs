@@ -130,3 +130,46 @@ fn reference_indices() {
     assert_eq!(i[0], 0);
     assert!((w[0] - 1.0).abs() < 1e-6);
 }
+
+/// A position's interpolation is the same bits wherever it falls in a batch, the lanes
+/// left over below a vector's width included (they run on a padded copy), at every level,
+/// from f32 and from packed tables: rendering queried in rounds gives a whole query's bits.
+#[test]
+fn a_position_is_the_same_bits_in_any_batch() {
+    for level in [Level::Scalar, Level::Avx2, Level::Avx512] {
+        if !level.supported() {
+            eprintln!("!!! SKIP grid level {}: this CPU lacks it", level.name());
+            continue;
+        }
+        for lv in levels() {
+            let table: Vec<[f32; 2]> = (0..lv.size)
+                .map(|i| [(i as f32 * 0.37).sin(), (i as f32 * 0.11).cos()])
+                .collect();
+            let packed = super::packed::pack(&table);
+            let p = positions(37, 5 + lv.res as u64);
+            let run = |r: std::ops::Range<usize>, from_packed: bool| {
+                let pos = [&p[0][r.clone()], &p[1][r.clone()], &p[2][r.clone()]];
+                let (mut o0, mut o1) = (vec![0f32; r.len()], vec![0f32; r.len()]);
+                match from_packed {
+                    true => super::packed::interp2_bf16(level, &lv, &packed, pos, &mut o0, &mut o1),
+                    false => interp2(level, &lv, &table, pos, &mut o0, &mut o1),
+                }
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                (bits(&o0), bits(&o1))
+            };
+            for from_packed in [false, true] {
+                let whole = run(0..37, from_packed);
+                for r in [0..3, 5..37, 30..37, 9..25, 36..37] {
+                    let part = run(r.clone(), from_packed);
+                    assert_eq!(
+                        (&part.0[..], &part.1[..]),
+                        (&whole.0[r.clone()], &whole.1[r.clone()]),
+                        "{} res {} {r:?} packed {from_packed}",
+                        level.name(),
+                        lv.res
+                    );
+                }
+            }
+        }
+    }
+}
