@@ -31,6 +31,13 @@ pub(super) fn levels() -> Vec<GridLevel> {
     ]
 }
 
+/// A level's table of two features, smooth in the entry index.
+fn table(lv: &GridLevel) -> Vec<[f32; 2]> {
+    (0..lv.size)
+        .map(|i| [(i as f32 * 0.37).sin(), (i as f32 * 0.11).cos()])
+        .collect()
+}
+
 pub(super) fn positions(n: usize, seed: u64) -> [Vec<f32>; 3] {
     let mut s = seed;
     let mut next = || {
@@ -64,9 +71,7 @@ fn simd_matches_scalar() {
             continue;
         }
         for lv in levels() {
-            let table: Vec<[f32; 2]> = (0..lv.size)
-                .map(|i| [(i as f32 * 0.37).sin(), (i as f32 * 0.11).cos()])
-                .collect();
+            let table = table(&lv);
             for n in [1usize, 7, 16, 37, 64] {
                 let p = positions(n, n as u64 + lv.res as u64);
                 let pos = [&p[0][..], &p[1][..], &p[2][..]];
@@ -142,9 +147,7 @@ fn a_position_is_the_same_bits_in_any_batch() {
             continue;
         }
         for lv in levels() {
-            let table: Vec<[f32; 2]> = (0..lv.size)
-                .map(|i| [(i as f32 * 0.37).sin(), (i as f32 * 0.11).cos()])
-                .collect();
+            let table = table(&lv);
             let packed = super::packed::pack(&table);
             let p = positions(37, 5 + lv.res as u64);
             let run = |r: std::ops::Range<usize>, from_packed: bool| {
