@@ -36,8 +36,8 @@ pub enum Precision {
     /// CPU; see [`PackedTables`]), and the MLP products in bf16 with f32 sums where the
     /// CPU has AVX-512 BF16, else in 16-bit fixed point with exact integer sums where it
     /// has AVX2 (`assist_simd::fixed16`), else f32. About 3 significant digits per table
-    /// entry and bf16 operand, 4 per fixed-point operand (relative to its row's or
-    /// block's largest).
+    /// entry and bf16 operand, 4 per fixed-point operand (relative to its weight row's or
+    /// sample's largest).
     Bf16,
 }
 
@@ -452,7 +452,8 @@ impl Field {
     }
 
     /// Inference at a given precision of the MLP products (biases and activations are f32
-    /// either way). `Precision::Bf16` falls back to f32 where the CPU lacks AVX-512 BF16.
+    /// either way). `Precision::Bf16` takes fixed-point products where the CPU lacks AVX-512
+    /// BF16 but has AVX2, and f32 ones where it has neither.
     /// The encoding reads `tables` (this field's packed copy, see [`PackedTables`]) where
     /// given, else the f32 parameters.
     pub fn forward_at(
