@@ -11,6 +11,7 @@ use crate::config::FieldConfig;
 use crate::error::FieldError;
 use crate::field::Field;
 use crate::occupancy::OccupancyGrid;
+use crate::proposal::{Proposal, ProposalConfig, ProposalField};
 use crate::shade::ShadeGrid;
 
 pub const FORMAT: &str = "assist-field";
@@ -45,15 +46,17 @@ fn shape_of(field: &Field, name: &str, len: usize) -> Vec<usize> {
 
 /// Serialises to bytes.
 pub fn to_bytes(field: &Field, occupancy: Option<&OccupancyGrid>) -> Result<Vec<u8>, FieldError> {
-    to_bytes_with_shade(field, occupancy, None)
+    to_bytes_node(field, occupancy, None, None)
 }
 
-/// Serialises to bytes, with the object's shadow grid when it has one (tensor `shade`,
-/// `[r, r, r, 3]`, its extent in the metadata).
-pub fn to_bytes_with_shade(
+/// Serialises a node's field to bytes, with the object's shadow grid when it has one
+/// (tensor `shade`, `[r, r, r, 3]`, its extent in the metadata) and the proposal field
+/// when it has one (tensor `proposal`, its sizes and samples per ray in the metadata).
+pub fn to_bytes_node(
     field: &Field,
     occupancy: Option<&OccupancyGrid>,
     shade: Option<&ShadeGrid>,
+    proposal: Option<&Proposal>,
 ) -> Result<Vec<u8>, FieldError> {
     let groups = field.layout.groups(&field.config);
     let mut bufs: Vec<(String, Vec<usize>, Vec<u8>, Dtype)> = Vec::new();
@@ -82,6 +85,16 @@ pub fn to_bytes_with_shade(
         let r = g.res;
         bufs.push(("shade".into(), vec![r, r, r, 3], bytes, Dtype::F32));
     }
+    if let Some(p) = proposal {
+        let bytes: Vec<u8> = p
+            .field
+            .params
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        let n = p.field.params.len();
+        bufs.push(("proposal".into(), vec![n], bytes, Dtype::F32));
+    }
     let views: Vec<(String, TensorView)> = bufs
         .iter()
         .map(|(n, s, b, d)| {
@@ -108,6 +121,12 @@ pub fn to_bytes_with_shade(
         meta.insert(
             "shade".to_string(),
             serde_json::json!({"extent": g.extent}).to_string(),
+        );
+    }
+    if let Some(p) = proposal {
+        meta.insert(
+            "proposal".to_string(),
+            serde_json::json!({"config": p.field.config, "samples": p.samples}).to_string(),
         );
     }
     let bytes = safetensors::serialize(views, Some(meta)).map_err(|e| FieldError::Format {
@@ -166,33 +185,41 @@ pub fn save(
 }
 
 pub fn load(path: &Path) -> Result<(Field, Option<OccupancyGrid>), FieldError> {
-    let (f, o, _) = load_with_shade(path)?;
-    Ok((f, o))
+    let l = load_node(path)?;
+    Ok((l.field, l.occupancy))
 }
 
-/// A field, its occupancy grid and its shadow grid, as read from a file.
-pub type Loaded = (Field, Option<OccupancyGrid>, Option<ShadeGrid>);
+/// A node's field with what its file holds beside it.
+#[derive(Debug)]
+pub struct Loaded {
+    pub field: Field,
+    pub occupancy: Option<OccupancyGrid>,
+    pub shade: Option<ShadeGrid>,
+    pub proposal: Option<Proposal>,
+}
 
-/// Reads a field with its occupancy and shadow grids (each when the file has one).
-pub fn load_with_shade(path: &Path) -> Result<Loaded, FieldError> {
+/// Reads a node's field with its occupancy grid, shadow grid and proposal (each when the
+/// file has one).
+pub fn load_node(path: &Path) -> Result<Loaded, FieldError> {
     let bytes = std::fs::read(path).map_err(|e| FieldError::Io {
         path: path.to_path_buf(),
         source: e,
     })?;
-    from_bytes_with_shade(path, &bytes)
+    from_bytes_node(path, &bytes)
 }
 
 /// Parses and validates; `path` names the file in errors.
 pub fn from_bytes(path: &Path, bytes: &[u8]) -> Result<(Field, Option<OccupancyGrid>), FieldError> {
-    let (f, o, _) = from_bytes_with_shade(path, bytes)?;
-    Ok((f, o))
+    let l = from_bytes_node(path, bytes)?;
+    Ok((l.field, l.occupancy))
 }
 
 /// The file's metadata, checked to be an assist field of this build's version.
 type Meta = std::collections::HashMap<String, String>;
 
-/// Parses and validates, shadow grid included; `path` names the file in errors.
-pub fn from_bytes_with_shade(path: &Path, bytes: &[u8]) -> Result<Loaded, FieldError> {
+/// Parses and validates, shadow grid and proposal included; `path` names the file in
+/// errors.
+pub fn from_bytes_node(path: &Path, bytes: &[u8]) -> Result<Loaded, FieldError> {
     let (_, meta) = safetensors::SafeTensors::read_metadata(bytes)
         .map_err(|e| fmt_err(path, format!("not a valid safetensors file: {e}")))?;
     let st = safetensors::SafeTensors::deserialize(bytes)
@@ -203,7 +230,13 @@ pub fn from_bytes_with_shade(path: &Path, bytes: &[u8]) -> Result<Loaded, FieldE
     read_params(path, &st, &mut field)?;
     let occupancy = read_occupancy(path, &st, &md)?;
     let shade = read_shade(path, &st, &md)?;
-    Ok((field, occupancy, shade))
+    let proposal = read_proposal(path, &st, &md)?;
+    Ok(Loaded {
+        field,
+        occupancy,
+        shade,
+        proposal,
+    })
 }
 
 /// The field's configuration from the metadata, after its format and version; refused
@@ -261,6 +294,7 @@ fn read_params(
     let mut expected: Vec<&str> = groups.iter().map(|g| g.0.as_str()).collect();
     expected.push("occupancy.density");
     expected.push("shade");
+    expected.push("proposal");
     for name in st.names() {
         if !expected.contains(&&*name.to_string()) {
             return Err(fmt_err(
@@ -402,4 +436,51 @@ fn read_shade(
         }
         Err(_) => None,
     })
+}
+
+/// The proposal field, when the file has one: its sizes and samples per ray from the
+/// metadata, its parameters of the count they give, every one finite.
+fn read_proposal(
+    path: &Path,
+    st: &safetensors::SafeTensors,
+    md: &Meta,
+) -> Result<Option<Proposal>, FieldError> {
+    let Ok(t) = st.tensor("proposal") else {
+        return Ok(None);
+    };
+    let meta: serde_json::Value = md
+        .get("proposal")
+        .and_then(|t| serde_json::from_str(t).ok())
+        .ok_or_else(|| fmt_err(path, "metadata.proposal: missing or not JSON"))?;
+    let config: ProposalConfig = serde_json::from_value(meta["config"].clone())
+        .map_err(|e| fmt_err(path, format!("metadata.proposal.config: {e}")))?;
+    let samples = meta["samples"]
+        .as_u64()
+        .filter(|&n| (1..=1024).contains(&n))
+        .ok_or_else(|| fmt_err(path, "metadata.proposal.samples: expected 1 to 1024"))?
+        as usize;
+    if t.dtype() != Dtype::F32 || t.shape().len() != 1 {
+        return Err(fmt_err(
+            path,
+            format!(
+                "tensor \"proposal\": expected F32 of shape [n], got {:?} {:?}",
+                t.dtype(),
+                t.shape()
+            ),
+        ));
+    }
+    let params: Vec<f32> = t
+        .data()
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    if let Some(bad) = params.iter().position(|v| !v.is_finite()) {
+        return Err(fmt_err(
+            path,
+            format!("tensor \"proposal\": element {bad} is not finite"),
+        ));
+    }
+    let field = ProposalField::with_params(config, params)
+        .map_err(|e| fmt_err(path, format!("tensor \"proposal\": {e}")))?;
+    Ok(Some(Proposal { field, samples }))
 }

@@ -23,6 +23,7 @@ pub mod hashgrid;
 pub mod io;
 mod mlp;
 mod occupancy;
+pub mod proposal;
 mod sh;
 pub mod shade;
 
@@ -33,4 +34,7 @@ pub use error::FieldError;
 pub use field::{Field, PackedTables, ParamLayout, PhaseTimes, Precision, Samples, Tape};
 pub use mlp::Linear;
 pub use occupancy::{ConeRay, ContractedRay, Marching, OccupancyGrid, Step};
+pub use proposal::{
+    DEFAULT_PROPOSAL_SAMPLES, Proposal, ProposalConfig, ProposalField, ProposalTape,
+};
 pub use shade::{LitCells, ShadeGrid};

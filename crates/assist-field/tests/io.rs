@@ -55,22 +55,22 @@ fn round_trip_with_occupancy() {
 #[test]
 fn shadow_grid_round_trips_and_bad_values_are_named() {
     use assist_field::ShadeGrid;
-    use assist_field::io::{from_bytes_with_shade, to_bytes_with_shade};
+    use assist_field::io::{from_bytes_node, to_bytes_node};
     let field = Field::new(small(), 3).unwrap();
     let mut g = ShadeGrid::new(4, 2.5);
     for (i, v) in g.values.iter_mut().enumerate() {
         *v = 0.1 + (i % 9) as f32 * 0.1;
     }
-    let bytes = to_bytes_with_shade(&field, None, Some(&g)).unwrap();
-    let (_, occ, back) = from_bytes_with_shade(Path::new("x"), &bytes).unwrap();
-    assert!(occ.is_none());
-    assert_eq!(back.as_ref(), Some(&g));
+    let bytes = to_bytes_node(&field, None, Some(&g), None).unwrap();
+    let l = from_bytes_node(Path::new("x"), &bytes).unwrap();
+    assert!(l.occupancy.is_none() && l.proposal.is_none());
+    assert_eq!(l.shade.as_ref(), Some(&g));
     // A file without one loads without one; the plain reader ignores it.
     let plain = to_bytes(&field, None).unwrap();
     assert!(
-        from_bytes_with_shade(Path::new("x"), &plain)
+        from_bytes_node(Path::new("x"), &plain)
             .unwrap()
-            .2
+            .shade
             .is_none()
     );
     assert!(from_bytes(Path::new("x"), &bytes).is_ok());
@@ -91,12 +91,12 @@ fn shadow_grid_round_trips_and_bad_values_are_named() {
             .unwrap(),
     ));
     let old = safetensors::serialize(views, md.metadata().clone()).unwrap();
-    let (_, _, back) = from_bytes_with_shade(Path::new("x"), &old).unwrap();
+    let back = from_bytes_node(Path::new("x"), &old).unwrap().shade;
     assert_eq!(back, Some(ShadeGrid::from_grey(4, 2.5, &grey)));
     // A factor above 1 is refused with the tensor and the element named.
     g.values[5] = 1.7;
-    let bad = to_bytes_with_shade(&field, None, Some(&g)).unwrap();
-    let e = from_bytes_with_shade(Path::new("node.safetensors"), &bad)
+    let bad = to_bytes_node(&field, None, Some(&g), None).unwrap();
+    let e = from_bytes_node(Path::new("node.safetensors"), &bad)
         .unwrap_err()
         .to_string();
     assert!(
@@ -216,4 +216,50 @@ fn bad_files_give_clear_errors() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("/nonexistent/x.safetensors"), "{e}");
+}
+
+#[test]
+fn proposal_round_trips_and_bad_ones_are_named() {
+    use assist_field::io::{from_bytes_node, to_bytes_node};
+    use assist_field::{Proposal, ProposalConfig, ProposalField};
+    let field = Field::new(small(), 3).unwrap();
+    let cfg = ProposalConfig {
+        log2_table_size: 10,
+        max_resolution: 32,
+        ..ProposalConfig::default()
+    };
+    let p = Proposal {
+        field: ProposalField::new(cfg, 4).unwrap(),
+        samples: 40,
+    };
+    let bytes = to_bytes_node(&field, None, None, Some(&p)).unwrap();
+    let back = from_bytes_node(Path::new("x"), &bytes).unwrap().proposal;
+    assert_eq!(back.as_ref(), Some(&p));
+    // The same field without a proposal is another file, read back without one.
+    let plain = to_bytes(&field, None).unwrap();
+    assert_ne!(plain, bytes);
+    assert!(
+        from_bytes_node(Path::new("x"), &plain)
+            .unwrap()
+            .proposal
+            .is_none()
+    );
+    // A value that is not finite is named, with the file.
+    let mut bad = p.clone();
+    bad.field.params[7] = f32::NAN;
+    let bytes = to_bytes_node(&field, None, None, Some(&bad)).unwrap();
+    let e = from_bytes_node(Path::new("node.safetensors"), &bytes)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("node.safetensors") && e.contains("proposal") && e.contains("element 7"),
+        "{e}"
+    );
+    // Samples per ray out of range are refused.
+    let zero = Proposal { samples: 0, ..p };
+    let bytes = to_bytes_node(&field, None, None, Some(&zero)).unwrap();
+    let e = from_bytes_node(Path::new("x"), &bytes)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("metadata.proposal.samples"), "{e}");
 }

@@ -10,17 +10,27 @@ use rayon::prelude::*;
 
 use assist_scene::{NeuralScene, NodeField};
 
+use crate::proposal::{ProposalRecord, resample};
 use crate::sample::{NodeSamples, RayBatch, SampleOptions, Traced};
+use assist_field::Proposal;
 
 const BLOCK: usize = 256;
 
 /// Samples every node of `scene` along every ray of `rays` into `out` (buffers reused).
+/// With `opts.keep_proposal`, the coarse samples of the node a proposal samples are kept
+/// in `out.proposal` for its loss.
 pub fn sample_rays(scene: &NeuralScene, rays: &RayBatch, opts: &SampleOptions, out: &mut Traced) {
     let n_nodes = scene.scene.nodes.len();
     out.rays = rays.len();
     out.nodes.resize_with(n_nodes, NodeSamples::default);
+    let mut record = out.proposal.take().unwrap_or_default();
+    out.proposal = None;
     for (k, ns) in out.nodes.iter_mut().enumerate() {
-        sample_rays_node(scene, k, rays, opts, ns);
+        let keep = opts.keep_proposal && scene.field_of(k).proposal.is_some();
+        sample_node(scene, k, rays, opts, ns, keep.then_some(&mut record));
+        if keep && out.proposal.is_none() {
+            out.proposal = Some(std::mem::take(&mut record));
+        }
     }
 }
 
@@ -32,9 +42,23 @@ pub fn sample_rays_node(
     opts: &SampleOptions,
     ns: &mut NodeSamples,
 ) {
+    sample_node(scene, k, rays, opts, ns, None);
+}
+
+/// [`sample_rays_node`], the coarse samples kept in `record` where a proposal draws the
+/// node's samples.
+fn sample_node(
+    scene: &NeuralScene,
+    k: usize,
+    rays: &RayBatch,
+    opts: &SampleOptions,
+    ns: &mut NodeSamples,
+    record: Option<&mut ProposalRecord>,
+) {
     ns.node = k;
     ns.clear();
-    let blocks: Vec<NodeSamples> = (0..rays.len().div_ceil(BLOCK))
+    let keep = record.is_some();
+    let blocks: Vec<(NodeSamples, ProposalRecord)> = (0..rays.len().div_ceil(BLOCK))
         .into_par_iter()
         .map(|b| {
             // Compiled for the CPU's SIMD level: the marching's floors and ceilings become
@@ -48,10 +72,16 @@ pub fn sample_rays_node(
                 rays,
                 opts,
                 range: b * BLOCK..((b + 1) * BLOCK).min(rays.len()),
+                keep,
             })
         })
         .collect();
+    let (blocks, records): (Vec<NodeSamples>, Vec<ProposalRecord>) = blocks.into_iter().unzip();
     ns.append_all(&blocks);
+    if let Some(rec) = record {
+        rec.node = k;
+        rec.append_all(&records);
+    }
 }
 
 /// The samples of node `k` along rays `range` (block-local starts, no trailing end).
@@ -61,13 +91,16 @@ struct SampleBlock<'a> {
     rays: &'a RayBatch,
     opts: &'a SampleOptions,
     range: std::ops::Range<usize>,
+    /// Keep a proposal's coarse samples.
+    keep: bool,
 }
 
 impl assist_simd::WithSimd for SampleBlock<'_> {
-    type Output = NodeSamples;
+    type Output = (NodeSamples, ProposalRecord);
     #[inline(always)]
-    fn run(self) -> NodeSamples {
+    fn run(self) -> (NodeSamples, ProposalRecord) {
         let mut local = NodeSamples::default();
+        let mut record = ProposalRecord::default();
         local.start.reserve(self.range.len() + 1);
         // Looked up once per block, not per ray.
         let node = &self.scene.scene.nodes[self.k];
@@ -79,7 +112,19 @@ impl assist_simd::WithSimd for SampleBlock<'_> {
         );
         // LANES rays marched at once (the same samples as one at a time).
         let (rays, opts, k) = (self.rays, self.opts, self.k);
-        if at.1.space == NodeSpace::Contracted {
+        if let (NodeSpace::Contracted, Some(p)) = (at.1.space, &at.1.proposal) {
+            let none = ContractedRay::none();
+            let keep = self.keep.then_some(&mut record);
+            let drawn = Drawn {
+                proposal: p,
+                opts,
+                k,
+                keep,
+            };
+            proposal_lanes(at.1, none, self.range, rays, &mut local, drawn, |r| {
+                contracted_march(at, r, k, rays, opts)
+            });
+        } else if at.1.space == NodeSpace::Contracted {
             let none = ContractedRay::none();
             march_lanes(at.1, none, self.range, rays, &mut local, |r| {
                 contracted_march(at, r, k, rays, opts)
@@ -90,7 +135,7 @@ impl assist_simd::WithSimd for SampleBlock<'_> {
                 bounded_march(at, r, k, rays, opts)
             });
         }
-        local
+        (local, record)
     }
 }
 
@@ -132,6 +177,106 @@ fn march_lanes<R: Marching + Copy>(
         }
     }
 }
+
+/// How a proposal draws a node's samples in [`proposal_lanes`].
+struct Drawn<'a> {
+    proposal: &'a Proposal,
+    opts: &'a SampleOptions,
+    /// The node's index (for the rays' random streams).
+    k: usize,
+    /// Where the coarse samples are kept (training).
+    keep: Option<&'a mut ProposalRecord>,
+}
+
+/// [`march_lanes`] for a node whose samples a proposal draws: every ray of `range` is
+/// marched (its steps the coarse samples), the proposal queried at them all at once, and
+/// each ray's samples drawn from its weights ([`crate::proposal::resample`]).
+#[inline(always)]
+fn proposal_lanes<R: Marching + Copy>(
+    nf: &NodeField,
+    none: R,
+    range: std::ops::Range<usize>,
+    rays: &RayBatch,
+    local: &mut NodeSamples,
+    drawn: Drawn,
+    setup: impl Fn(usize) -> Option<(R, Placed)>,
+) {
+    let mut steps: Vec<assist_field::Step> = Vec::new();
+    let mut start: Vec<u32> = vec![0];
+    let mut placed: Vec<Option<Placed>> = Vec::with_capacity(range.len());
+    let mut lanes: [Vec<assist_field::Step>; LANES] = Default::default();
+    let end = range.end;
+    for first in range.clone().step_by(LANES) {
+        let n = LANES.min(end - first);
+        let mut marches = [none; LANES];
+        let mut here = [None; LANES];
+        for i in 0..n {
+            if let Some((m, p)) = setup(first + i) {
+                marches[i] = m;
+                here[i] = Some(p);
+            }
+        }
+        lanes.iter_mut().for_each(Vec::clear);
+        nf.occupancy.march_each(&mut marches, &mut lanes);
+        for i in 0..n {
+            steps.extend_from_slice(&lanes[i]);
+            start.push(steps.len() as u32);
+            placed.push(here[i]);
+        }
+    }
+    // The coarse samples' positions and intervals, and the proposal's densities there.
+    let mut pos: [Vec<f32>; 3] = std::array::from_fn(|_| Vec::with_capacity(steps.len()));
+    let mut delta = Vec::with_capacity(steps.len());
+    for (i, p) in placed.iter().enumerate() {
+        let Some(p) = p else { continue };
+        for s in &steps[start[i] as usize..start[i + 1] as usize] {
+            let u = p.unit_at(s.t);
+            for a in 0..3 {
+                pos[a].push(u[a]);
+            }
+            delta.push(s.dt * p.per_unit);
+        }
+    }
+    let mut sigma = vec![0.0f32; steps.len()];
+    let at = [&pos[0][..], &pos[1][..], &pos[2][..]];
+    drawn
+        .proposal
+        .field
+        .density(at, &mut sigma, &mut Vec::new());
+    let (mut w, mut fine, mut spans) = (Vec::new(), Vec::new(), Vec::new());
+    for (i, r) in range.enumerate() {
+        local.start.push(local.t.len() as u32);
+        let Some(p) = placed[i] else { continue };
+        let c = start[i] as usize..start[i + 1] as usize;
+        w.resize(c.len(), 0.0);
+        crate::proposal::weights(&sigma[c.clone()], &delta[c.clone()], &mut w);
+        fine.clear();
+        let mut rng = drawn
+            .opts
+            .jitter
+            .then(|| Rng::stream(drawn.opts.seed ^ DRAW_STREAM, (r * 1024 + drawn.k) as u64));
+        let n = drawn.proposal.samples.min(drawn.opts.max_per_node);
+        resample(&steps[c], &w, n, rng.as_mut(), &mut fine, &mut spans);
+        p.push(&fine, rays.image[r], local);
+    }
+    if let Some(rec) = drawn.keep {
+        rec.pos = pos;
+        rec.delta = delta;
+        rec.sigma = sigma;
+        rec.steps = steps;
+        rec.start = start;
+        rec.spans = spans;
+    }
+}
+
+/// How much longer a proposal's coarse march steps than the node's own march: its
+/// samples only place the drawn ones, and the proposal's query and training scale with
+/// them (chosen on gold_cape among 1, 4 and 8: `docs/history.md`, session 62).
+pub const COARSE_STEP_SCALE: f32 = 4.0;
+
+/// Mixed into the seed of the streams that draw a proposal's samples, so they are not
+/// the marches' own.
+const DRAW_STREAM: u64 = 0x5DEE_CE66_D1CE_4E5B;
 
 /// Ray `r` of `rays` in world space.
 #[inline(always)]
@@ -201,6 +346,18 @@ struct Placed {
 }
 
 impl Placed {
+    /// The position in [0, 1]³ at parameter `t`.
+    #[inline(always)]
+    fn unit_at(&self, t: f32) -> [f32; 3] {
+        let (o, d) = (self.o, self.d);
+        let u = [0, 1, 2].map(|a| o[a] + d[a] * t);
+        if self.contracted {
+            contract_to_unit(u)
+        } else {
+            u.map(|v| v.clamp(0.0, 1.0))
+        }
+    }
+
     #[inline(always)]
     fn push(&self, steps: &[assist_field::Step], image: u32, out: &mut NodeSamples) {
         let (o, d) = (self.o, self.d);
@@ -307,14 +464,20 @@ fn contracted_march(
         rays.near as f64 * local_per_world,
         f64::INFINITY,
     )?;
+    let scale = opts.step_scale
+        * if nf.proposal.is_some() {
+            COARSE_STEP_SCALE
+        } else {
+            1.0
+        };
     let march = ContractedRay::new(
         o,
         d,
         t_in as f32,
         t_out as f32,
-        nf.step * opts.step_scale,
-        nf.cone * opts.step_scale,
-        nf.contracted_step * opts.step_scale,
+        nf.step * scale,
+        nf.cone * scale,
+        nf.contracted_step * scale,
         ray_jitter(opts, r, k),
         opts.max_per_node,
     );

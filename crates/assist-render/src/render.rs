@@ -67,6 +67,7 @@ impl RenderOptions {
             seed: 0,
             max_per_node: self.max_per_node,
             step_scale: self.step_scale,
+            keep_proposal: false,
         }
     }
 

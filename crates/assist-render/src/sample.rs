@@ -44,6 +44,9 @@ pub struct SampleOptions {
     /// Every node's marching steps (smallest step, growth with distance, contracted
     /// step) times this: 1 as trained; 2 for a draft render with about half the samples.
     pub step_scale: f32,
+    /// Keep the coarse samples of a node whose samples a proposal draws
+    /// ([`Traced::proposal`]), for the proposal's training.
+    pub keep_proposal: bool,
 }
 
 impl Default for SampleOptions {
@@ -53,6 +56,7 @@ impl Default for SampleOptions {
             seed: 0,
             step_scale: 1.0,
             max_per_node: 1024,
+            keep_proposal: false,
         }
     }
 }
@@ -287,6 +291,9 @@ pub struct Traced {
     /// The distortion measures distances along a ray with [`distortion_distance`] in this
     /// unit (training: the scene's extent); 0 = the world distance itself.
     pub distortion_unit: f32,
+    /// The coarse samples of the node whose samples a proposal drew, when the sampling
+    /// kept them ([`SampleOptions::keep_proposal`]).
+    pub proposal: Option<crate::proposal::ProposalRecord>,
 }
 
 /// The distance along a ray at which the distortion loss measures the gap between two

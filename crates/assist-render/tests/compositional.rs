@@ -220,6 +220,7 @@ fn batch_backward_matches_finite_differences() {
         seed: 1,
         max_per_node: 40,
         step_scale: 1.0,
+        keep_proposal: false,
     };
     sample_rays(&s, &rays, &so, &mut traced);
     assert!(traced.nodes.iter().all(|n| n.len() > 10));

@@ -53,6 +53,7 @@ fn contracted_samples_are_the_contracted_ray_points() {
             seed: 3,
             max_per_node: 4096,
             step_scale: 1.0,
+            keep_proposal: false,
         },
         &mut traced,
     );
@@ -195,6 +196,7 @@ fn oblique_samples(s: &NeuralScene) -> Traced {
         seed: 0,
         max_per_node: 1024,
         step_scale: 1.0,
+        keep_proposal: false,
     };
     let mut traced = Traced::default();
     sample_rays(s, &rays, &so, &mut traced);

@@ -51,6 +51,7 @@ fn density_at_world_times_interval_is_the_rendered_optical_depth() {
             seed: 0,
             max_per_node: 4096,
             step_scale: 1.0,
+            keep_proposal: false,
         };
         sample_rays(&s, &rays, &so, &mut traced);
         let ns = &traced.nodes[0];

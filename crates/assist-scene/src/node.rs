@@ -33,6 +33,10 @@ pub struct NodeField {
     /// An object's shadow on the background (multiplies the background's colour around
     /// the object; see [`ShadeGrid`]). `None`: the node casts none.
     pub shade: Option<ShadeGrid>,
+    /// A contracted node's proposal: its rays' samples are drawn from the proposal
+    /// field's weights along the march instead of taken at every step. `None`: every step
+    /// (and always for a bounded node).
+    pub proposal: Option<assist_field::Proposal>,
     /// The file these weights were read from, if any: a scene saved with the same bytes
     /// links that file instead of writing them again (checked byte for byte, so weights
     /// changed since are written).
@@ -78,6 +82,7 @@ impl NodeField {
             space,
             contracted_step,
             shade: None,
+            proposal: None,
             origin: None,
         }
     }

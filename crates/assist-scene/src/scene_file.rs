@@ -177,8 +177,12 @@ fn write_staged(
 /// again. A link is a second name for the same file, so deleting either scene leaves the
 /// other whole.
 fn write_field(dest: &Path, nf: &NodeField) -> Result<(), SceneFileError> {
-    let bytes =
-        assist_field::io::to_bytes_with_shade(&nf.field, Some(&nf.occupancy), nf.shade.as_ref())?;
+    let bytes = assist_field::io::to_bytes_node(
+        &nf.field,
+        Some(&nf.occupancy),
+        nf.shade.as_ref(),
+        nf.proposal.as_ref(),
+    )?;
     if let Some(origin) = &nf.origin
         && std::fs::metadata(origin).is_ok_and(|m| m.len() == bytes.len() as u64)
         && std::fs::read(origin).is_ok_and(|b| b == bytes)
@@ -305,10 +309,13 @@ pub fn load_field(
             format!("field file {} is missing", fp.display()),
         ));
     }
-    let (field, occ, shade) = assist_field::io::load_with_shade(&fp)?;
-    let occ = occ.unwrap_or_else(|| assist_field::OccupancyGrid::new(64));
-    let mut nf = NodeField::with_space(field, occ, half, space);
-    nf.shade = shade;
+    let l = assist_field::io::load_node(&fp)?;
+    let occ = l
+        .occupancy
+        .unwrap_or_else(|| assist_field::OccupancyGrid::new(64));
+    let mut nf = NodeField::with_space(l.field, occ, half, space);
+    nf.shade = l.shade;
+    nf.proposal = l.proposal;
     nf.origin = Some(fp);
     Ok(nf)
 }

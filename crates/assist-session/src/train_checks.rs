@@ -78,6 +78,15 @@ impl TrainConfig {
                 ),
             ));
         }
+        if c.proposal > 1024 {
+            return Err(request(
+                "proposal",
+                format!(
+                    "expected at most 1024 samples per ray (0 = off), got {}",
+                    c.proposal
+                ),
+            ));
+        }
         if let Some(t) = c.prune_eps
             && !(0.0..1.0).contains(&t)
         {

@@ -389,6 +389,7 @@ impl TrainJob {
             refine_poses: c.refine_poses,
             hidden_stop: c.hidden_stop,
             step_scale: c.step_scale,
+            proposal_samples: c.proposal,
             prune_eps,
             lambdas,
             seed: c.seed,

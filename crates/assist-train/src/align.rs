@@ -109,6 +109,7 @@ impl Batch {
             seed,
             max_per_node: 1024,
             step_scale: 1.0,
+            keep_proposal: false,
         };
         sample_rays(scene, &self.rays, &so, &mut self.traced);
         // Samples behind surfaces weigh nothing in the loss or its gradient; the density

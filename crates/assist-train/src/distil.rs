@@ -197,6 +197,9 @@ pub fn clear(
         return report;
     };
     let nf = std::sync::Arc::make_mut(nf);
+    // A proposal drawn for the field as it was would not find what the clearing fills:
+    // the node is marched at every step again (a later `train --proposal` draws anew).
+    nf.proposal = None;
     let space = nf.space;
     let teacher = nf.field.clone();
     let field = &mut nf.field;

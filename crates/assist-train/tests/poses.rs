@@ -150,6 +150,7 @@ fn the_pose_gradient_matches_central_differences() {
         seed: 1,
         max_per_node: 1024,
         step_scale: 1.0,
+        keep_proposal: false,
     };
     let mut traced = Traced::default();
     sample_rays(&scene, &rays, &so, &mut traced);

@@ -434,3 +434,97 @@ fn a_continued_run_counts_its_own_steps() {
     assert_eq!((first.iterations, first.steps), (3, 3));
     assert_eq!((second.iterations, second.steps), (5, 2));
 }
+
+/// The interlevel loss (mean per ray) of `scene`'s proposal against its field along
+/// `camera`'s rays through every 7th pixel.
+fn interlevel_of(scene: &assist_scene::NeuralScene, camera: &Camera) -> f64 {
+    use assist_render::proposal::{interlevel, weights};
+    let mut rays = assist_render::RayBatch::default();
+    let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
+    for p in (0..w * h).step_by(7) {
+        if let Some(r) = camera.pixel_ray(p % w, p / w) {
+            rays.push(&r, 0);
+        }
+    }
+    let so = assist_render::SampleOptions {
+        keep_proposal: true,
+        ..Default::default()
+    };
+    let mut traced = assist_render::Traced::default();
+    assist_render::sample_rays(scene, &rays, &so, &mut traced);
+    assist_render::query_fields(
+        scene,
+        &mut traced,
+        &mut Vec::new(),
+        assist_render::Query::Train,
+    );
+    let rec = traced.proposal.as_ref().expect("drawn by a proposal");
+    let ns = &traced.nodes[rec.node];
+    let mut loss = 0.0;
+    for r in 0..rays.len() {
+        let (c, f) = (rec.range(r), ns.range(r));
+        let (mut w_f, mut w_c) = (vec![0.0; f.len()], vec![0.0; c.len()]);
+        weights(&ns.sigma[f.clone()], &ns.dt[f.clone()], &mut w_f);
+        weights(&rec.sigma[c.clone()], &rec.delta[c.clone()], &mut w_c);
+        let g = &mut vec![0.0; c.len()];
+        loss += interlevel(&rec.steps[c], &w_c, &rec.spans[f], &w_f, g) as f64;
+    }
+    loss / rays.len() as f64
+}
+
+/// `proposal_samples`: the contracted background's samples are drawn from a proposal
+/// field, that many per ray, and the proposal learns to bound the field's weights (on the
+/// field as trained, its loss is far below a fresh proposal's); the scene file keeps it,
+/// and the scene read back renders the same image.
+#[test]
+fn a_proposal_trains_beside_the_background_and_is_saved_with_it() {
+    let ds = assist_data::load(synth(), &LoadOptions::default()).unwrap();
+    let views = load_views(&ds, Split::Train, background_color(&ds)).unwrap();
+    let setup = SetupOptions {
+        background_space: assist_train::BackgroundSpace::Contracted,
+        boxes: Vec::new(),
+        ..SetupOptions::default()
+    };
+    let mut scene = build_scene(&ds, &views, &setup).unwrap();
+    scene.scene.nodes.retain(|n| n.label == "background");
+    scene.fields.retain(|k, _| k == "background");
+    let camera = views[0].camera;
+    let opts = TrainOptions {
+        proposal_samples: 16,
+        prune_eps: 1e-4,
+        iters: 150,
+        batch_samples: 8192,
+        ..TrainOptions::default()
+    };
+    let mut t = Trainer::new(scene, views, opts).unwrap();
+    for _ in 0..150 {
+        let s = t.step(0.0).unwrap();
+        // Every ray draws its 16 (none is pruned: the loss pairs them with their spans).
+        assert_eq!(s.samples, 16 * s.rays, "{s:?}");
+        assert!(s.pruned == 0 && s.interlevel.is_finite());
+    }
+    let trained = interlevel_of(&t.scene, &camera);
+    let mut fresh = t.scene.clone();
+    let nf = std::sync::Arc::make_mut(fresh.fields.get_mut("background").unwrap());
+    let p = nf.proposal.as_mut().unwrap();
+    p.field = assist_field::ProposalField::new(p.field.config.clone(), 1).unwrap();
+    let untrained = interlevel_of(&fresh, &camera);
+    eprintln!("interlevel loss: trained {trained:.5}, fresh {untrained:.5}");
+    assert!(
+        trained < 0.3 * untrained,
+        "trained {trained}, fresh {untrained}"
+    );
+    let tmp = TempDir::new("train-proposal");
+    let path = tmp.join("p.assist");
+    assist_scene::scene_file::save(&path, &t.scene, serde_json::json!({}), false).unwrap();
+    let (back, _) = assist_scene::scene_file::load(&path).unwrap();
+    let p = back.fields["background"]
+        .proposal
+        .as_ref()
+        .expect("saved with its proposal");
+    assert_eq!(Some(p), t.scene.fields["background"].proposal.as_ref());
+    let opts = RenderOptions::default();
+    let a = render_camera(&t.scene, &camera, u32::MAX, &opts);
+    let b = render_camera(&back, &camera, u32::MAX, &opts);
+    assert_eq!(a.rgb, b.rgb);
+}

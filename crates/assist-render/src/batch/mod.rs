@@ -621,6 +621,7 @@ mod tests {
             front: Vec::new(),
             hidden_stop: stop,
             distortion_unit: 0.0,
+            proposal: None,
         };
         let grad = |_: &RayOutputs, g: &mut CompositeGrad, gn: &mut [CompositeGrad]| {
             if merged {
@@ -657,6 +658,7 @@ mod tests {
                 front: Vec::new(),
                 hidden_stop: None,
                 distortion_unit: 0.0,
+                proposal: None,
             };
             let mut out = BatchOutput::default();
             composite_batch(&mut traced, behind, &mut out, None);

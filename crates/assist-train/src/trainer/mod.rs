@@ -32,6 +32,7 @@ use crate::views::View;
 mod objective;
 mod options;
 mod poses;
+mod proposal;
 mod rays;
 mod step;
 mod terms;
@@ -100,6 +101,8 @@ pub struct Trainer {
     pub shade_held: BTreeMap<String, Vec<bool>>,
     /// The history saved with every checkpoint.
     pub kept: KeptHistory,
+    /// The background's proposal field's training, when it has one.
+    proposal: proposal::ProposalTraining,
 }
 
 impl Trainer {
@@ -166,7 +169,8 @@ impl Trainer {
         let poses = opts
             .refine_poses
             .then(|| PoseRefiner::new(views.len(), extent));
-        Ok(Trainer {
+        let proposal_samples = opts.proposal_samples;
+        let mut t = Trainer {
             scene,
             views,
             opts,
@@ -194,7 +198,10 @@ impl Trainer {
             shade_adam: BTreeMap::new(),
             shade_held: BTreeMap::new(),
             kept: KeptHistory::default(),
-        })
+            proposal: Default::default(),
+        };
+        t.attach_proposal(proposal_samples);
+        Ok(t)
     }
 
     /// Continues a run from where it was saved: the iteration count and the time already

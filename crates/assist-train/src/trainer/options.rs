@@ -51,6 +51,10 @@ pub struct TrainOptions {
     /// Every node's marching steps times this while training (`SampleOptions::step_scale`;
     /// 1 = as rendered).
     pub step_scale: f32,
+    /// Draw an unbounded background's samples from a proposal field trained with it, this
+    /// many per ray (0: a background without one is marched at every step; one that has
+    /// a proposal keeps it, and it goes on training).
+    pub proposal_samples: usize,
     /// The dataset's `--downscale` (recorded in the scene for evaluation; 1 = none).
     pub downscale: u32,
     /// Learn a scale and shift of the background depth prior (`depth_wq`). For priors
@@ -95,6 +99,7 @@ impl Default for TrainOptions {
             prune_eps: 0.0,
             hidden_stop: 0.0,
             step_scale: 1.0,
+            proposal_samples: 0,
             poison_at: None,
             cancel: None,
             provenance: serde_json::Map::new(),
@@ -127,6 +132,8 @@ pub struct StepStats {
     pub candidates: usize,
     /// Samples dropped by pruning (`candidates − samples`).
     pub pruned: usize,
+    /// The proposal's interlevel loss (mean per ray; 0 without a proposal).
+    pub interlevel: f64,
 }
 
 #[derive(Debug, Clone, Serialize)]

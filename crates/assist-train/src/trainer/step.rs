@@ -46,6 +46,7 @@ impl Trainer {
         let (candidates, pruned) = self.trace();
         phase[0] = tp.elapsed().as_secs_f64();
         self.forward()?;
+        let interlevel = self.train_proposal(lr);
         phase[1] = tp.elapsed().as_secs_f64();
         // The step's figures; the losses come with the compositing.
         let mut s = StepStats {
@@ -54,6 +55,7 @@ impl Trainer {
             samples: self.traced.total_samples(),
             candidates,
             pruned: pruned.dropped,
+            interlevel: interlevel.unwrap_or(0.0),
             lr,
             elapsed,
             progress,
@@ -105,11 +107,14 @@ impl Trainer {
             seed: self.opts.seed.wrapping_add(self.iteration as u64 * 7919),
             max_per_node: 1024,
             step_scale: self.opts.step_scale,
+            keep_proposal: true,
         };
         sample_rays(&self.scene, &self.rays, &so, &mut self.traced);
         let candidates = self.traced.total_samples();
         let probe = self.iteration.is_multiple_of(PRUNE_PROBE_EVERY);
-        let pruned = if self.opts.prune_eps > 0.0 && (self.prune_pays || probe) {
+        // A proposal's samples are kept whole: its loss pairs them with their spans.
+        let drawn = self.traced.proposal.is_some();
+        let pruned = if self.opts.prune_eps > 0.0 && !drawn && (self.prune_pays || probe) {
             let p = assist_render::prune_occluded(
                 &self.scene,
                 &mut self.traced,
