@@ -113,7 +113,7 @@ pub fn weights_backward(sigma: &[f32], delta: &[f32], g: &[f32], d_sigma: &mut [
 /// (padded by [`HISTOGRAM_PADDING`]): `n + 1` cuts at the levels `(k + ξₖ) / (n + 1)` of
 /// the weights' distribution over `u` (`jitter` gives each `ξₖ` from a stream; none:
 /// every level `k / n`, so the fine intervals cover the coarse ones end to end). Appends
-/// the fine samples to `out` as steps (each at its interval's middle in `u`, with the
+/// the fine samples to `out` as steps (each at its interval's start, as a march's, with the
 /// interval's length) and their spans to `spans`. Nothing when `steps` is empty.
 pub fn resample(
     steps: &[Step],
@@ -166,7 +166,7 @@ pub fn resample(
     for k in 0..n {
         let (u0, u1) = (u[k], u[k + 1].max(u[k]));
         out.push(Step {
-            t: to_t(0.5 * (u0 + u1)),
+            t: to_t(u0),
             dt: u1 - u0,
         });
         spans.push(Span { u0, u1 });
