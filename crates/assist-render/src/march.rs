@@ -155,6 +155,24 @@ fn march_lanes<R: Marching + Copy>(
     local: &mut NodeSamples,
     setup: impl Fn(usize) -> Option<(R, Placed)>,
 ) {
+    march_rays(nf, none, range, setup, |r, steps, placed| {
+        local.start.push(local.t.len() as u32);
+        if let Some(p) = placed {
+            p.push(steps, rays.image[r], local);
+        }
+    });
+}
+
+/// Marches `range`'s rays through `nf`'s grid, LANES at a time, handing each ray's steps
+/// and placement (none where it misses the node) to `each`, in order.
+#[inline(always)]
+fn march_rays<R: Marching + Copy>(
+    nf: &NodeField,
+    none: R,
+    range: std::ops::Range<usize>,
+    setup: impl Fn(usize) -> Option<(R, Placed)>,
+    mut each: impl FnMut(usize, &[assist_field::Step], Option<Placed>),
+) {
     let mut lanes: [Vec<assist_field::Step>; LANES] = Default::default();
     let end = range.end;
     for first in range.step_by(LANES) {
@@ -170,10 +188,7 @@ fn march_lanes<R: Marching + Copy>(
         lanes.iter_mut().for_each(Vec::clear);
         nf.occupancy.march_each(&mut marches, &mut lanes);
         for i in 0..n {
-            local.start.push(local.t.len() as u32);
-            if let Some(p) = placed[i] {
-                p.push(&lanes[i], rays.image[first + i], local);
-            }
+            each(first + i, &lanes[i], placed[i]);
         }
     }
 }
@@ -204,26 +219,11 @@ fn proposal_lanes<R: Marching + Copy>(
     let mut steps: Vec<assist_field::Step> = Vec::new();
     let mut start: Vec<u32> = vec![0];
     let mut placed: Vec<Option<Placed>> = Vec::with_capacity(range.len());
-    let mut lanes: [Vec<assist_field::Step>; LANES] = Default::default();
-    let end = range.end;
-    for first in range.clone().step_by(LANES) {
-        let n = LANES.min(end - first);
-        let mut marches = [none; LANES];
-        let mut here = [None; LANES];
-        for i in 0..n {
-            if let Some((m, p)) = setup(first + i) {
-                marches[i] = m;
-                here[i] = Some(p);
-            }
-        }
-        lanes.iter_mut().for_each(Vec::clear);
-        nf.occupancy.march_each(&mut marches, &mut lanes);
-        for i in 0..n {
-            steps.extend_from_slice(&lanes[i]);
-            start.push(steps.len() as u32);
-            placed.push(here[i]);
-        }
-    }
+    march_rays(nf, none, range.clone(), setup, |_, s, p| {
+        steps.extend_from_slice(s);
+        start.push(steps.len() as u32);
+        placed.push(p);
+    });
     // The coarse samples' positions and intervals, and the proposal's densities there.
     let mut pos: [Vec<f32>; 3] = std::array::from_fn(|_| Vec::with_capacity(steps.len()));
     let mut delta = Vec::with_capacity(steps.len());

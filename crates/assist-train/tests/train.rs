@@ -370,13 +370,8 @@ fn held_shadow_lattice_points_keep_their_values_and_the_rest_train() {
     assert!(moved > 0, "no free lattice point trained");
 }
 
-/// The density pass that drops samples behind surfaces (`prune_eps`) runs on a step only
-/// when it is a look every 100 steps or the pass before it dropped at least 30% of what it
-/// queried; a contracted background (here the synth scene's, with no object nodes) has
-/// more than 32 samples per ray, so every pass queries all of its samples. A threshold of
-/// 0.5 drops enough of this short run's samples for both cases to occur.
-#[test]
-fn pruning_runs_only_while_it_pays() {
+/// The synth scene's background alone, contracted (no object nodes), with its views.
+fn contracted_background() -> (assist_scene::NeuralScene, Vec<assist_train::View>) {
     let ds = assist_data::load(synth(), &LoadOptions::default()).unwrap();
     let views = load_views(&ds, Split::Train, background_color(&ds)).unwrap();
     let setup = SetupOptions {
@@ -387,6 +382,17 @@ fn pruning_runs_only_while_it_pays() {
     let mut scene = build_scene(&ds, &views, &setup).unwrap();
     scene.scene.nodes.retain(|n| n.label == "background");
     scene.fields.retain(|k, _| k == "background");
+    (scene, views)
+}
+
+/// The density pass that drops samples behind surfaces (`prune_eps`) runs on a step only
+/// when it is a look every 100 steps or the pass before it dropped at least 30% of what it
+/// queried; a contracted background (here the synth scene's, with no object nodes) has
+/// more than 32 samples per ray, so every pass queries all of its samples. A threshold of
+/// 0.5 drops enough of this short run's samples for both cases to occur.
+#[test]
+fn pruning_runs_only_while_it_pays() {
+    let (scene, views) = contracted_background();
     let opts = TrainOptions {
         prune_eps: 0.5,
         iters: 260,
@@ -478,16 +484,7 @@ fn interlevel_of(scene: &assist_scene::NeuralScene, camera: &Camera) -> f64 {
 /// and the scene read back renders the same image.
 #[test]
 fn a_proposal_trains_beside_the_background_and_is_saved_with_it() {
-    let ds = assist_data::load(synth(), &LoadOptions::default()).unwrap();
-    let views = load_views(&ds, Split::Train, background_color(&ds)).unwrap();
-    let setup = SetupOptions {
-        background_space: assist_train::BackgroundSpace::Contracted,
-        boxes: Vec::new(),
-        ..SetupOptions::default()
-    };
-    let mut scene = build_scene(&ds, &views, &setup).unwrap();
-    scene.scene.nodes.retain(|n| n.label == "background");
-    scene.fields.retain(|k, _| k == "background");
+    let (scene, views) = contracted_background();
     let camera = views[0].camera;
     let opts = TrainOptions {
         proposal_samples: 16,
