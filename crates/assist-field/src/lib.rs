@@ -34,7 +34,5 @@ pub use error::FieldError;
 pub use field::{Field, PackedTables, ParamLayout, PhaseTimes, Precision, Samples, Tape};
 pub use mlp::Linear;
 pub use occupancy::{ConeRay, ContractedRay, Marching, OccupancyGrid, Step};
-pub use proposal::{
-    DEFAULT_PROPOSAL_SAMPLES, Proposal, ProposalConfig, ProposalField, ProposalTape,
-};
+pub use proposal::{Proposal, ProposalConfig, ProposalField, ProposalTape};
 pub use shade::{LitCells, ShadeGrid};

@@ -72,9 +72,6 @@ pub struct Proposal {
     pub samples: usize,
 }
 
-/// Samples per ray drawn from a proposal unless asked otherwise.
-pub const DEFAULT_PROPOSAL_SAMPLES: usize = 48;
-
 /// What [`ProposalField::forward_train`] keeps for the backward pass.
 #[derive(Debug, Clone, Default)]
 pub struct ProposalTape {

@@ -271,7 +271,7 @@ fn proposal_lanes<R: Marching + Copy>(
 
 /// How much longer a proposal's coarse march steps than the node's own march: its
 /// samples only place the drawn ones, and the proposal's query and training scale with
-/// them (chosen on gold_cape among 1, 4 and 8: `docs/history.md`, session 62).
+/// them (chosen by measurement: BENCHMARKS.md).
 pub const COARSE_STEP_SCALE: f32 = 4.0;
 
 /// Mixed into the seed of the streams that draw a proposal's samples, so they are not
