@@ -50,7 +50,7 @@ fn desk_without_masks_gets_its_objects_from_boxes_and_clicks() {
     let tmp = assist_testkit::TempDir::new("split");
     let root = tmp.path().to_path_buf();
     let scene = root.join("plain.assist");
-    common::train_quarter(&desk, &scene, 1500, &["--no-objects"]);
+    common::train_quarter(&desk, &scene, 1000, &["--no-objects"]);
     let test_views: Vec<String> = {
         let ds = assist_data::load(&desk, &Default::default()).unwrap();
         ds.frames
