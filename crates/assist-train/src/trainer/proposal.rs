@@ -10,6 +10,11 @@ use rayon::prelude::*;
 
 use super::Trainer;
 
+/// The most coarse samples a step trains the proposal on: a step's first rays up to this
+/// many (early in training a ray's coarse march holds several times the samples drawn
+/// from it, and the proposal's training would cost as much as the field's).
+const PROPOSAL_BATCH: usize = 1 << 16;
+
 /// The proposal's optimiser and buffers.
 #[derive(Debug, Default)]
 pub(crate) struct ProposalTraining {
@@ -47,13 +52,21 @@ impl Trainer {
         let rec = self.traced.proposal.as_ref()?;
         let ns = &self.traced.nodes[rec.node];
         let key = &self.scene.scene.nodes[rec.node].field;
-        let rays = self.traced.rays;
-        if ns.start.len() != rays + 1 || rec.spans.len() != ns.len() {
+        let all = self.traced.rays;
+        if ns.start.len() != all + 1 || rec.spans.len() != ns.len() || rec.start.len() != all + 1 {
             return None;
         }
+        // The first rays (drawn at random) up to the budget of coarse samples: their
+        // coarse samples are a prefix of the record's.
+        let rays = rec
+            .start
+            .partition_point(|&s| s as usize <= PROPOSAL_BATCH)
+            .saturating_sub(1)
+            .max(1);
+        let coarse = rec.start[rays] as usize;
         let t = &mut self.proposal;
         t.d_sigma.clear();
-        t.d_sigma.resize(rec.sigma.len(), 0.0);
+        t.d_sigma.resize(coarse, 0.0);
         // Rays in parallel, each writing its own coarse samples' gradient.
         let mut parts: Vec<(std::ops::Range<usize>, &mut [f32])> = Vec::with_capacity(rays);
         let mut rest = &mut t.d_sigma[..];
@@ -89,7 +102,11 @@ impl Trainer {
         t.d_sigma.iter_mut().for_each(|d| *d *= scale);
         let nf = Arc::make_mut(self.scene.fields.get_mut(key).expect("field of node"));
         let p = &mut nf.proposal.as_mut()?.field;
-        let pos = [&rec.pos[0][..], &rec.pos[1][..], &rec.pos[2][..]];
+        let pos = [
+            &rec.pos[0][..coarse],
+            &rec.pos[1][..coarse],
+            &rec.pos[2][..coarse],
+        ];
         p.forward_train(pos, &mut t.tape);
         t.grad.clear();
         t.grad.resize(p.params.len(), 0.0);
