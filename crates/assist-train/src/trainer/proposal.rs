@@ -47,7 +47,8 @@ impl Trainer {
     }
 
     /// One step of the proposal's training on the batch just queried (when its samples
-    /// came from a proposal): returns the interlevel loss (mean per ray).
+    /// came from a proposal), on its first rays up to [`PROPOSAL_BATCH`] coarse samples:
+    /// returns the interlevel loss (mean per ray trained on).
     pub(super) fn train_proposal(&mut self, lr: f32) -> Option<f64> {
         let rec = self.traced.proposal.as_ref()?;
         let ns = &self.traced.nodes[rec.node];
