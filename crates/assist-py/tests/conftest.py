@@ -1,6 +1,7 @@
 """Fixtures: a small trained scene made with the `assist` binary (ASSIST_BIN)."""
 
 import os
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -33,14 +34,18 @@ def trained(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def trained_more(tmp_path_factory):
-    """A capture with a table to stand on (20 views of 64×48) and a scene trained enough
-    for the generator to find it."""
+    """A capture with a table to stand on (30 views of 96×72, 4 objects) and a scene
+    trained enough for the generator to find it (400 steps). The Rust test that runs this
+    suite hands over the one its CLI tests trained (ASSIST_TEST_GENERATOR_SCENE: a folder
+    with `cap` and `s.assist`, made the same way); it is copied, not trained again."""
     root = tmp_path_factory.mktemp("assist-gen")
     cap = root / "cap"
-    run("synth", "--out", cap, "--views", "20", "--width", "64", "--height", "48", "--objects", "3")
     scene = root / "s.assist"
-    # 400 steps, as the CLI's generator test: at 200 the background's depth is still too
-    # noisy on this 64×48 capture for a surface (session 13's marching lands samples on
-    # another point of the step lattice, and 200 steps no longer found the table).
+    given = os.environ.get("ASSIST_TEST_GENERATOR_SCENE")
+    if given:
+        shutil.copytree(Path(given) / "cap", cap)
+        shutil.copytree(Path(given) / "s.assist", scene)
+        return cap, scene, root
+    run("synth", "--out", cap, "--views", "30", "--width", "96", "--height", "72", "--objects", "4")
     run("train", cap, "--out", scene, "--iters", "400")
     return cap, scene, root

@@ -77,13 +77,18 @@ def cluster():
         yield {"address": address, "worker": worker}
     finally:
         ray.shutdown()
-        for p in (worker, head):
-            if p is not None and p.poll() is None:
-                os.killpg(p.pid, signal.SIGTERM)
-                try:
-                    p.wait(timeout=30)
-                except subprocess.TimeoutExpired:
-                    os.killpg(p.pid, signal.SIGKILL)
+        # Both nodes told at once; a `ray start --block` can take half a minute over
+        # SIGTERM, which this throwaway cluster need not wait for.
+        nodes = [p for p in (worker, head) if p is not None and p.poll() is None]
+        for p in nodes:
+            os.killpg(p.pid, signal.SIGTERM)
+        deadline = time.monotonic() + 5
+        for p in nodes:
+            try:
+                p.wait(timeout=max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
         shutil.rmtree(temp, ignore_errors=True)
 
 

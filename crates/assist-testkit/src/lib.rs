@@ -58,6 +58,66 @@ pub fn workspace_root() -> PathBuf {
         .to_path_buf()
 }
 
+/// A folder made once and shared by the test processes that ask for it by `key` (nextest
+/// runs every test as its own process, and several train the same scene): the first to
+/// ask makes it with `make` while the others wait on a lock, and later ones reuse it. It
+/// lives beside `made_by` (the binary that makes it) and is made anew when that binary
+/// changes. Treat it as read-only: copy what a test changes ([`copy_dir`]).
+pub fn shared_fixture(key: &str, made_by: &Path, make: impl FnOnce(&Path)) -> PathBuf {
+    let meta = std::fs::metadata(made_by)
+        .unwrap_or_else(|e| panic!("fixture {key}: {}: {e}", made_by.display()));
+    let modified = meta
+        .modified()
+        .ok()
+        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+        .map_or(0, |d| d.as_nanos());
+    let root = made_by
+        .parent()
+        .unwrap_or(Path::new("."))
+        .join("test-fixtures");
+    std::fs::create_dir_all(&root).expect("create the fixtures folder");
+    let lock = std::fs::File::create(root.join(format!("{key}.lock"))).expect("fixture lock");
+    lock.lock().expect("lock the fixture");
+    let dir = root.join(format!("{key}-{modified:x}-{:x}", meta.len()));
+    if dir.join(".made").is_file() {
+        return dir;
+    }
+    // Made by another build of the binary, or left half made by a test that failed.
+    if let Ok(entries) = std::fs::read_dir(&root) {
+        for e in entries.flatten() {
+            let name = e.file_name();
+            let name = name.to_string_lossy();
+            let stamped = name.strip_prefix(key).and_then(|r| r.strip_prefix('-'));
+            let ours = stamped.is_some_and(|r| {
+                let parts: Vec<&str> = r.split('-').collect();
+                parts.len() == 2 && parts.iter().all(|p| u128::from_str_radix(p, 16).is_ok())
+            });
+            if ours && e.path().is_dir() {
+                let _ = std::fs::remove_dir_all(e.path());
+            }
+        }
+    }
+    std::fs::create_dir_all(&dir).expect("create the fixture");
+    make(&dir);
+    std::fs::write(dir.join(".made"), b"").expect("mark the fixture made");
+    dir
+}
+
+/// Copies the folder `from` (files and folders, recursively) to `to`, which must not exist.
+pub fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir(to).unwrap_or_else(|e| panic!("create {}: {e}", to.display()));
+    for e in std::fs::read_dir(from).unwrap_or_else(|e| panic!("{}: {e}", from.display())) {
+        let e = e.expect("read a folder entry");
+        let target = to.join(e.file_name());
+        if e.file_type().expect("file type").is_dir() {
+            copy_dir(&e.path(), &target);
+        } else {
+            std::fs::copy(e.path(), &target)
+                .unwrap_or_else(|err| panic!("copy {}: {err}", e.path().display()));
+        }
+    }
+}
+
 /// A temporary directory removed on drop.
 pub struct TempDir(pub PathBuf);
 

@@ -105,29 +105,7 @@ fn tasks(cmd: &[String], subst: &Subst, envs: Vec<Vec<(&'static str, String)>>) 
 fn slurm_and_kubernetes_examples_run_as_written() {
     let tmp = assist_testkit::TempDir::new("cluster-examples");
     let root = tmp.path();
-    let cap = root.join("cap");
-    ok(&run(&[
-        "synth",
-        "--out",
-        s(&cap),
-        "--views",
-        "20",
-        "--width",
-        "64",
-        "--height",
-        "48",
-        "--objects",
-        "3",
-    ]));
-    let scene = root.join("s.assist");
-    ok(&run(&[
-        "train",
-        s(&cap),
-        "--out",
-        s(&scene),
-        "--iters",
-        "300",
-    ]));
+    let (_, scene) = common::generator_scene(root);
     let spec = root.join("generate.toml");
     std::fs::write(
         &spec,

@@ -21,32 +21,12 @@ fn export(scene: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
 fn export_meshes_points_and_models_read_back() {
     let tmp = assist_testkit::TempDir::new("export-cli");
     let root = tmp.path().to_path_buf();
-    let cap = root.join("cap");
-    ok(&run(&[
-        "synth",
-        "--out",
-        s(&cap),
-        "--views",
-        "24",
-        "--size",
-        "96x72",
-        "--objects",
-        "3",
-    ]));
-    let scene = root.join("s.assist");
-    ok(&run(&[
-        "train",
-        s(&cap),
-        "--out",
-        s(&scene),
-        "--iters",
-        "300",
-    ]));
+    let (cap, scene) = common::generator_scene(&root);
 
     let obj = root.join("obj");
     let summary = export(&scene, &obj, &["--resolution", "64"]);
     let nodes = summary["nodes"].as_array().unwrap();
-    assert_eq!(nodes.len(), 3, "{summary}");
+    assert_eq!(nodes.len(), 4, "{summary}");
     for n in nodes {
         assert_eq!(n["closed"], true, "{n}");
         assert!(n["volume_m3"].as_f64().unwrap() > 0.0, "{n}");

@@ -165,29 +165,7 @@ height = 48
 fn generate_shards_replays_and_annotations() {
     let tmp = assist_testkit::TempDir::new("generate-cli");
     let root = tmp.path().to_path_buf();
-    let cap = root.join("cap");
-    ok(&run(&[
-        "synth",
-        "--out",
-        s(&cap),
-        "--views",
-        "30",
-        "--width",
-        "96",
-        "--height",
-        "72",
-        "--objects",
-        "4",
-    ]));
-    let scene = root.join("s.assist");
-    ok(&run(&[
-        "train",
-        s(&cap),
-        "--out",
-        s(&scene),
-        "--iters",
-        "400",
-    ]));
+    let (cap, scene) = common::generator_scene(&root);
     let sp = spec(&root, &scene, "");
 
     // One run of 100 samples, merged.

@@ -99,6 +99,11 @@ fn a_video_and_photographs_become_posed_datasets() {
         "1",
         "--path",
         "walk",
+        // One colour sample a pixel: COLMAP needs texture, not anti-aliasing.
+        "--spp",
+        "1",
+        "--shadow-samples",
+        "2",
     ]));
     let seq = root.join("seq");
     let order = walking_order(&capture, &seq);

@@ -1,7 +1,11 @@
 //! The Python API (`crates/assist-py`) as a user meets it: its pytest suite, run with the
 //! Python of a fresh venv where `pip install ./crates/assist-py` was done (`ASSIST_PYTHON`,
 //! set by `.ci/run`), against this build's `assist` binary. `assist.distributed`'s tests
-//! (a real local Ray cluster) run as a test of their own, beside the others.
+//! (a real local Ray cluster) run as a test of their own, beside the others. Both are
+//! given the generator's trained scene the CLI's tests share (`ASSIST_TEST_GENERATOR_SCENE`)
+//! rather than training it again.
+
+mod common;
 
 use std::process::Command;
 
@@ -58,6 +62,7 @@ fn pytest(args: &[&str]) {
         ])
         .args(args)
         .env("ASSIST_BIN", env!("CARGO_BIN_EXE_assist"))
+        .env("ASSIST_TEST_GENERATOR_SCENE", common::generator_fixture())
         .output()
         .unwrap();
     let out = String::from_utf8_lossy(&o.stdout);

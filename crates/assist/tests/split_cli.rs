@@ -235,14 +235,21 @@ fn desk_without_masks_gets_its_objects_from_boxes_and_clicks() {
     );
     assert_eq!(before, std::fs::read(derived.join("r_000.png")).unwrap());
 
-    sam_sharpens_what_it_agrees_with(&desk, &root, &scene, &boxes);
+    sam_sharpens_what_it_agrees_with(&desk, &root, &scene, &boxes, &derived);
     split_the_scene(&desk, &root, &scene, &truth, &test_views);
 }
 
 /// `--sam` with a checkpoint (a small random SAM built by segment_anything, in the
 /// Python of `ASSIST_PYTHON`): every object mask of every view is put to it, and a
-/// random SAM agrees with none, so the geometric masks stand, byte for byte.
-fn sam_sharpens_what_it_agrees_with(desk: &Path, root: &Path, scene: &Path, boxes: &Path) {
+/// random SAM agrees with none, so the geometric masks stand, byte for byte (`plain`:
+/// the same boxes' masks made without `--sam`).
+fn sam_sharpens_what_it_agrees_with(
+    desk: &Path,
+    root: &Path,
+    scene: &Path,
+    boxes: &Path,
+    plain: &Path,
+) {
     let model = root.join("sam-model");
     std::fs::create_dir_all(&model).unwrap();
     let made = common::python_check(
@@ -253,12 +260,9 @@ fn sam_sharpens_what_it_agrees_with(desk: &Path, root: &Path, scene: &Path, boxe
     if made.is_none() {
         return;
     }
-    let (plain, with) = (root.join("masks-plain"), root.join("masks-sam"));
-    let base = ["--boxes-file", s(boxes), "--render-downscale", "8"];
-    ok(&masks(desk, scene, &plain, &base));
-    let mut args = base.to_vec();
+    let with = root.join("masks-sam");
     let ckpt = model.join("sam.safetensors");
-    args.extend(["--sam", s(&ckpt), "--json"]);
+    let args = ["--boxes-file", s(boxes), "--sam", s(&ckpt), "--json"];
     let o = masks(desk, scene, &with, &args);
     ok(&o);
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();

@@ -308,3 +308,46 @@ pub fn png_psnr(a: &Path, b: &Path) -> f64 {
     assert_eq!(a.dimensions(), b.dimensions());
     assist_testkit::psnr_u8(a.as_raw(), b.as_raw())
 }
+
+/// The built-in capture the generator's tests use (30 views of 96×72, 4 objects) and a
+/// scene trained on it enough for the generator to find its table (400 steps), trained
+/// once for every test process that asks ([`generator_fixture`]) and copied into `root`:
+/// (`root/cap`, `root/s.assist`).
+pub fn generator_scene(root: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
+    let dir = generator_fixture();
+    let (cap, scene) = (root.join("cap"), root.join("s.assist"));
+    assist_testkit::copy_dir(&dir.join("cap"), &cap);
+    assist_testkit::copy_dir(&dir.join("s.assist"), &scene);
+    (cap, scene)
+}
+
+/// The folder that holds [`generator_scene`]'s capture and scene, made once by the first
+/// test process to ask (`assist_testkit::shared_fixture`); the Python suite is given it.
+pub fn generator_fixture() -> std::path::PathBuf {
+    let bin = Path::new(env!("CARGO_BIN_EXE_assist"));
+    assist_testkit::shared_fixture("generator-scene", bin, |dir| {
+        let cap = dir.join("cap");
+        ok(&run(&[
+            "synth",
+            "--out",
+            s(&cap),
+            "--views",
+            "30",
+            "--width",
+            "96",
+            "--height",
+            "72",
+            "--objects",
+            "4",
+        ]));
+        let scene = dir.join("s.assist");
+        ok(&run(&[
+            "train",
+            s(&cap),
+            "--out",
+            s(&scene),
+            "--iters",
+            "400",
+        ]));
+    })
+}
