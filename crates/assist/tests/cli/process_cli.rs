@@ -7,13 +7,13 @@
 //! measures fern's photographs against their own poses and COLMAP against itself. Skips
 //! loudly without ffmpeg and colmap unless `ASSIST_REQUIRE_COLMAP` is set (CI installs both).
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use crate::common::{ok, refused, run, s};
 use assist_core::DVec3;
-use common::{ok, refused, run, s};
 
 fn tools_present() -> bool {
     let have = |t: &str| {

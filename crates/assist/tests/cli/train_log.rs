@@ -3,8 +3,7 @@
 //! pandas reads, `--eval-every` measures held-out views during the run, and the report
 //! sets the last training batch beside the held-out views.
 
-mod common;
-use common::{ok, run, s, tiny_capture};
+use crate::common::{ok, run, s, tiny_capture};
 
 #[test]
 fn the_log_says_which_budget_ended_the_run() {

@@ -1,13 +1,13 @@
 //! `assist dataset boxes` and `assist train --boxes`: the boxes a scene is built with can be
 //! listed, edited and given back; bad box files are clear errors.
 
-mod common;
+use crate::common;
 
 use std::process::Output;
 
+use crate::common::{ok_stdout as ok, run as assist, s};
 use assist_core::{DMat3, DQuat, DVec3};
 use assist_testkit::TempDir;
-use common::{ok_stdout as ok, run as assist, s};
 use serde_json::{Value, json};
 
 fn fails_with(out: &Output, needles: &[&str]) {

@@ -5,13 +5,13 @@
 //! field; the annotations are read back by pycocotools (`generate_check.py`, in the venv
 //! named by `ASSIST_PYTHON`). Desk's generation is in `desk_cli.rs`.
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use common::{ok, pycoco_check, refused, run, run_tree, s};
+use crate::common::{ok, pycoco_check, refused, run, run_tree, s};
 
 /// One shard deleted and one file of another truncated: `status` names both, `merge`
 /// refuses, a rerun of a complete shard does nothing, and rerunning the two then merging

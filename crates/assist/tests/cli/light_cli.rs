@@ -1,14 +1,12 @@
 //! `assist scene light`: the lamp found from a scene's shadow grids, written with each
 //! object's cast; on an edited scene, each object's cast is where it stood before the edit.
 
-mod common;
-
 use std::sync::Arc;
 
+use crate::common::*;
 use assist_core::{DVec3, KeyLight};
 use assist_field::{OccupancyGrid, ShadeGrid};
 use assist_render::light::{Occluder, light_points};
-use common::*;
 
 /// `write_scene`'s duck and mug made opaque cubes standing on z = 0.75, with the shadow
 /// grids a lamp casts (at the lattice points near the table).

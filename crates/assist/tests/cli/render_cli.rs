@@ -1,9 +1,9 @@
 //! `assist render` writes a dataset others can read back, with every requested output;
 //! `assist demo` runs end to end (briefly trained).
 
-mod common;
+use crate::common;
 
-use common::{assist, s, write_scene};
+use crate::common::{assist, s, write_scene};
 
 #[test]
 fn render_orbit_writes_every_output_as_a_readable_dataset() {

@@ -5,7 +5,7 @@
 //! given the generator's trained scene the CLI's tests share (`ASSIST_TEST_GENERATOR_SCENE`)
 //! rather than training it again.
 
-mod common;
+use crate::common;
 
 use std::process::Command;
 

@@ -1,12 +1,10 @@
 //! `assist edit` from the command line: scripts, dry runs, undo, and bad input that must
 //! leave the scene on disk untouched.
 
-mod common;
-
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use common::{assist, s, write_scene};
+use crate::common::{assist, s, write_scene};
 
 fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
     let mut out = BTreeMap::new();

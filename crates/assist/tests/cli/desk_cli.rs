@@ -3,11 +3,11 @@
 //! objects' true topology that MuJoCo keeps at rest on the table, and a moved object that
 //! leaves no stain where it stood. One training serves all three (it is the costly part).
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 
-use common::{ok, pycoco_check, run, s};
+use crate::common::{ok, pycoco_check, run, s};
 
 #[test]
 fn desk_trained_briefly() {

@@ -6,12 +6,12 @@
 //! resubmitted with the script's `status --rerun` recipe. Both runs merge into what one
 //! process makes, file for file.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use common::{ok, run, run_tree, s};
+use crate::common::{ok, run, run_tree, s};
 
 const EXAMPLES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../examples");
 

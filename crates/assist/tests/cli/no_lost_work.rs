@@ -9,8 +9,8 @@ use std::time::{Duration, Instant};
 
 use assist_testkit::TempDir;
 
-mod common;
-use common::{bin, ok, refused, s, tiny_capture};
+use crate::common;
+use crate::common::{bin, ok, refused, s, tiny_capture};
 
 fn assist(args: &[&str]) -> Output {
     common::run(args)

@@ -3,11 +3,11 @@
 //! MuJoCo and an XML parser (`export_check.py`, in the venv named by `ASSIST_PYTHON`);
 //! bad requests refused by name, and nothing a user had overwritten.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 
-use common::{ok, refused, run, s};
+use crate::common::{ok, refused, run, s};
 
 fn export(scene: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
     let mut args = vec!["export", s(scene), "--out", s(out), "--json"];

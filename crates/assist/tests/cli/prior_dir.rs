@@ -2,12 +2,12 @@
 //! folder is found and reported, bad folders are clear errors, and training follows the
 //! supplied prior where objects hide the background.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 
+use crate::common::{ok_stdout as ok, run as assist, s};
 use assist_testkit::TempDir;
-use common::{ok_stdout as ok, run as assist, s};
 use serde_json::Value;
 
 fn synth(tmp: &TempDir) -> PathBuf {

@@ -5,7 +5,7 @@
 //! `generate_cli.rs`, on its trained scene); and the clear
 //! refusal or CPU fallback when no Vulkan driver is found.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::Command;

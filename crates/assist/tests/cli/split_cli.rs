@@ -4,11 +4,11 @@
 //! held-out views; `assist train --masks` makes the labelled objects from them; bad
 //! boxes and clicks are refused by name with nothing written.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 
-use common::{ok, refused, run, s};
+use crate::common::{ok, refused, run, s};
 
 /// Intersection over union of instance `id` between two mask folders' PNGs (derived,
 /// truth), summed over the images named in `names`.

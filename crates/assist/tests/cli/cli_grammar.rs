@@ -2,9 +2,9 @@
 //! sizes are `--size WxH`, objects are taken by id or name, every command has `--json`
 //! with machine output on stdout while human reports go to stderr.
 
-mod common;
+use crate::common;
 
-use common::{ok, run, s, tiny_scene};
+use crate::common::{ok, run, s, tiny_scene};
 
 #[test]
 fn the_dataset_is_data_the_report_goes_to_stderr_and_json_to_stdout() {

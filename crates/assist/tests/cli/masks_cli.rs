@@ -3,12 +3,12 @@
 //! binary mask gives one object; a capture without masks trains as background only and
 //! says so; a folder missing a mask is a clear error.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 
+use crate::common::{ok_stdout as ok, run as assist, s};
 use assist_testkit::TempDir;
-use common::{ok_stdout as ok, run as assist, s};
 use serde_json::Value;
 
 /// A synthetic capture as a phone user brings it: images and cameras only (no instance

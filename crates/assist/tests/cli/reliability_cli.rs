@@ -6,9 +6,9 @@ use std::process::Output;
 
 use assist_testkit::TempDir;
 
-mod common;
+use crate::common;
 
-use common::{refused, s};
+use crate::common::{refused, s};
 
 fn assist(args: &[&str]) -> Output {
     common::run(args)

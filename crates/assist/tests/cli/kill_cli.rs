@@ -17,8 +17,8 @@ const CHECKPOINT_EVERY: f64 = 0.4;
 /// and save).
 const SLACK: f64 = 3.0;
 
-mod common;
-use common::{bin, ok, s};
+use crate::common;
+use crate::common::{bin, ok, s};
 
 fn assist(args: &[&str]) -> Output {
     common::run(args)

@@ -5,12 +5,12 @@
 //! meaning — a pick or a "too close to call" with scores, never a guess — and clear
 //! errors without weights or with broken ones).
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 
+use crate::common::{bin, ok, refused, run, s};
 use assist_session::clip::random::{RandomSpec, write_model};
-use common::{bin, ok, refused, run, s};
 
 fn scene_json(dir: &Path) -> serde_json::Value {
     serde_json::from_slice(&std::fs::read(dir.join("scene.json")).unwrap()).unwrap()

@@ -6,8 +6,8 @@
 
 use assist_testkit::TempDir;
 
-mod common;
-use common::{bin, ok, s, tiny_capture};
+use crate::common;
+use crate::common::{bin, ok, s, tiny_capture};
 
 fn fingerprint(data: &std::path::Path) -> String {
     assist_data::load(data, &Default::default())
