@@ -62,15 +62,22 @@ pub fn workspace_root() -> PathBuf {
 /// runs every test as its own process, and several train the same scene): the first to
 /// ask makes it with `make` while the others wait on a lock, and later ones reuse it. It
 /// lives beside `made_by` (the binary that makes it) and is made anew when that binary
-/// changes. Treat it as read-only: copy what a test changes ([`copy_dir`]).
-pub fn shared_fixture(key: &str, made_by: &Path, make: impl FnOnce(&Path)) -> PathBuf {
+/// or `recipe` (what `make` does, in words or its command lines) changes. Treat it as
+/// read-only: copy what a test changes ([`copy_dir`]).
+pub fn shared_fixture(
+    key: &str,
+    made_by: &Path,
+    recipe: &str,
+    make: impl FnOnce(&Path),
+) -> PathBuf {
+    use std::hash::{Hash, Hasher};
     let meta = std::fs::metadata(made_by)
         .unwrap_or_else(|e| panic!("fixture {key}: {}: {e}", made_by.display()));
-    let modified = meta
-        .modified()
-        .ok()
-        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
-        .map_or(0, |d| d.as_nanos());
+    let mut stamp = std::collections::hash_map::DefaultHasher::new();
+    meta.modified().ok().hash(&mut stamp);
+    meta.len().hash(&mut stamp);
+    recipe.hash(&mut stamp);
+    let stamp = stamp.finish();
     let root = made_by
         .parent()
         .unwrap_or(Path::new("."))
@@ -78,7 +85,7 @@ pub fn shared_fixture(key: &str, made_by: &Path, make: impl FnOnce(&Path)) -> Pa
     std::fs::create_dir_all(&root).expect("create the fixtures folder");
     let lock = std::fs::File::create(root.join(format!("{key}.lock"))).expect("fixture lock");
     lock.lock().expect("lock the fixture");
-    let dir = root.join(format!("{key}-{modified:x}-{:x}", meta.len()));
+    let dir = root.join(format!("{key}-{stamp:016x}"));
     if dir.join(".made").is_file() {
         return dir;
     }
@@ -88,10 +95,7 @@ pub fn shared_fixture(key: &str, made_by: &Path, make: impl FnOnce(&Path)) -> Pa
             let name = e.file_name();
             let name = name.to_string_lossy();
             let stamped = name.strip_prefix(key).and_then(|r| r.strip_prefix('-'));
-            let ours = stamped.is_some_and(|r| {
-                let parts: Vec<&str> = r.split('-').collect();
-                parts.len() == 2 && parts.iter().all(|p| u128::from_str_radix(p, 16).is_ok())
-            });
+            let ours = stamped.is_some_and(|r| r.len() == 16 && u64::from_str_radix(r, 16).is_ok());
             if ours && e.path().is_dir() {
                 let _ = std::fs::remove_dir_all(e.path());
             }
@@ -204,5 +208,41 @@ pub fn median(v: &mut [f64]) -> f64 {
         v[n / 2]
     } else {
         0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Made once for a binary and recipe, reused after; a new recipe or a rebuilt binary
+    /// makes it anew and removes the old one; a half-made one is made again.
+    #[test]
+    fn a_shared_fixture_is_made_once_per_binary_and_recipe() {
+        let tmp = TempDir::new("fixture");
+        let bin = tmp.join("bin");
+        std::fs::write(&bin, b"one").unwrap();
+        let made = std::cell::Cell::new(0);
+        let make = |d: &Path| {
+            made.set(made.get() + 1);
+            std::fs::write(d.join("x"), b"made").unwrap();
+        };
+        let a = shared_fixture("k", &bin, "r1", make);
+        assert_eq!(shared_fixture("k", &bin, "r1", make), a);
+        assert_eq!(made.get(), 1);
+        assert_eq!(std::fs::read(a.join("x")).unwrap(), b"made");
+        let b = shared_fixture("k", &bin, "r2", make);
+        assert_ne!(a, b);
+        assert!(!a.exists(), "the other recipe's fixture is removed");
+        std::fs::write(&bin, b"rebuilt").unwrap();
+        let c = shared_fixture("k", &bin, "r2", make);
+        assert_ne!(b, c);
+        assert_eq!(made.get(), 3);
+        // Another key is left alone; a fixture without its mark is made again.
+        let other = shared_fixture("k-other", &bin, "r2", make);
+        std::fs::remove_file(c.join(".made")).unwrap();
+        assert_eq!(shared_fixture("k", &bin, "r2", make), c);
+        assert_eq!(made.get(), 5);
+        assert!(other.join(".made").is_file());
     }
 }

@@ -324,30 +324,27 @@ pub fn generator_scene(root: &Path) -> (std::path::PathBuf, std::path::PathBuf) 
 /// The folder that holds [`generator_scene`]'s capture and scene, made once by the first
 /// test process to ask (`assist_testkit::shared_fixture`); the Python suite is given it.
 pub fn generator_fixture() -> std::path::PathBuf {
+    let synth = [
+        "synth",
+        "--views",
+        "30",
+        "--width",
+        "96",
+        "--height",
+        "72",
+        "--objects",
+        "4",
+    ];
+    let train = ["train", "--iters", "400"];
+    let recipe = format!("{synth:?} {train:?}");
     let bin = Path::new(env!("CARGO_BIN_EXE_assist"));
-    assist_testkit::shared_fixture("generator-scene", bin, |dir| {
-        let cap = dir.join("cap");
-        ok(&run(&[
-            "synth",
-            "--out",
-            s(&cap),
-            "--views",
-            "30",
-            "--width",
-            "96",
-            "--height",
-            "72",
-            "--objects",
-            "4",
-        ]));
-        let scene = dir.join("s.assist");
-        ok(&run(&[
-            "train",
-            s(&cap),
-            "--out",
-            s(&scene),
-            "--iters",
-            "400",
-        ]));
+    assist_testkit::shared_fixture("generator-scene", bin, &recipe, |dir| {
+        let (cap, scene) = (dir.join("cap"), dir.join("s.assist"));
+        let mut args = synth.to_vec();
+        args.extend(["--out", s(&cap)]);
+        ok(&run(&args));
+        let mut args = train.to_vec();
+        args.extend([s(&cap), "--out", s(&scene)]);
+        ok(&run(&args));
     })
 }
