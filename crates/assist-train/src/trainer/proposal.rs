@@ -15,6 +15,16 @@ use super::Trainer;
 /// from it, and the proposal's training would cost as much as the field's).
 const PROPOSAL_BATCH: usize = 1 << 16;
 
+/// How many of a step's first rays (drawn at random) the proposal trains on: as many as
+/// hold at most `budget` coarse samples in all (their samples are a prefix of the record's,
+/// `start` its per-ray offsets, one more than the rays), and at least one.
+fn rays_within(start: &[u32], budget: usize) -> usize {
+    start
+        .partition_point(|&s| s as usize <= budget)
+        .saturating_sub(1)
+        .clamp(1, start.len().saturating_sub(1).max(1))
+}
+
 /// The proposal's optimiser and buffers.
 #[derive(Debug, Default)]
 pub(crate) struct ProposalTraining {
@@ -54,16 +64,14 @@ impl Trainer {
         let ns = &self.traced.nodes[rec.node];
         let key = &self.scene.scene.nodes[rec.node].field;
         let all = self.traced.rays;
-        if ns.start.len() != all + 1 || rec.spans.len() != ns.len() || rec.start.len() != all + 1 {
+        if all == 0
+            || ns.start.len() != all + 1
+            || rec.spans.len() != ns.len()
+            || rec.start.len() != all + 1
+        {
             return None;
         }
-        // The first rays (drawn at random) up to the budget of coarse samples: their
-        // coarse samples are a prefix of the record's.
-        let rays = rec
-            .start
-            .partition_point(|&s| s as usize <= PROPOSAL_BATCH)
-            .saturating_sub(1)
-            .max(1);
+        let rays = rays_within(&rec.start, PROPOSAL_BATCH);
         let coarse = rec.start[rays] as usize;
         let t = &mut self.proposal;
         t.d_sigma.clear();
@@ -122,5 +130,31 @@ impl Trainer {
         }
         adam.update(lr, &mut p.params, &mut t.grad);
         Some(loss / rays.max(1) as f64)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::rays_within;
+
+    /// Rays of 10, 15 and 15 coarse samples: the budget takes whole rays from the first,
+    /// never none, never more than there are.
+    #[test]
+    fn the_proposal_trains_on_the_first_rays_within_its_budget() {
+        let start = [0, 10, 25, 40];
+        assert_eq!(rays_within(&start, 25), 2);
+        assert_eq!(rays_within(&start, 24), 1);
+        assert_eq!(rays_within(&start, 40), 3);
+        assert_eq!(rays_within(&start, 1 << 20), 3);
+        // The first ray alone is over the budget: it is trained on all the same.
+        assert_eq!(rays_within(&start, 5), 1);
+        assert_eq!(rays_within(&[0, 7], 3), 1);
+        // The training step's own budget on a step whose rays hold 119 coarse samples.
+        let many: Vec<u32> = (0..=4096).map(|r| r * 119).collect();
+        let r = rays_within(&many, super::PROPOSAL_BATCH);
+        assert!(
+            many[r] as usize <= super::PROPOSAL_BATCH
+                && many[r + 1] as usize > super::PROPOSAL_BATCH
+        );
     }
 }
