@@ -78,13 +78,12 @@ impl TrainConfig {
                 ),
             ));
         }
-        if c.proposal > 1024 {
+        if let Some(n) = c.proposal
+            && n > 1024
+        {
             return Err(request(
                 "proposal",
-                format!(
-                    "expected at most 1024 samples per ray (0 = off), got {}",
-                    c.proposal
-                ),
+                format!("expected at most 1024 samples per ray (0 = off), got {n}"),
             ));
         }
         if let Some(t) = c.prune_eps

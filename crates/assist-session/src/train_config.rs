@@ -244,9 +244,11 @@ pub struct TrainConfig {
     pub step_scale: f32,
     /// Draw an unbounded background's samples (captures without depth) from a proposal
     /// field trained with it, N per ray, instead of at every step of its march (0: off).
-    /// The proposal is saved with the scene, and renders draw from it too.
-    #[arg(long, help_heading = SAMPLING, value_name = "N", default_value_t = 0)]
-    pub proposal: usize,
+    /// The proposal is saved with the scene, and renders draw from it too [default: 24
+    /// where the background is unbounded (contracted: captures without depth) and the
+    /// fields train on the CPU, else 0].
+    #[arg(long, help_heading = SAMPLING, value_name = "N")]
+    pub proposal: Option<usize>,
     /// Drop each node's samples behind the point where its transmittance falls below this,
     /// found by a density-only pass before the forward and backward passes (0 = keep all;
     /// a transmittance in [0, 1)). Nodes with fewer than 32 samples per ray are kept whole

@@ -377,6 +377,12 @@ impl TrainJob {
         } else {
             assist_train::default_prune_eps(unbounded(scene))
         });
+        // Likewise: the proposal's own training runs on this CPU.
+        let proposal = c.proposal.unwrap_or(if self.optimizers.is_some() {
+            0
+        } else {
+            assist_train::default_proposal(unbounded(scene))
+        });
         TrainOptions {
             iters: c.iters_limit(),
             max_time,
@@ -389,7 +395,7 @@ impl TrainJob {
             refine_poses: c.refine_poses,
             hidden_stop: c.hidden_stop,
             step_scale: c.step_scale,
-            proposal_samples: c.proposal,
+            proposal_samples: proposal,
             prune_eps,
             lambdas,
             seed: c.seed,
@@ -411,9 +417,11 @@ impl TrainJob {
                 ("dataset_fingerprint".to_string(), fingerprint.into()),
                 ("train_config".to_string(), {
                     let mut r = c.record();
-                    // The floor and the pruning the run used, where left to the scene.
+                    // The floor, the pruning and the proposal the run used, where left to the
+                    // scene.
                     r["lr_end"] = lr_end.into();
                     r["prune_eps"] = prune_eps.into();
+                    r["proposal"] = proposal.into();
                     if !self.masks_recorded {
                         r["masks"] = serde_json::Value::Null;
                     }

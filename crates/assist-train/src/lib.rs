@@ -44,6 +44,6 @@ pub use shadow::{
 pub use trainer::{
     EMPTY_MARGIN, KeptHistory, Lambdas, POSE_LR, PhaseTimes, PoseRefiner, ResumeState, StepStats,
     StopReason, TERMS, TermInfo, Terms, TrainOptions, TrainReport, Trainer, default_lr_end,
-    default_prune_eps, term, update_depth_affine,
+    default_proposal, default_prune_eps, term, update_depth_affine,
 };
 pub use views::{PriorKind, View, fill_prior, fill_priors, load_view, load_views};

@@ -270,6 +270,25 @@ fn config_files_give_flags_and_print_config_round_trips() {
         1e-4
     );
     assert_eq!(prune(&unbounded(&["--prune-eps", "0"])), 0.0);
+    // And the proposal: none with a bounded background, 24 samples a ray drawn from one
+    // with an unbounded background (saved with it), none when told 0.
+    let proposal = |info: &serde_json::Value| info["options"]["proposal_samples"].as_u64().unwrap();
+    let has_proposal = |scene: &std::path::Path| {
+        let bytes = std::fs::read(scene.join("fields").join("background.safetensors")).unwrap();
+        String::from_utf8_lossy(&bytes[..bytes.len().min(1 << 16)]).contains("\"proposal\"")
+    };
+    let info = common::scene_info(&t);
+    assert_eq!(
+        (proposal(&info), &info["train_config"]["proposal"]),
+        (0, &0.into())
+    );
+    assert!(!has_proposal(&t));
+    let info = unbounded(&[]);
+    assert_eq!(proposal(&info), 24, "{info}");
+    assert_eq!(info["train_config"]["proposal"], 24, "{info}");
+    assert!(has_proposal(&u));
+    assert_eq!(proposal(&unbounded(&["--proposal", "0"])), 0);
+    assert!(!has_proposal(&u));
     let o = run(&[
         "train",
         s(&data),
