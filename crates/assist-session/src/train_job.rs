@@ -13,7 +13,7 @@ use assist_train::{KeptHistory, ResumeState, StepStats};
 use assist_train::{
     SetupOptions, TrainOptions, TrainReport, Trainer, background_color, build_scene,
 };
-use assist_train::{fill_priors, load_views};
+use assist_train::{default_lr_end, default_proposal, default_prune_eps, fill_priors, load_views};
 use serde::Serialize;
 
 use crate::held_out::HeldOutSet;
@@ -367,22 +367,14 @@ impl TrainJob {
         scene: &NeuralScene,
     ) -> TrainOptions {
         let c = &self.config;
-        let lr_end = c
-            .lr_end
-            .unwrap_or(assist_train::default_lr_end(unbounded(scene)));
-        // Left to the scene on the CPU; a GPU queries every sample (the density pass would
-        // run on this CPU).
-        let prune_eps = c.prune_eps.unwrap_or(if self.optimizers.is_some() {
-            0.0
-        } else {
-            assist_train::default_prune_eps(unbounded(scene))
-        });
-        // Likewise: the proposal's own training runs on this CPU.
-        let proposal = c.proposal.unwrap_or(if self.optimizers.is_some() {
-            0
-        } else {
-            assist_train::default_proposal(unbounded(scene))
-        });
+        // Left to the scene: the floor where it is unbounded; so are the pruning and the
+        // proposal, but on the CPU only (a GPU queries every sample, and the density pass
+        // and the proposal's training would run on this CPU).
+        let unbounded = unbounded(scene);
+        let unbounded_on_cpu = unbounded && self.optimizers.is_none();
+        let lr_end = c.lr_end.unwrap_or(default_lr_end(unbounded));
+        let prune_eps = c.prune_eps.unwrap_or(default_prune_eps(unbounded_on_cpu));
+        let proposal = c.proposal.unwrap_or(default_proposal(unbounded_on_cpu));
         TrainOptions {
             iters: c.iters_limit(),
             max_time,
