@@ -294,6 +294,20 @@ fn config_files_give_flags_and_print_config_round_trips() {
         s(&data),
         "--out",
         s(&u),
+        "--proposal",
+        "2000",
+        "--force",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("--proposal") && err.contains("1024"),
+        "{err}"
+    );
+    let o = run(&[
+        "train",
+        s(&data),
+        "--out",
+        s(&u),
         "--prune-eps",
         "1",
         "--force",
