@@ -97,6 +97,40 @@ pub fn level() -> Level {
     })
 }
 
+/// Whether this CPU's AVX2 gathers are slower than as many scalar loads, so the grids'
+/// lookups load each corner's entries one by one: AMD's Zen, Zen+ and Zen 2 (family 17h),
+/// whose gathers are microcoded. `ASSIST_GATHER=hw|loads` forces either (for benchmarks).
+pub fn slow_gathers() -> bool {
+    static S: OnceLock<bool> = OnceLock::new();
+    *S.get_or_init(|| match std::env::var("ASSIST_GATHER").ok().as_deref() {
+        Some("hw") => false,
+        Some("loads") => true,
+        _ => amd_family() == Some(0x17),
+    })
+}
+
+/// The CPU's family when it is AMD's (CPUID leaf 1, base plus extended family).
+fn amd_family() -> Option<u32> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::__cpuid;
+        let v = __cpuid(0);
+        let vendor = [v.ebx, v.edx, v.ecx].map(u32::to_le_bytes).concat();
+        if vendor != *b"AuthenticAMD" {
+            return None;
+        }
+        let f = __cpuid(1).eax;
+        let base = (f >> 8) & 0xf;
+        Some(if base == 0xf {
+            base + ((f >> 20) & 0xff)
+        } else {
+            base
+        })
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    None
+}
+
 /// Whether `level` can be exercised on this machine (for tests that skip loudly).
 pub fn available(level: Level) -> bool {
     level.supported()

@@ -53,6 +53,13 @@ pub fn interp2_bf16(
             unsafe { x86::interp2_avx512(lv, table, p, o0, o1) }
         }),
         #[cfg(target_arch = "x86_64")]
+        Level::Avx2 if level.supported() && crate::slow_gathers() => {
+            whole_vectors(8, pos, out0, out1, |p, o0, o1| {
+                // SAFETY: AVX2 is present; indices and lanes as above.
+                unsafe { x86::interp2_avx2_loads(lv, table, p, o0, o1) }
+            })
+        }
+        #[cfg(target_arch = "x86_64")]
         Level::Avx2 if level.supported() => whole_vectors(8, pos, out0, out1, |p, o0, o1| {
             // SAFETY: AVX2 is present; indices and lanes as above.
             unsafe { x86::interp2_avx2(lv, table, p, o0, o1) }
@@ -141,6 +148,52 @@ mod x86 {
         }
         n8
     }
+
+    /// As `interp2_avx2`, each corner's entries fetched by eight scalar loads instead of
+    /// one gather (for CPUs whose gathers are microcoded and slower than the loads, see
+    /// [`crate::slow_gathers`]); the same arithmetic, so the same bits.
+    ///
+    /// # Safety
+    /// AVX2 and FMA; as `interp2_avx512`.
+    #[target_feature(enable = "avx2,fma")]
+    pub unsafe fn interp2_avx2_loads(
+        lv: &GridLevel,
+        table: &[u32],
+        pos: [&[f32]; 3],
+        out0: &mut [f32],
+        out1: &mut [f32],
+    ) -> usize {
+        let n8 = pos[0].len() / 8 * 8;
+        let t = table.as_ptr().cast::<i32>();
+        let high = _mm256_set1_epi32(0xffff_0000u32 as i32);
+        let mut idx = [0u32; 64];
+        for l in (0..n8).step_by(8) {
+            // SAFETY: as in `interp2_avx512`; every stored index is < `lv.size`.
+            unsafe {
+                let (i, w) = corners8(
+                    lv,
+                    pos[0].as_ptr().add(l),
+                    pos[1].as_ptr().add(l),
+                    pos[2].as_ptr().add(l),
+                );
+                for (k, v) in i.iter().enumerate() {
+                    _mm256_storeu_si256(idx.as_mut_ptr().add(8 * k).cast(), *v);
+                }
+                let (mut a, mut b) = (_mm256_setzero_ps(), _mm256_setzero_ps());
+                for k in 0..8 {
+                    let e = |j: usize| *t.add(*idx.get_unchecked(8 * k + j) as usize);
+                    let g = _mm256_setr_epi32(e(0), e(1), e(2), e(3), e(4), e(5), e(6), e(7));
+                    let e0 = _mm256_castsi256_ps(_mm256_slli_epi32::<16>(g));
+                    let e1 = _mm256_castsi256_ps(_mm256_and_si256(g, high));
+                    a = _mm256_fmadd_ps(w[k], e0, a);
+                    b = _mm256_fmadd_ps(w[k], e1, b);
+                }
+                _mm256_storeu_ps(out0.as_mut_ptr().add(l), a);
+                _mm256_storeu_ps(out1.as_mut_ptr().add(l), b);
+            }
+        }
+        n8
+    }
 }
 
 #[cfg(test)]
@@ -210,5 +263,43 @@ mod tests {
             }
         }
         assert!(failures.is_empty(), "{failures:#?}");
+    }
+
+    /// An AVX2 interpolation kernel of this module.
+    #[cfg(target_arch = "x86_64")]
+    type Kernel = unsafe fn(&GridLevel, &[u32], [&[f32]; 3], &mut [f32], &mut [f32]) -> usize;
+
+    /// The AVX2 kernel that loads each corner's entries one by one gives the gathering
+    /// one's bits exactly (either may run, by the CPU).
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn loads_match_gathers() {
+        if !Level::Avx2.supported() {
+            eprintln!("!!! SKIP AVX2 loads against gathers: this CPU lacks AVX2");
+            return;
+        }
+        for (lv, n) in levels()
+            .into_iter()
+            .flat_map(|l| [8, 64, 200].map(|n| (l, n)))
+        {
+            let p = positions(n, 3 * n as u64 + lv.res as u64);
+            let table: Vec<[f32; 2]> = (0..lv.size)
+                .map(|i| [(i as f32 * 0.29).sin(), (i as f32 * 0.13).cos()])
+                .collect();
+            let packed = pack(&table);
+            let pos = [&p[0][..], &p[1][..], &p[2][..]];
+            let run = |f: Kernel| {
+                let (mut o0, mut o1) = (vec![0f32; n], vec![0f32; n]);
+                // SAFETY: AVX2 is present (checked above); indices come from the corner
+                // kernel, within the level's table.
+                let done = unsafe { f(&lv, &packed, pos, &mut o0, &mut o1) };
+                assert_eq!(done, n / 8 * 8);
+                (o0, o1)
+            };
+            let hw = run(x86::interp2_avx2);
+            let loads = run(x86::interp2_avx2_loads);
+            assert_eq!(hw, loads, "res {} n {n}", lv.res);
+            assert!(hw.0.iter().any(|&v| v != 0.0));
+        }
     }
 }
