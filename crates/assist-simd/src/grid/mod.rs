@@ -155,7 +155,13 @@ pub fn interp2(
         #[cfg(target_arch = "x86_64")]
         Level::Avx2 if level.supported() => whole_vectors(8, pos, out0, out1, |p, o0, o1| {
             // SAFETY: AVX2 is present; indices and lanes as above.
-            unsafe { x86::interp2_avx2(lv, table, p, o0, o1) }
+            unsafe {
+                if crate::slow_gathers() {
+                    x86::interp2_avx2::<true>(lv, table, p, o0, o1)
+                } else {
+                    x86::interp2_avx2::<false>(lv, table, p, o0, o1)
+                }
+            }
         }),
         _ => 0,
     };
@@ -499,10 +505,13 @@ mod x86 {
         n8
     }
 
+    /// `LOADS`: each corner's entries fetched by scalar loads instead of gathers (where
+    /// gathers are slow, [`crate::slow_gathers`]; the same bits).
+    ///
     /// # Safety
     /// AVX2; as `interp2_avx512`.
     #[target_feature(enable = "avx2,fma")]
-    pub unsafe fn interp2_avx2(
+    pub unsafe fn interp2_avx2<const LOADS: bool>(
         lv: &GridLevel,
         table: &[[f32; 2]],
         pos: [&[f32]; 3],
@@ -528,15 +537,27 @@ mod x86 {
                 let dup_hi = _mm256_setr_epi32(4, 4, 5, 5, 6, 6, 7, 7);
                 let mut lo = _mm256_setzero_ps();
                 let mut hi = _mm256_setzero_ps();
+                let mut ix = [0u32; 8];
                 for k in 0..8 {
-                    let g_lo = _mm256_castpd_ps(_mm256_i32gather_pd::<8>(
-                        pairs,
-                        _mm256_castsi256_si128(i[k]),
-                    ));
-                    let g_hi = _mm256_castpd_ps(_mm256_i32gather_pd::<8>(
-                        pairs,
-                        _mm256_extracti128_si256::<1>(i[k]),
-                    ));
+                    let (g_lo, g_hi) = if LOADS {
+                        _mm256_storeu_si256(ix.as_mut_ptr().cast(), i[k]);
+                        let e = |j: usize| *pairs.cast::<i64>().add(ix[j] as usize);
+                        (
+                            _mm256_castsi256_ps(_mm256_setr_epi64x(e(0), e(1), e(2), e(3))),
+                            _mm256_castsi256_ps(_mm256_setr_epi64x(e(4), e(5), e(6), e(7))),
+                        )
+                    } else {
+                        (
+                            _mm256_castpd_ps(_mm256_i32gather_pd::<8>(
+                                pairs,
+                                _mm256_castsi256_si128(i[k]),
+                            )),
+                            _mm256_castpd_ps(_mm256_i32gather_pd::<8>(
+                                pairs,
+                                _mm256_extracti128_si256::<1>(i[k]),
+                            )),
+                        )
+                    };
                     lo = _mm256_fmadd_ps(_mm256_permutevar8x32_ps(w[k], dup_lo), g_lo, lo);
                     hi = _mm256_fmadd_ps(_mm256_permutevar8x32_ps(w[k], dup_hi), g_hi, hi);
                 }

@@ -53,16 +53,15 @@ pub fn interp2_bf16(
             unsafe { x86::interp2_avx512(lv, table, p, o0, o1) }
         }),
         #[cfg(target_arch = "x86_64")]
-        Level::Avx2 if level.supported() && crate::slow_gathers() => {
-            whole_vectors(8, pos, out0, out1, |p, o0, o1| {
-                // SAFETY: AVX2 is present; indices and lanes as above.
-                unsafe { x86::interp2_avx2_loads(lv, table, p, o0, o1) }
-            })
-        }
-        #[cfg(target_arch = "x86_64")]
         Level::Avx2 if level.supported() => whole_vectors(8, pos, out0, out1, |p, o0, o1| {
             // SAFETY: AVX2 is present; indices and lanes as above.
-            unsafe { x86::interp2_avx2(lv, table, p, o0, o1) }
+            unsafe {
+                if crate::slow_gathers() {
+                    x86::interp2_avx2::<true>(lv, table, p, o0, o1)
+                } else {
+                    x86::interp2_avx2::<false>(lv, table, p, o0, o1)
+                }
+            }
         }),
         _ => 0,
     };
@@ -112,10 +111,13 @@ mod x86 {
         n16
     }
 
+    /// `LOADS`: each corner's entries fetched by eight scalar loads instead of one gather
+    /// (where gathers are slow, [`crate::slow_gathers`]; the same bits).
+    ///
     /// # Safety
     /// AVX2 and FMA; as `interp2_avx512`.
     #[target_feature(enable = "avx2,fma")]
-    pub unsafe fn interp2_avx2(
+    pub unsafe fn interp2_avx2<const LOADS: bool>(
         lv: &GridLevel,
         table: &[u32],
         pos: [&[f32]; 3],
@@ -135,54 +137,15 @@ mod x86 {
                     pos[2].as_ptr().add(l),
                 );
                 let (mut a, mut b) = (_mm256_setzero_ps(), _mm256_setzero_ps());
+                let mut ix = [0u32; 8];
                 for k in 0..8 {
-                    let g = _mm256_i32gather_epi32::<4>(base, i[k]);
-                    let e0 = _mm256_castsi256_ps(_mm256_slli_epi32::<16>(g));
-                    let e1 = _mm256_castsi256_ps(_mm256_and_si256(g, high));
-                    a = _mm256_fmadd_ps(w[k], e0, a);
-                    b = _mm256_fmadd_ps(w[k], e1, b);
-                }
-                _mm256_storeu_ps(out0.as_mut_ptr().add(l), a);
-                _mm256_storeu_ps(out1.as_mut_ptr().add(l), b);
-            }
-        }
-        n8
-    }
-
-    /// As `interp2_avx2`, each corner's entries fetched by eight scalar loads instead of
-    /// one gather (for CPUs whose gathers are microcoded and slower than the loads, see
-    /// [`crate::slow_gathers`]); the same arithmetic, so the same bits.
-    ///
-    /// # Safety
-    /// AVX2 and FMA; as `interp2_avx512`.
-    #[target_feature(enable = "avx2,fma")]
-    pub unsafe fn interp2_avx2_loads(
-        lv: &GridLevel,
-        table: &[u32],
-        pos: [&[f32]; 3],
-        out0: &mut [f32],
-        out1: &mut [f32],
-    ) -> usize {
-        let n8 = pos[0].len() / 8 * 8;
-        let t = table.as_ptr().cast::<i32>();
-        let high = _mm256_set1_epi32(0xffff_0000u32 as i32);
-        let mut idx = [0u32; 64];
-        for l in (0..n8).step_by(8) {
-            // SAFETY: as in `interp2_avx512`; every stored index is < `lv.size`.
-            unsafe {
-                let (i, w) = corners8(
-                    lv,
-                    pos[0].as_ptr().add(l),
-                    pos[1].as_ptr().add(l),
-                    pos[2].as_ptr().add(l),
-                );
-                for (k, v) in i.iter().enumerate() {
-                    _mm256_storeu_si256(idx.as_mut_ptr().add(8 * k).cast(), *v);
-                }
-                let (mut a, mut b) = (_mm256_setzero_ps(), _mm256_setzero_ps());
-                for k in 0..8 {
-                    let e = |j: usize| *t.add(*idx.get_unchecked(8 * k + j) as usize);
-                    let g = _mm256_setr_epi32(e(0), e(1), e(2), e(3), e(4), e(5), e(6), e(7));
+                    let g = if LOADS {
+                        _mm256_storeu_si256(ix.as_mut_ptr().cast(), i[k]);
+                        let e = |j: usize| *base.add(ix[j] as usize);
+                        _mm256_setr_epi32(e(0), e(1), e(2), e(3), e(4), e(5), e(6), e(7))
+                    } else {
+                        _mm256_i32gather_epi32::<4>(base, i[k])
+                    };
                     let e0 = _mm256_castsi256_ps(_mm256_slli_epi32::<16>(g));
                     let e1 = _mm256_castsi256_ps(_mm256_and_si256(g, high));
                     a = _mm256_fmadd_ps(w[k], e0, a);
@@ -268,9 +231,12 @@ mod tests {
     /// An AVX2 interpolation kernel of this module.
     #[cfg(target_arch = "x86_64")]
     type Kernel = unsafe fn(&GridLevel, &[u32], [&[f32]; 3], &mut [f32], &mut [f32]) -> usize;
+    #[cfg(target_arch = "x86_64")]
+    type KernelF32 =
+        unsafe fn(&GridLevel, &[[f32; 2]], [&[f32]; 3], &mut [f32], &mut [f32]) -> usize;
 
-    /// The AVX2 kernel that loads each corner's entries one by one gives the gathering
-    /// one's bits exactly (either may run, by the CPU).
+    /// The AVX2 kernels that load each corner's entries one by one give the gathering
+    /// ones' bits exactly (either may run, by the CPU), on packed and on f32 tables.
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn loads_match_gathers() {
@@ -296,10 +262,20 @@ mod tests {
                 assert_eq!(done, n / 8 * 8);
                 (o0, o1)
             };
-            let hw = run(x86::interp2_avx2);
-            let loads = run(x86::interp2_avx2_loads);
-            assert_eq!(hw, loads, "res {} n {n}", lv.res);
+            let hw = run(x86::interp2_avx2::<false>);
+            let loads = run(x86::interp2_avx2::<true>);
+            assert_eq!(hw, loads, "packed, res {} n {n}", lv.res);
             assert!(hw.0.iter().any(|&v| v != 0.0));
+            // The f32 tables' kernel too.
+            let run = |f: KernelF32| {
+                let (mut o0, mut o1) = (vec![0f32; n], vec![0f32; n]);
+                // SAFETY: as above.
+                unsafe { f(&lv, &table, pos, &mut o0, &mut o1) };
+                (o0, o1)
+            };
+            let hw = run(super::super::x86::interp2_avx2::<false>);
+            let loads = run(super::super::x86::interp2_avx2::<true>);
+            assert_eq!(hw, loads, "f32, res {} n {n}", lv.res);
         }
     }
 }
