@@ -99,13 +99,17 @@ pub fn level() -> Level {
 
 /// Whether this CPU's AVX2 gathers are slower than as many scalar loads, so the grids'
 /// lookups load each corner's entries one by one: AMD's Zen, Zen+ and Zen 2 (family 17h),
-/// whose gathers are microcoded. `ASSIST_GATHER=hw|loads` forces either (for benchmarks).
+/// whose gathers are microcoded. `ASSIST_GATHER=hw|loads|auto` forces either (for benchmarks).
 pub fn slow_gathers() -> bool {
     static S: OnceLock<bool> = OnceLock::new();
     *S.get_or_init(|| match std::env::var("ASSIST_GATHER").ok().as_deref() {
         Some("hw") => false,
         Some("loads") => true,
-        _ => amd_family() == Some(0x17),
+        None | Some("") | Some("auto") => amd_family() == Some(0x17),
+        Some(other) => {
+            eprintln!("assist: ASSIST_GATHER={other} is not hw, loads or auto; using auto");
+            amd_family() == Some(0x17)
+        }
     })
 }
 

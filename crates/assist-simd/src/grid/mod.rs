@@ -3,9 +3,9 @@
 //! dominates the encoding's forward pass.
 //!
 //! The vector variants compute 16 (AVX-512) or 8 (AVX2) lanes at a time — cell, fractions,
-//! weights, dense or hashed indices — and gather the table with hardware gathers (the
-//! packed tables by scalar loads where gathers are slow, [`crate::slow_gathers`]); the
-//! scalar variant is the reference and handles the lanes left over.
+//! weights, dense or hashed indices — and gather the table with hardware gathers (by
+//! scalar loads where gathers are slow, [`crate::slow_gathers`]); the scalar variant is
+//! the reference and handles the lanes left over.
 
 use crate::Level;
 
