@@ -89,22 +89,21 @@ impl Session {
             });
         }
         let levels = self.support_levels(boxes, &seen, &opts);
-        let mut owned = vec![0u64; boxes.len()];
-        let mut sam_count = SamCount::default();
-        for (k, (f, view)) in ds.frames.iter().zip(&seen).enumerate() {
+        // One view's mask, refined and written: its pixels per box, and SAM's count.
+        let one = |f: &assist_data::Frame, view: &super::BoxView| -> Result<(Vec<u64>, SamCount)> {
             // Photographs are read one at a time, as each mask is refined.
             let photo = image_io::read_rgb(&f.image_path, [0.0; 3])
                 .map_err(SessionError::Data)?
                 .0;
             let mut ids = view.mask(boxes, &levels, Some(&photo), &opts);
-            if let Some(sam) = sam {
-                let c = sam.refine(&photo, &mut ids, boxes)?;
-                sam_count.prompted += c.prompted;
-                sam_count.replaced += c.replaced;
-            }
-            for (o, b) in owned.iter_mut().zip(boxes) {
-                *o += ids.iter().filter(|&&v| v == b.id).count() as u64;
-            }
+            let count = match sam {
+                Some(sam) => sam.refine(&photo, &mut ids, boxes)?,
+                None => SamCount::default(),
+            };
+            let owned = boxes
+                .iter()
+                .map(|b| ids.iter().filter(|&&v| v == b.id).count() as u64)
+                .collect();
             if keep_existing {
                 ids = view.with_existing(ids, photo.width as usize, photo.height as usize);
             }
@@ -115,10 +114,42 @@ impl Session {
             let bytes: Vec<u8> = ids.iter().map(|&v| v.min(255) as u8).collect();
             image_io::write_gray8_png(&path, photo.width, photo.height, &bytes)
                 .map_err(SessionError::Data)?;
-            on(MaskProgress::Refining {
-                done: k + 1,
-                total: n,
-            });
+            Ok((owned, count))
+        };
+        let mut owned = vec![0u64; boxes.len()];
+        let mut sam_count = SamCount::default();
+        let mut add = |(o, c): (Vec<u64>, SamCount)| {
+            for (a, b) in owned.iter_mut().zip(o) {
+                *a += b;
+            }
+            sam_count.prompted += c.prompted;
+            sam_count.replaced += c.replaced;
+        };
+        let refining = |done| MaskProgress::Refining { done, total: n };
+        if sam.is_some() {
+            // SAM's encoder keeps both cores busy on one photograph.
+            for (k, (f, view)) in ds.frames.iter().zip(&seen).enumerate() {
+                add(one(f, view)?);
+                on(refining(k + 1));
+            }
+        } else {
+            // A view's refinement is mostly serial: the views share the cores, a few at a
+            // time so that progress is told as they finish.
+            use rayon::prelude::*;
+            let chunk = 2 * rayon::current_num_threads();
+            let mut done = 0;
+            for (frames, views) in ds.frames.chunks(chunk).zip(seen.chunks(chunk)) {
+                let made: Vec<_> = frames
+                    .par_iter()
+                    .zip(views)
+                    .map(|(f, view)| one(f, view))
+                    .collect();
+                for r in made {
+                    add(r?);
+                    done += 1;
+                    on(refining(done));
+                }
+            }
         }
         let mut listed: Vec<(InstanceId, String, Obb)> = Vec::new();
         if keep_existing {

@@ -94,6 +94,59 @@ pub fn guided_filter(rgb: &[f32], p: &[f32], w: usize, h: usize, r: usize, eps: 
         .collect()
 }
 
+/// A rectangle of an image (`x0..x0 + w`, `y0..y0 + h` of an image `stride` wide): what
+/// a mask's filtering needs to see.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Roi {
+    pub x0: usize,
+    pub y0: usize,
+    pub w: usize,
+    pub h: usize,
+    stride: usize,
+}
+
+impl Roi {
+    /// The pixels of `p` (w × h) above 0, grown by `margin` on every side and clipped to
+    /// the image; `None` when every pixel is 0.
+    pub fn around_nonzero(p: &[f32], w: usize, h: usize, margin: usize) -> Option<Roi> {
+        let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
+        for (y, row) in p.chunks_exact(w.max(1)).enumerate().take(h) {
+            let Some(first) = row.iter().position(|&v| v > 0.0) else {
+                continue;
+            };
+            let last = row.iter().rposition(|&v| v > 0.0).unwrap_or(first);
+            (x0, x1) = (x0.min(first), x1.max(last));
+            (y0, y1) = (y0.min(y), y);
+        }
+        (x0 != usize::MAX).then(|| {
+            let (x0, y0) = (x0.saturating_sub(margin), y0.saturating_sub(margin));
+            let (x1, y1) = ((x1 + margin).min(w - 1), (y1 + margin).min(h - 1));
+            Roi {
+                x0,
+                y0,
+                w: x1 + 1 - x0,
+                h: y1 + 1 - y0,
+                stride: w,
+            }
+        })
+    }
+
+    /// The rectangle's pixels of an image with `channels` values per pixel (interleaved).
+    pub fn crop(&self, img: &[f32], channels: usize) -> Vec<f32> {
+        let mut out = Vec::with_capacity(self.w * self.h * channels);
+        for y in self.y0..self.y0 + self.h {
+            let at = (y * self.stride + self.x0) * channels;
+            out.extend_from_slice(&img[at..at + self.w * channels]);
+        }
+        out
+    }
+
+    /// The whole image's index of the rectangle's pixel `k` (row-major in the rectangle).
+    pub fn index(&self, k: usize) -> usize {
+        (self.y0 + k / self.w) * self.stride + self.x0 + k % self.w
+    }
+}
+
 /// `s⁻¹ v` for a symmetric positive definite 3×3 `s` (Cramer's rule; `s` is regularised,
 /// so its determinant is positive).
 fn solve3(s: [[f32; 3]; 3], v: [f32; 3]) -> [f32; 3] {
@@ -191,6 +244,52 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn filtering_a_crop_around_the_mask_matches_the_whole_image() {
+        // A textured guide and a blob of mask in the middle of a larger image: filtered
+        // in the rectangle 3r + 1 around the blob, as on the whole image (the rest 0).
+        let (w, h, r) = (90, 70, 5);
+        let mut rgb = vec![0f32; 3 * w * h];
+        let mut p = vec![0f32; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let i = y * w + x;
+                for c in 0..3 {
+                    rgb[3 * i + c] = (((x * 7 + y * 13 + c * 5) % 17) as f32) / 17.0;
+                }
+                let d = ((x as f32 - 40.0).powi(2) + (y as f32 - 30.0).powi(2)).sqrt();
+                p[i] = (1.0 - (d - 6.0) / 4.0).clamp(0.0, 1.0);
+            }
+        }
+        let full = guided_filter(&rgb, &p, w, h, r, 1e-3);
+        let roi = Roi::around_nonzero(&p, w, h, 3 * r + 1).unwrap();
+        assert!(
+            roi.w < w && roi.h < h && roi.x0 > 0 && roi.y0 > 0,
+            "{roi:?}"
+        );
+        let q = guided_filter(&roi.crop(&rgb, 3), &roi.crop(&p, 1), roi.w, roi.h, r, 1e-3);
+        let mut inside = vec![false; w * h];
+        for (k, v) in q.iter().enumerate() {
+            let i = roi.index(k);
+            inside[i] = true;
+            assert!(
+                (v - full[i]).abs() < 1e-5,
+                "pixel {i}: {v} against {}",
+                full[i]
+            );
+        }
+        for (i, v) in full.iter().enumerate() {
+            if !inside[i] {
+                assert!(v.abs() < 1e-5, "pixel {i} outside the crop: {v}");
+            }
+        }
+        assert!(full.iter().any(|&v| v > 0.5));
+        assert_eq!(Roi::around_nonzero(&vec![0.0; w * h], w, h, 3), None);
+        // A margin past the borders is clipped to the image.
+        let all = Roi::around_nonzero(&p, w, h, 1000).unwrap();
+        assert_eq!((all.x0, all.y0, all.w, all.h), (0, 0, w, h));
     }
 
     #[test]
