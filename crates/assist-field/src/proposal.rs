@@ -162,17 +162,26 @@ impl ProposalField {
 
     /// The densities at `pos` (in [0, 1]³) into `sigma`. Runs on the calling thread (it
     /// is called from within parallel sampling); `scratch` is grown as needed and kept.
+    /// The hidden layer reads the encoding's rows only, not its padding (the same sums:
+    /// the padding's inputs and weights are zeros), so the padding is never cleared here.
     pub fn density(&self, pos: [&[f32]; 3], sigma: &mut [f32], scratch: &mut Vec<f32>) {
         let n = pos[0].len();
-        let enc = self.encode_blocked(pos, scratch);
-        let mut h = [0.0f32; 256 * CHUNK];
+        let len = Layout { width: self.width }.len(n);
+        if scratch.len() < len {
+            scratch.resize(len, 0.0);
+        }
+        let enc = &mut scratch[..len];
+        encode(&self.grid, &self.params, pos, self.width, enc);
+        let hidden = self.config.hidden;
+        let rows = self.config.levels * self.config.features_per_level;
+        let mut h = vec![0.0f32; hidden * CHUNK];
         let mut o = [0.0f32; CHUNK];
         let block = self.width * CHUNK;
         for (c, sig) in sigma[..n].chunks_mut(CHUNK).enumerate() {
-            let hc = &mut h[..self.config.hidden * CHUNK];
-            self.l1
-                .forward(&self.params, &enc[c * block..(c + 1) * block], hc, true);
-            self.l2.forward(&self.params, hc, &mut o, false);
+            let x = &enc[c * block..(c + 1) * block];
+            self.l1.product(&self.params, x, &mut h, rows);
+            crate::mlp::bias_act(&mut h, &self.params[self.l1.b..self.l1.b + hidden], true);
+            self.l2.forward(&self.params, &h, &mut o, false);
             for (s, &raw) in sig.iter_mut().zip(&o) {
                 *s = assist_simd::math::exp(raw.min(MAX_RAW_DENSITY));
             }
@@ -327,6 +336,12 @@ mod tests {
         let mut tape = ProposalTape::default();
         f.forward_train(pos, &mut tape);
         assert_eq!(&tape.sigma[..150], &sig[..]);
+        // A kept scratch holding anything (NaN here) gives the same densities: the
+        // encoding's padding rows are never read.
+        let mut kept = vec![f32::NAN; 40_000];
+        let mut again = vec![0.0; 150];
+        f.density(pos, &mut again, &mut kept);
+        assert_eq!(again, sig);
         assert!(sig.iter().all(|s| s.is_finite() && *s > 0.0));
         let (lo, hi) = sig
             .iter()

@@ -239,10 +239,11 @@ fn proposal_lanes<R: Marching + Copy>(
     }
     let mut sigma = vec![0.0f32; steps.len()];
     let at = [&pos[0][..], &pos[1][..], &pos[2][..]];
-    drawn
-        .proposal
-        .field
-        .density(at, &mut sigma, &mut Vec::new());
+    // The encoding's buffer is kept per thread: a block's is a few hundred kilobytes.
+    thread_local! {
+        static ENCODING: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+    }
+    ENCODING.with_borrow_mut(|enc| drawn.proposal.field.density(at, &mut sigma, enc));
     let (mut w, mut fine, mut spans) = (Vec::new(), Vec::new(), Vec::new());
     for (i, r) in range.enumerate() {
         local.start.push(local.t.len() as u32);
