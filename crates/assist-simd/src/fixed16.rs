@@ -52,9 +52,9 @@ fn pair(lo: i32, hi: i32) -> u32 {
 const MR: usize = 6;
 
 /// A weight matrix `A` (`m × k`) scaled per row and packed as i16 pairs in panels of
-/// six rows (the kernel's block height; fewer in the last): word `p` of row `i` holds `A[i][2p]`, `A[i][2p + 1]`
-/// (zero past `k`) over `scale[i]`, and a panel holds its rows' words `p` side by side, so
-/// the kernel reads each step's weights from one place.
+/// six rows (the kernel's block height; fewer in the last): word `p` of row `i` holds
+/// `A[i][2p]`, `A[i][2p + 1]` (zero past `k`) over `scale[i]`, and a panel holds its rows'
+/// words `p` side by side, so the kernel reads each step's weights from one place.
 #[derive(Debug, Clone, PartialEq)]
 pub struct QuantA {
     pub m: usize,

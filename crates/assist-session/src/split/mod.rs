@@ -65,27 +65,23 @@ pub fn refine(
     let mut best = vec![(0.5f32, 0u16); w * h];
     for (m, &id) in soft.iter().zip(ids) {
         let up = guided::resize(m, rw, rh, w, h);
-        if r == 0 {
-            for (b, v) in best.iter_mut().zip(up) {
-                if v > b.0 {
-                    *b = (v, id);
-                }
-            }
-            continue;
-        }
         // Filtered only around the box's pixels: 3r + 1 beyond them every window of the
         // filter's two passes sees no mask, so the output there is 0 (never above ½).
         let Some(roi) = guided::Roi::around_nonzero(&up, w, h, 3 * r + 1) else {
             continue;
         };
-        let q = guided::guided_filter(
-            &roi.crop(&photo.data, 3),
-            &roi.crop(&up, 1),
-            roi.w,
-            roi.h,
-            r,
-            opts.refine_eps,
-        );
+        let q = if r > 0 {
+            guided::guided_filter(
+                &roi.crop(&photo.data, 3),
+                &roi.crop(&up, 1),
+                roi.w,
+                roi.h,
+                r,
+                opts.refine_eps,
+            )
+        } else {
+            roi.crop(&up, 1)
+        };
         for (k, v) in q.into_iter().enumerate() {
             let b = &mut best[roi.index(k)];
             if v > b.0 {
