@@ -140,44 +140,51 @@ fn fits_an_image_through_a_slice() {
     assert!(worst < 0.01, "packed-table colours differ by {worst}");
     assert!((psnr(msep) - psnr(mse)).abs() < 0.05);
 
-    // Inference at rendering's precision (bf16 products with AVX-512 BF16, 16-bit fixed
-    // point with AVX2; `ASSIST_SIMD=avx2` tests the second on a CPU with both) against f32
-    // on the fitted field: colours within 1/100, the fit's PSNR within 0.3 dB.
-    if !assist_simd::reduced_products() {
+    // Inference at each reduced precision of the products this CPU runs with its vector
+    // kernels (bf16 with AVX-512 BF16, 16-bit fixed point with AVX2), whichever rendering
+    // takes by default, against f32 on the fitted field: colours within 1/100, the fit's
+    // PSNR within 0.3 dB.
+    let kinds = assist_simd::reduced_kinds();
+    if kinds.is_empty() {
         eprintln!(
-            "!!! SKIP reduced-precision inference check: this CPU lacks AVX-512 BF16 and AVX2 (or ASSIST_PRECISION=f32)"
+            "!!! SKIP reduced-precision inference check: this CPU lacks AVX-512 BF16 and AVX2"
         );
         return;
     }
-    let (mut sig16, mut rgb16) = (vec![0.0; m], vec![0.0; 3 * m]);
-    field.forward_at(
-        assist_field::Precision::Bf16,
-        None,
-        &Samples {
-            pos: [&px, &py, &pz],
-            dir: [&dx, &dy, &dz],
-            image: &[],
-        },
-        &mut assist_field::Tape::default(),
-        &mut sig16,
-        &mut rgb16,
-    );
-    let worst = rgb
-        .iter()
-        .zip(&rgb16)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0f32, f32::max);
-    let worst_sigma = sig
-        .iter()
-        .zip(&sig16)
-        .map(|(a, b)| (a - b).abs() / a.abs().max(1e-3))
-        .fold(0f32, f32::max);
-    let mse16 = mse_of(&rgb16);
-    eprintln!(
-        "reduced-precision inference: max colour difference {worst:.4}, max relative density difference {worst_sigma:.4}, PSNR {:.2} dB",
-        psnr(mse16)
-    );
-    assert!(rgb16 != rgb, "reduced-precision path not taken");
-    assert!(worst < 0.01, "reduced-precision colours differ by {worst}");
-    assert!((psnr(mse16) - psnr(mse)).abs() < 0.3);
+    for kind in kinds {
+        let (mut sig16, mut rgb16) = (vec![0.0; m], vec![0.0; 3 * m]);
+        assist_simd::with_products(kind, || {
+            field.forward_at(
+                assist_field::Precision::Bf16,
+                None,
+                &Samples {
+                    pos: [&px, &py, &pz],
+                    dir: [&dx, &dy, &dz],
+                    image: &[],
+                },
+                &mut assist_field::Tape::default(),
+                &mut sig16,
+                &mut rgb16,
+            )
+        });
+        let worst = rgb
+            .iter()
+            .zip(&rgb16)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0f32, f32::max);
+        let worst_sigma = sig
+            .iter()
+            .zip(&sig16)
+            .map(|(a, b)| (a - b).abs() / a.abs().max(1e-3))
+            .fold(0f32, f32::max);
+        let mse16 = mse_of(&rgb16);
+        let kind = kind.name();
+        eprintln!(
+            "{kind} products: max colour difference {worst:.4}, max relative density difference {worst_sigma:.4}, PSNR {:.2} dB",
+            psnr(mse16)
+        );
+        assert!(rgb16 != rgb, "{kind} path not taken");
+        assert!(worst < 0.01, "{kind} colours differ by {worst}");
+        assert!((psnr(mse16) - psnr(mse)).abs() < 0.3, "{kind}");
+    }
 }

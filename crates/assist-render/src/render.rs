@@ -24,7 +24,7 @@ pub struct RenderOptions {
     /// its objects shows it ([`RenderedImage::background`]).
     pub background_alone: bool,
     /// Arithmetic of the field queries (default `Bf16`: the packed `tables` where given,
-    /// bf16 MLP products where the CPU has AVX-512 BF16; `ASSIST_PRECISION=f32` for f32).
+    /// the MLP products of `assist_simd::products`; `ASSIST_PRECISION=f32` for f32).
     pub precision: Precision,
     /// Samples behind the point where their node's transmittance falls below this are
     /// dropped: queried in rounds along the rays where many rays stop early, each ray

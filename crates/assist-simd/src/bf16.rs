@@ -29,15 +29,9 @@ fn pair(lo: f32, hi: f32) -> u32 {
     to_bf16(lo) as u32 | (to_bf16(hi) as u32) << 16
 }
 
-/// Whether bf16 products run on this machine: AVX-512 BF16 present, the dispatched level
-/// AVX-512, and `ASSIST_PRECISION` not `f32`.
+/// Whether rendering's products run in bf16 here (see [`crate::products`]).
 pub fn available() -> bool {
-    use std::sync::OnceLock;
-    static A: OnceLock<bool> = OnceLock::new();
-    *A.get_or_init(|| {
-        let forced_off = std::env::var("ASSIST_PRECISION").is_ok_and(|v| v == "f32");
-        !forced_off && cpu_has_bf16() && crate::level() == Level::Avx512
-    })
+    crate::products() == crate::Products::Bf16
 }
 
 /// Whether the CPU itself has AVX-512 BF16 (for tests, which skip loudly without it).

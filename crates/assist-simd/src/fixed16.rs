@@ -1,6 +1,6 @@
-//! 16-bit fixed-point matrix products for inference where the CPU has AVX2 but not AVX-512
-//! BF16 (`vpmaddwd`: two 16-bit products summed into 32 bits, 16 multiply-adds per
-//! instruction against the f32 kernel's 8). Each weight row is scaled to integers of at
+//! 16-bit fixed-point matrix products for inference at the AVX2 level (`vpmaddwd`: two
+//! 16-bit products summed into 32 bits, 16 multiply-adds per instruction against the f32
+//! kernel's 8). Each weight row is scaled to integers of at
 //! most [`W_MAX`] and each column of activations (one sample's) to at most [`x_max`]; the
 //! products are summed exactly in i32 (the bounds keep every sum below 2³¹) and the sum is
 //! scaled back to f32. About 4 significant digits per operand relative to its row's or
@@ -24,16 +24,9 @@ pub fn x_max(k2: usize) -> f32 {
     bound.min(32767.0) as f32
 }
 
-/// Whether rendering's products run in fixed point here: no AVX-512 BF16 path (see
-/// [`crate::bf16::available`]), the dispatched level at least AVX2, and `ASSIST_PRECISION`
-/// not `f32`.
+/// Whether rendering's products run in fixed point here (see [`crate::products`]).
 pub fn available() -> bool {
-    use std::sync::OnceLock;
-    static A: OnceLock<bool> = OnceLock::new();
-    *A.get_or_init(|| {
-        let forced_off = std::env::var("ASSIST_PRECISION").is_ok_and(|v| v == "f32");
-        !forced_off && !crate::bf16::available() && crate::level() >= Level::Avx2
-    })
+    crate::products() == crate::Products::Fixed16
 }
 
 /// `1 / s`, or 0 where `s` is too small for a normal scale (the block is taken as zeros).

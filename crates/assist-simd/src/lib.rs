@@ -140,10 +140,105 @@ pub fn available(level: Level) -> bool {
     level.supported()
 }
 
-/// Whether rendering's MLP products run below f32 here: bf16 (AVX-512 BF16) or 16-bit
-/// fixed point (AVX2), unless `ASSIST_PRECISION=f32`.
+/// Whether rendering's MLP products run below f32 here: bf16 or 16-bit fixed point (see
+/// [`products`]).
 pub fn reduced_products() -> bool {
-    bf16::available() || fixed16::available()
+    products() != Products::F32
+}
+
+/// The arithmetic of rendering's MLP products (training's are always f32).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Products {
+    /// bf16 pairs with f32 sums ([`bf16`]; AVX-512 BF16).
+    Bf16,
+    /// 16-bit fixed point with exact integer sums ([`fixed16`]; AVX2).
+    Fixed16,
+    F32,
+}
+
+impl Products {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Products::Bf16 => "bf16",
+            Products::Fixed16 => "fixed16",
+            Products::F32 => "f32",
+        }
+    }
+}
+
+/// The products rendering takes on this CPU: the fastest measured for its kind
+/// (docs/history.md, *Rendering speed*, session 69). bf16 where AVX-512 BF16 is there and
+/// the CPU is AMD's (Zen 4 issues `vdpbf16ps` at twice its f32 FMA rate); f32 on other
+/// AVX-512 CPUs (an Intel Xeon's two 512-bit FMA pipes match its `vdpbf16ps` rate, and
+/// the bf16 kernel's packing then makes it the slower); 16-bit fixed point at the AVX2
+/// level; f32 below it. `ASSIST_PRECISION=f32` gives f32; `ASSIST_PRODUCTS=bf16|fixed16|
+/// f32|auto` forces one the dispatched level can run (for benchmarks).
+pub fn products() -> Products {
+    if let Some(p) = FORCED_PRODUCTS.get() {
+        return p;
+    }
+    static P: OnceLock<Products> = OnceLock::new();
+    *P.get_or_init(|| {
+        let bf16 = bf16::cpu_has_bf16() && level() == Level::Avx512;
+        let fixed = level() >= Level::Avx2;
+        let auto = if bf16 && amd_family().is_some() {
+            Products::Bf16
+        } else if level() == Level::Avx512 {
+            Products::F32
+        } else if fixed {
+            Products::Fixed16
+        } else {
+            Products::F32
+        };
+        if std::env::var("ASSIST_PRECISION").is_ok_and(|v| v == "f32") {
+            return Products::F32;
+        }
+        match std::env::var("ASSIST_PRODUCTS").ok().as_deref() {
+            None | Some("") | Some("auto") => auto,
+            Some("bf16") if bf16 => Products::Bf16,
+            Some("fixed16") if fixed => Products::Fixed16,
+            Some("f32") => Products::F32,
+            Some(other) => {
+                eprintln!(
+                    "assist: ASSIST_PRODUCTS={other} is not one of auto, f32{}{} here; using {}",
+                    if bf16 { ", bf16" } else { "" },
+                    if fixed { ", fixed16" } else { "" },
+                    auto.name()
+                );
+                auto
+            }
+        }
+    })
+}
+
+thread_local! {
+    static FORCED_PRODUCTS: std::cell::Cell<Option<Products>> = const { std::cell::Cell::new(None) };
+}
+
+/// Runs `f` with [`products`] answering `p` on this thread (tests and benchmarks compare
+/// the kinds in one process; a kind the CPU lacks runs its scalar reference).
+pub fn with_products<R>(p: Products, f: impl FnOnce() -> R) -> R {
+    struct Restore(Option<Products>);
+    impl Drop for Restore {
+        fn drop(&mut self) {
+            FORCED_PRODUCTS.set(self.0);
+        }
+    }
+    let _restore = Restore(FORCED_PRODUCTS.replace(Some(p)));
+    f()
+}
+
+/// The reduced-precision products this CPU runs with its vector kernels at the dispatched
+/// level (what [`with_products`] can exercise beside the default).
+pub fn reduced_kinds() -> Vec<Products> {
+    let mut v = Vec::new();
+    if bf16::cpu_has_bf16() && level() == Level::Avx512 {
+        v.push(Products::Bf16);
+    }
+    if level() >= Level::Avx2 {
+        v.push(Products::Fixed16);
+    }
+    v
 }
 
 pub use dispatch::{WithSimd, dispatch, simd};

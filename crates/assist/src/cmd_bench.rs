@@ -5,6 +5,7 @@ use std::time::Instant;
 
 use assist_core::Rng;
 use assist_field::{Adam, Field, FieldConfig, OccupancyGrid, PhaseTimes, Precision, Samples, Tape};
+use assist_simd::Products;
 use clap::{Args, Subcommand};
 use serde_json::{Value, json};
 
@@ -202,13 +203,11 @@ fn bench_one(
     };
     let precision = Precision::fastest();
     let infer = infer_at(precision);
-    let label = match precision {
-        Precision::Bf16 if assist_simd::bf16::available() => "bf16",
-        Precision::Bf16 if assist_simd::fixed16::available() => {
-            "bf16 tables, 16-bit fixed-point products"
-        }
-        Precision::Bf16 => "bf16 tables, f32 products",
-        Precision::F32 => "f32",
+    let label = match (precision, assist_simd::products()) {
+        (Precision::Bf16, Products::Bf16) => "bf16",
+        (Precision::Bf16, Products::Fixed16) => "bf16 tables, 16-bit fixed-point products",
+        (Precision::Bf16, Products::F32) => "bf16 tables, f32 products",
+        (Precision::F32, _) => "f32",
     };
     // One occupancy-grid update round as training runs it (every 16 steps), on a grid of
     // the size training gives this field; the first round (allocation) is not timed.

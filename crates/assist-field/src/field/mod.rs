@@ -33,11 +33,11 @@ pub enum Precision {
     /// f32 throughout: what training computes.
     F32,
     /// Rendering's: the hash tables read as bf16 pairs where the caller packed them (any
-    /// CPU; see [`PackedTables`]), and the MLP products in bf16 with f32 sums where the
-    /// CPU has AVX-512 BF16, else in 16-bit fixed point with exact integer sums where it
-    /// has AVX2 (`assist_simd::fixed16`), else f32. About 3 significant digits per table
-    /// entry and bf16 operand, 4 per fixed-point operand (relative to its weight row's or
-    /// sample's largest).
+    /// CPU; see [`PackedTables`]), and the MLP products as `assist_simd::products` takes
+    /// them on this CPU: bf16 with f32 sums, 16-bit fixed point with exact integer sums
+    /// (`assist_simd::fixed16`), or f32. About 3 significant digits per table entry and
+    /// bf16 operand, 4 per fixed-point operand (relative to its weight row's or sample's
+    /// largest).
     Bf16,
 }
 
@@ -452,8 +452,7 @@ impl Field {
     }
 
     /// Inference at a given precision of the MLP products (biases and activations are f32
-    /// either way). `Precision::Bf16` takes fixed-point products where the CPU lacks AVX-512
-    /// BF16 but has AVX2, and f32 ones where it has neither.
+    /// either way; `Precision::Bf16`'s products are `assist_simd::products`').
     /// The encoding reads `tables` (this field's packed copy, see [`PackedTables`]) where
     /// given, else the f32 parameters.
     pub fn forward_at(
