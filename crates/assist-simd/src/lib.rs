@@ -168,11 +168,12 @@ impl Products {
 
 /// The products rendering takes on this CPU: the fastest measured for its kind
 /// (docs/history.md, *Rendering speed*, session 69). bf16 where AVX-512 BF16 is there and
-/// the CPU is AMD's (Zen 4 issues `vdpbf16ps` at twice its f32 FMA rate); f32 on other
-/// AVX-512 CPUs (an Intel Xeon's two 512-bit FMA pipes match its `vdpbf16ps` rate, and
-/// the bf16 kernel's packing then makes it the slower); 16-bit fixed point at the AVX2
-/// level; f32 below it. `ASSIST_PRECISION=f32` gives f32; `ASSIST_PRODUCTS=bf16|fixed16|
-/// f32|auto` forces one the dispatched level can run (for benchmarks).
+/// the CPU is AMD's (Zen 4 issues `vdpbf16ps` at twice its f32 FMA rate); on other AVX-512
+/// CPUs 16-bit fixed point where they have VNNI (an Intel Xeon issues `vpdpwssd` twice a
+/// cycle, 64 multiply-adds against its FMA's 32 and its `vdpbf16ps`'s 16), else f32; 16-bit
+/// fixed point at the AVX2 level; f32 below it. `ASSIST_PRECISION=f32` gives f32;
+/// `ASSIST_PRODUCTS=bf16|fixed16|f32|auto` forces one the dispatched level can run (for
+/// benchmarks).
 pub fn products() -> Products {
     if let Some(p) = FORCED_PRODUCTS.get() {
         return p;
@@ -184,7 +185,11 @@ pub fn products() -> Products {
         let auto = if bf16 && amd_family().is_some() {
             Products::Bf16
         } else if level() == Level::Avx512 {
-            Products::F32
+            if fixed16::vnni() {
+                Products::Fixed16
+            } else {
+                Products::F32
+            }
         } else if fixed {
             Products::Fixed16
         } else {

@@ -337,11 +337,16 @@ fn gemm_gflops() -> Value {
         let gf = 2.0 * (m * n * k) as f64 * iters as f64 / start.elapsed().as_secs_f64() / 1e9;
         out.insert("avx512bf16 (pack + product)".to_string(), json!(gf));
     }
-    if assist_simd::Level::Avx2.supported() {
-        // The fixed-point kernel as inference runs it where bf16 is not: activations
-        // scaled and packed, then the product.
-        use assist_simd::fixed16;
-        let level = assist_simd::Level::Avx2;
+    // The fixed-point kernel as inference runs it: activations scaled and packed, then the
+    // product; at the AVX2 level, and at AVX-512 with VNNI where the CPU has it.
+    use assist_simd::{Level, fixed16};
+    for (level, name) in [
+        (Level::Avx2, "avx2 fixed16 (scale + product)"),
+        (Level::Avx512, "avx512vnni fixed16 (scale + product)"),
+    ] {
+        if !level.supported() || (level == Level::Avx512 && !fixed16::vnni()) {
+            continue;
+        }
         let qa = fixed16::QuantA::new(&a, m, k, k);
         let (mut bp, mut sb) = (vec![0u32; k.div_ceil(2) * n], vec![0.0f32; n]);
         let start = Instant::now();
@@ -354,7 +359,7 @@ fn gemm_gflops() -> Value {
             iters += 100;
         }
         let gf = 2.0 * (m * n * k) as f64 * iters as f64 / start.elapsed().as_secs_f64() / 1e9;
-        out.insert("avx2 fixed16 (scale + product)".to_string(), json!(gf));
+        out.insert(name.to_string(), json!(gf));
     }
     std::hint::black_box(&c);
     Value::Object(out)
