@@ -209,6 +209,34 @@ pub fn vnni() -> bool {
     }
 }
 
+/// A product kernel's driver: each panel of up to [`MR`] rows times each `$step` columns,
+/// through `$block::<R>` at the panel's height (the AVX2 and VNNI kernels share it).
+/// Unsafe to expand: every block must stay within rows < m, words < k2 and columns < n,
+/// inside the slices, as the kernels' contracts require.
+#[cfg(target_arch = "x86_64")]
+macro_rules! panels {
+    ($block:ident, $step:expr, $a:expr, $scale:expr, $m:expr, $k2:expr, $bp:expr, $sb:expr, $n:expr, $c:expr, $ldc:expr) => {{
+        let (ap, bptr, sp, cp) = ($a.as_ptr(), $bp.as_ptr(), $sb.as_ptr(), $c.as_mut_ptr());
+        let (scale, m, k2, n, ldc) = ($scale, $m, $k2, $n, $ldc);
+        let mut i = 0;
+        while i < m {
+            let rows = (m - i).min(crate::fixed16::MR);
+            let ap = ap.add(i * k2);
+            for j in (0..n).step_by($step) {
+                match rows {
+                    6 => $block::<6>(ap, scale, k2, bptr, sp, n, cp, ldc, i, j),
+                    5 => $block::<5>(ap, scale, k2, bptr, sp, n, cp, ldc, i, j),
+                    4 => $block::<4>(ap, scale, k2, bptr, sp, n, cp, ldc, i, j),
+                    3 => $block::<3>(ap, scale, k2, bptr, sp, n, cp, ldc, i, j),
+                    2 => $block::<2>(ap, scale, k2, bptr, sp, n, cp, ldc, i, j),
+                    _ => $block::<1>(ap, scale, k2, bptr, sp, n, cp, ldc, i, j),
+                }
+            }
+            i += rows;
+        }
+    }};
+}
+
 #[cfg(target_arch = "x86_64")]
 mod x86 {
     use std::arch::x86_64::*;
@@ -333,28 +361,8 @@ mod x86 {
         c: &mut [f32],
         ldc: usize,
     ) {
-        use super::MR;
-        let (ap, bptr, sp, cp) = (a.as_ptr(), bp.as_ptr(), sb.as_ptr(), c.as_mut_ptr());
-        // SAFETY (whole function): every block stays within rows < m, words < k2 and
-        // columns < n, which the caller's contract puts inside the slices.
-        unsafe {
-            let mut i = 0;
-            while i < m {
-                let rows = (m - i).min(MR);
-                let ap = ap.add(i * k2);
-                for j in (0..n).step_by(16) {
-                    match rows {
-                        6 => block::<6>(ap, scale, k2, bptr, sp, n, cp, ldc, i, j),
-                        5 => block::<5>(ap, scale, k2, bptr, sp, n, cp, ldc, i, j),
-                        4 => block::<4>(ap, scale, k2, bptr, sp, n, cp, ldc, i, j),
-                        3 => block::<3>(ap, scale, k2, bptr, sp, n, cp, ldc, i, j),
-                        2 => block::<2>(ap, scale, k2, bptr, sp, n, cp, ldc, i, j),
-                        _ => block::<1>(ap, scale, k2, bptr, sp, n, cp, ldc, i, j),
-                    }
-                }
-                i += rows;
-            }
-        }
+        // SAFETY: the caller's contract (`panels!`'s).
+        unsafe { panels!(block, 16, a, scale, m, k2, bp, sb, n, c, ldc) }
     }
 }
 

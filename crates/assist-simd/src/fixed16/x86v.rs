@@ -60,26 +60,6 @@ pub unsafe fn gemm_vnni(
     c: &mut [f32],
     ldc: usize,
 ) {
-    use super::MR;
-    let (ap, bptr, sp, cp) = (a.as_ptr(), bp.as_ptr(), sb.as_ptr(), c.as_mut_ptr());
-    // SAFETY (whole function): every block stays within rows < m, words < k2 and
-    // columns < n, which the caller's contract puts inside the slices.
-    unsafe {
-        let mut i = 0;
-        while i < m {
-            let rows = (m - i).min(MR);
-            let ap = ap.add(i * k2);
-            for j in (0..n).step_by(32) {
-                match rows {
-                    6 => block::<6>(ap, scale, k2, bptr, sp, n, cp, ldc, i, j),
-                    5 => block::<5>(ap, scale, k2, bptr, sp, n, cp, ldc, i, j),
-                    4 => block::<4>(ap, scale, k2, bptr, sp, n, cp, ldc, i, j),
-                    3 => block::<3>(ap, scale, k2, bptr, sp, n, cp, ldc, i, j),
-                    2 => block::<2>(ap, scale, k2, bptr, sp, n, cp, ldc, i, j),
-                    _ => block::<1>(ap, scale, k2, bptr, sp, n, cp, ldc, i, j),
-                }
-            }
-            i += rows;
-        }
-    }
+    // SAFETY: the caller's contract (`panels!`'s).
+    unsafe { panels!(block, 32, a, scale, m, k2, bp, sb, n, c, ldc) }
 }
