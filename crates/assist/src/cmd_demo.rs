@@ -41,14 +41,36 @@ pub struct DemoArgs {
     /// made from one click), seconds.
     #[arg(long, default_value_t = 40.0)]
     pub plain_seconds: f64,
+    /// Train the scene without masks for this many iterations instead of --plain-seconds:
+    /// the same scene, bit for bit, however busy the machine is (the tests use it).
+    #[arg(long, value_name = "N")]
+    pub plain_iters: Option<usize>,
 }
 
-fn train(data: &Path, out: &Path, seconds: f64, seed: u64, no_objects: bool) -> anyhow::Result<()> {
+/// How long a demo scene trains: seconds, or iterations (deterministic under any load).
+#[derive(Clone, Copy)]
+enum Budget {
+    Seconds(f64),
+    Iters(usize),
+}
+
+fn train(
+    data: &Path,
+    out: &Path,
+    budget: Budget,
+    seed: u64,
+    no_objects: bool,
+) -> anyhow::Result<()> {
+    let (max_time, iters) = match budget {
+        Budget::Seconds(s) => (Some(s), None),
+        Budget::Iters(n) => (None, Some(n)),
+    };
     // `assist train`'s defaults (declared once, in the job's configuration).
     let cfg = TrainConfig {
         data: data.to_path_buf(),
         out: out.to_path_buf(),
-        max_time: Some(seconds),
+        max_time,
+        iters,
         appearance: Appearance::Off,
         seed,
         checkpoint_every: 1e9,
@@ -133,12 +155,24 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
 
     let (scene_a, scene_b) = (out.join("scene.assist"), out.join("other.assist"));
     eprintln!("2/7 training the scene for {:.0} s", a.train_seconds);
-    train(&data_a, &scene_a, a.train_seconds, a.seed, false)?;
+    train(
+        &data_a,
+        &scene_a,
+        Budget::Seconds(a.train_seconds),
+        a.seed,
+        false,
+    )?;
     eprintln!(
         "3/7 training the second scene for {:.0} s (the object to insert comes from it)",
         a.other_seconds
     );
-    train(&data_b, &scene_b, a.other_seconds, a.seed, false)?;
+    train(
+        &data_b,
+        &scene_b,
+        Budget::Seconds(a.other_seconds),
+        a.seed,
+        false,
+    )?;
 
     eprintln!("4/7 measuring the trained scene on its test views");
     let before = Session::open(&scene_a)?;
@@ -170,11 +204,17 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     session.save(&edited, true)?;
 
     let plain = out.join("plain.assist");
+    let (budget, how_long) = match a.plain_iters {
+        Some(n) => (Budget::Iters(n), format!("{n} iterations")),
+        None => (
+            Budget::Seconds(a.plain_seconds),
+            format!("{:.0} s", a.plain_seconds),
+        ),
+    };
     eprintln!(
-        "6/7 training the scene as if nobody had labelled it for {:.0} s, then making an object from one click",
-        a.plain_seconds
+        "6/7 training the scene as if nobody had labelled it for {how_long}, then making an object from one click"
     );
-    train(&data_a, &plain, a.plain_seconds, a.seed, true)?;
+    train(&data_a, &plain, budget, a.seed, true)?;
     let said = object_from_a_click(&ds, &plain)?;
     eprintln!("    {said}");
 
