@@ -43,7 +43,8 @@ pub struct DemoArgs {
     pub plain_seconds: f64,
     /// Train the scene without masks for this many iterations instead of --plain-seconds:
     /// the same scene, bit for bit, however busy the machine is (the tests use it).
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", conflicts_with = "plain_seconds",
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
     pub plain_iters: Option<usize>,
 }
 
