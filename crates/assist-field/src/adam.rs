@@ -1,6 +1,7 @@
 //! Adam (bias-corrected) over a flat parameter vector, as one pass that also clears the
-//! gradient for the next step. Optional weight decay applies to a chosen range only (the
-//! MLP weights, never the hash table). Learning-rate schedules belong to the trainer.
+//! gradient for the next step. Optional weight decay applies to a chosen range (the MLP
+//! weights); the hash tables have their own, applied only to the entries a step touches.
+//! Learning-rate schedules belong to the trainer.
 
 use rayon::prelude::*;
 
@@ -17,6 +18,12 @@ pub struct Adam {
     /// does not keep drifting on stale momentum after each hit, which made large tables
     /// diverge in training.
     pub sparse_range: std::ops::Range<usize>,
+    /// L2 decay (added to the gradient) of the sparse range's entries that have a
+    /// gradient this step: Zip-NeRF's weight decay on the hash grid, applied lazily so
+    /// that untouched lines stay skipped. An entry the photographs pull on only weakly is
+    /// drawn to zero instead of keeping what a few views put there (the fog a
+    /// walk-around's held-out views see; measured in BENCHMARKS.md). 0 = none.
+    pub table_decay: f32,
     pub step: u32,
     pub m: Vec<f32>,
     pub v: Vec<f32>,
@@ -32,6 +39,7 @@ impl Adam {
             weight_decay: 0.0,
             decay_range: 0..0,
             sparse_range: 0..0,
+            table_decay: 0.0,
             step: 0,
             m: vec![0.0; n],
             v: vec![0.0; n],
@@ -65,6 +73,7 @@ impl Adam {
         };
         let (wd, dr) = (self.weight_decay, self.decay_range.clone());
         let sr = self.sparse_range.clone();
+        let td = self.table_decay;
         const BLOCK: usize = 1 << 14;
         params
             .par_chunks_mut(BLOCK)
@@ -83,11 +92,11 @@ impl Adam {
                 // the baseline level; the branchy general loop is 5× slower than the
                 // select loop on hash tables).
                 if decays || partly {
-                    general(h, p, g, m, v, base, wd, &dr, &sr);
+                    general(h, p, g, m, v, base, (wd, &dr), (td, &sr));
                 } else if sparse {
                     assist_simd::simd(
                         #[inline(always)]
-                        || sparse_block(h, p, g, m, v),
+                        || sparse_block(h, p, g, m, v, td),
                     );
                 } else {
                     assist_simd::simd(
@@ -169,7 +178,7 @@ fn dense_block(h: Hyper, p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [f
 /// of the saving, since the sweep is bound by memory and a hash table's step touches few
 /// of its entries (two thirds of its lines).
 #[inline(always)]
-fn sparse_block(h: Hyper, p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [f32]) {
+fn sparse_block(h: Hyper, p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [f32], td: f32) {
     const LINE: usize = 16;
     let n = p.len();
     let (g, m, v) = (&mut g[..n], &mut m[..n], &mut v[..n]);
@@ -187,6 +196,8 @@ fn sparse_block(h: Hyper, p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [
         for i in 0..k {
             let gi = flush_grad(g[i]);
             let touched = gi != 0.0;
+            // (An untouched entry's gradient stays exactly 0: td · p is not added.)
+            let gi = if touched { gi + td * p[i] } else { 0.0 };
             let b1 = if touched { h.b1 } else { 1.0 };
             let b2 = if touched { h.b2 } else { 1.0 };
             let step = if touched { h.step_size } else { 0.0 };
@@ -206,14 +217,16 @@ fn general(
     m: &mut [f32],
     v: &mut [f32],
     base: usize,
-    wd: f32,
-    dr: &std::ops::Range<usize>,
-    sr: &std::ops::Range<usize>,
+    (wd, dr): (f32, &std::ops::Range<usize>),
+    (td, sr): (f32, &std::ops::Range<usize>),
 ) {
     for i in 0..p.len() {
         let mut gi = flush_grad(g[i]);
-        if gi == 0.0 && sr.contains(&(base + i)) {
-            continue;
+        if sr.contains(&(base + i)) {
+            if gi == 0.0 {
+                continue;
+            }
+            gi += td * p[i];
         }
         if wd != 0.0 && dr.contains(&(base + i)) {
             gi += wd * p[i];
@@ -291,6 +304,8 @@ mod tests {
         v: Vec<f64>,
         sparse: std::ops::Range<usize>,
         decay: (std::ops::Range<usize>, f64),
+        /// L2 decay of the sparse entries a step gives a gradient.
+        table_decay: f64,
     }
 
     impl Reference {
@@ -301,6 +316,7 @@ mod tests {
                 v: vec![0.0; p.len()],
                 sparse: 0..0,
                 decay: (0..0, 0.0),
+                table_decay: 0.0,
             }
         }
         /// Step `t` (from 1); returns which entries it updated.
@@ -308,8 +324,11 @@ mod tests {
             (0..g.len())
                 .map(|i| {
                     let mut gi = g[i] as f64;
-                    if gi == 0.0 && self.sparse.contains(&i) {
-                        return false;
+                    if self.sparse.contains(&i) {
+                        if gi == 0.0 {
+                            return false;
+                        }
+                        gi += self.table_decay * self.p[i];
                     }
                     if self.decay.0.contains(&i) {
                         gi += self.decay.1 * self.p[i];
@@ -353,7 +372,7 @@ mod tests {
 
     /// The sparse rule against the reference, over blocks that are wholly sparse (the
     /// vectorised select loop, with untouched lines skipped), partly sparse and dense,
-    /// with weight decay beside them.
+    /// with weight decay beside them and the tables' own decay on their touched entries.
     #[test]
     fn sparse_matches_reference_adam() {
         let n = 3 * (1 << 14) + 100;
@@ -365,9 +384,11 @@ mod tests {
         let mut reference = Reference::new(&p);
         reference.sparse = sr.clone();
         reference.decay = (dr.clone(), 0.1);
+        reference.table_decay = 0.05;
         let mut adam = Adam::new(n);
         adam.eps = 1e-8;
         adam.sparse_range = sr.clone();
+        adam.table_decay = 0.05;
         adam.decay_range = dr.clone();
         adam.weight_decay = 0.1;
         for t in 1..=6 {

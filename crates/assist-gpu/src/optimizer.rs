@@ -35,8 +35,8 @@ impl OptimizerFactory for GpuTraining {
         self.gpu.name()
     }
 
-    fn make(&self, field: &NodeField) -> Result<Box<dyn NodeOptimizer>, String> {
-        GpuOptimizer::new(self.gpu.clone(), field)
+    fn make(&self, field: &NodeField, grid_decay: f32) -> Result<Box<dyn NodeOptimizer>, String> {
+        GpuOptimizer::new(self.gpu.clone(), field, grid_decay)
             .map(|o| Box::new(o) as Box<dyn NodeOptimizer>)
             .map_err(|e| e.to_string())
     }
@@ -57,9 +57,12 @@ pub struct GpuOptimizer {
 }
 
 impl GpuOptimizer {
-    pub fn new(gpu: Arc<Gpu>, nf: &NodeField) -> Result<Self, GpuError> {
+    /// `grid_decay`: the hash tables' decay (see [`Adam::table_decay`]).
+    pub fn new(gpu: Arc<Gpu>, nf: &NodeField, grid_decay: f32) -> Result<Self, GpuError> {
         let field = GpuField::new(&gpu, &nf.field)?;
-        let trainer = GpuTrainer::new(&gpu, &field, &nf.field, &Adam::for_field(&nf.field))?;
+        let mut adam = Adam::for_field(&nf.field);
+        adam.table_decay = grid_decay;
+        let trainer = GpuTrainer::new(&gpu, &field, &nf.field, &adam)?;
         let readback = gpu.checked("allocating the parameters' read-back buffer", || {
             gpu.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("params readback"),

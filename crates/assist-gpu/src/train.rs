@@ -22,6 +22,7 @@ struct AdamState {
     weight_decay: f32,
     decay: std::ops::Range<usize>,
     sparse: std::ops::Range<usize>,
+    table_decay: f32,
     step: u32,
 }
 
@@ -44,7 +45,7 @@ pub struct GpuTrainer {
     /// Recomputes the per-code biases after Adam (they fold weights and codes).
     refresh: wgpu::ComputePipeline,
     /// The hyper-parameter block's layout words for `refresh_codes`.
-    code_layout: [u32; 9],
+    code_layout: [u32; 8],
     adam_bind: wgpu::BindGroup,
     hyper: wgpu::Buffer,
     state: AdamState,
@@ -128,7 +129,7 @@ impl Stage {
 
 /// `refresh_codes`' words of the hyper-parameter block: the first colour layer's weight,
 /// bias, row stride, outputs, first code column; the codes' offset, width and count.
-fn code_layout(field: &Field) -> [u32; 9] {
+fn code_layout(field: &Field) -> [u32; 8] {
     let (c, l) = (&field.config, &field.layout);
     let c0 = &l.color[0];
     [
@@ -140,7 +141,6 @@ fn code_layout(field: &Field) -> [u32; 9] {
         l.appearance,
         c.appearance_dim,
         c.num_images,
-        0,
     ]
     .map(|v| v as u32)
 }
@@ -191,6 +191,7 @@ impl GpuTrainer {
             weight_decay: adam.weight_decay,
             decay: adam.decay_range.clone(),
             sparse: adam.sparse_range.clone(),
+            table_decay: adam.table_decay,
             step: adam.step,
         };
         if adam.m.len() != n {
@@ -429,6 +430,7 @@ impl GpuTrainer {
         bytes.extend_from_slice(bytemuck::cast_slice(&f));
         bytes.extend_from_slice(bytemuck::cast_slice(&u));
         bytes.extend_from_slice(bytemuck::cast_slice(&self.code_layout));
+        bytes.extend_from_slice(&s.table_decay.to_le_bytes());
         gpu.queue.write_buffer(&self.hyper, 0, &bytes);
         let groups = (self.param_count as u32).div_ceil(256);
         let max = gpu.limits.max_compute_workgroups_per_dimension;
@@ -446,7 +448,7 @@ impl GpuTrainer {
             pass.set_bind_group(0, &self.adam_bind, &[]);
             pass.dispatch_workgroups(x, y, 1);
             pass.set_pipeline(&self.refresh);
-            let [_, _, _, out, .., images, _] = self.code_layout;
+            let [_, _, _, out, .., images] = self.code_layout;
             pass.dispatch_workgroups(((images + 1) * out).div_ceil(64), 1, 1);
         }
         gpu.queue.submit([enc.finish()]);

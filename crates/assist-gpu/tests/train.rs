@@ -138,6 +138,10 @@ fn adam_steps_match_cpu() {
     let mut adam = Adam::for_field(&field);
     adam.weight_decay = 1e-3;
     adam.decay_range = field.layout.mlp_start()..field.layout.appearance;
+    adam.table_decay = 0.5;
+    // The same steps on the CPU without the tables' decay: what the GPU must not match.
+    let (mut undecayed, mut adam0) = (field.clone(), adam.clone());
+    adam0.table_decay = 0.0;
     let mut tr = GpuTrainer::new(&gpu, &gf, &field, &adam).expect("kernels");
     gf.load(&gpu, &s).expect("load");
     tr.set_loss_grads(&gpu, &gf, &field, &b.d_sigma, &b.d_rgb)
@@ -151,6 +155,9 @@ fn adam_steps_match_cpu() {
         field.forward_train(&s, &mut tape, &mut sig, &mut rgb);
         field.backward(&s, &mut tape, &b.d_sigma, &b.d_rgb, &mut grad);
         adam.update(1e-2, &mut field.params, &mut grad);
+        undecayed.forward_train(&s, &mut tape, &mut sig, &mut rgb);
+        undecayed.backward(&s, &mut tape, &b.d_sigma, &b.d_rgb, &mut grad);
+        adam0.update(1e-2, &mut undecayed.params, &mut grad);
         tr.submit_step(&gpu, &gf, 1).expect("step");
         tr.submit_adam(&gpu, 1e-2);
     }
@@ -162,6 +169,12 @@ fn adam_steps_match_cpu() {
     assert!(
         off < 1e-4 * moved.max(1e-3) * 1e3,
         "GPU parameters differ by {off:e}"
+    );
+    let by_decay = rel(&undecayed.params, &field.params);
+    eprintln!("the tables' decay moved the CPU's parameters {by_decay:.2e}");
+    assert!(
+        off < 0.1 * by_decay,
+        "GPU {off:e} off, the decay {by_decay:e}"
     );
     // Untouched hash entries stay exactly as they were on both.
     let grid = field.layout.grid.param_count();

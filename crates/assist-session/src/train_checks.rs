@@ -94,6 +94,15 @@ impl TrainConfig {
                 format!("expected a transmittance of at least 0 and below 1 (0 = off), got {t}"),
             ));
         }
+        if !(c.grid_decay.is_finite() && (0.0..=1.0).contains(&c.grid_decay)) {
+            return Err(request(
+                "grid_decay",
+                format!(
+                    "expected a decay of at least 0 and at most 1 (0 = off), got {}",
+                    c.grid_decay
+                ),
+            ));
+        }
         if !(0.0..=1.0).contains(&c.hidden_stop) {
             return Err(request(
                 "hidden_stop",

@@ -295,6 +295,13 @@ pub struct TrainConfig {
     /// unless the training views have depth maps, which bound the scene).
     #[arg(long, help_heading = MODEL, default_value = "auto", value_parser = background_parser())]
     pub background: BackgroundSpace,
+    /// Pull every hash-table entry a step touches toward zero by this much (L2, added to its
+    /// gradient; 0: off), so that what few views constrain does not keep what they put
+    /// there. 1e-6 raised a 360° walk-around (gold_cape) 0.7 dB and cost forward-facing
+    /// captures 0.4-1.5 dB (BENCHMARKS.md).
+    #[arg(long, help_heading = MODEL, value_name = "L",
+          default_value_t = TrainOptions::default().grid_decay)]
+    pub grid_decay: f32,
     /// Refine the training views' camera poses with the scene: each view learns a small
     /// translation and rotation (held-out views keep their poses).
     #[arg(long, help_heading = MODEL)]

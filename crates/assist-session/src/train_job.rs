@@ -385,6 +385,7 @@ impl TrainJob {
             downscale: c.downscale,
             depth_affine,
             refine_poses: c.refine_poses,
+            grid_decay: c.grid_decay,
             hidden_stop: c.hidden_stop,
             step_scale: c.step_scale,
             proposal_samples: proposal,

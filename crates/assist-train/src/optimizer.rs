@@ -63,9 +63,13 @@ pub struct CpuOptimizer {
 }
 
 impl CpuOptimizer {
-    pub fn new(field: &NodeField) -> Self {
+    /// Adam for `field` with its hash tables decayed by `grid_decay` (see
+    /// [`Adam::table_decay`]).
+    pub fn new(field: &NodeField, grid_decay: f32) -> Self {
+        let mut adam = Adam::for_field(&field.field);
+        adam.table_decay = grid_decay;
         CpuOptimizer {
-            adam: Adam::for_field(&field.field),
+            adam,
             grad: vec![0.0; field.field.layout.total],
         }
     }
@@ -98,8 +102,9 @@ impl NodeOptimizer for CpuOptimizer {
 pub trait OptimizerFactory: Send + Sync + std::fmt::Debug {
     /// What steps the fields, for logs ("NVIDIA H200 (Vulkan, DiscreteGpu)").
     fn name(&self) -> String;
-    /// The optimizer of `field`, its state fresh.
-    fn make(&self, field: &NodeField) -> Result<Box<dyn NodeOptimizer>, String>;
+    /// The optimizer of `field`, its state fresh, its hash tables decayed by
+    /// `grid_decay` (see [`Adam::table_decay`]).
+    fn make(&self, field: &NodeField, grid_decay: f32) -> Result<Box<dyn NodeOptimizer>, String>;
 }
 
 #[cfg(test)]
@@ -123,7 +128,7 @@ mod tests {
         let occ = OccupancyGrid::new(8);
         let mut nf = NodeField::new(field, occ, DVec3::ONE);
         let before = nf.field.params.clone();
-        let mut opt = CpuOptimizer::new(&nf);
+        let mut opt = CpuOptimizer::new(&nf, 0.0);
         let k = nf.field.layout.mlp_start();
         opt.grad[k] = 1.0;
         opt.step(&mut nf, 1e-2).unwrap();

@@ -1,8 +1,9 @@
 // One Adam step over the flat parameter vector, as `assist_field::Adam::update`: moments
 // flushed below 1e-30, gradients below 1e-17 counted as zero, entries of the sparse range
-// (hash tables) with a zero gradient left alone, L2 decay over the decay range; the
-// gradient is zeroed for the next step. Then `refresh_codes` recomputes the first colour
-// layer's per-code biases from the updated weights and codes.
+// (hash tables) with a zero gradient left alone and the others decayed by `table_decay`,
+// L2 decay over the decay range; the gradient is zeroed for the next step. Then
+// `refresh_codes` recomputes the first colour layer's per-code biases from the updated
+// weights and codes.
 
 struct Hyper {
     b1: f32,
@@ -25,7 +26,7 @@ struct Hyper {
     app: u32,
     app_dim: u32,
     images: u32,
-    _pad0: u32,
+    table_decay: f32,
 }
 
 @group(0) @binding(0) var<storage, read_write> p: array<f32>;
@@ -50,10 +51,14 @@ fn adam(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         gi = 0.0;
     }
     g[i] = 0.0;
-    if (gi == 0.0 && i >= h.sparse_start && i < h.sparse_end) {
+    let in_table = i >= h.sparse_start && i < h.sparse_end;
+    if (gi == 0.0 && in_table) {
         m[i] = flush(m[i]);
         v[i] = flush(v[i]);
         return;
+    }
+    if (in_table) {
+        gi += h.table_decay * p[i];
     }
     if (h.weight_decay != 0.0 && i >= h.decay_start && i < h.decay_end) {
         gi += h.weight_decay * p[i];

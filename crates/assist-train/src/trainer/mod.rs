@@ -111,7 +111,7 @@ impl Trainer {
     pub fn use_optimizers(&mut self, factory: &dyn crate::OptimizerFactory) -> Result<()> {
         for (k, f) in &self.scene.fields {
             let o = factory
-                .make(f)
+                .make(f, self.opts.grid_decay)
                 .map_err(|e| TrainError::Other(format!("{} for field {k}: {e}", factory.name())))?;
             self.optimizers.insert(k.clone(), o);
         }
@@ -133,7 +133,7 @@ impl Trainer {
             .fields
             .iter()
             .map(|(k, f)| {
-                let o: Box<dyn NodeOptimizer> = Box::new(CpuOptimizer::new(f));
+                let o: Box<dyn NodeOptimizer> = Box::new(CpuOptimizer::new(f, opts.grid_decay));
                 (k.clone(), o)
             })
             .collect();

@@ -62,6 +62,9 @@ pub struct TrainOptions {
     /// from the dataset's own depth is metric, and a free scale only lets the rendered
     /// depth drift from it (the demo's wall rendered at half its distance, scale 0.42).
     pub depth_affine: bool,
+    /// L2 decay of the hash tables' entries each step touches ([`assist_field::Adam::
+    /// table_decay`]; 0 = none, the default: measured in BENCHMARKS.md).
+    pub grid_decay: f32,
     /// Learn a correction of every training view's pose with the scene (see
     /// [`super::PoseRefiner`]); held-out views keep their given poses.
     pub refine_poses: bool,
@@ -96,6 +99,7 @@ impl Default for TrainOptions {
             downscale: 1,
             depth_affine: false,
             refine_poses: false,
+            grid_decay: 0.0,
             prune_eps: 0.0,
             hidden_stop: 0.0,
             step_scale: 1.0,

@@ -318,6 +318,31 @@ fn config_files_give_flags_and_print_config_round_trips() {
         String::from_utf8_lossy(&o.stderr)
     );
 
+    // The hash tables' decay: none unless given, then as given and recorded; a negative
+    // one refused by name.
+    let decay = |info: &serde_json::Value| info["options"]["grid_decay"].as_f64().unwrap() as f32;
+    assert_eq!(decay(&common::scene_info(&t)), 0.0);
+    assert_eq!(decay(&unbounded(&[])), 0.0);
+    let info = unbounded(&["--grid-decay", "1e-6"]);
+    assert_eq!(decay(&info), 1e-6, "{info}");
+    assert_eq!(
+        info["train_config"]["grid_decay"].as_f64().unwrap() as f32,
+        1e-6
+    );
+    let o = run(&[
+        "train",
+        s(&data),
+        "--out",
+        s(&u),
+        "--grid-decay=-1",
+        "--force",
+    ]);
+    assert!(
+        !o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--grid-decay"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+
     let bad = tmp.path().join("bad.toml");
     std::fs::write(&bad, "colour = 3\n").unwrap();
     let o = run(&["train", s(&data), "--out", s(&t), "--config", s(&bad)]);
