@@ -297,8 +297,8 @@ pub struct TrainConfig {
     pub background: BackgroundSpace,
     /// Pull every hash-table entry a step touches toward zero by this much (L2, added to its
     /// gradient; 0: off), so that what few views constrain does not keep what they put
-    /// there. 1e-6 raised a 360° walk-around (gold_cape) 0.7 dB and cost forward-facing
-    /// captures 0.4-1.5 dB (BENCHMARKS.md).
+    /// there. It helped a 360° walk-around and cost forward-facing captures, so it is off
+    /// unless given (measured in BENCHMARKS.md).
     #[arg(long, help_heading = MODEL, value_name = "L",
           default_value_t = TrainOptions::default().grid_decay)]
     pub grid_decay: f32,
