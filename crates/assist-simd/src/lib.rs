@@ -8,6 +8,7 @@
 //! against the scalar one on random inputs.
 
 pub mod bf16;
+pub mod denormals;
 pub mod dispatch;
 pub mod fixed16;
 pub mod gemm;
@@ -69,8 +70,11 @@ impl Level {
     }
 }
 
-/// The best level this CPU supports, or the one forced by `ASSIST_SIMD`.
+/// The best level this CPU supports, or the one forced by `ASSIST_SIMD`. Every kernel
+/// asks before it runs, so this is also where a thread starts flushing subnormal floats
+/// to zero ([`denormals`]).
 pub fn level() -> Level {
+    denormals::on_this_thread();
     static L: OnceLock<Level> = OnceLock::new();
     *L.get_or_init(|| {
         let best = [Level::Avx512, Level::Avx2, Level::Scalar].into_iter().find(|l| l.supported()).unwrap_or(Level::Scalar);

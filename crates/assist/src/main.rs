@@ -9,5 +9,13 @@ fn main() -> std::process::ExitCode {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
+    // Subnormal floats flushed to zero on every thread from its start, not only from its
+    // first kernel (`assist_simd::denormals`): the same arithmetic whichever thread runs
+    // a piece of work.
+    assist_simd::denormals::on_this_thread();
+    // (Fails only when a pool exists already, which then flushes from its first kernel.)
+    let _ = rayon::ThreadPoolBuilder::new()
+        .start_handler(|_| assist_simd::denormals::on_this_thread())
+        .build_global();
     assist::run_from_env()
 }
