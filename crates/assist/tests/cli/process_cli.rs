@@ -205,7 +205,7 @@ fn a_video_and_photographs_become_posed_datasets() {
     const FRAMES_TRIED: usize = 4;
     let photos = root.join("from-photos");
     let mut tried: Vec<String> = Vec::new();
-    let (arg, metres, fit, record) = loop {
+    let (arg, metres, record) = loop {
         let (arg, metres, intended) = known_distance(&out, &order, &given, &truth.bounds, &tried);
         let o = run(&[
             "process",
@@ -258,6 +258,14 @@ fn a_video_and_photographs_become_posed_datasets() {
                 missed = Some(format!("known point {k} missed by {miss}"));
             }
         }
+        // Against the capture, only a scale far off (which physical points lie under the
+        // pixels in a second COLMAP reconstruction varies; docs/history.md, CI time). Two
+        // misses each under that bound still move a short known distance far when they
+        // lie along it (session 74: pixels 7 apart, points 0.38 and 0.18 off, the scale
+        // 0.043): the same as a miss, the next frame; far off in every frame fails.
+        if missed.is_none() && !(fit.scale > 0.25 && fit.scale < 4.0) {
+            missed = Some(format!("the scale to the capture is {}", fit.scale));
+        }
         if let Some(m) = missed {
             assert!(
                 tried.len() + 1 < FRAMES_TRIED,
@@ -268,7 +276,7 @@ fn a_video_and_photographs_become_posed_datasets() {
             tried.push(arg);
             continue;
         }
-        break (arg, metres, fit, record);
+        break (arg, metres, record);
     };
     // assist's own arithmetic, exactly: the two points `--scale-by` found under the
     // pixels (recorded in process.json) are the given metres apart in the written frame.
@@ -282,10 +290,6 @@ fn a_video_and_photographs_become_posed_datasets() {
         (measured - given_m).abs() < 1e-9 * given_m,
         "known points {measured} apart, given {given_m}"
     );
-    // Against the capture, only a scale far off: which physical points lie under the
-    // pixels in a second, different COLMAP reconstruction varies (the scales seen are in
-    // docs/history.md, CI time).
-    assert!(fit.scale > 0.25 && fit.scale < 4.0, "scale {}", fit.scale);
 
     // Unrelated --out content is never replaced, and a re-run needs --force.
     refused(
