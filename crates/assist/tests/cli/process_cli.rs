@@ -261,8 +261,7 @@ fn a_video_and_photographs_become_posed_datasets() {
         // Against the capture, only a scale far off (which physical points lie under the
         // pixels in a second COLMAP reconstruction varies; docs/history.md, CI time). Two
         // misses each under that bound still move a short known distance far when they
-        // lie along it (session 74: pixels 7 apart, points 0.38 and 0.18 off, the scale
-        // 0.043): the same as a miss, the next frame; far off in every frame fails.
+        // lie along it: the same as a miss, the next frame; far off in every frame fails.
         if missed.is_none() && !(fit.scale > 0.25 && fit.scale < 4.0) {
             missed = Some(format!("the scale to the capture is {}", fit.scale));
         }
