@@ -22,7 +22,7 @@ pub(crate) fn max_rows(field: &Field) -> usize {
 }
 
 /// Samples per workgroup: the largest of 64, 32, 16 whose two activation buffers (rows
-/// of TILE + 1 floats in the weight-gradient kernels) fit the adapter's workgroup memory
+/// of TILE + 4 floats in the weight-gradient kernels) fit the adapter's workgroup memory
 /// and invocation limits.
 pub(crate) fn tile(gpu: &Gpu, field: &Field) -> Result<u32, GpuError> {
     let l = &gpu.limits;
@@ -30,7 +30,7 @@ pub(crate) fn tile(gpu: &Gpu, field: &Field) -> Result<u32, GpuError> {
     [64u32, 32, 16]
         .into_iter()
         .find(|&t| {
-            2 * rows * (t as u64 + 1) * 4 <= l.max_compute_workgroup_storage_size as u64
+            2 * rows * (t as u64 + 4) * 4 <= l.max_compute_workgroup_storage_size as u64
                 && t <= l.max_compute_invocations_per_workgroup
                 && t <= l.max_compute_workgroup_size_x
         })
@@ -38,7 +38,7 @@ pub(crate) fn tile(gpu: &Gpu, field: &Field) -> Result<u32, GpuError> {
             adapter: gpu.info.name.clone(),
             message: format!(
                 "a field {rows} features wide needs {} bytes of workgroup memory for 16 samples; the adapter has {}",
-                2 * rows * 17 * 4,
+                2 * rows * 20 * 4,
                 l.max_compute_workgroup_storage_size
             ),
         })
@@ -354,9 +354,6 @@ pub(crate) fn dw_layers(field: &Field) -> Vec<DwLayer> {
     v
 }
 
-/// Tiles per workgroup of the weight-gradient kernels.
-pub(crate) const DW_TILES: u32 = 8;
-
 /// The training part's per-field WGSL: atomics, constants, `backward_nets` and `dw_*`.
 /// Layers must give at most 64 blocks of 4 outputs × 16 inputs (64-wide nets).
 pub(crate) fn train_header(
@@ -397,7 +394,7 @@ pub(crate) fn train_header(
     let c0 = &l.color[0];
     h += &format!(
         "const APP_DIM: u32 = {}u;\nconst APP: u32 = {}u;\nconst C0_W: u32 = {}u;\n\
-         const C0_PAD: u32 = {}u;\nconst K0: u32 = {}u;\nconst DW_TILES: u32 = {DW_TILES}u;\n",
+         const C0_PAD: u32 = {}u;\nconst K0: u32 = {}u;\n",
         c.appearance_dim,
         l.appearance,
         c0.w,
@@ -480,92 +477,142 @@ pub(crate) fn train_header(
          \x20   @builtin(num_workgroups) nw: vec3<u32>,\n) {{\n{body}}}\n"
     );
     for y in dw_layers(field) {
-        h += &dw_fn(&y)?;
+        h += &dw_fn(&y, tile)?;
     }
     Ok(h)
 }
 
-/// A weight-gradient kernel: `dW[o][i] += Σ_s d[o][s] x[i][s]`, `db[o] += Σ_s d[o][s]`
-/// over DW_TILES tiles per workgroup, staged through workgroup memory; invocation t takes
-/// a block of 4 outputs × 16 inputs.
-fn dw_fn(y: &DwLayer) -> Result<String, String> {
+/// Invocations of a weight-gradient workgroup: 16 output rows × 16 input rows.
+pub(crate) const DW_THREADS: u32 = 256;
+
+/// Workgroups of a weight-gradient dispatch at most (each loops over the tiles
+/// `g, g + G, …` and adds its partial sums with one atomic per weight): enough to fill a
+/// large GPU, few enough that the atomics stay a small share. `ASSIST_GPU_DW_GROUPS`
+/// overrides it (for benchmarks).
+pub(crate) fn dw_groups() -> u32 {
+    std::env::var("ASSIST_GPU_DW_GROUPS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .filter(|&g: &u32| g > 0)
+        .unwrap_or(512)
+}
+
+/// A weight-gradient kernel: `dW[o][i] += Σ_s d[o][s] x[i][s]`, `db[o] += Σ_s d[o][s]`.
+/// Each tile's `d` and `x` rows are staged in workgroup memory as vec4s of 4 samples
+/// (rows padded by one vec4, so that the 16 rows a warp reads fall in different banks),
+/// every load of a tile issued before the first store. Invocation t takes the outputs
+/// `t / 16 + 16m` and inputs `t % 16 + 16j` (vec4 partial sums over samples), which also
+/// keeps the reads of one warp conflict-free.
+fn dw_fn(y: &DwLayer, tile: u32) -> Result<String, String> {
     let (out, inp) = (y.l.out, y.inputs);
-    let (ob, ib) = (out.div_ceil(4), inp.div_ceil(16));
-    if ob * ib > 64 {
+    let (mo, mi) = (out.div_ceil(16), inp.div_ceil(16));
+    if mo > 4 || mi > 4 {
         return Err(format!(
-            "{}: {out} × {inp} is wider than the GPU training kernels take (at most 64 blocks of 4 × 16)",
+            "{}: {out} × {inp} is wider than the GPU training kernels take (at most 64 × 64)",
             y.name
         ));
     }
-    let x = match y.x_at {
-        Some(at) => format!("tape[tile * T_ROWS * TILE + ({at}u + row) * TILE + lane]"),
-        None => "enc[tile * ENC_W * TILE + row * TILE + lane]".into(),
+    let x = |e: &str| match y.x_at {
+        Some(at) => format!("tape[tb * T_ROWS + {at}u * TILE + {e}]"),
+        None => format!("enc[tb * ENC_W + {e}]"),
     };
+    let d = |e: &str| format!("dtape[tb * D_ROWS + {}u * TILE + {e}]", y.d_at);
     let mut f = format!(
-        "@compute @workgroup_size(64)\nfn {}(\n\
+        "@compute @workgroup_size({DW_THREADS})\nfn {}(\n\
          \x20   @builtin(local_invocation_index) t: u32,\n\
          \x20   @builtin(workgroup_id) wid: vec3<u32>,\n\
          \x20   @builtin(num_workgroups) nw: vec3<u32>,\n) {{\n\
-         \x20   let g = wid.x + wid.y * nw.x;\n\
          \x20   let tiles = (call.n + TILE - 1u) / TILE;\n\
-         \x20   let ob = t / {ib}u;\n    let o0 = ob * 4u;\n    let i0 = (t % {ib}u) * 16u;\n\
-         \x20   var bs = 0.0;\n",
+         \x20   let ob = t / 16u;\n    let ib = t % 16u;\n",
         y.name
     );
-    for j in 0..16 {
-        f += &format!("    var a{j} = vec4<f32>(0.0);\n");
-    }
-    f += &format!(
-        "    for (var tt = 0u; tt < DW_TILES; tt++) {{\n\
-         \x20       let tile = g * DW_TILES + tt;\n\
-         \x20       if (tile >= tiles) {{\n            break;\n        }}\n\
-         \x20       let lanes = min(TILE, call.n - tile * TILE);\n\
-         \x20       for (var e = t; e < {out}u * TILE; e += 64u) {{\n\
-         \x20           let row = e / TILE;\n            let lane = e % TILE;\n\
-         \x20           DS[row * ROW + lane] = select(0.0, dtape[tile * D_ROWS * TILE + ({}u + row) * TILE + lane], lane < lanes);\n\
-         \x20       }}\n\
-         \x20       for (var e = t; e < {inp}u * TILE; e += 64u) {{\n\
-         \x20           let row = e / TILE;\n            let lane = e % TILE;\n\
-         \x20           XS[row * ROW + lane] = select(0.0, {x}, lane < lanes);\n\
-         \x20       }}\n\
-         \x20       workgroupBarrier();\n\
-         \x20       if (ob < {ob}u) {{\n\
-         \x20           for (var s = 0u; s < TILE; s++) {{\n",
-        y.d_at
-    );
-    let om1 = out - 1;
-    f += &format!(
-        "                let dv = vec4<f32>(DS[min(o0, {om1}u) * ROW + s], DS[min(o0 + 1u, {om1}u) * ROW + s], DS[min(o0 + 2u, {om1}u) * ROW + s], DS[min(o0 + 3u, {om1}u) * ROW + s]);\n"
-    );
-    for j in 0..16 {
+    for m in 0..mo {
         f += &format!(
-            "                a{j} = fma(dv, vec4<f32>(XS[min(i0 + {j}u, {}u) * ROW + s]), a{j});\n",
+            "    let o{m} = min(ob + {}u, {}u) * ROW4;\n",
+            16 * m,
+            out - 1
+        );
+        f += &format!("    var b{m} = vec4<f32>(0.0);\n");
+    }
+    for j in 0..mi {
+        f += &format!(
+            "    let i{j} = min(ib + {}u, {}u) * ROW4;\n",
+            16 * j,
             inp - 1
         );
     }
+    for m in 0..mo {
+        for j in 0..mi {
+            f += &format!("    var a{m}_{j} = vec4<f32>(0.0);\n");
+        }
+    }
+    f += "    for (var tile = wid.x; tile < tiles; tile += nw.x) {\n\
+          \x20       let tb = tile * TILE;\n        let lanes = min(TILE, call.n - tb);\n";
+    // Staging: every load of the tile into registers first, then the stores.
+    let stage = |f: &mut String, buf: &str, rows: usize, src: &dyn Fn(&str) -> String| {
+        let total = rows as u32 * tile;
+        let k = total.div_ceil(DW_THREADS);
+        for q in 0..k {
+            let e = format!("(t + {}u)", q * DW_THREADS);
+            let load = format!("select(0.0, {}, {e} % TILE < lanes)", src(&e));
+            if (q + 1) * DW_THREADS <= total {
+                *f += &format!("        let v{q} = {load};\n");
+            } else {
+                *f += &format!(
+                    "        var v{q} = 0.0;\n        if ({e} < {total}u) {{\n            v{q} = {load};\n        }}\n"
+                );
+            }
+        }
+        for q in 0..k {
+            let e = format!("(t + {}u)", q * DW_THREADS);
+            let store = format!("{buf}[({e} / TILE) * ROW4 + ({e} % TILE) / 4u][{e} % 4u] = v{q};");
+            if (q + 1) * DW_THREADS <= total {
+                *f += &format!("        {store}\n");
+            } else {
+                *f += &format!("        if ({e} < {total}u) {{\n            {store}\n        }}\n");
+            }
+        }
+    };
+    f += "        {\n";
+    stage(&mut f, "DS", out, &d);
+    f += "        }\n        {\n";
+    stage(&mut f, "XS", inp, &x);
+    f += "        }\n        workgroupBarrier();\n";
     f += &format!(
-        "            }}\n        }}\n\
-         \x20       if (t < {out}u) {{\n\
-         \x20           for (var s = 0u; s < TILE; s++) {{\n                bs += DS[t * ROW + s];\n            }}\n\
-         \x20       }}\n        workgroupBarrier();\n    }}\n\
-         \x20   if (ob < {ob}u) {{\n"
+        "        if (ob < {out}u) {{\n            for (var q = 0u; q < TILE / 4u; q++) {{\n"
     );
-    for r in 0..4 {
-        let comp = ["x", "y", "z", "w"][r];
+    for m in 0..mo {
+        f += &format!("                let d{m} = DS[o{m} + q];\n                b{m} += d{m};\n");
+    }
+    for j in 0..mi {
+        f += &format!("                let x{j} = XS[i{j} + q];\n");
+    }
+    for m in 0..mo {
+        for j in 0..mi {
+            f += &format!("                a{m}_{j} = fma(d{m}, x{j}, a{m}_{j});\n");
+        }
+    }
+    f += "            }\n        }\n        workgroupBarrier();\n    }\n";
+    let sum = |v: &str| format!("{v}.x + {v}.y + {v}.z + {v}.w");
+    for m in 0..mo {
+        let o = format!("(ob + {}u)", 16 * m);
         f += &format!(
-            "        if (o0 + {r}u < {out}u) {{\n            let row = {}u + (o0 + {r}u) * {}u;\n",
+            "    if ({o} < {out}u) {{\n        let row = {}u + {o} * {}u;\n",
             y.l.w, y.l.inp_pad
         );
-        for j in 0..16 {
+        for j in 0..mi {
+            let i = format!("(ib + {}u)", 16 * j);
             f += &format!(
-                "            if (i0 + {j}u < {inp}u) {{\n                grad_add(row + i0 + {j}u, a{j}.{comp});\n            }}\n"
+                "        if ({i} < {inp}u) {{\n            grad_add(row + {i}, {});\n        }}\n",
+                sum(&format!("a{m}_{j}"))
             );
         }
-        f += "        }\n";
+        f += &format!(
+            "        if (ib == 0u) {{\n            grad_add({}u + {o}, {});\n        }}\n    }}\n",
+            y.l.b,
+            sum(&format!("b{m}"))
+        );
     }
-    f += &format!(
-        "    }}\n    if (t < {out}u) {{\n        grad_add({}u + t, bs);\n    }}\n}}\n",
-        y.l.b
-    );
+    f += "}\n";
     Ok(f)
 }

@@ -6,7 +6,7 @@
 
 use assist_field::{Adam, Field};
 
-use crate::codegen::{DW_TILES, TapeRows, dw_layers, header, train_header};
+use crate::codegen::{TapeRows, dw_groups, dw_layers, header, train_header};
 use crate::kernels::{Kernels, RW, UNIFORM, bind, bind_layout, storage};
 use crate::{Gpu, GpuError, GpuField};
 
@@ -34,6 +34,8 @@ pub struct GpuTrainer {
     forward: wgpu::ComputePipeline,
     backward: wgpu::ComputePipeline,
     dw: Vec<wgpu::ComputePipeline>,
+    /// Workgroups of each weight-gradient dispatch at most.
+    dw_groups: u32,
     code_sums_k: wgpu::ComputePipeline,
     code_backward: wgpu::ComputePipeline,
     encode_backward: wgpu::ComputePipeline,
@@ -217,6 +219,7 @@ impl GpuTrainer {
                 forward: pipeline("forward_nets"),
                 backward: pipeline("backward_nets"),
                 dw,
+                dw_groups: dw_groups().min(gpu.limits.max_compute_workgroups_per_dimension),
                 code_sums_k: pipeline("code_sums_of_tile"),
                 code_backward: pipeline("code_backward"),
                 encode_backward: pipeline("encode_backward"),
@@ -236,6 +239,13 @@ impl GpuTrainer {
                 param_count: n,
             }
         })
+    }
+
+    /// Caps the workgroups of the weight-gradient dispatches (`ASSIST_GPU_DW_GROUPS`), for
+    /// the tests of workgroups that loop over several tiles.
+    #[doc(hidden)]
+    pub fn set_dw_groups(&mut self, groups: u32) {
+        self.dw_groups = groups.max(1);
     }
 
     /// Sets the loss's gradients for the batch loaded in `gf`: dL/dσ per sample and
@@ -325,7 +335,7 @@ impl GpuTrainer {
         }
         let (ex, ey) = gf.groups(gpu, 64);
         let (tx, ty) = gf.groups(gpu, gf.tile);
-        let (wx, wy) = gf.groups(gpu, gf.tile * DW_TILES);
+        let dw_groups = (gf.n as u32).div_ceil(gf.tile).min(self.dw_groups);
         let mut enc = gpu
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
@@ -354,7 +364,7 @@ impl GpuTrainer {
                     Stage::WeightGrads => {
                         for p in &self.dw {
                             pass.set_pipeline(p);
-                            pass.dispatch_workgroups(wx, wy, 1);
+                            pass.dispatch_workgroups(dw_groups, 1, 1);
                         }
                     }
                     Stage::Codes if codes => {

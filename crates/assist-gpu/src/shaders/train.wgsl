@@ -17,11 +17,12 @@
 // pre-activation).
 @group(1) @binding(5) var<storage, read_write> code_sums: array<GRAD_T>;
 
-// Rows of TILE + 1 (not TILE): invocations of a warp read one column of several rows at
-// once, and a stride of TILE floats would put them all in the same memory bank.
-const ROW: u32 = TILE + 1u;
-var<workgroup> DS: array<f32, MAXW * ROW>;
-var<workgroup> XS: array<f32, MAXW * ROW>;
+// The weight-gradient kernels' staging: rows of TILE / 4 vec4s (4 samples each) plus one,
+// so that rows 1 apart start 4 banks apart and the 16 rows a warp reads at once spread
+// over the banks.
+const ROW4: u32 = TILE / 4u + 1u;
+var<workgroup> DS: array<vec4<f32>, MAXW * ROW4>;
+var<workgroup> XS: array<vec4<f32>, MAXW * ROW4>;
 
 // Keeps rows of WA/WB (lane t) as pre-activation gradients at dtape rows from `at`.
 fn keep_d(id: u32, rows: u32, at: u32, tile: u32, t: u32) {
