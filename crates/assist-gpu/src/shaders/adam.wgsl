@@ -70,10 +70,31 @@ fn adam(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     p[i] -= h.step_size * mi / (sqrt(vi) * h.inv_sqrt_c2 + h.eps);
 }
 
+// The average code (the last slot's), computed by each workgroup of `refresh_codes`: one
+// invocation per code dimension, four sums in flight (a thread per bias looping over every
+// image, as before, waited on one load at a time and took most of an Adam step).
+var<workgroup> avg: array<f32, 256>;
+
 // code_bias[slot][o] = b[o] + W_app[o] · code(slot), the average code last.
 @compute @workgroup_size(64)
-fn refresh_codes(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let slots = select(1u, h.images + 1u, h.app_dim > 0u);
+fn refresh_codes(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) t: u32) {
+    let images = h.images;
+    for (var k = t; k < h.app_dim; k += 64u) {
+        var a = vec4<f32>(0.0);
+        var j = 0u;
+        while (j + 4u <= images) {
+            let at = h.app + j * h.app_dim + k;
+            a += vec4<f32>(p[at], p[at + h.app_dim], p[at + 2u * h.app_dim], p[at + 3u * h.app_dim]);
+            j += 4u;
+        }
+        while (j < images) {
+            a.x += p[h.app + j * h.app_dim + k];
+            j += 1u;
+        }
+        avg[k] = (a.x + a.y + a.z + a.w) / f32(max(images, 1u));
+    }
+    workgroupBarrier();
+    let slots = select(1u, images + 1u, h.app_dim > 0u);
     let i = gid.x;
     if (i >= slots * h.c0_out) {
         return;
@@ -83,14 +104,9 @@ fn refresh_codes(@builtin(global_invocation_id) gid: vec3<u32>) {
     var v = p[h.c0_b + o];
     let row = h.c0_w + o * h.c0_pad + h.k0;
     for (var k = 0u; k < h.app_dim; k++) {
-        var code = 0.0;
-        if (slot < h.images) {
+        var code = avg[k];
+        if (slot < images) {
             code = p[h.app + slot * h.app_dim + k];
-        } else {
-            for (var j = 0u; j < h.images; j++) {
-                code += p[h.app + j * h.app_dim + k];
-            }
-            code /= f32(max(h.images, 1u));
         }
         v += p[row + k] * code;
     }

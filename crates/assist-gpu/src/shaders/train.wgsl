@@ -1,7 +1,7 @@
 // The training half of the field on the GPU, appended to field.wgsl (whose forward pass,
 // compiled with recording on, fills `tape`). Written per field above: `grad_add`,
 // `sums_add`, `sums_get` (float atomics, or a compare-exchange loop where the adapter has
-// none), `backward_nets` and the weight-gradient kernels `dw_*`.
+// none), `backward_nets` with its ReLU masks and the weight-gradient kernels `dw_*`.
 
 // What the forward pass kept, per tile: T_ROWS rows of TILE lanes (see `TapeRows`).
 @group(1) @binding(0) var<storage, read_write> tape: array<f32>;
@@ -29,16 +29,6 @@ fn keep_d(id: u32, rows: u32, at: u32, tile: u32, t: u32) {
     let base = tile * D_ROWS * TILE + t;
     for (var r = 0u; r < rows; r++) {
         dtape[base + (at + r) * TILE] = get_buf(id, r, t);
-    }
-}
-
-// ReLU backward: zeroes lane t's gradient rows where the recorded activation was not > 0.
-fn relu_mask(id: u32, rows: u32, tape_at: u32, tile: u32, t: u32) {
-    let base = tile * T_ROWS * TILE + t;
-    for (var r = 0u; r < rows; r++) {
-        if (!(tape[base + (tape_at + r) * TILE] > 0.0)) {
-            set_buf(id, r, t, 0.0);
-        }
     }
 }
 
