@@ -29,10 +29,16 @@ pub(crate) fn max_rows(field: &Field) -> usize {
 /// made a training step 1.3× and inference 1.3× faster), else the largest smaller of
 /// 32, 16 whose two activation buffers (rows of TILE + 4 floats in the weight-gradient
 /// kernels) fit the adapter's workgroup memory and invocation limits.
+/// `ASSIST_GPU_TILE` (16, 32 or 64) puts that size first, for benchmarks.
 pub(crate) fn tile(gpu: &Gpu, field: &Field) -> Result<u32, GpuError> {
     let l = &gpu.limits;
     let rows = max_rows(field) as u64;
-    let first = gpu.info.subgroup_max_size.clamp(32, 64);
+    let first = match env_u32("ASSIST_GPU_TILE", "16, 32 or 64", |t| {
+        matches!(t, 16 | 32 | 64)
+    })? {
+        Some(t) => t,
+        None => gpu.info.subgroup_max_size.clamp(32, 64),
+    };
     [64u32, 32, 16]
         .into_iter()
         .filter(|&t| t <= first)
@@ -49,6 +55,24 @@ pub(crate) fn tile(gpu: &Gpu, field: &Field) -> Result<u32, GpuError> {
                 l.max_compute_workgroup_storage_size
             ),
         })
+}
+
+/// An environment variable that overrides a kernel setting for benchmarks: `None` when
+/// unset; an error naming it and what was `expected` when not a number that `ok` accepts.
+pub(crate) fn env_u32(
+    name: &str,
+    expected: &str,
+    ok: impl Fn(u32) -> bool,
+) -> Result<Option<u32>, GpuError> {
+    let Ok(v) = std::env::var(name) else {
+        return Ok(None);
+    };
+    match v.trim().parse::<u32>() {
+        Ok(n) if ok(n) => Ok(Some(n)),
+        _ => Err(GpuError::Run(format!(
+            "{name}: expected {expected}, got {v:?}"
+        ))),
+    }
 }
 
 /// Rows of a training record per sample (tile-blocked like the features): what the

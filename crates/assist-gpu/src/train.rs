@@ -183,6 +183,7 @@ impl GpuTrainer {
                 .device
                 .features()
                 .contains(wgpu::Features::SHADER_FLOAT32_ATOMIC);
+        let dw_groups = dw_groups()?;
         let extra = train_header(field, gf.tile, float_atomics).map_err(err)?;
         let source = format!("{}{extra}{FIELD}{TRAIN}", header(field, gf.tile, true));
         let n = field.params.len();
@@ -219,7 +220,7 @@ impl GpuTrainer {
                 forward: pipeline("forward_nets"),
                 backward: pipeline("backward_nets"),
                 dw,
-                dw_groups: dw_groups().min(gpu.limits.max_compute_workgroups_per_dimension),
+                dw_groups: dw_groups.min(gpu.limits.max_compute_workgroups_per_dimension),
                 code_sums_k: pipeline("code_sums_of_tile"),
                 code_backward: pipeline("code_backward"),
                 encode_backward: pipeline("encode_backward"),

@@ -3,7 +3,8 @@
 
 use assist_field::{Field, Linear};
 
-use super::{Layer, TapeRows, layer_fn};
+use super::{Layer, TapeRows, env_u32, layer_fn};
+use crate::GpuError;
 
 /// Layers whose weight gradient a `dw_*` kernel computes: name, layer, where its inputs
 /// are (`enc` rows, or tape rows from an offset), how many, and its gradient's dtape rows.
@@ -205,14 +206,10 @@ pub(crate) const DW_THREADS: u32 = 256;
 
 /// Workgroups of a weight-gradient dispatch at most (each loops over the tiles
 /// `g, g + G, …` and adds its partial sums with one atomic per weight): enough to fill a
-/// large GPU, few enough that the atomics stay a small share. `ASSIST_GPU_DW_GROUPS`
-/// overrides it (for benchmarks).
-pub(crate) fn dw_groups() -> u32 {
-    std::env::var("ASSIST_GPU_DW_GROUPS")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .filter(|&g: &u32| g > 0)
-        .unwrap_or(512)
+/// large GPU, few enough that the atomics stay a small share (132–1,056 took the same
+/// time on an H200). `ASSIST_GPU_DW_GROUPS` overrides it, for benchmarks.
+pub(crate) fn dw_groups() -> Result<u32, GpuError> {
+    Ok(env_u32("ASSIST_GPU_DW_GROUPS", "a positive number", |g| g > 0)?.unwrap_or(512))
 }
 
 /// A weight-gradient kernel: `dW[o][i] += Σ_s d[o][s] x[i][s]`, `db[o] += Σ_s d[o][s]`.

@@ -78,6 +78,27 @@ fn bench_field_on_the_gpu_reports_training_and_inference() {
         d["sigma"].as_f64().unwrap() < 1e-4 && d["rgb"].as_f64().unwrap() < 1e-4,
         "{d}"
     );
+    // The kernels' settings forced for benchmarks; a value that is not one is refused by
+    // the variable's name.
+    let forced = [("ASSIST_GPU_TILE", "16"), ("ASSIST_GPU_DW_GROUPS", "3")];
+    let out = assist(&args, &forced);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for (k, v, expected) in [
+        ("ASSIST_GPU_TILE", "48", "expected 16, 32 or 64"),
+        ("ASSIST_GPU_DW_GROUPS", "0", "expected a positive number"),
+    ] {
+        let out = assist(&args, &[(k, v)]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{k}={v}: {err}");
+        assert!(
+            err.contains(k) && err.contains(expected) && !err.contains("panicked"),
+            "{k}={v}: {err}"
+        );
+    }
 }
 
 #[test]
