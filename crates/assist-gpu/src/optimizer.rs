@@ -1,13 +1,14 @@
 //! Training through the trainer's seam (`assist_train::NodeOptimizer`): each field's
 //! forward and backward passes, gradients and Adam on the GPU ([`GpuOptimizer`]), made per
-//! field by [`GpuTraining`] (`train --device gpu`). The trainer still samples and
-//! composites on the CPU; after each step the parameters are read back into
-//! the field, so its sampling, occupancy refresh, held-out checks and checkpoints see
+//! field by [`GpuTraining`] (`train --device gpu`), and the occupancy grid's density
+//! queries. The trainer still samples and composites on the CPU; after each step the
+//! parameters are read back into the field, so its held-out checks and checkpoints see
 //! them as on the CPU path.
 
 use std::sync::Arc;
 
-use assist_field::{Adam, Samples, Tape};
+use assist_core::Rng;
+use assist_field::{Adam, Field, Samples, Tape};
 use assist_scene::NodeField;
 use assist_train::{NodeOptimizer, OptimizerFactory};
 
@@ -54,6 +55,8 @@ pub struct GpuOptimizer {
     /// changed on the CPU since (a resumed or edited one) is uploaded before its next
     /// gradient.
     digest: u64,
+    /// Whether a CPU fallback of the occupancy refresh was reported.
+    warned: bool,
 }
 
 impl GpuOptimizer {
@@ -74,10 +77,17 @@ impl GpuOptimizer {
         Ok(GpuOptimizer {
             readback,
             digest: crate::backend::digest(&nf.field),
+            warned: false,
             gpu,
             field,
             trainer,
         })
+    }
+
+    /// Whether part of an occupancy refresh fell back to the CPU (for tests).
+    #[doc(hidden)]
+    pub fn fell_back(&self) -> bool {
+        self.warned
     }
 
     fn accumulate_on(
@@ -97,9 +107,13 @@ impl GpuOptimizer {
     /// Uploads the field's parameters when they changed on the CPU since the GPU's copy
     /// was made or read back.
     fn sync(&mut self, nf: &NodeField) -> Result<(), GpuError> {
-        let d = crate::backend::digest(&nf.field);
+        self.sync_field(&nf.field)
+    }
+
+    fn sync_field(&mut self, field: &Field) -> Result<(), GpuError> {
+        let d = crate::backend::digest(field);
         if d != self.digest {
-            self.field.upload(&self.gpu, &nf.field)?;
+            self.field.upload(&self.gpu, field)?;
             self.digest = d;
         }
         Ok(())
@@ -138,6 +152,32 @@ impl NodeOptimizer for GpuOptimizer {
 
     fn step(&mut self, field: &mut NodeField, lr: f32) -> Result<(), String> {
         self.step_on(field, lr).map_err(|e| e.to_string())
+    }
+
+    /// The density at each cell's point queried on the GPU's copy (the grid itself stays
+    /// on the CPU, which marches with it). Where the GPU fails, the rest of the round
+    /// runs on the CPU and a warning says so once.
+    fn refresh_occupancy(&mut self, nf: &mut NodeField, rng: &mut Rng, round: usize) {
+        let NodeField {
+            field, occupancy, ..
+        } = nf;
+        let mut failed = self.sync_field(field).err();
+        let mut scratch = Vec::new();
+        occupancy.update_round_with(rng, round, |pos, sigma| {
+            if failed.is_none() {
+                match self.field.density(&self.gpu, pos, sigma) {
+                    Ok(()) => return,
+                    Err(e) => failed = Some(e),
+                }
+            }
+            field.density_with(pos, sigma, &mut scratch);
+        });
+        if let Some(e) = failed
+            && !self.warned
+        {
+            self.warned = true;
+            eprintln!("warning: the occupancy refresh ran on the CPU: {e}");
+        }
     }
 
     /// On the GPU's copy (current: the parameters come back after each step, and a

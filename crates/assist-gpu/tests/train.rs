@@ -1,12 +1,17 @@
 //! GPU training kernels against the CPU reference: the gradient of every parameter group
-//! after forward + backward, and the parameters after Adam steps. On lavapipe in CI (with
+//! after forward + backward, the parameters after Adam steps, and the occupancy grid
+//! refreshed from the GPU's density. On lavapipe in CI (with
 //! `ASSIST_REQUIRE_GPU=1`), skipped loudly without any adapter elsewhere.
 
 mod common;
 
-use assist_core::Rng;
-use assist_field::{Adam, Samples, Tape};
-use assist_gpu::{GpuField, GpuTrainer};
+use std::sync::Arc;
+
+use assist_core::{DVec3, Rng};
+use assist_field::{Adam, OccupancyGrid, Samples, Tape};
+use assist_gpu::{GpuField, GpuOptimizer, GpuTrainer};
+use assist_scene::NodeField;
+use assist_train::{CpuOptimizer, NodeOptimizer};
 use common::{configs, gpu, random_field};
 
 struct Batch {
@@ -211,4 +216,47 @@ fn adam_steps_match_cpu() {
         r_stale > 10.0 * r_rgb,
         "stale codes {r_stale:e}, GPU {r_rgb:e}"
     );
+}
+
+#[test]
+fn occupancy_refresh_on_the_gpu_matches_the_cpu() {
+    let Some(gpu) = gpu() else { return };
+    let (_, cfg) = configs().remove(0);
+    let nf = NodeField::new(random_field(cfg, 9), OccupancyGrid::new(64), DVec3::ONE);
+    let (mut on_cpu, mut on_gpu) = (nf.clone(), nf);
+    let mut cpu = CpuOptimizer::new(&on_cpu, 0.0);
+    let mut opt = GpuOptimizer::new(Arc::new(gpu), &on_gpu, 0.0).expect("GPU optimizer");
+    let (mut r1, mut r2) = (Rng::new(4), Rng::new(4));
+    for round in 0..2 {
+        cpu.refresh_occupancy(&mut on_cpu, &mut r1, round);
+        opt.refresh_occupancy(&mut on_gpu, &mut r2, round);
+    }
+    assert!(!opt.fell_back(), "the refresh ran on the CPU");
+    let (c, g) = (&on_cpu.occupancy, &on_gpu.occupancy);
+    let worst = c
+        .density
+        .iter()
+        .zip(&g.density)
+        .map(|(a, b)| (a - b).abs() / (a.abs() + 1e-3))
+        .fold(0f32, f32::max);
+    eprintln!("occupancy densities: GPU within {worst:.1e} of the CPU");
+    assert!(worst < 1e-4, "densities differ by {worst:e}");
+    // The same cells occupied, but where a density lies within rounding of the threshold
+    // (the mean density, or the grid's own threshold below it).
+    let mean = c.density.iter().map(|&d| d as f64).sum::<f64>() / c.density.len() as f64;
+    let thr = c.threshold.min(mean as f32);
+    let mut differ = 0;
+    for cell in 0..c.cells() {
+        if c.is_occupied_cell(cell) != g.is_occupied_cell(cell) {
+            differ += 1;
+            let d = c.density[cell];
+            assert!(
+                (d - thr).abs() <= 1e-4 * thr.abs().max(1e-6),
+                "cell {cell}: density {d} against threshold {thr}, occupied on one only"
+            );
+        }
+    }
+    let occupied = c.occupied_fraction();
+    eprintln!("{occupied:.3} of the cells occupied, {differ} differ at the threshold");
+    assert!(occupied > 0.01 && occupied < 0.99, "occupied {occupied}");
 }

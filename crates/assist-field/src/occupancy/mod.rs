@@ -274,8 +274,22 @@ impl OccupancyGrid {
     /// The update training runs every few steps: round `round` refreshes part
     /// `round % parts()` of the cells (each cell every `parts()` rounds; all decay).
     pub fn update_round(&mut self, field: &Field, rng: &mut assist_core::Rng, round: usize) {
+        let mut scratch = Vec::new();
+        self.update_round_with(rng, round, |pos, sigma| {
+            field.density_with(pos, sigma, &mut scratch)
+        });
+    }
+
+    /// [`update_round`](Self::update_round) with the density at points (in [0, 1]³, up
+    /// to 2¹⁶ at a time) from `density` (a GPU's copy of the field, say).
+    pub fn update_round_with(
+        &mut self,
+        rng: &mut assist_core::Rng,
+        round: usize,
+        density: impl FnMut([&[f32]; 3], &mut [f32]),
+    ) {
         let parts = self.parts();
-        self.update_part(field, rng, round % parts, parts);
+        self.update_part_with(rng, round % parts, parts, density);
     }
 
     /// Like [`update`](Self::update) for the cells `c` with `c % parts == part` only
@@ -286,6 +300,20 @@ impl OccupancyGrid {
         rng: &mut assist_core::Rng,
         part: usize,
         parts: usize,
+    ) {
+        let mut scratch = Vec::new();
+        self.update_part_with(rng, part, parts, |pos, sigma| {
+            field.density_with(pos, sigma, &mut scratch)
+        });
+    }
+
+    /// [`update_part`](Self::update_part) with the density from `density`.
+    pub fn update_part_with(
+        &mut self,
+        rng: &mut assist_core::Rng,
+        part: usize,
+        parts: usize,
+        mut density: impl FnMut([&[f32]; 3], &mut [f32]),
     ) {
         let r = self.res as usize;
         let parts = parts.max(1);
@@ -319,7 +347,6 @@ impl OccupancyGrid {
         const SUB: usize = 4096;
         let mut pos = [vec![0f32; BLOCK], vec![0f32; BLOCK], vec![0f32; BLOCK]];
         let mut sigma = vec![0f32; BLOCK];
-        let mut scratch = Vec::new();
         for lo in (0..selected).step_by(BLOCK) {
             let m = BLOCK.min(selected - lo);
             let [px, py, pz] = &mut pos;
@@ -339,11 +366,7 @@ impl OccupancyGrid {
                         z[i] = (cz as f32 + rng.f32()) / r as f32;
                     }
                 });
-            field.density_with(
-                [&pos[0][..m], &pos[1][..m], &pos[2][..m]],
-                &mut sigma[..m],
-                &mut scratch,
-            );
+            density([&pos[0][..m], &pos[1][..m], &pos[2][..m]], &mut sigma[..m]);
             for (i, &s) in sigma[..m].iter().enumerate() {
                 let c = cell(lo + i);
                 let d = &mut self.density[c];
