@@ -20,6 +20,9 @@ pub enum BenchCommand {
     /// The viewer's latency on a trained scene: preview frame, full frame, drag update
     /// (with the drag cache), and preview frames/s with 1, 2 and 4 clients.
     View(crate::cmd_bench_view::ViewBenchArgs),
+    /// A training run's speed on either device: steps and samples per second, each
+    /// phase's time per step, the held-out PSNR reached (as `train`, nothing kept).
+    Train(crate::cmd_bench_train::TrainBenchArgs),
     /// A rendered frame's cost on a scene's held-out views: samples per ray marched and
     /// queried, time per stage, and the PSNR each renderer setting costs.
     Render(crate::cmd_bench_render::RenderBenchArgs),
@@ -82,6 +85,7 @@ pub fn run(c: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Prior(a) => prior(a),
         BenchCommand::View(a) => crate::cmd_bench_view::run(a),
         BenchCommand::Render(a) => crate::cmd_bench_render::run(a),
+        BenchCommand::Train(a) => crate::cmd_bench_train::run(a),
         BenchCommand::Mesh(a) => crate::cmd_bench_mesh::run(a),
         BenchCommand::Embed(a) => crate::cmd_bench_embed::run(a),
         BenchCommand::Process(a) => crate::cmd_bench_process::run(a),

@@ -19,6 +19,7 @@ mod cmd_bench_process;
 mod cmd_bench_render;
 mod cmd_bench_sam;
 mod cmd_bench_split;
+mod cmd_bench_train;
 mod cmd_bench_view;
 mod cmd_dataset;
 mod cmd_dataset_masks;

@@ -213,8 +213,9 @@ fn training_on_the_gpu_matches_the_cpu() {
     let data = dir.path().join("cap");
     common::synth_small(&data, 24);
     let data = common::s(&data);
-    // The held-out PSNR of a scene trained `iters` steps on `dev` (same seed).
-    let trained = |dev: &str, iters: &str| -> Option<f64> {
+    // The held-out PSNR of a scene trained `iters` steps on `dev` (same seed), by `eval`
+    // and by `train`'s own measure at the end.
+    let trained = |dev: &str, iters: &str| -> Option<(f64, f64)> {
         let out = dir.path().join(format!("{dev}_{iters}.assist"));
         let o = assist(
             &[
@@ -235,16 +236,16 @@ fn training_on_the_gpu_matches_the_cpu() {
         if no_adapter(&o) {
             return None;
         }
-        common::ok(&o);
+        let t: Value = serde_json::from_slice(&common::ok_stdout(&o).into_bytes()).unwrap();
         let o = assist(&["eval", common::s(&out), "--data", data, "--json"], &[]);
         let v: Value = serde_json::from_slice(&common::ok_stdout(&o).into_bytes()).unwrap();
-        v["psnr"].as_f64()
+        Some((v["psnr"].as_f64()?, t["held_out"]["psnr"].as_f64()?))
     };
-    let Some(gpu) = trained("gpu", "12") else {
+    let Some((gpu, gpu_train)) = trained("gpu", "12") else {
         return;
     };
-    let cpu = trained("cpu", "12").unwrap();
-    let start = trained("cpu", "1").unwrap();
+    let (cpu, cpu_train) = trained("cpu", "12").unwrap();
+    let (start, _) = trained("cpu", "1").unwrap();
     assert!(
         cpu > start + 1.0,
         "12 steps train the scene: {start:.2} → {cpu:.2} dB"
@@ -253,4 +254,33 @@ fn training_on_the_gpu_matches_the_cpu() {
         (gpu - cpu).abs() <= 0.05,
         "after 12 steps: {gpu:.3} dB on the GPU, {cpu:.3} dB on the CPU"
     );
+    // `bench train` runs the same training on each device, names it, keeps no scene,
+    // and reaches what `train` measured.
+    let scratch = dir.path().join("tmp");
+    std::fs::create_dir_all(&scratch).unwrap();
+    let benched = |dev: &str| -> Value {
+        let o = assist(
+            &[
+                "bench", "train", data, "--iters", "12", "--seed", "1", "--device", dev, "--json",
+            ],
+            &[("TMPDIR", common::s(&scratch))],
+        );
+        serde_json::from_slice(&common::ok_stdout(&o).into_bytes()).expect("json")
+    };
+    for (dev, psnr) in [("cpu", cpu_train), ("gpu", gpu_train)] {
+        let v = benched(dev);
+        assert_eq!(v["steps"], 12, "{v}");
+        assert_eq!(v["device"] == "cpu", dev == "cpu", "{v}");
+        for k in ["steps_per_sec", "samples_per_sec", "rays_per_sec"] {
+            assert!(v[k].as_f64().is_some_and(|x| x > 0.0), "{k}: {v}");
+        }
+        assert!(v["ms_per_step"]["forward"].as_f64().is_some(), "{v}");
+        let held = v["held_out"]["psnr"].as_f64().expect("held-out PSNR");
+        assert!(
+            (held - psnr).abs() <= 0.05,
+            "{dev}: bench train {held:.3} dB, train {psnr:.3} dB"
+        );
+    }
+    let left: Vec<_> = std::fs::read_dir(&scratch).unwrap().collect();
+    assert!(left.is_empty(), "bench train left {left:?}");
 }
