@@ -25,11 +25,11 @@ pub(crate) fn max_rows(field: &Field) -> usize {
 }
 
 /// Samples per workgroup: the adapter's subgroup size within 32–64 (one subgroup per
-/// workgroup, so the barriers between layers wait for no other; on an H200 32 against 64
-/// made a training step 1.3× and inference 1.3× faster), else the largest smaller of
-/// 32, 16 whose two activation buffers (rows of TILE + 4 floats in the weight-gradient
-/// kernels) fit the adapter's workgroup memory and invocation limits.
-/// `ASSIST_GPU_TILE` (16, 32 or 64) puts that size first, for benchmarks.
+/// workgroup, so the barriers between layers wait for no other; faster than 64 on NVIDIA,
+/// see BENCHMARKS.md), else the largest smaller of 32, 16 whose two activation buffers
+/// (rows of TILE + 4 floats in the weight-gradient kernels) fit the adapter's workgroup
+/// memory and invocation limits. `ASSIST_GPU_TILE` (16, 32 or 64) puts that size first,
+/// for benchmarks.
 pub(crate) fn tile(gpu: &Gpu, field: &Field) -> Result<u32, GpuError> {
     let l = &gpu.limits;
     let rows = max_rows(field) as u64;

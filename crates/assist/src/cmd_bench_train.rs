@@ -58,10 +58,8 @@ pub fn run(a: TrainBenchArgs) -> anyhow::Result<()> {
     let mut job = TrainJob::new(config);
     job.validate().map_err(flag_error)?;
     let device = a.device.open()?;
-    if let Some(b) = &device.backend {
-        job = job.with_optimizers(std::sync::Arc::new(assist_gpu::GpuTraining::new(
-            b.gpu().clone(),
-        )));
+    if let Some(t) = device.training() {
+        job = job.with_optimizers(t);
     }
     // Progress: a line about every 10 s (step, PSNR of the batch, time left).
     let mut shown = Instant::now();

@@ -499,10 +499,8 @@ fn print_report(a: &TrainArgs, outcome: &assist_session::TrainOutcome) -> anyhow
 pub fn run(a: TrainArgs) -> anyhow::Result<()> {
     let mut job = TrainJob::new(a.config()?);
     job.validate().map_err(flag_error)?;
-    if let Some(b) = a.device.open()?.backend {
-        job = job.with_optimizers(std::sync::Arc::new(assist_gpu::GpuTraining::new(
-            b.gpu().clone(),
-        )));
+    if let Some(t) = a.device.open()?.training() {
+        job = job.with_optimizers(t);
     }
     let log = match &a.log {
         Some(p) => Some(Log::new(p, a.train.resume, a.train.force)?),

@@ -45,6 +45,13 @@ impl Device {
         self.backend.clone().map(|b| b as Arc<dyn FieldBackend>)
     }
 
+    /// Training's optimizers on the GPU (`train --device`), or none (the CPU's).
+    pub fn training(&self) -> Option<Arc<assist_gpu::GpuTraining>> {
+        self.backend
+            .as_ref()
+            .map(|b| Arc::new(assist_gpu::GpuTraining::new(b.gpu().clone())))
+    }
+
     /// What answered, for `--json`: the adapter's name, or "cpu".
     pub fn name(&self) -> String {
         self.backend

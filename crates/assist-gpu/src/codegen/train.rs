@@ -188,7 +188,7 @@ pub(crate) fn train_header(
 /// ReLU backward for lane t: zeroes the gradient rows of `buf` (WA/WB) where the recorded
 /// activation (tape rows from `at`) was not > 0. Every row's record is loaded before the
 /// first store: loads interleaved with stores waited for each other, one memory latency
-/// per row (2.3 of a step's 8.5 ms on an H200).
+/// per row.
 fn relu_fn(name: &str, buf: &str, rows: usize, at: usize) -> String {
     let mut f =
         format!("fn {name}(tile: u32, t: u32) {{\n    let base = tile * T_ROWS * TILE + t;\n");
@@ -206,8 +206,8 @@ pub(crate) const DW_THREADS: u32 = 256;
 
 /// Workgroups of a weight-gradient dispatch at most (each loops over the tiles
 /// `g, g + G, …` and adds its partial sums with one atomic per weight): enough to fill a
-/// large GPU, few enough that the atomics stay a small share (132–1,056 took the same
-/// time on an H200). `ASSIST_GPU_DW_GROUPS` overrides it, for benchmarks.
+/// large GPU, few enough that the atomics stay a small share. `ASSIST_GPU_DW_GROUPS`
+/// overrides it, for benchmarks.
 pub(crate) fn dw_groups() -> Result<u32, GpuError> {
     Ok(env_u32("ASSIST_GPU_DW_GROUPS", "a positive number", |g| g > 0)?.unwrap_or(512))
 }
