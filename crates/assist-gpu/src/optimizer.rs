@@ -1,9 +1,9 @@
 //! Training through the trainer's seam (`assist_train::NodeOptimizer`): each field's
 //! forward and backward passes, gradients and Adam on the GPU ([`GpuOptimizer`]), made per
 //! field by [`GpuTraining`] (`train --device gpu`), and the occupancy grid's density
-//! queries. The trainer still samples and composites on the CPU; after each step the
-//! parameters are read back into the field, so its held-out checks and checkpoints see
-//! them as on the CPU path.
+//! queries. The trainer still samples and composites on the CPU. The stepped parameters
+//! stay on the GPU; they are read back into the field only when the trainer pulls them
+//! (before its held-out checks, checkpoints, the end of a run and any CPU forward pass).
 
 use std::sync::Arc;
 
@@ -48,13 +48,15 @@ pub struct GpuOptimizer {
     gpu: Arc<Gpu>,
     field: GpuField,
     trainer: GpuTrainer,
-    /// The buffer the parameters come back through after each step (kept: a new one
-    /// each step cost more than the copy on an H200).
+    /// The buffer the parameters come back through when pulled (kept: a new one each
+    /// time cost more than the copy on an H200).
     readback: wgpu::Buffer,
-    /// The digest of the parameters the GPU holds ([`crate::backend::digest`]): a field
-    /// changed on the CPU since (a resumed or edited one) is uploaded before its next
-    /// gradient.
+    /// The digest ([`crate::backend::digest`]) of the field as last uploaded or read
+    /// back: a field changed on the CPU since (a resumed or edited one) is uploaded before
+    /// its next gradient.
     digest: u64,
+    /// Whether the GPU's parameters are newer than the field's (stepped, not yet pulled).
+    ahead: bool,
     /// Whether a CPU fallback of the occupancy refresh was reported.
     warned: bool,
 }
@@ -77,6 +79,7 @@ impl GpuOptimizer {
         Ok(GpuOptimizer {
             readback,
             digest: crate::backend::digest(&nf.field),
+            ahead: false,
             warned: false,
             gpu,
             field,
@@ -98,14 +101,21 @@ impl GpuOptimizer {
         d_rgb: &[f32],
     ) -> Result<(), GpuError> {
         self.sync(nf)?;
-        self.field.load(&self.gpu, samples)?;
-        self.trainer
-            .set_loss_grads(&self.gpu, &self.field, &nf.field, d_sigma, d_rgb)?;
-        self.trainer.submit_step(&self.gpu, &self.field, 1)
+        // A batch larger than one storage binding holds (the first steps, before the
+        // occupancy grid thins the samples) goes in parts; the gradient adds up.
+        for r in parts(samples.len(), GpuTrainer::max_batch(&self.gpu, &nf.field)) {
+            self.field.load(&self.gpu, &part(samples, r.clone()))?;
+            let (ds, drgb) = (&d_sigma[r.clone()], &d_rgb[3 * r.start..3 * r.end]);
+            self.trainer
+                .set_loss_grads(&self.gpu, &self.field, &nf.field, ds, drgb)?;
+            self.trainer.submit_step(&self.gpu, &self.field, 1)?;
+        }
+        Ok(())
     }
 
     /// Uploads the field's parameters when they changed on the CPU since the GPU's copy
-    /// was made or read back.
+    /// was made or read back. A change while the GPU's copy is ahead would lose one or
+    /// the other, and is refused.
     fn sync(&mut self, nf: &NodeField) -> Result<(), GpuError> {
         self.sync_field(&nf.field)
     }
@@ -113,21 +123,37 @@ impl GpuOptimizer {
     fn sync_field(&mut self, field: &Field) -> Result<(), GpuError> {
         let d = crate::backend::digest(field);
         if d != self.digest {
+            if self.ahead {
+                return Err(GpuError::Run(
+                    "the field's parameters changed on the CPU while the GPU held newer ones \
+                     (pull them before changing the field)"
+                        .into(),
+                ));
+            }
             self.field.upload(&self.gpu, field)?;
             self.digest = d;
         }
         Ok(())
     }
 
-    fn step_on(&mut self, nf: &mut NodeField, lr: f32) -> Result<(), GpuError> {
-        self.trainer.submit_adam(&self.gpu, lr);
+    /// The GPU's parameters into the field, when they are newer.
+    fn pull_into(&mut self, field: &mut Field) -> Result<(), GpuError> {
+        if !self.ahead {
+            return Ok(());
+        }
+        if crate::backend::digest(field) != self.digest {
+            return Err(GpuError::Run(
+                "the field's parameters changed on the CPU while the GPU held newer ones".into(),
+            ));
+        }
         crate::read_f32_into(
             &self.gpu,
             &self.field.params,
             &self.readback,
-            &mut nf.field.params,
+            &mut field.params,
         )?;
-        self.digest = crate::backend::digest(&nf.field);
+        self.digest = crate::backend::digest(field);
+        self.ahead = false;
         Ok(())
     }
 }
@@ -150,8 +176,15 @@ impl NodeOptimizer for GpuOptimizer {
             .map_err(|e| e.to_string())
     }
 
-    fn step(&mut self, field: &mut NodeField, lr: f32) -> Result<(), String> {
-        self.step_on(field, lr).map_err(|e| e.to_string())
+    /// Adam on the GPU's copy; the field is left as it was until [`Self::pull`].
+    fn step(&mut self, _field: &mut NodeField, lr: f32) -> Result<(), String> {
+        self.trainer.submit_adam(&self.gpu, lr);
+        self.ahead = true;
+        Ok(())
+    }
+
+    fn pull(&mut self, field: &mut NodeField) -> Result<(), String> {
+        self.pull_into(&mut field.field).map_err(|e| e.to_string())
     }
 
     /// The density at each cell's point queried on the GPU's copy (the grid itself stays
@@ -170,6 +203,11 @@ impl NodeOptimizer for GpuOptimizer {
                     Err(e) => failed = Some(e),
                 }
             }
+            if failed.is_some() {
+                // The CPU's copy is behind the GPU's until pulled, which may fail too: then
+                // the grid follows the field as last read back.
+                let _ = self.pull_into(field);
+            }
             field.density_with(pos, sigma, &mut scratch);
         });
         if let Some(e) = failed
@@ -180,8 +218,7 @@ impl NodeOptimizer for GpuOptimizer {
         }
     }
 
-    /// On the GPU's copy (current: the parameters come back after each step, and a
-    /// field changed on the CPU since is uploaded first).
+    /// On the GPU's copy (current: a field changed on the CPU since is uploaded first).
     fn forward(
         &mut self,
         field: &NodeField,
@@ -191,8 +228,45 @@ impl NodeOptimizer for GpuOptimizer {
     ) -> Option<Result<(), String>> {
         let mut run = || -> Result<(), GpuError> {
             self.sync(field)?;
-            self.field.forward(&self.gpu, samples, sigma, rgb)
+            for r in parts(
+                samples.len(),
+                GpuTrainer::max_batch(&self.gpu, &field.field),
+            ) {
+                let (s, rgb) = (&mut sigma[r.clone()], &mut rgb[3 * r.start..3 * r.end]);
+                self.field.forward(&self.gpu, &part(samples, r), s, rgb)?;
+            }
+            Ok(())
         };
         Some(run().map_err(|e| e.to_string()))
+    }
+}
+
+/// `0..n` in consecutive ranges of at most `max` (at least 64).
+fn parts(n: usize, max: usize) -> impl Iterator<Item = std::ops::Range<usize>> {
+    let max = max.max(64);
+    (0..n.div_ceil(max)).map(move |k| k * max..((k + 1) * max).min(n))
+}
+
+/// The samples in `r` (directions and codes, where given, with them; codes missing at
+/// the end read as the average, as in [`GpuField::load`]).
+fn part<'a>(s: &Samples<'a>, r: std::ops::Range<usize>) -> Samples<'a> {
+    let cut = |v: &'a [f32]| if v.is_empty() { v } else { &v[r.clone()] };
+    Samples {
+        pos: s.pos.map(cut),
+        dir: s.dir.map(cut),
+        image: &s.image[r.start.min(s.image.len())..r.end.min(s.image.len())],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn parts_cover_a_batch_in_order() {
+        let all: Vec<_> = super::parts(300, 128).collect();
+        assert_eq!(all, [0..128, 128..256, 256..300]);
+        assert_eq!(super::parts(0, 128).count(), 0);
+        // At least 64 a part.
+        let one: Vec<_> = super::parts(10, 0).collect();
+        assert_eq!((one.len(), one[0].clone()), (1, 0..10));
     }
 }

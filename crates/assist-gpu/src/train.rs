@@ -148,6 +148,18 @@ fn code_layout(field: &Field) -> [u32; 8] {
 }
 
 impl GpuTrainer {
+    /// The most samples one training batch of `field` may hold on `gpu`: its record (the
+    /// widest per-sample buffer) must fit one storage binding, in whole tiles of 64.
+    pub fn max_batch(gpu: &Gpu, field: &Field) -> usize {
+        let rows = TapeRows::new(field);
+        let per_sample = 4 * rows
+            .total
+            .max(rows.d_total)
+            .max(field.config.encoding_width())
+            .max(6);
+        (gpu.limits.max_storage_buffer_binding_size / per_sample as u64) as usize / 64 * 64
+    }
+
     /// Builds the training kernels of `field` (uploaded as `gf`) with `adam`'s settings
     /// and moments.
     pub fn new(gpu: &Gpu, gf: &GpuField, field: &Field, adam: &Adam) -> Result<Self, GpuError> {

@@ -260,3 +260,78 @@ fn occupancy_refresh_on_the_gpu_matches_the_cpu() {
     eprintln!("{occupied:.3} of the cells occupied, {differ} differ at the threshold");
     assert!(occupied > 0.01 && occupied < 0.99, "occupied {occupied}");
 }
+
+/// Through the trainer's seam: the GPU's steps leave the field as it was until it is
+/// pulled, then it holds what the CPU's optimizer made of the same steps; a field changed
+/// on the CPU while the GPU is ahead is refused, and after a pull it is uploaded.
+#[test]
+fn stepped_parameters_stay_on_the_gpu_until_pulled() {
+    let Some(gpu) = gpu() else { return };
+    let (_, cfg) = configs().remove(0);
+    let nf = NodeField::new(random_field(cfg, 6), OccupancyGrid::new(16), DVec3::ONE);
+    let b = batch(64, nf.field.config.num_images, 3);
+    let s = samples(&b);
+    let (mut on_cpu, mut on_gpu) = (nf.clone(), nf.clone());
+    let mut cpu = CpuOptimizer::new(&on_cpu, 0.0);
+    let mut opt = GpuOptimizer::new(Arc::new(gpu), &on_gpu, 0.0).expect("GPU optimizer");
+    let mut tape = Tape::default();
+    let n = s.len();
+    let (mut sig, mut rgb) = (vec![0.0; n], vec![0.0; 3 * n]);
+    for _ in 0..3 {
+        on_cpu
+            .field
+            .forward_train(&s, &mut tape, &mut sig, &mut rgb);
+        cpu.accumulate(&on_cpu, &s, &mut tape, &b.d_sigma, &b.d_rgb)
+            .unwrap();
+        cpu.step(&mut on_cpu, 1e-2).unwrap();
+        opt.accumulate(&on_gpu, &s, &mut tape, &b.d_sigma, &b.d_rgb)
+            .unwrap();
+        opt.step(&mut on_gpu, 1e-2).unwrap();
+    }
+    assert_eq!(
+        on_gpu.field.params, nf.field.params,
+        "read back before a pull"
+    );
+    opt.pull(&mut on_gpu).unwrap();
+    let moved = rel(&on_cpu.field.params, &nf.field.params);
+    let off = rel(&on_gpu.field.params, &on_cpu.field.params);
+    eprintln!("pulled after 3 steps: moved {moved:.2e}, GPU from CPU {off:.2e}");
+    assert!(
+        moved > 1e-3,
+        "the steps did not move the parameters ({moved:e})"
+    );
+    assert!(off < 0.1 * moved, "GPU parameters differ by {off:e}");
+    // A second pull reads nothing new: the field stays as pulled.
+    let pulled = on_gpu.field.params.clone();
+    opt.pull(&mut on_gpu).unwrap();
+    assert_eq!(on_gpu.field.params, pulled);
+
+    // Changed on the CPU while the GPU is ahead: both calls refuse, nothing is lost.
+    opt.accumulate(&on_gpu, &s, &mut tape, &b.d_sigma, &b.d_rgb)
+        .unwrap();
+    opt.step(&mut on_gpu, 1e-2).unwrap();
+    let k = on_gpu.field.layout.mlp_start();
+    let kept = on_gpu.field.params[k];
+    on_gpu.field.params[k] += 1.0;
+    let e = opt
+        .accumulate(&on_gpu, &s, &mut tape, &b.d_sigma, &b.d_rgb)
+        .unwrap_err();
+    assert!(e.contains("changed on the CPU"), "{e}");
+    assert!(
+        opt.pull(&mut on_gpu)
+            .unwrap_err()
+            .contains("changed on the CPU")
+    );
+    // Put back, it pulls; a change then is uploaded and its forward pass is the CPU's.
+    on_gpu.field.params[k] = kept;
+    opt.pull(&mut on_gpu).unwrap();
+    assert_ne!(on_gpu.field.params, pulled, "the fourth step came back");
+    on_gpu.field.params[k] += 0.5;
+    let (mut sig_g, mut rgb_g) = (vec![0.0; n], vec![0.0; 3 * n]);
+    opt.forward(&on_gpu, &s, &mut sig_g, &mut rgb_g)
+        .expect("a GPU forward pass")
+        .unwrap();
+    on_gpu.field.forward(&s, &mut sig, &mut rgb);
+    let (r_sig, r_rgb) = (rel(&sig_g, &sig), rel(&rgb_g, &rgb));
+    assert!(r_sig < 1e-4 && r_rgb < 1e-4, "σ {r_sig:e}, rgb {r_rgb:e}");
+}

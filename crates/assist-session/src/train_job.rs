@@ -233,7 +233,11 @@ impl TrainJob {
                     && every.due(s.iteration, s.elapsed, &mut last_eval)
                     && eval_error.is_none()
                 {
-                    match h.measure(&t.scene, s.iteration, s.elapsed, Some(&preview)) {
+                    let measured = t
+                        .pull()
+                        .map_err(SessionError::from)
+                        .and_then(|()| h.measure(&t.scene, s.iteration, s.elapsed, Some(&preview)));
+                    match measured {
                         Ok(m) => on_event(&TrainEvent::HeldOut(m)),
                         Err(e) => eval_error = Some(e),
                     }

@@ -1,9 +1,10 @@
 //! What the trainer asks of a node's field once the forward pass is done: take a
 //! batch's output gradients, step the parameters, refresh the occupancy grid. The trainer
 //! holds one [`NodeOptimizer`] per field and never writes parameters itself; this is the
-//! seam a GPU backend implements (its gradient and Adam moments live in device buffers;
-//! `assist_gpu::GpuOptimizer` writes the stepped parameters back into the field, which
-//! stays the one the trainer's sampling, occupancy and checkpoints read).
+//! seam a GPU backend implements (its gradient, Adam moments and parameters live in device
+//! buffers). Such an optimizer may hold parameters newer than the field's between steps:
+//! the trainer asks it to [`NodeOptimizer::pull`] them before anything on the CPU reads
+//! the field (a held-out check, a checkpoint, the end of a run, a CPU forward pass).
 //!
 //! [`CpuOptimizer`] keeps the gradient buffer and Adam moments beside the field.
 //! [`OptimizerFactory`] makes the optimizers of a run (`train --device`).
@@ -46,6 +47,12 @@ pub trait NodeOptimizer: Send {
     /// Refreshes the field's occupancy grid from its density (`round` counts refreshes).
     fn refresh_occupancy(&mut self, field: &mut NodeField, rng: &mut Rng, round: usize) {
         field.occupancy.update_round(&field.field, rng, round);
+    }
+
+    /// Brings parameters this optimizer holds that are newer than `field`'s into it (a
+    /// GPU's copy after its steps); the CPU's optimizer steps the field itself.
+    fn pull(&mut self, _field: &mut NodeField) -> Result<(), String> {
+        Ok(())
     }
 
     /// Whether every parameter is finite (checked before a checkpoint is written).

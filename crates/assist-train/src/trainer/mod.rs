@@ -109,6 +109,7 @@ impl Trainer {
     /// The fields' optimizers from now on made by `factory` (a GPU's), their state fresh:
     /// call before the first step (a resumed run starts its moments afresh either way).
     pub fn use_optimizers(&mut self, factory: &dyn crate::OptimizerFactory) -> Result<()> {
+        self.pull()?;
         for (k, f) in &self.scene.fields {
             let o = factory
                 .make(f, self.opts.grid_decay)
@@ -240,6 +241,20 @@ impl Trainer {
         }
     }
 
+    /// Brings the parameters the optimizers hold into the scene's fields where they are
+    /// newer (a GPU's, which stay on the device between steps): call before reading the
+    /// fields on the CPU between steps. `run` pulls before its checkpoints and at its end.
+    pub fn pull(&mut self) -> Result<()> {
+        for (key, nf) in self.scene.fields.iter_mut() {
+            self.optimizers
+                .get_mut(key)
+                .expect("optimizer per field")
+                .pull(Arc::make_mut(nf))
+                .map_err(|e| TrainError::Other(format!("reading field {key} back: {e}")))?;
+        }
+        Ok(())
+    }
+
     /// Occupied fraction of each field's grid (by field key).
     pub fn occupancy(&self) -> Vec<(String, f64)> {
         self.scene
@@ -287,8 +302,13 @@ impl Trainer {
     }
 
     /// Runs until the iteration or time budget is spent, calling `on_step` after each
-    /// step; checkpoints atomically every `checkpoint_every` seconds when configured.
-    pub fn run(&mut self, mut on_step: impl FnMut(&StepStats, &Trainer)) -> Result<TrainReport> {
+    /// step (which calls [`Trainer::pull`] before it reads the fields); checkpoints
+    /// atomically every `checkpoint_every` seconds when configured. The fields are
+    /// current when it returns.
+    pub fn run(
+        &mut self,
+        mut on_step: impl FnMut(&StepStats, &mut Trainer),
+    ) -> Result<TrainReport> {
         let start = Instant::now();
         let first = self.iteration;
         let mut last_ckpt = Instant::now();
@@ -330,17 +350,19 @@ impl Trainer {
                 }
                 Err(e) => return Err(e),
             }
-            if let Some(dir) = &self.opts.checkpoint
+            if let Some(dir) = self.opts.checkpoint.clone()
                 && last_ckpt.elapsed().as_secs_f64() >= self.opts.checkpoint_every
             {
+                self.pull()?;
                 if self.is_finite() {
                     let el = self.elapsed_before + start.elapsed().as_secs_f64();
-                    self.kept.save(dir, &self.scene, self.info(el))?;
-                    saved = Some(dir.clone());
+                    self.kept.save(&dir, &self.scene, self.info(el))?;
+                    saved = Some(dir);
                 }
                 last_ckpt = Instant::now();
             }
         };
+        self.pull()?;
         let secs = start.elapsed().as_secs_f64();
         phases.other = secs - phases.total();
         Ok(TrainReport {

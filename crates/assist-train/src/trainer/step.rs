@@ -43,7 +43,7 @@ impl Trainer {
         let lr = warmed_lr(scheduled, self.iteration, self.warm_from, self.opts.iters);
         let tp = Instant::now();
         let mut phase = [0.0f64; 6];
-        let (candidates, pruned) = self.trace();
+        let (candidates, pruned) = self.trace()?;
         phase[0] = tp.elapsed().as_secs_f64();
         self.forward()?;
         let interlevel = self.train_proposal(lr);
@@ -68,6 +68,7 @@ impl Trainer {
         self.update(lr, shade_grads, g_wq)?;
         phase[4] = tp.elapsed().as_secs_f64();
         if self.opts.poison_at == Some(self.iteration) {
+            self.pull()?;
             for nf in self.scene.fields.values_mut() {
                 Arc::make_mut(nf).field.poison();
             }
@@ -100,7 +101,7 @@ impl Trainer {
     /// Draws the batch's rays and their samples in every node, drops those hidden behind
     /// opaque ones, and shades the background beyond: the candidates drawn and what the
     /// pruning did.
-    fn trace(&mut self) -> (usize, assist_render::PruneStats) {
+    fn trace(&mut self) -> Result<(usize, assist_render::PruneStats)> {
         self.draw_rays();
         let so = SampleOptions {
             jitter: true,
@@ -115,6 +116,8 @@ impl Trainer {
         // A proposal's samples are kept whole: its loss pairs them with their spans.
         let drawn = self.traced.proposal.is_some();
         let pruned = if self.opts.prune_eps > 0.0 && !drawn && (self.prune_pays || probe) {
+            // The density pass reads the fields on the CPU.
+            self.pull()?;
             let p = assist_render::prune_occluded(
                 &self.scene,
                 &mut self.traced,
@@ -142,7 +145,7 @@ impl Trainer {
             _ => None,
         };
         assist_render::shade_background(&self.scene, &self.rays, &mut self.traced);
-        (candidates, pruned)
+        Ok((candidates, pruned))
     }
 
     /// Composites the batch with the objective's gradient per sample, then sums the
@@ -211,6 +214,7 @@ impl Trainer {
     fn forward(&mut self) -> Result<()> {
         let q = assist_render::Query::Train;
         if self.poses.is_some() {
+            self.pull()?;
             assist_render::query_fields(&self.scene, &mut self.traced, &mut self.tapes, q);
             return Ok(());
         }
