@@ -366,7 +366,7 @@ impl GpuField {
     }
 
     /// The first `floats` outputs of the last run (σ, then rgb interleaved).
-    fn read(&self, gpu: &Gpu, floats: usize) -> Result<Vec<f32>, GpuError> {
+    pub(crate) fn read(&self, gpu: &Gpu, floats: usize) -> Result<Vec<f32>, GpuError> {
         let io = self.io.as_ref().expect("a batch was loaded");
         crate::read_f32(gpu, &io.out, floats)
     }

@@ -57,6 +57,9 @@ pub struct GpuOptimizer {
     digest: u64,
     /// Whether the GPU's parameters are newer than the field's (stepped, not yet pulled).
     ahead: bool,
+    /// The batch whose forward pass left its training record on the GPU (by where its
+    /// samples lie): its gradient then needs no second forward pass.
+    recorded: Option<BatchKey>,
     /// Whether a CPU fallback of the occupancy refresh was reported.
     warned: bool,
 }
@@ -80,6 +83,7 @@ impl GpuOptimizer {
             readback,
             digest: crate::backend::digest(&nf.field),
             ahead: false,
+            recorded: None,
             warned: false,
             gpu,
             field,
@@ -101,6 +105,11 @@ impl GpuOptimizer {
         d_rgb: &[f32],
     ) -> Result<(), GpuError> {
         self.sync(nf)?;
+        if self.recorded.take() == Some(BatchKey::of(samples)) {
+            self.trainer
+                .set_loss_grads(&self.gpu, &self.field, &nf.field, d_sigma, d_rgb)?;
+            return self.trainer.submit_backward(&self.gpu, &self.field);
+        }
         // A batch larger than one storage binding holds (the first steps, before the
         // occupancy grid thins the samples) goes in parts; the gradient adds up.
         for r in parts(samples.len(), GpuTrainer::max_batch(&self.gpu, &nf.field)) {
@@ -123,6 +132,7 @@ impl GpuOptimizer {
     fn sync_field(&mut self, field: &Field) -> Result<(), GpuError> {
         let d = crate::backend::digest(field);
         if d != self.digest {
+            self.recorded = None;
             if self.ahead {
                 return Err(GpuError::Run(
                     "the field's parameters changed on the CPU while the GPU held newer ones \
@@ -194,6 +204,7 @@ impl NodeOptimizer for GpuOptimizer {
         let NodeField {
             field, occupancy, ..
         } = nf;
+        self.recorded = None;
         let mut failed = self.sync_field(field).err();
         let mut scratch = Vec::new();
         occupancy.update_round_with(rng, round, |pos, sigma| {
@@ -228,16 +239,45 @@ impl NodeOptimizer for GpuOptimizer {
     ) -> Option<Result<(), String>> {
         let mut run = || -> Result<(), GpuError> {
             self.sync(field)?;
-            for r in parts(
-                samples.len(),
-                GpuTrainer::max_batch(&self.gpu, &field.field),
-            ) {
+            self.recorded = None;
+            let max = GpuTrainer::max_batch(&self.gpu, &field.field);
+            if samples.len() <= max {
+                // With its record, for the gradient that follows.
+                self.field.load(&self.gpu, samples)?;
+                let (gpu, gf) = (&self.gpu, &self.field);
+                self.trainer
+                    .forward_recorded(gpu, gf, &field.field, sigma, rgb)?;
+                self.recorded = Some(BatchKey::of(samples));
+                return Ok(());
+            }
+            for r in parts(samples.len(), max) {
                 let (s, rgb) = (&mut sigma[r.clone()], &mut rgb[3 * r.start..3 * r.end]);
                 self.field.forward(&self.gpu, &part(samples, r), s, rgb)?;
             }
             Ok(())
         };
         Some(run().map_err(|e| e.to_string()))
+    }
+}
+
+/// Which batch a training record belongs to: where its samples lie and how many there
+/// are (the trainer passes the same arrays to the forward pass and to the gradient).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct BatchKey([usize; 8]);
+
+impl BatchKey {
+    fn of(s: &Samples) -> Self {
+        let p = |v: &[f32]| v.as_ptr() as usize;
+        BatchKey([
+            s.len(),
+            p(s.pos[0]),
+            p(s.pos[1]),
+            p(s.pos[2]),
+            p(s.dir[0]),
+            p(s.dir[1]),
+            p(s.dir[2]),
+            s.image.as_ptr() as usize ^ s.image.len().rotate_left(40),
+        ])
     }
 }
 

@@ -280,6 +280,19 @@ impl GpuTrainer {
                 d_rgb.len()
             )));
         }
+        self.reserve(gpu, gf, field)?;
+        let b = self.batch.as_ref().expect("allocated");
+        let mut v = Vec::with_capacity(4 * n);
+        v.extend_from_slice(d_sigma);
+        v.extend_from_slice(d_rgb);
+        gpu.queue
+            .write_buffer(&b.d_out, 0, bytemuck::cast_slice(&v));
+        Ok(())
+    }
+
+    /// Makes room for the training record of the batch loaded in `gf`.
+    fn reserve(&mut self, gpu: &Gpu, gf: &GpuField, field: &Field) -> Result<(), GpuError> {
+        let n = gf.n;
         if gf.io.is_none() {
             return Err(GpuError::Run("no batch loaded".into()));
         }
@@ -317,12 +330,6 @@ impl GpuTrainer {
             })?;
             self.batch = Some(batch);
         }
-        let b = self.batch.as_ref().expect("allocated");
-        let mut v = Vec::with_capacity(4 * n);
-        v.extend_from_slice(d_sigma);
-        v.extend_from_slice(d_rgb);
-        gpu.queue
-            .write_buffer(&b.d_out, 0, bytemuck::cast_slice(&v));
         Ok(())
     }
 
@@ -330,6 +337,32 @@ impl GpuTrainer {
     /// into the gradient buffer, as `Field::backward` sums into `grad`), without waiting.
     pub fn submit_step(&self, gpu: &Gpu, gf: &GpuField, reps: usize) -> Result<(), GpuError> {
         self.submit_stages(gpu, gf, reps, &Stage::ALL)
+    }
+
+    /// The forward pass over the batch loaded in `gf`, keeping its training record: σ
+    /// and rgb come out as from [`GpuField::forward`], and [`Self::submit_backward`]
+    /// (after [`Self::set_loss_grads`]) then needs no second forward pass.
+    pub fn forward_recorded(
+        &mut self,
+        gpu: &Gpu,
+        gf: &GpuField,
+        field: &Field,
+        sigma: &mut [f32],
+        rgb: &mut [f32],
+    ) -> Result<(), GpuError> {
+        let n = gf.n;
+        self.reserve(gpu, gf, field)?;
+        self.submit_stages(gpu, gf, 1, &Stage::ALL[..2])?;
+        let v = gf.read(gpu, 4 * n)?;
+        sigma[..n].copy_from_slice(&v[..n]);
+        rgb[..3 * n].copy_from_slice(&v[n..4 * n]);
+        Ok(())
+    }
+
+    /// The backward pass from the record of [`Self::forward_recorded`] (the same batch
+    /// still loaded) and the loss gradients set since, without waiting.
+    pub fn submit_backward(&self, gpu: &Gpu, gf: &GpuField) -> Result<(), GpuError> {
+        self.submit_stages(gpu, gf, 1, &Stage::ALL[2..])
     }
 
     /// Submits `reps` runs of the given stages, in their order.

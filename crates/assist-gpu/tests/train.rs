@@ -273,11 +273,27 @@ fn stepped_parameters_stay_on_the_gpu_until_pulled() {
     let s = samples(&b);
     let (mut on_cpu, mut on_gpu) = (nf.clone(), nf.clone());
     let mut cpu = CpuOptimizer::new(&on_cpu, 0.0);
-    let mut opt = GpuOptimizer::new(Arc::new(gpu), &on_gpu, 0.0).expect("GPU optimizer");
+    let gpu = Arc::new(gpu);
+    let mut opt = GpuOptimizer::new(gpu.clone(), &on_gpu, 0.0).expect("GPU optimizer");
+    // The trainer's way: the forward pass first (its record kept), then the gradient.
+    let mut fwd_first = nf.clone();
+    let mut opt2 = GpuOptimizer::new(gpu, &fwd_first, 0.0).expect("GPU optimizer");
     let mut tape = Tape::default();
     let n = s.len();
     let (mut sig, mut rgb) = (vec![0.0; n], vec![0.0; 3 * n]);
+    let (mut sig_g, mut rgb_g) = (vec![0.0; n], vec![0.0; 3 * n]);
     for _ in 0..3 {
+        opt2.forward(&fwd_first, &s, &mut sig_g, &mut rgb_g)
+            .expect("a GPU forward pass")
+            .unwrap();
+        // (Pulled for the CPU's forward pass, as the trainer pulls before one.)
+        opt2.pull(&mut fwd_first).unwrap();
+        fwd_first.field.forward(&s, &mut sig, &mut rgb);
+        let (r_sig, r_rgb) = (rel(&sig_g, &sig), rel(&rgb_g, &rgb));
+        assert!(r_sig < 1e-4 && r_rgb < 1e-4, "σ {r_sig:e}, rgb {r_rgb:e}");
+        opt2.accumulate(&fwd_first, &s, &mut tape, &b.d_sigma, &b.d_rgb)
+            .unwrap();
+        opt2.step(&mut fwd_first, 1e-2).unwrap();
         on_cpu
             .field
             .forward_train(&s, &mut tape, &mut sig, &mut rgb);
@@ -301,6 +317,11 @@ fn stepped_parameters_stay_on_the_gpu_until_pulled() {
         "the steps did not move the parameters ({moved:e})"
     );
     assert!(off < 0.1 * moved, "GPU parameters differ by {off:e}");
+    // The same steps from the kept record: the same parameters.
+    opt2.pull(&mut fwd_first).unwrap();
+    let apart = rel(&fwd_first.field.params, &on_gpu.field.params);
+    eprintln!("from the forward pass's record: {apart:.1e} from the full steps'");
+    assert!(apart < 1e-3 * moved, "{apart:e}");
     // A second pull reads nothing new: the field stays as pulled.
     let pulled = on_gpu.field.params.clone();
     opt.pull(&mut on_gpu).unwrap();
@@ -327,7 +348,6 @@ fn stepped_parameters_stay_on_the_gpu_until_pulled() {
     opt.pull(&mut on_gpu).unwrap();
     assert_ne!(on_gpu.field.params, pulled, "the fourth step came back");
     on_gpu.field.params[k] += 0.5;
-    let (mut sig_g, mut rgb_g) = (vec![0.0; n], vec![0.0; 3 * n]);
     opt.forward(&on_gpu, &s, &mut sig_g, &mut rgb_g)
         .expect("a GPU forward pass")
         .unwrap();
