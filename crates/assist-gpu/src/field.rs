@@ -353,20 +353,27 @@ impl GpuField {
         s: &Samples,
         staging: wgpu::Buffer,
     ) -> Result<Pending, GpuError> {
-        let n = s.len();
         self.load(gpu, s)?;
         self.submit(gpu, &self.forward, 1);
-        let io = self.io.as_ref().expect("reserved");
-        let mut enc = gpu
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        enc.copy_buffer_to_buffer(&io.out, 0, &staging, 0, 16 * n as u64);
-        gpu.queue.submit([enc.finish()]);
-        Ok(Pending { staging, n })
+        Ok(self.copy_out(gpu, staging))
+    }
+
+    /// Submits the copy of the last run's outputs to `staging` (at least 16 bytes a
+    /// sample), for [`collect`].
+    pub(crate) fn copy_out(&self, gpu: &Gpu, staging: wgpu::Buffer) -> Pending {
+        let n = self.n;
+        if let Some(io) = self.io.as_ref().filter(|_| n > 0) {
+            let mut enc = gpu
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+            enc.copy_buffer_to_buffer(&io.out, 0, &staging, 0, 16 * n as u64);
+            gpu.queue.submit([enc.finish()]);
+        }
+        Pending { staging, n }
     }
 
     /// The first `floats` outputs of the last run (σ, then rgb interleaved).
-    pub(crate) fn read(&self, gpu: &Gpu, floats: usize) -> Result<Vec<f32>, GpuError> {
+    fn read(&self, gpu: &Gpu, floats: usize) -> Result<Vec<f32>, GpuError> {
         let io = self.io.as_ref().expect("a batch was loaded");
         crate::read_f32(gpu, &io.out, floats)
     }

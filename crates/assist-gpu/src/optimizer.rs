@@ -60,6 +60,10 @@ pub struct GpuOptimizer {
     /// The batch whose forward pass left its training record on the GPU (by where its
     /// samples lie): its gradient then needs no second forward pass.
     recorded: Option<BatchKey>,
+    /// The forward pass started and not yet collected, and the buffer its outputs come
+    /// back through (kept between steps).
+    pending: Option<Started>,
+    staging: Option<wgpu::Buffer>,
     /// Whether a CPU fallback of the occupancy refresh was reported.
     warned: bool,
 }
@@ -84,6 +88,8 @@ impl GpuOptimizer {
             digest: crate::backend::digest(&nf.field),
             ahead: false,
             recorded: None,
+            pending: None,
+            staging: None,
             warned: false,
             gpu,
             field,
@@ -229,35 +235,79 @@ impl NodeOptimizer for GpuOptimizer {
         }
     }
 
-    /// On the GPU's copy (current: a field changed on the CPU since is uploaded first).
-    fn forward(
+    /// Queued on the GPU's copy (current: a field changed on the CPU since is uploaded
+    /// first), with its training record kept for the gradient that follows.
+    fn forward_submit(
         &mut self,
         field: &NodeField,
         samples: &Samples,
-        sigma: &mut [f32],
-        rgb: &mut [f32],
     ) -> Option<Result<(), String>> {
-        let mut run = || -> Result<(), GpuError> {
-            self.sync(field)?;
-            self.recorded = None;
-            let max = GpuTrainer::max_batch(&self.gpu, &field.field);
-            if samples.len() <= max {
-                // With its record, for the gradient that follows.
-                self.field.load(&self.gpu, samples)?;
-                let (gpu, gf) = (&self.gpu, &self.field);
-                self.trainer
-                    .forward_recorded(gpu, gf, &field.field, sigma, rgb)?;
-                self.recorded = Some(BatchKey::of(samples));
+        Some(
+            self.forward_submit_on(field, samples)
+                .map_err(|e| e.to_string()),
+        )
+    }
+
+    fn forward_finish(&mut self, sigma: &mut [f32], rgb: &mut [f32]) -> Result<(), String> {
+        let pending = match self.pending.take() {
+            Some(Started::Queued(p)) => p,
+            Some(Started::Done(v)) => {
+                let n = v.len() / 4;
+                sigma[..n].copy_from_slice(&v[..n]);
+                rgb[..3 * n].copy_from_slice(&v[n..]);
                 return Ok(());
             }
-            for r in parts(samples.len(), max) {
-                let (s, rgb) = (&mut sigma[r.clone()], &mut rgb[3 * r.start..3 * r.end]);
-                self.field.forward(&self.gpu, &part(samples, r), s, rgb)?;
-            }
-            Ok(())
+            None => return Err("no forward pass was started".into()),
         };
-        Some(run().map_err(|e| e.to_string()))
+        let mut staging = crate::field::collect(&self.gpu, vec![pending], |_, s, c| {
+            sigma[..s.len()].copy_from_slice(s);
+            rgb[..c.len()].copy_from_slice(c);
+        })
+        .map_err(|e| e.to_string())?;
+        self.staging = staging.pop();
+        Ok(())
     }
+}
+
+impl GpuOptimizer {
+    fn forward_submit_on(&mut self, field: &NodeField, samples: &Samples) -> Result<(), GpuError> {
+        self.sync(field)?;
+        self.recorded = None;
+        self.pending = None;
+        let n = samples.len();
+        let max = GpuTrainer::max_batch(&self.gpu, &field.field);
+        if n > max {
+            // In parts, each waited for (the first steps only, before the occupancy
+            // grid thins the samples); no record is kept.
+            let mut v = vec![0f32; 4 * n];
+            let (sigma, rgb) = v.split_at_mut(n);
+            for r in parts(n, max) {
+                let (s, c) = (&mut sigma[r.clone()], &mut rgb[3 * r.start..3 * r.end]);
+                self.field.forward(&self.gpu, &part(samples, r), s, c)?;
+            }
+            self.pending = Some(Started::Done(v));
+            return Ok(());
+        }
+        self.field.load(&self.gpu, samples)?;
+        let (gpu, gf) = (&self.gpu, &self.field);
+        self.trainer
+            .submit_forward_recorded(gpu, gf, &field.field)?;
+        let staging = match self.staging.take() {
+            Some(b) if b.size() >= 16 * n as u64 => b,
+            _ => crate::field::staging_buffer(&self.gpu, n + n / 4)?,
+        };
+        self.pending = Some(Started::Queued(self.field.copy_out(&self.gpu, staging)));
+        self.recorded = Some(BatchKey::of(samples));
+        Ok(())
+    }
+}
+
+/// A forward pass started by [`GpuOptimizer`]'s `forward_submit`.
+enum Started {
+    /// Queued: its outputs on their way to a staging buffer.
+    Queued(crate::field::Pending),
+    /// Done already (in parts): σ then rgb.
+    Done(Vec<f32>),
 }
 
 /// Which batch a training record belongs to: where its samples lie and how many there

@@ -339,27 +339,21 @@ impl GpuTrainer {
         self.submit_stages(gpu, gf, reps, &Stage::ALL)
     }
 
-    /// The forward pass over the batch loaded in `gf`, keeping its training record: σ
-    /// and rgb come out as from [`GpuField::forward`], and [`Self::submit_backward`]
-    /// (after [`Self::set_loss_grads`]) then needs no second forward pass.
-    pub fn forward_recorded(
+    /// Submits the forward pass over the batch loaded in `gf`, keeping its training
+    /// record (σ and rgb in the outputs as from [`GpuField::forward`]), without waiting:
+    /// [`Self::submit_backward`] (after [`Self::set_loss_grads`]) then needs no second
+    /// forward pass.
+    pub fn submit_forward_recorded(
         &mut self,
         gpu: &Gpu,
         gf: &GpuField,
         field: &Field,
-        sigma: &mut [f32],
-        rgb: &mut [f32],
     ) -> Result<(), GpuError> {
-        let n = gf.n;
         self.reserve(gpu, gf, field)?;
-        self.submit_stages(gpu, gf, 1, &Stage::ALL[..2])?;
-        let v = gf.read(gpu, 4 * n)?;
-        sigma[..n].copy_from_slice(&v[..n]);
-        rgb[..3 * n].copy_from_slice(&v[n..4 * n]);
-        Ok(())
+        self.submit_stages(gpu, gf, 1, &Stage::ALL[..2])
     }
 
-    /// The backward pass from the record of [`Self::forward_recorded`] (the same batch
+    /// The backward pass from the record of [`Self::submit_forward_recorded`] (the same batch
     /// still loaded) and the loss gradients set since, without waiting.
     pub fn submit_backward(&self, gpu: &Gpu, gf: &GpuField) -> Result<(), GpuError> {
         self.submit_stages(gpu, gf, 1, &Stage::ALL[2..])

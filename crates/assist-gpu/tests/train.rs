@@ -275,6 +275,9 @@ fn stepped_parameters_stay_on_the_gpu_until_pulled() {
     let mut cpu = CpuOptimizer::new(&on_cpu, 0.0);
     let gpu = Arc::new(gpu);
     let mut opt = GpuOptimizer::new(gpu.clone(), &on_gpu, 0.0).expect("GPU optimizer");
+    // Nothing to collect before a pass is started.
+    let e = opt.forward_finish(&mut [], &mut []).unwrap_err();
+    assert!(e.contains("no forward pass"), "{e}");
     // The trainer's way: the forward pass first (its record kept), then the gradient.
     let mut fwd_first = nf.clone();
     let mut opt2 = GpuOptimizer::new(gpu, &fwd_first, 0.0).expect("GPU optimizer");

@@ -31,17 +31,36 @@ pub trait NodeOptimizer: Send {
     /// One optimiser step with learning rate `lr`; clears the accumulated gradient.
     fn step(&mut self, field: &mut NodeField, lr: f32) -> Result<(), String>;
 
-    /// The training forward pass where this optimizer keeps its own copy of the field (a
-    /// GPU: σ and rgb come back, no CPU tape is recorded), or `None` to leave it to the
-    /// CPU's `Field::forward_train`.
-    fn forward(
+    /// Starts the training forward pass where this optimizer keeps its own copy of the
+    /// field (a GPU: the pass is queued, and no CPU tape is recorded), for
+    /// [`NodeOptimizer::forward_finish`] to hand over; `None` leaves it to the CPU's
+    /// `Field::forward_train`. The trainer starts every node's pass before it waits for
+    /// the first, so a GPU runs them back to back.
+    fn forward_submit(
         &mut self,
         _field: &NodeField,
         _samples: &Samples,
-        _sigma: &mut [f32],
-        _rgb: &mut [f32],
     ) -> Option<Result<(), String>> {
         None
+    }
+
+    /// σ and rgb of the pass [`NodeOptimizer::forward_submit`] started, once it is done.
+    fn forward_finish(&mut self, _sigma: &mut [f32], _rgb: &mut [f32]) -> Result<(), String> {
+        Err("no forward pass was started".into())
+    }
+
+    /// Both halves of the forward pass in one call (`None`: left to the CPU).
+    fn forward(
+        &mut self,
+        field: &NodeField,
+        samples: &Samples,
+        sigma: &mut [f32],
+        rgb: &mut [f32],
+    ) -> Option<Result<(), String>> {
+        Some(
+            self.forward_submit(field, samples)?
+                .and_then(|()| self.forward_finish(sigma, rgb)),
+        )
     }
 
     /// Refreshes the field's occupancy grid from its density (`round` counts refreshes).

@@ -15,6 +15,11 @@ use super::{
 };
 use crate::error::{Result, TrainError};
 
+/// A field's forward pass failed (on a GPU).
+fn field_error(key: &str, e: String) -> TrainError {
+    TrainError::Other(format!("the forward pass of field {key}: {e}"))
+}
+
 /// The share of the density pass's samples that must be dropped for the pass to pay: a
 /// sample's density pass costs a fraction of its forward and backward passes, and the
 /// compaction adds to it (the captures measured either way are in BENCHMARKS.md).
@@ -220,23 +225,43 @@ impl Trainer {
         }
         self.tapes
             .resize_with(self.traced.nodes.len(), Default::default);
-        for (ns, tape) in self.traced.nodes.iter_mut().zip(self.tapes.iter_mut()) {
+        // Every node's pass started first (a GPU's run back to back; the CPU's nodes
+        // meanwhile), then each collected.
+        let mut started = vec![false; self.traced.nodes.len()];
+        for (k, (ns, tape)) in self
+            .traced
+            .nodes
+            .iter_mut()
+            .zip(self.tapes.iter_mut())
+            .enumerate()
+        {
             let key = &self.scene.scene.nodes[ns.node].field;
-            let nf = &self.scene.fields[key];
             let opt = self.optimizers.get_mut(key).expect("optimizer per field");
             ns.prepare_outputs(true);
-            let (mut sigma, mut rgb) = (std::mem::take(&mut ns.sigma), std::mem::take(&mut ns.rgb));
-            let done = match ns.is_empty() {
-                true => Some(Ok(())),
-                false => opt.forward(nf, &ns.samples(), &mut sigma, &mut rgb),
-            };
-            (ns.sigma, ns.rgb) = (sigma, rgb);
-            match done {
-                Some(r) => r.map_err(|e| {
-                    TrainError::Other(format!("the forward pass of field {key}: {e}"))
-                })?,
+            if ns.is_empty() {
+                continue;
+            }
+            match opt.forward_submit(&self.scene.fields[key], &ns.samples()) {
+                Some(r) => {
+                    r.map_err(|e| field_error(key, e))?;
+                    started[k] = true;
+                }
                 None => assist_render::query_node(&self.scene, ns, tape, q),
             }
+        }
+        for (ns, _) in self
+            .traced
+            .nodes
+            .iter_mut()
+            .zip(started)
+            .filter(|(_, s)| *s)
+        {
+            let key = &self.scene.scene.nodes[ns.node].field;
+            let opt = self.optimizers.get_mut(key).expect("optimizer per field");
+            let (mut sigma, mut rgb) = (std::mem::take(&mut ns.sigma), std::mem::take(&mut ns.rgb));
+            let done = opt.forward_finish(&mut sigma, &mut rgb);
+            (ns.sigma, ns.rgb) = (sigma, rgb);
+            done.map_err(|e| field_error(key, e))?;
         }
         Ok(())
     }
