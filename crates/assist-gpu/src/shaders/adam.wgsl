@@ -46,15 +46,16 @@ fn adam(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     if (i >= h.n) {
         return;
     }
-    var gi = g[i];
-    if (abs(gi) < 1e-17) {
-        gi = 0.0;
+    let raw = g[i];
+    // Written only where it is not zero already: most table entries have no gradient.
+    if (raw != 0.0) {
+        g[i] = 0.0;
     }
-    g[i] = 0.0;
+    var gi = select(raw, 0.0, abs(raw) < 1e-17);
     let in_table = i >= h.sparse_start && i < h.sparse_end;
     if (gi == 0.0 && in_table) {
-        m[i] = flush(m[i]);
-        v[i] = flush(v[i]);
+        // Left alone: its moments were flushed when last written, so flushing them again
+        // would change nothing, and reading them would cost most of the step.
         return;
     }
     if (in_table) {
