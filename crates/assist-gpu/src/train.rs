@@ -282,11 +282,13 @@ impl GpuTrainer {
         }
         self.reserve(gpu, gf, field)?;
         let b = self.batch.as_ref().expect("allocated");
-        let mut v = Vec::with_capacity(4 * n);
-        v.extend_from_slice(d_sigma);
-        v.extend_from_slice(d_rgb);
-        gpu.queue
-            .write_buffer(&b.d_out, 0, bytemuck::cast_slice(&v));
+        // σ's gradients, then rgb's (each slice straight to wgpu's staging memory).
+        if n > 0 {
+            gpu.queue
+                .write_buffer(&b.d_out, 0, bytemuck::cast_slice(d_sigma));
+            gpu.queue
+                .write_buffer(&b.d_out, 4 * n as u64, bytemuck::cast_slice(d_rgb));
+        }
         Ok(())
     }
 
