@@ -199,6 +199,10 @@ impl NodeOptimizer for GpuOptimizer {
         Ok(())
     }
 
+    fn fills_tape(&self) -> bool {
+        false
+    }
+
     fn pull(&mut self, field: &mut NodeField) -> Result<(), String> {
         self.pull_into(&mut field.field).map_err(|e| e.to_string())
     }

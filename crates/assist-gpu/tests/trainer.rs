@@ -37,7 +37,23 @@ fn dist(a: &Params, b: &Params) -> f64 {
     d.sqrt()
 }
 
-fn trainer(ds: &Dataset, gpu: Option<&GpuTraining>, out: &Path) -> Trainer {
+/// A small built-in capture in `tmp`.
+fn synth(tmp: &TempDir) -> Dataset {
+    let data = tmp.join("synth");
+    let cfg = SynthConfig {
+        views: 12,
+        width: 48,
+        height: 36,
+        objects: 3,
+        spp: 1,
+        shadow_samples: 1,
+        ..Default::default()
+    };
+    generate(&cfg, &data, false, &|_, _| {}).unwrap();
+    assist_data::load(&data, &LoadOptions::default()).unwrap()
+}
+
+fn trainer(ds: &Dataset, gpu: Option<&GpuTraining>, out: &Path, refine_poses: bool) -> Trainer {
     let mut views = load_views(ds, Split::Train, background_color(ds)).unwrap();
     for v in views.iter_mut() {
         fill_prior(v, PriorKind::PushPull);
@@ -53,6 +69,7 @@ fn trainer(ds: &Dataset, gpu: Option<&GpuTraining>, out: &Path) -> Trainer {
         seed: 3,
         checkpoint: Some(out.to_path_buf()),
         checkpoint_every: 1e9,
+        refine_poses,
         ..Default::default()
     };
     let mut t = Trainer::new(scene, views, opts).unwrap();
@@ -66,24 +83,13 @@ fn trainer(ds: &Dataset, gpu: Option<&GpuTraining>, out: &Path) -> Trainer {
 fn the_gpu_trainer_pulls_its_parameters_where_the_cpu_reads_them() {
     let Some(gpu) = common::gpu() else { return };
     let tmp = TempDir::new("gpu-trainer");
-    let data = tmp.join("synth");
-    let cfg = SynthConfig {
-        views: 12,
-        width: 48,
-        height: 36,
-        objects: 3,
-        spp: 1,
-        shadow_samples: 1,
-        ..Default::default()
-    };
-    generate(&cfg, &data, false, &|_, _| {}).unwrap();
-    let ds = assist_data::load(&data, &LoadOptions::default()).unwrap();
+    let ds = synth(&tmp);
     let training = GpuTraining::new(Arc::new(gpu));
 
     // Three steps on each device, the fields read in the callback after the third.
     let run = |gpu: Option<&GpuTraining>, name: &str| {
         let out = tmp.join(name);
-        let mut t = trainer(&ds, gpu, &out);
+        let mut t = trainer(&ds, gpu, &out, false);
         let start = params(&t);
         let (mut first, mut third) = (None, None);
         t.opts.checkpoint_every = 1e9;
@@ -130,4 +136,46 @@ fn the_gpu_trainer_pulls_its_parameters_where_the_cpu_reads_them() {
         assert!(off < 0.01 * moved, "{what}: {off:e} off, moved {moved:e}");
     }
     assert_eq!(saved_g, end_g, "the last checkpoint is the end of the run");
+}
+
+/// With poses refined, each step's forward pass runs on the CPU (the poses' gradient needs
+/// its tapes, and the nets' backward pass into them, which the GPU's gradient does not
+/// leave there): the fields are pulled for it, so the fields and the poses follow the CPU
+/// run's. (Before, the poses of a GPU run did not move at all.)
+#[test]
+fn with_poses_refined_the_cpus_forward_pass_sees_the_gpus_steps() {
+    let Some(gpu) = common::gpu() else { return };
+    let tmp = TempDir::new("gpu-trainer-poses");
+    let ds = synth(&tmp);
+    let training = GpuTraining::new(Arc::new(gpu));
+    let run = |gpu: Option<&GpuTraining>, name: &str| {
+        let mut t = trainer(&ds, gpu, &tmp.join(name), true);
+        // Two steps: further on, the runs drift apart as any two do whose rays move with
+        // the poses (a pose moved by a hair draws other samples); without the pull the
+        // second step's CPU forward pass saw the first fields and the two were 13% (the
+        // fields) and 29% (the poses) apart after it.
+        t.opts.iters = 2;
+        let start = params(&t);
+        t.run(|_, _| {}).unwrap();
+        let poses = t.resume_state(0.0).pose_corrections.expect("refined poses");
+        (start, params(&t), poses)
+    };
+    let (start, end_g, poses_g) = run(Some(&training), "gpu.assist");
+    let (_, end_c, poses_c) = run(None, "cpu.assist");
+    let (off, moved) = (dist(&end_g, &end_c), dist(&end_c, &start));
+    let norm = |v: &[f32]| v.iter().map(|x| (*x as f64).powi(2)).sum::<f64>().sqrt();
+    let pose_off = norm(
+        &poses_g
+            .iter()
+            .zip(&poses_c)
+            .map(|(a, b)| a - b)
+            .collect::<Vec<_>>(),
+    );
+    eprintln!(
+        "poses refined: fields {off:.2e} apart (moved {moved:.2e}), poses {pose_off:.2e} apart (moved {:.2e})",
+        norm(&poses_c)
+    );
+    assert!(off < 0.01 * moved, "fields {off:e} apart, moved {moved:e}");
+    assert!(norm(&poses_c) > 0.0, "the poses did not move");
+    assert!(pose_off < 0.01 * norm(&poses_c), "poses {pose_off:e} apart");
 }

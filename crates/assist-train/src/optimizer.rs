@@ -68,6 +68,13 @@ pub trait NodeOptimizer: Send {
         field.occupancy.update_round(&field.field, rng, round);
     }
 
+    /// Whether [`NodeOptimizer::accumulate`] leaves dL/d(encoding) in the tape, as the
+    /// CPU's backward pass does. A GPU's does not: pose refinement, which needs it, then
+    /// runs the nets' backward pass on the CPU for it.
+    fn fills_tape(&self) -> bool {
+        true
+    }
+
     /// Brings parameters this optimizer holds that are newer than `field`'s into it (a
     /// GPU's copy after its steps); the CPU's optimizer steps the field itself.
     fn pull(&mut self, _field: &mut NodeField) -> Result<(), String> {

@@ -287,6 +287,15 @@ impl Trainer {
         let shade_grads = assist_render::shade_backward(&self.scene, &self.rays, &self.traced);
         let pose_step = self.iteration.is_multiple_of(POSE_EVERY);
         if let Some(p) = self.poses.as_mut().filter(|_| pose_step) {
+            // The poses' gradient reads dL/d(encoding) from the CPU's tapes; where the
+            // field's backward pass ran elsewhere (a GPU), the nets' runs here for it.
+            for (ns, tape) in self.traced.nodes.iter().zip(self.tapes.iter_mut()) {
+                let key = &self.scene.scene.nodes[ns.node].field;
+                if !ns.is_empty() && !self.optimizers[key].fills_tape() {
+                    let field = &self.scene.fields[key].field;
+                    field.backward_to_encoding(&ns.samples(), tape, &ns.d_sigma, &ns.d_rgb);
+                }
+            }
             p.accumulate(
                 &self.scene,
                 &self.traced,
