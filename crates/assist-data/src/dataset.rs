@@ -202,6 +202,16 @@ pub struct LoadOptions {
 }
 
 impl Dataset {
+    /// The dataset as if nobody had labelled it (`train --no-objects`): no instances, no
+    /// instance masks, no masks folder.
+    pub fn unlabel(&mut self) {
+        self.instances.clear();
+        self.mask_folder = None;
+        for f in &mut self.frames {
+            f.instance_mask_path = None;
+        }
+    }
+
     /// A stable digest of what a scene is trained from: the format, and each frame's name,
     /// split and pose (to 1e-5 world units). It does not depend on the image size, so
     /// `--downscale` keeps it; a different capture (or a reordered split) changes it.

@@ -130,6 +130,18 @@ impl HeldOutSet {
         Ok(None)
     }
 
+    /// [`Self::measure`] of a run's fields after step `s`, pulled from its optimizers
+    /// first (a GPU's keep them between steps).
+    pub(crate) fn measure_during(
+        &self,
+        t: &mut assist_train::Trainer,
+        s: &assist_train::StepStats,
+        preview: &std::path::Path,
+    ) -> Result<HeldOut> {
+        t.pull()?;
+        self.measure(&t.scene, s.iteration, s.elapsed, Some(preview))
+    }
+
     /// Renders the views with `scene` (the average appearance) and scores them; with
     /// `preview`, writes the first view beside its render there.
     pub(crate) fn measure(

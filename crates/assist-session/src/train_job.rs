@@ -233,11 +233,7 @@ impl TrainJob {
                     && every.due(s.iteration, s.elapsed, &mut last_eval)
                     && eval_error.is_none()
                 {
-                    let measured = t
-                        .pull()
-                        .map_err(SessionError::from)
-                        .and_then(|()| h.measure(&t.scene, s.iteration, s.elapsed, Some(&preview)));
-                    match measured {
+                    match h.measure_during(t, s, &preview) {
                         Ok(m) => on_event(&TrainEvent::HeldOut(m)),
                         Err(e) => eval_error = Some(e),
                     }
@@ -518,7 +514,7 @@ impl TrainJob {
         };
         let mut ds = assist_data::load(&c.data, &load_opts).map_err(SessionError::Data)?;
         if c.no_objects {
-            unlabel(&mut ds);
+            ds.unlabel();
         }
         Ok(ds)
     }
@@ -583,16 +579,6 @@ fn resume_state(out: &std::path::Path, info: &serde_json::Value) -> Result<Resum
             format!("{}: {m}", out.join("scene.json").display()),
         )
     })
-}
-
-/// The dataset as if nobody had labelled it (`--no-objects`): no instances, no instance
-/// masks, no masks folder.
-fn unlabel(ds: &mut assist_data::Dataset) {
-    ds.instances.clear();
-    ds.mask_folder = None;
-    for f in &mut ds.frames {
-        f.instance_mask_path = None;
-    }
 }
 
 /// Whether a node of `scene` is unbounded (a contracted background).
