@@ -222,6 +222,10 @@ impl Worker {
         if !send(Outgoing::Json(self.state())) {
             return;
         }
+        // A preview went out and its full frame has not: owed even when the messages that
+        // came in between changed nothing the frame shows (the page had been left on a
+        // preview when one such arrived between the two).
+        let mut owed = false;
         loop {
             if pending.is_empty() {
                 match rx.recv() {
@@ -246,19 +250,23 @@ impl Worker {
             if state && !send(Outgoing::Json(self.state())) {
                 return;
             }
-            if !dirty {
+            if !dirty && !owed {
                 continue;
             }
             // While a node is dragged, full frames come from the drag cache at once.
             if self.drag.is_some() {
+                owed = false;
                 if !self.frame(false, &send) {
                     return;
                 }
                 continue;
             }
-            self.cache.clear();
-            if !self.frame(true, &send) {
-                return;
+            if dirty {
+                self.cache.clear();
+                if !self.frame(true, &send) {
+                    return;
+                }
+                owed = true;
             }
             // Full resolution only if nothing newer is waiting.
             match rx.try_recv() {
@@ -269,6 +277,7 @@ impl Worker {
                 Err(TryRecvError::Disconnected) => return,
                 Err(TryRecvError::Empty) => {}
             }
+            owed = false;
             if !self.frame(false, &send) {
                 return;
             }
