@@ -140,11 +140,7 @@ impl GpuOptimizer {
         if d != self.digest {
             self.recorded = None;
             if self.ahead {
-                return Err(GpuError::Run(
-                    "the field's parameters changed on the CPU while the GPU held newer ones \
-                     (pull them before changing the field)"
-                        .into(),
-                ));
+                return Err(changed_while_ahead());
             }
             self.field.upload(&self.gpu, field)?;
             self.digest = d;
@@ -158,9 +154,7 @@ impl GpuOptimizer {
             return Ok(());
         }
         if crate::backend::digest(field) != self.digest {
-            return Err(GpuError::Run(
-                "the field's parameters changed on the CPU while the GPU held newer ones".into(),
-            ));
+            return Err(changed_while_ahead());
         }
         crate::read_f32_into(
             &self.gpu,
@@ -312,6 +306,16 @@ enum Started {
     Queued(crate::field::Pending),
     /// Done already (in parts): σ then rgb.
     Done(Vec<f32>),
+}
+
+/// A field changed on the CPU while its GPU copy held newer parameters: one of the two
+/// would be lost.
+fn changed_while_ahead() -> GpuError {
+    GpuError::Run(
+        "the field's parameters changed on the CPU while the GPU held newer ones \
+         (pull them before changing the field)"
+            .into(),
+    )
 }
 
 /// Which batch a training record belongs to: where its samples lie and how many there
