@@ -258,10 +258,8 @@ impl Trainer {
         {
             let key = &self.scene.scene.nodes[ns.node].field;
             let opt = self.optimizers.get_mut(key).expect("optimizer per field");
-            let (mut sigma, mut rgb) = (std::mem::take(&mut ns.sigma), std::mem::take(&mut ns.rgb));
-            let done = opt.forward_finish(&mut sigma, &mut rgb);
-            (ns.sigma, ns.rgb) = (sigma, rgb);
-            done.map_err(|e| field_error(key, e))?;
+            opt.forward_finish(&mut ns.sigma, &mut ns.rgb)
+                .map_err(|e| field_error(key, e))?;
         }
         Ok(())
     }
