@@ -24,6 +24,12 @@ pub struct TrainBenchArgs {
     /// Print the figures as JSON on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Train this many times, with seeds --seed, --seed + 1, …, and report each run and
+    /// the held-out PSNR's mean, lowest and highest: what the seed alone moves, against
+    /// which a change in quality is to be judged.
+    #[arg(long, value_name = "N", default_value_t = 1,
+          value_parser = clap::value_parser!(u64).range(1..=64))]
+    pub seeds: u64,
     /// Where the fields' forward and backward passes and Adam run (as `train --device`).
     #[command(flatten)]
     pub device: crate::device::DeviceArg,
@@ -42,6 +48,65 @@ pub fn run(a: TrainBenchArgs) -> anyhow::Result<()> {
     if a.train.resume {
         anyhow::bail!("--resume: bench train starts afresh (it keeps no scene)");
     }
+    if a.seeds == 1 {
+        let v = one(&a, a.train.seed)?;
+        return show(&a, &v);
+    }
+    let mut runs = Vec::new();
+    for k in 0..a.seeds {
+        let seed = a.train.seed.wrapping_add(k);
+        eprintln!("seed {seed} ({} of {}):", k + 1, a.seeds);
+        let v = one(&a, seed)?;
+        if !a.json {
+            show(&a, &v)?;
+        }
+        runs.push(v);
+    }
+    let psnr: Vec<f64> = runs
+        .iter()
+        .filter_map(|v| v["held_out"]["psnr"].as_f64())
+        .collect();
+    let spread = seed_spread(&psnr);
+    let v = json!({
+        "data": a.data.display().to_string(),
+        "seeds": runs.iter().map(|v| v["seed"].clone()).collect::<Vec<_>>(),
+        "held_out_psnr": spread,
+        "runs": runs,
+    });
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else if psnr.is_empty() {
+        println!(
+            "{} seeds: no held-out views measured (--eval-views 0)",
+            a.seeds
+        );
+    } else {
+        println!(
+            "held-out PSNR over {} seeds: mean {:.2} dB, lowest {:.2}, highest {:.2} (spread {:.2} dB)",
+            psnr.len(),
+            spread["mean"].as_f64().unwrap_or(f64::NAN),
+            spread["min"].as_f64().unwrap_or(f64::NAN),
+            spread["max"].as_f64().unwrap_or(f64::NAN),
+            spread["spread"].as_f64().unwrap_or(f64::NAN),
+        );
+    }
+    Ok(())
+}
+
+/// The mean, lowest, highest and spread (highest − lowest) of the runs' held-out PSNRs;
+/// null where no run measured any.
+fn seed_spread(psnr: &[f64]) -> serde_json::Value {
+    if psnr.is_empty() {
+        return serde_json::Value::Null;
+    }
+    let mean = psnr.iter().sum::<f64>() / psnr.len() as f64;
+    let min = psnr.iter().copied().fold(f64::INFINITY, f64::min);
+    let max = psnr.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    json!({ "mean": mean, "min": min, "max": max, "spread": max - min })
+}
+
+/// One training run with `seed`, as a benchmark: its figures.
+fn one(a: &TrainBenchArgs, seed: u64) -> anyhow::Result<serde_json::Value> {
     let nanos = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.subsec_nanos());
@@ -53,6 +118,7 @@ pub fn run(a: TrainBenchArgs) -> anyhow::Result<()> {
     let config = TrainConfig {
         data: a.data.clone(),
         out: scratch.0.join("bench.assist"),
+        seed,
         ..a.train.clone()
     };
     let mut job = TrainJob::new(config);
@@ -91,8 +157,9 @@ pub fn run(a: TrainBenchArgs) -> anyhow::Result<()> {
         .map(|(n, t)| (n.to_string(), json!(t * 1e3 / steps)))
         .collect();
     let held = outcome.held_out.as_ref();
-    let v = json!({
+    Ok(json!({
         "data": a.data.display().to_string(),
+        "seed": seed,
         "device": device.name(),
         "simd": assist_simd::level().name(),
         "threads": rayon::current_num_threads(),
@@ -106,29 +173,42 @@ pub fn run(a: TrainBenchArgs) -> anyhow::Result<()> {
         "held_out": held.map(|h| json!({
             "split": h.split, "views": h.views, "psnr": h.psnr, "ssim": h.ssim,
         })),
-    });
+    }))
+}
+
+/// Prints one run's figures (JSON with --json, else two lines).
+fn show(a: &TrainBenchArgs, v: &serde_json::Value) -> anyhow::Result<()> {
     if a.json {
         println!("{}", serde_json::to_string_pretty(&v)?);
-    } else {
-        let parts: Vec<String> = phases
-            .iter()
-            .map(|(n, t)| format!("{n} {:.1}", t.as_f64().unwrap_or(0.0)))
-            .collect();
-        println!(
-            "{}: {} steps in {:.1} s on {} ({:.2} steps/s, {:.0} rays/s, {:.2} M samples/s); {}\nms per step: {}",
-            a.data.display(),
-            r.steps,
-            r.seconds,
-            device.name(),
-            r.steps as f64 / r.seconds.max(1e-9),
-            r.rays_per_sec,
-            r.samples_per_sec / 1e6,
-            held.map_or("no held-out views measured".into(), |h| format!(
-                "held-out PSNR {:.2} dB, SSIM {:.3} ({} {} views)",
-                h.psnr, h.ssim, h.views, h.split
-            )),
-            parts.join(", ")
-        );
+        return Ok(());
     }
+    let f = |k: &str| v[k].as_f64().unwrap_or(0.0);
+    let parts: Vec<String> = v["ms_per_step"]
+        .as_object()
+        .into_iter()
+        .flatten()
+        .map(|(n, t)| format!("{n} {:.1}", t.as_f64().unwrap_or(0.0)))
+        .collect();
+    let held = &v["held_out"];
+    println!(
+        "{}: {} steps in {:.1} s on {} ({:.2} steps/s, {:.0} rays/s, {:.2} M samples/s); {}\nms per step: {}",
+        a.data.display(),
+        v["steps"],
+        f("seconds"),
+        v["device"].as_str().unwrap_or("?"),
+        f("steps_per_sec"),
+        f("rays_per_sec"),
+        f("samples_per_sec") / 1e6,
+        match held["psnr"].as_f64() {
+            Some(p) => format!(
+                "held-out PSNR {p:.2} dB, SSIM {:.3} ({} {} views)",
+                held["ssim"].as_f64().unwrap_or(0.0),
+                held["views"],
+                held["split"].as_str().unwrap_or("?")
+            ),
+            None => "no held-out views measured".into(),
+        },
+        parts.join(", ")
+    );
     Ok(())
 }

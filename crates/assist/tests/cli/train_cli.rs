@@ -313,3 +313,77 @@ fn the_same_seed_trains_the_same_bits() {
     }
     assert!(weights[0] == weights[1], "the two runs' weights differ");
 }
+
+#[test]
+fn bench_train_reports_each_seed_and_their_spread() {
+    // `bench train --seeds N` trains once per seed from --seed on and reports what the
+    // seed alone moves: each run as one would get it alone (the same seed, the same
+    // figure), and the held-out PSNR's mean, lowest and highest over the runs.
+    let tmp = TempDir::new("cli-bench-seeds");
+    let data = tmp.join("synth");
+    ok(&assist(&[
+        "synth",
+        "--out",
+        s(&data),
+        "--views",
+        "8",
+        "--size",
+        "40x30",
+        "--objects",
+        "3",
+    ]));
+    let scratch = tmp.join("tmp");
+    std::fs::create_dir_all(&scratch).unwrap();
+    let bench = |extra: &[&str]| -> Value {
+        let mut args = vec![
+            "bench",
+            "train",
+            s(&data),
+            "--iters",
+            "3",
+            "--eval-views",
+            "2",
+        ];
+        args.extend_from_slice(extra);
+        args.push("--json");
+        let out = crate::common::bin()
+            .args(&args)
+            .env("TMPDIR", &scratch)
+            .output()
+            .unwrap();
+        serde_json::from_str(&ok(&out)).expect("json")
+    };
+    let v = bench(&["--seed", "5", "--seeds", "3"]);
+    assert_eq!(v["seeds"], json!([5, 6, 7]), "{v}");
+    let runs = v["runs"].as_array().expect("runs");
+    let psnr: Vec<f64> = runs
+        .iter()
+        .map(|r| r["held_out"]["psnr"].as_f64().expect("held-out PSNR"))
+        .collect();
+    assert_eq!(psnr.len(), 3, "{v}");
+    let spread = &v["held_out_psnr"];
+    let (lo, hi) = (
+        psnr.iter().copied().fold(f64::INFINITY, f64::min),
+        psnr.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+    );
+    assert!(hi > lo, "three seeds gave the same PSNR: {psnr:?}");
+    let mean = psnr.iter().sum::<f64>() / 3.0;
+    for (k, want) in [
+        ("mean", mean),
+        ("min", lo),
+        ("max", hi),
+        ("spread", hi - lo),
+    ] {
+        let got = spread[k].as_f64().unwrap();
+        assert!((got - want).abs() < 1e-9, "{k}: {got} against {want}");
+    }
+    // The second run is the one `--seed 6` gives alone.
+    let alone = bench(&["--seed", "6"]);
+    assert_eq!(alone["seed"], 6, "{alone}");
+    assert_eq!(alone["held_out"]["psnr"].as_f64(), Some(psnr[1]), "{alone}");
+    let out = assist(&["bench", "train", s(&data), "--iters", "1", "--seeds", "0"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--seeds"), "{err}");
+    let left: Vec<_> = std::fs::read_dir(&scratch).unwrap().collect();
+    assert!(left.is_empty(), "bench train left {left:?}");
+}
