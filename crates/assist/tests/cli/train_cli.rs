@@ -267,12 +267,9 @@ fn boxes_are_listed_carved_overridden_and_checked() {
     }
 }
 
-#[test]
-fn the_same_seed_trains_the_same_bits() {
-    // Two runs of the same command write the same weights: the MLP gradient is summed in
-    // a fixed order whatever thread took which chunk (it was not, and CI compared a
-    // generator's images with a scene trained in another process).
-    let tmp = TempDir::new("cli-train-bits");
+/// A built-in capture small enough to train in a blink (8 views of 40×30, 3 objects), in
+/// `tmp/synth`.
+fn tiny_synth(tmp: &TempDir) -> std::path::PathBuf {
     let data = tmp.join("synth");
     ok(&assist(&[
         "synth",
@@ -285,6 +282,16 @@ fn the_same_seed_trains_the_same_bits() {
         "--objects",
         "3",
     ]));
+    data
+}
+
+#[test]
+fn the_same_seed_trains_the_same_bits() {
+    // Two runs of the same command write the same weights: the MLP gradient is summed in
+    // a fixed order whatever thread took which chunk (it was not, and CI compared a
+    // generator's images with a scene trained in another process).
+    let tmp = TempDir::new("cli-train-bits");
+    let data = tiny_synth(&tmp);
     let mut weights = Vec::new();
     for name in ["a.assist", "b.assist"] {
         let out = tmp.join(name);
@@ -320,18 +327,7 @@ fn bench_train_reports_each_seed_and_their_spread() {
     // seed alone moves: each run as one would get it alone (the same seed, the same
     // figure), and the held-out PSNR's mean, lowest and highest over the runs.
     let tmp = TempDir::new("cli-bench-seeds");
-    let data = tmp.join("synth");
-    ok(&assist(&[
-        "synth",
-        "--out",
-        s(&data),
-        "--views",
-        "8",
-        "--size",
-        "40x30",
-        "--objects",
-        "3",
-    ]));
+    let data = tiny_synth(&tmp);
     let scratch = tmp.join("tmp");
     std::fs::create_dir_all(&scratch).unwrap();
     let bench = |extra: &[&str]| -> Value {
