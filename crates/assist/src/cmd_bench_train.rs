@@ -70,39 +70,38 @@ pub fn run(a: TrainBenchArgs) -> anyhow::Result<()> {
     let v = json!({
         "data": a.data.display().to_string(),
         "seeds": runs.iter().map(|v| v["seed"].clone()).collect::<Vec<_>>(),
-        "held_out_psnr": spread,
+        "held_out_psnr": spread.map(|(mean, min, max)| json!({
+            "mean": mean, "min": min, "max": max, "spread": max - min,
+        })),
         "runs": runs,
     });
     if a.json {
         println!("{}", serde_json::to_string_pretty(&v)?);
-    } else if psnr.is_empty() {
+    } else if let Some((mean, min, max)) = spread {
         println!(
-            "{} seeds: no held-out views measured (--eval-views 0)",
-            a.seeds
+            "held-out PSNR over {} seeds: mean {mean:.2} dB, lowest {min:.2}, highest {max:.2} (spread {:.2} dB)",
+            psnr.len(),
+            max - min
         );
     } else {
         println!(
-            "held-out PSNR over {} seeds: mean {:.2} dB, lowest {:.2}, highest {:.2} (spread {:.2} dB)",
-            psnr.len(),
-            spread["mean"].as_f64().unwrap_or(f64::NAN),
-            spread["min"].as_f64().unwrap_or(f64::NAN),
-            spread["max"].as_f64().unwrap_or(f64::NAN),
-            spread["spread"].as_f64().unwrap_or(f64::NAN),
+            "{} seeds: no held-out views measured (--eval-views 0)",
+            a.seeds
         );
     }
     Ok(())
 }
 
-/// The mean, lowest, highest and spread (highest − lowest) of the runs' held-out PSNRs;
-/// null where no run measured any.
-fn seed_spread(psnr: &[f64]) -> serde_json::Value {
+/// The mean, lowest and highest of the runs' held-out PSNRs; none where no run measured
+/// any.
+fn seed_spread(psnr: &[f64]) -> Option<(f64, f64, f64)> {
     if psnr.is_empty() {
-        return serde_json::Value::Null;
+        return None;
     }
     let mean = psnr.iter().sum::<f64>() / psnr.len() as f64;
     let min = psnr.iter().copied().fold(f64::INFINITY, f64::min);
     let max = psnr.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    json!({ "mean": mean, "min": min, "max": max, "spread": max - min })
+    Some((mean, min, max))
 }
 
 /// One training run with `seed`, as a benchmark: its figures.
