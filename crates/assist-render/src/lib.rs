@@ -19,6 +19,7 @@ mod drag;
 pub mod fill;
 pub mod light;
 mod march;
+mod overlap;
 pub mod proposal;
 mod prune;
 pub mod relight;

@@ -430,6 +430,9 @@ pub struct RenderStats {
     pub prune_s: f64,
     pub query_s: f64,
     pub composite_s: f64,
+    /// Seconds from start to end of a whole camera's render: the stages' sum, except
+    /// where they overlap (the fields queried on a GPU, [`crate::overlap`]).
+    pub wall_s: f64,
 }
 
 impl RenderStats {
@@ -442,6 +445,7 @@ impl RenderStats {
         self.prune_s += o.prune_s;
         self.query_s += o.query_s;
         self.composite_s += o.composite_s;
+        self.wall_s += o.wall_s;
     }
 }
 
@@ -456,16 +460,41 @@ pub fn render_rays_timed(
     opts: &RenderOptions,
     sc: &mut RenderScratch,
 ) -> RenderStats {
-    let so = opts.sample_options();
-    let count = |t: &Traced| t.nodes.iter().map(|n| n.len()).sum::<usize>();
     let mut st = RenderStats {
         rays: sc.rays.len(),
         ..Default::default()
     };
+    march_stage(scene, opts, sc, &mut st);
+    query_stage(scene, opts, sc, &mut st);
+    composite_stage(scene, sc, &mut st);
+    st
+}
+
+/// Samples in a traced batch, every node's.
+fn sample_count(t: &Traced) -> usize {
+    t.nodes.iter().map(|n| n.len()).sum()
+}
+
+/// A batch's first stage: its rays marched through every node.
+pub(crate) fn march_stage(
+    scene: &NeuralScene,
+    opts: &RenderOptions,
+    sc: &mut RenderScratch,
+    st: &mut RenderStats,
+) {
     let t = std::time::Instant::now();
-    sample_rays(scene, &sc.rays, &so, &mut sc.traced);
-    st.marched = count(&sc.traced);
+    sample_rays(scene, &sc.rays, &opts.sample_options(), &mut sc.traced);
+    st.marched = sample_count(&sc.traced);
     st.sample_s = t.elapsed().as_secs_f64();
+}
+
+/// A batch's second stage: the fields queried at its samples (pruned where asked).
+pub(crate) fn query_stage(
+    scene: &NeuralScene,
+    opts: &RenderOptions,
+    sc: &mut RenderScratch,
+    st: &mut RenderStats,
+) {
     let q = Query::Render {
         precision: opts.precision,
         highlight: opts.highlight,
@@ -486,8 +515,12 @@ pub fn render_rays_timed(
     } else {
         query_fields(scene, &mut sc.traced, &mut sc.tapes, q);
     }
-    st.queried = count(&sc.traced);
+    st.queried = sample_count(&sc.traced);
     st.query_s = t.elapsed().as_secs_f64() - st.prune_s;
+}
+
+/// A batch's last stage: the background shaded and every ray composited.
+pub(crate) fn composite_stage(scene: &NeuralScene, sc: &mut RenderScratch, st: &mut RenderStats) {
     let t = std::time::Instant::now();
     crate::shade::shade_background(scene, &sc.rays, &mut sc.traced);
     composite_batch(
@@ -497,7 +530,6 @@ pub fn render_rays_timed(
         None,
     );
     st.composite_s = t.elapsed().as_secs_f64();
-    st
 }
 
 /// Renders a whole camera; `image` selects the appearance code (`u32::MAX` = average).
@@ -517,6 +549,7 @@ pub fn render_camera_timed(
     image: u32,
     opts: &RenderOptions,
 ) -> (RenderedImage, RenderStats) {
+    let start = std::time::Instant::now();
     let mut stats = RenderStats::default();
     let mut img = RenderedImage::empty(scene, camera, opts.layers);
     let pixels_n = img.opacity.len();
@@ -529,21 +562,19 @@ pub fn render_camera_timed(
         }),
         false => None,
     };
-    let mut sc = RenderScratch::default();
-    sc.rays.near = scene.scene.near as f32;
-    let (mut pixels, mut cos) = (Vec::new(), Vec::new());
-    let mut p = 0usize;
-    while let Some(end) = camera_batch(camera, image, p, opts, &mut sc.rays, &mut pixels, &mut cos)
-    {
-        if opts.cancelled() {
-            break;
+    if opts.backend.is_some() {
+        // The queries run elsewhere: this CPU marches and composites the batches beside them.
+        stats = crate::overlap::render_overlapped(scene, camera, image, opts, &mut img, &mut alone);
+    } else {
+        let mut b = crate::overlap::Batch::new(scene);
+        let mut p = 0usize;
+        while !opts.cancelled()
+            && let Some(end) = b.next(camera, image, p, opts)
+        {
+            stats.add(&render_rays_timed(scene, opts, &mut b.sc));
+            b.write(scene, &mut img, &mut alone);
+            p = end;
         }
-        stats.add(&render_rays_timed(scene, opts, &mut sc));
-        img.write_batch(scene, &sc.out, &pixels, &cos);
-        if let Some(a) = alone.as_mut() {
-            a.write_batch(scene, &sc, &pixels);
-        }
-        p = end;
     }
     img.fill_unseen();
     if let Some(a) = alone {
@@ -551,6 +582,7 @@ pub fn render_camera_timed(
     } else if opts.background_alone && !opts.cancelled() {
         img.background = crate::alone::render_apart(scene, camera, image, opts);
     }
+    stats.wall_s = start.elapsed().as_secs_f64();
     (img, stats)
 }
 

@@ -239,7 +239,7 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
                 last = Some(img);
             }
             let img = last.expect("runs ≥ 1");
-            let total = |s: &RenderStats| s.sample_s + s.prune_s + s.query_s + s.composite_s;
+            let total = |s: &RenderStats| s.wall_s;
             per.sort_by(|x, y| total(x).total_cmp(&total(y)));
             let mid = per[per.len() / 2];
             times.push(total(&mid));
