@@ -16,6 +16,7 @@ pub mod light;
 pub mod losses;
 pub mod metrics;
 mod multiview;
+mod multiview_cull;
 mod optimizer;
 mod prior;
 mod setup;

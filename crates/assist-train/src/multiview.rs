@@ -23,6 +23,7 @@ use assist_core::Camera;
 use assist_core::glam::DVec3;
 use rayon::prelude::*;
 
+use crate::multiview_cull::{Cones, Tiles};
 use crate::prior;
 use crate::views::{PRIOR_DILATION, View};
 
@@ -57,6 +58,16 @@ struct Source<'a> {
     unit: Vec<[f32; 3]>,
     /// Background pixels usable as sources (id 0, away from objects, depth > 0).
     usable: Vec<bool>,
+    /// Where the usable pixels' points lie, a tile at a time (to skip the tiles whose
+    /// points cannot land on a target's holes).
+    tiles: Tiles,
+}
+
+/// Pixel `q`'s point in its camera's frame, as [`splat`] lifts it.
+#[inline(always)]
+fn lifted(unit: &[[f32; 3]], depth: &[f32], q: usize) -> DVec3 {
+    let u = unit[q];
+    DVec3::new(u[0] as f64, u[1] as f64, u[2] as f64) * depth[q] as f64
 }
 
 fn source(view: &View) -> Option<Source<'_>> {
@@ -65,7 +76,7 @@ fn source(view: &View) -> Option<Source<'_>> {
     let (w, h) = (view.width, view.height);
     let objects: Vec<bool> = ids.iter().map(|&i| i != 0).collect();
     let near_object = prior::dilate(&objects, w, h, PRIOR_DILATION);
-    let usable = (0..w * h)
+    let usable: Vec<bool> = (0..w * h)
         .map(|p| !near_object[p] && depth[p] > 0.0)
         .collect();
     let unit = (0..w * h)
@@ -83,8 +94,14 @@ fn source(view: &View) -> Option<Source<'_>> {
                 _ => [0.0; 3],
             }
         })
-        .collect();
-    Some(Source { view, unit, usable })
+        .collect::<Vec<_>>();
+    let tiles = Tiles::of(w, h, &usable, |q| lifted(&unit, depth, q));
+    Some(Source {
+        view,
+        unit,
+        usable,
+        tiles,
+    })
 }
 
 /// One splat into the target: pixel, z-depth, colour, source view.
@@ -97,15 +114,15 @@ struct Candidate {
 }
 
 /// Splats every usable pixel of `src` into `target`, keeping those that land on `hole`
-/// pixels behind the target's surface.
+/// pixels behind the target's surface. Where `cones` hold the holes' directions, the
+/// source's tiles outside them are skipped (the same candidates).
 fn splat(
     src: &Source,
     src_index: u32,
     target: &Camera,
-    target_depth: &[f32],
-    target_ids: &[u16],
+    (target_depth, target_ids): (&[f32], &[u16]),
     surroundings: &[f32],
-    hole: &[bool],
+    (hole, cones): (&[bool], Option<&Cones>),
     out: &mut Vec<Candidate>,
 ) {
     let v = src.view;
@@ -114,13 +131,24 @@ fn splat(
     let to_target = target.pose.camera_from_world() * to_world;
     let (tw, th) = (target.width() as i64, target.height() as i64);
     let (fs, ft) = (v.camera.intrinsics.fx, target.intrinsics.fx);
+    let keep: Option<Vec<bool>> = cones.map(|c| {
+        let sphere = |&(centre, r): &(DVec3, f64)| c.meet(to_target.transform_point3(centre), r);
+        src.tiles
+            .spheres
+            .iter()
+            .map(|s| s.as_ref().is_some_and(sphere))
+            .collect()
+    });
     for q in 0..v.width * v.height {
-        if !src.usable[q] {
+        if !src.usable[q]
+            || keep
+                .as_ref()
+                .is_some_and(|k| !k[src.tiles.index(q, v.width)])
+        {
             continue;
         }
         let z = depth[q] as f64;
-        let u = src.unit[q];
-        let p_src = DVec3::new(u[0] as f64, u[1] as f64, u[2] as f64) * z;
+        let p_src = lifted(&src.unit, depth, q);
         let p_t = to_target.transform_point3(p_src);
         let Some((px, zt)) = target.intrinsics.project_gl(p_t) else {
             continue;
@@ -254,6 +282,11 @@ struct Filled {
 /// fills them with push–pull). Views that already carry a user-supplied prior colour are
 /// left alone too.
 pub fn fill_multiview(views: &mut [View]) -> MultiViewStats {
+    fill_multiview_culled(views, true)
+}
+
+/// [`fill_multiview`], skipping the source tiles that cannot reach a hole when `cull`.
+pub(crate) fn fill_multiview_culled(views: &mut [View], cull: bool) -> MultiViewStats {
     let sources: Vec<Option<Source>> = views.par_iter().map(source).collect();
     let results: Vec<Option<Filled>> = (0..views.len())
         .into_par_iter()
@@ -275,6 +308,10 @@ pub fn fill_multiview(views: &mut [View]) -> MultiViewStats {
             let mut surroundings = depth.clone();
             let unknown: Vec<bool> = (0..w * h).map(|p| hole[p] || depth[p] <= 0.0).collect();
             prior::push_pull(&mut surroundings, w, h, 1, &unknown);
+            let cones = match cull {
+                true => Cones::of(&v.camera, &hole, w, h),
+                false => None,
+            };
             let mut cands = Vec::new();
             for (s, src) in sources.iter().enumerate() {
                 if s == t {
@@ -285,10 +322,9 @@ pub fn fill_multiview(views: &mut [View]) -> MultiViewStats {
                         src,
                         s as u32,
                         &v.camera,
-                        depth,
-                        ids,
+                        (depth, ids),
                         &surroundings,
-                        &hole,
+                        (&hole, cones.as_ref()),
                         &mut cands,
                     );
                 }
@@ -344,7 +380,7 @@ pub fn fill_multiview(views: &mut [View]) -> MultiViewStats {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use assist_core::{Intrinsics, Pose};
 
@@ -358,7 +394,7 @@ mod tests {
 
     /// Ray-cast view of a textured ground plane with a magenta sphere on it; with
     /// `object` false the sphere is absent (the background truth).
-    fn render(camera: &Camera, object: bool) -> View {
+    pub(crate) fn render(camera: &Camera, object: bool) -> View {
         render_on(camera, object, None)
     }
 
@@ -367,7 +403,7 @@ mod tests {
 
     /// [`render`], the plane being a square table of half-size `table` (when given) above
     /// a dark floor.
-    fn render_on(camera: &Camera, object: bool, table: Option<f64>) -> View {
+    pub(crate) fn render_on(camera: &Camera, object: bool, table: Option<f64>) -> View {
         let (w, h) = (camera.width() as usize, camera.height() as usize);
         let mut rgb = vec![0.0; 3 * w * h];
         let mut ids = vec![0u16; w * h];
@@ -422,7 +458,7 @@ mod tests {
         }
     }
 
-    fn cameras(n: usize) -> Vec<Camera> {
+    pub(crate) fn cameras(n: usize) -> Vec<Camera> {
         (0..n)
             .map(|k| {
                 let a = k as f64 / n as f64 * std::f64::consts::TAU;
