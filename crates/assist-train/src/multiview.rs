@@ -23,7 +23,7 @@ use assist_core::Camera;
 use assist_core::glam::DVec3;
 use rayon::prelude::*;
 
-use crate::multiview_cull::{Cones, Tiles};
+use crate::multiview_cull::{Cones, NEAR, Quick, TILE, Tiles};
 use crate::prior;
 use crate::views::{PRIOR_DILATION, View};
 
@@ -122,7 +122,7 @@ fn splat(
     target: &Camera,
     (target_depth, target_ids): (&[f32], &[u16]),
     surroundings: &[f32],
-    (hole, cones): (&[bool], Option<&Cones>),
+    (hole, near, cones): (&[bool], &[bool], Option<&Cones>),
     out: &mut Vec<Candidate>,
 ) {
     let v = src.view;
@@ -139,29 +139,24 @@ fn splat(
             .map(|s| s.as_ref().is_some_and(sphere))
             .collect()
     });
-    for q in 0..v.width * v.height {
-        if !src.usable[q]
-            || keep
-                .as_ref()
-                .is_some_and(|k| !k[src.tiles.index(q, v.width)])
-        {
-            continue;
-        }
+    let quick = cones.and_then(|_| Quick::new(target, &to_target, near));
+    // Pixel `q`'s splat (a source pixel that passed the tests below).
+    let mut one = |q: usize| {
         let z = depth[q] as f64;
         let p_src = lifted(&src.unit, depth, q);
         let p_t = to_target.transform_point3(p_src);
         let Some((px, zt)) = target.intrinsics.project_gl(p_t) else {
-            continue;
+            return;
         };
         if !(px.x.is_finite() && px.y.is_finite()) {
-            continue;
+            return;
         }
         let (cx, cy) = (px.x.floor() as i64, px.y.floor() as i64);
         // The source pixel's size on the surface, in target pixels.
         let size = (z / fs) * (ft / zt);
         let r = ((size * 0.5).floor() as i64).clamp(0, MAX_SPLAT_RADIUS);
         if cx + r < 0 || cy + r < 0 || cx - r >= tw || cy - r >= th {
-            continue;
+            return;
         }
         let zt = zt as f32;
         let rgb = [v.rgb[3 * q], v.rgb[3 * q + 1], v.rgb[3 * q + 2]];
@@ -191,6 +186,29 @@ fn splat(
                         rgb,
                     });
                 }
+            }
+        }
+    };
+    // Row by row, a tile's run of pixels at a time (raster order, as the candidates must
+    // come), the tiles that miss every hole skipped whole.
+    let (w, across) = (v.width, src.tiles.across);
+    for y in 0..v.height {
+        let row = (y / TILE) * across;
+        for tx in 0..across {
+            if keep.as_ref().is_some_and(|k| !k[row + tx]) {
+                continue;
+            }
+            for q in y * w + tx * TILE..y * w + ((tx + 1) * TILE).min(w) {
+                if !src.usable[q] {
+                    continue;
+                }
+                if let Some(quick) = &quick {
+                    let (u, z) = (src.unit[q], depth[q]);
+                    if quick.misses([u[0] * z, u[1] * z, u[2] * z]) {
+                        continue;
+                    }
+                }
+                one(q);
             }
         }
     }
@@ -312,6 +330,7 @@ pub(crate) fn fill_multiview_culled(views: &mut [View], cull: bool) -> MultiView
                 true => Cones::of(&v.camera, &hole, w, h),
                 false => None,
             };
+            let near = prior::dilate(&hole, w, h, NEAR);
             let mut cands = Vec::new();
             for (s, src) in sources.iter().enumerate() {
                 if s == t {
@@ -324,7 +343,7 @@ pub(crate) fn fill_multiview_culled(views: &mut [View], cull: bool) -> MultiView
                         &v.camera,
                         (depth, ids),
                         &surroundings,
-                        (&hole, cones.as_ref()),
+                        (&hole, &near, cones.as_ref()),
                         &mut cands,
                     );
                 }

@@ -57,12 +57,6 @@ impl Tiles {
         }
         Tiles { across, spheres }
     }
-
-    /// The tile of pixel `q` of a view `w` wide.
-    #[inline(always)]
-    pub(crate) fn index(&self, q: usize, w: usize) -> usize {
-        (q / w / TILE) * self.across + (q % w) / TILE
-    }
 }
 
 /// Cones of directions (target camera frame) that hold every direction a splat onto a
@@ -137,6 +131,81 @@ impl Cones {
     }
 }
 
+/// Pixels a hole is grown by for [`Quick`]: a splat reaches 2 pixels past its floored
+/// centre, and the quick projection's floor is at most one off the exact one.
+pub(crate) const NEAR: usize = 5;
+
+/// A quick projection in f32 into a target without lens distortion, to pass over the
+/// source pixels whose splat lands nowhere near a hole before the exact projection.
+pub(crate) struct Quick<'a> {
+    /// Target camera from source camera (OpenGL frames), rows of a 3 × 4 matrix.
+    m: [[f32; 4]; 3],
+    fx: f32,
+    fy: f32,
+    cx: f32,
+    cy: f32,
+    w: usize,
+    h: usize,
+    /// The target's holes grown by [`NEAR`].
+    near: &'a [bool],
+}
+
+impl<'a> Quick<'a> {
+    /// For `target` (`None` where its lens distorts: the quick projection has no lens).
+    pub(crate) fn new(
+        target: &Camera,
+        to_target: &assist_core::glam::DAffine3,
+        near: &'a [bool],
+    ) -> Option<Self> {
+        let i = &target.intrinsics;
+        if i.distortion != assist_core::Distortion::None {
+            return None;
+        }
+        let (r, t) = (to_target.matrix3, to_target.translation);
+        let row = |k: usize| [r.x_axis[k], r.y_axis[k], r.z_axis[k], t[k]].map(|v| v as f32);
+        Some(Quick {
+            m: [row(0), row(1), row(2)],
+            fx: i.fx as f32,
+            fy: i.fy as f32,
+            cx: i.cx as f32,
+            cy: i.cy as f32,
+            w: target.width() as usize,
+            h: target.height() as usize,
+            near,
+        })
+    }
+
+    /// Whether the point `p` (source camera frame) certainly splats onto no hole. Points
+    /// near the target's camera plane or far off its axis, where f32 loses the pixel,
+    /// are never passed over.
+    #[inline(always)]
+    pub(crate) fn misses(&self, p: [f32; 3]) -> bool {
+        let [a, b, c] = self
+            .m
+            .map(|r| r[0] * p[0] + r[1] * p[1] + r[2] * p[2] + r[3]);
+        let z = -c;
+        if z.is_nan() || z <= 1e-6 {
+            return false;
+        }
+        let (nx, ny) = (a / z, -b / z);
+        if !(nx.abs() < 100.0 && ny.abs() < 100.0) {
+            return false;
+        }
+        let (x, y) = (self.fx * nx + self.cx, self.fy * ny + self.cy);
+        let (w, h) = (self.w as f32, self.h as f32);
+        let reach = NEAR as f32;
+        // (As the pixel's floor would be compared: the bounds are whole numbers.)
+        if x < -reach || y < -reach || x >= w + reach || y >= h + reach {
+            return true;
+        }
+        // The nearest pixel of the image (truncation floors a number ≥ 0; no call to
+        // `floor`, which the baseline instruction set lacks).
+        let xi = (x.max(0.0) as usize).min(self.w - 1);
+        let yi = (y.max(0.0) as usize).min(self.h - 1);
+        !self.near[yi * self.w + xi]
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -174,6 +243,21 @@ mod tests {
         let cams = cameras(12);
         same_fill(&cams, None);
         same_fill(&cams, Some(0.45));
+        // Every other camera three times as close: a far view's pixels splat over several of a
+        // near view's (the splat's reach past its pixel).
+        let near: Vec<Camera> = cams
+            .iter()
+            .enumerate()
+            .map(|(k, c)| {
+                let mut c = *c;
+                if k % 2 == 0 {
+                    let eye = c.pose.world_from_camera.translation * 0.3;
+                    c.pose = assist_core::Pose::look_at(eye, DVec3::ZERO, DVec3::Z).unwrap();
+                }
+                c
+            })
+            .collect();
+        same_fill(&near, Some(0.45));
         // A lens that bends the holes' edges: the cones must still hold them.
         let bent: Vec<Camera> = cams
             .iter()
