@@ -1,6 +1,7 @@
-//! A whole camera rendered with its field queries elsewhere (a GPU, `--device gpu`),
-//! overlapped with this CPU's work: while one batch's queries run there, the CPU
-//! composites the batch before it and marches the one after. The queries' wait leaves
+//! A batch's three stages (marching, the field queries, compositing), and a whole camera
+//! rendered with its field queries elsewhere (a GPU, `--device gpu`), overlapped with
+//! this CPU's work: while one batch's queries run there, the CPU composites the batch
+//! before it and marches the one after. The queries' wait leaves
 //! the CPU idle otherwise. Every batch goes through the same stages as one rendered
 //! alone, so the image is the same bits either way.
 
@@ -8,10 +9,12 @@ use assist_core::Camera;
 use assist_scene::NeuralScene;
 
 use crate::alone::BackgroundAlone;
+use crate::batch::composite_batch;
+use crate::march::sample_rays;
 use crate::render::{
-    RenderOptions, RenderScratch, RenderStats, RenderedImage, camera_batch, composite_stage,
-    march_stage, query_stage,
+    Query, RenderOptions, RenderScratch, RenderStats, RenderedImage, camera_batch, query_fields,
 };
+use crate::sample::Traced;
 
 /// One batch of a camera's rays in flight: its scratch, its pixels and where its time went.
 pub(crate) struct Batch {
@@ -123,4 +126,66 @@ pub(crate) fn render_overlapped(
         to_query = next;
     }
     stats
+}
+
+/// Samples in a traced batch, every node's.
+fn sample_count(t: &Traced) -> usize {
+    t.nodes.iter().map(|n| n.len()).sum()
+}
+
+/// A batch's first stage: its rays marched through every node.
+pub(crate) fn march_stage(
+    scene: &NeuralScene,
+    opts: &RenderOptions,
+    sc: &mut RenderScratch,
+    st: &mut RenderStats,
+) {
+    let t = std::time::Instant::now();
+    sample_rays(scene, &sc.rays, &opts.sample_options(), &mut sc.traced);
+    st.marched = sample_count(&sc.traced);
+    st.sample_s = t.elapsed().as_secs_f64();
+}
+
+/// A batch's second stage: the fields queried at its samples (pruned where asked).
+pub(crate) fn query_stage(
+    scene: &NeuralScene,
+    opts: &RenderOptions,
+    sc: &mut RenderScratch,
+    st: &mut RenderStats,
+) {
+    let q = Query::Render {
+        precision: opts.precision,
+        highlight: opts.highlight,
+        tables: opts.tables.as_deref(),
+        backend: opts.backend.as_deref(),
+    };
+    let t = std::time::Instant::now();
+    if opts.prune_eps > 0.0 && opts.backend.is_none() {
+        let s = crate::prune::query_pruned(
+            scene,
+            &mut sc.traced,
+            opts.prune_eps,
+            &mut sc.prune,
+            &mut sc.tapes,
+            q,
+        );
+        st.prune_s = s.density_s;
+    } else {
+        query_fields(scene, &mut sc.traced, &mut sc.tapes, q);
+    }
+    st.queried = sample_count(&sc.traced);
+    st.query_s = t.elapsed().as_secs_f64() - st.prune_s;
+}
+
+/// A batch's last stage: the background shaded and every ray composited.
+pub(crate) fn composite_stage(scene: &NeuralScene, sc: &mut RenderScratch, st: &mut RenderStats) {
+    let t = std::time::Instant::now();
+    crate::shade::shade_background(scene, &sc.rays, &mut sc.traced);
+    composite_batch(
+        &mut sc.traced,
+        crate::batch::Behind::of(&scene.scene),
+        &mut sc.out,
+        None,
+    );
+    st.composite_s = t.elapsed().as_secs_f64();
 }

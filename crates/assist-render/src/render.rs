@@ -5,8 +5,7 @@
 use assist_core::{Camera, InstanceId};
 use assist_field::{FieldBackend, Precision, Tape};
 
-use crate::batch::{BatchOutput, composite_batch};
-use crate::march::sample_rays;
+use crate::batch::BatchOutput;
 use crate::sample::{NodeSamples, RayBatch, SampleOptions, Traced};
 use crate::tables::SceneTables;
 use assist_scene::NeuralScene;
@@ -464,72 +463,10 @@ pub fn render_rays_timed(
         rays: sc.rays.len(),
         ..Default::default()
     };
-    march_stage(scene, opts, sc, &mut st);
-    query_stage(scene, opts, sc, &mut st);
-    composite_stage(scene, sc, &mut st);
+    crate::overlap::march_stage(scene, opts, sc, &mut st);
+    crate::overlap::query_stage(scene, opts, sc, &mut st);
+    crate::overlap::composite_stage(scene, sc, &mut st);
     st
-}
-
-/// Samples in a traced batch, every node's.
-fn sample_count(t: &Traced) -> usize {
-    t.nodes.iter().map(|n| n.len()).sum()
-}
-
-/// A batch's first stage: its rays marched through every node.
-pub(crate) fn march_stage(
-    scene: &NeuralScene,
-    opts: &RenderOptions,
-    sc: &mut RenderScratch,
-    st: &mut RenderStats,
-) {
-    let t = std::time::Instant::now();
-    sample_rays(scene, &sc.rays, &opts.sample_options(), &mut sc.traced);
-    st.marched = sample_count(&sc.traced);
-    st.sample_s = t.elapsed().as_secs_f64();
-}
-
-/// A batch's second stage: the fields queried at its samples (pruned where asked).
-pub(crate) fn query_stage(
-    scene: &NeuralScene,
-    opts: &RenderOptions,
-    sc: &mut RenderScratch,
-    st: &mut RenderStats,
-) {
-    let q = Query::Render {
-        precision: opts.precision,
-        highlight: opts.highlight,
-        tables: opts.tables.as_deref(),
-        backend: opts.backend.as_deref(),
-    };
-    let t = std::time::Instant::now();
-    if opts.prune_eps > 0.0 && opts.backend.is_none() {
-        let s = crate::prune::query_pruned(
-            scene,
-            &mut sc.traced,
-            opts.prune_eps,
-            &mut sc.prune,
-            &mut sc.tapes,
-            q,
-        );
-        st.prune_s = s.density_s;
-    } else {
-        query_fields(scene, &mut sc.traced, &mut sc.tapes, q);
-    }
-    st.queried = sample_count(&sc.traced);
-    st.query_s = t.elapsed().as_secs_f64() - st.prune_s;
-}
-
-/// A batch's last stage: the background shaded and every ray composited.
-pub(crate) fn composite_stage(scene: &NeuralScene, sc: &mut RenderScratch, st: &mut RenderStats) {
-    let t = std::time::Instant::now();
-    crate::shade::shade_background(scene, &sc.rays, &mut sc.traced);
-    composite_batch(
-        &mut sc.traced,
-        crate::batch::Behind::of(&scene.scene),
-        &mut sc.out,
-        None,
-    );
-    st.composite_s = t.elapsed().as_secs_f64();
 }
 
 /// Renders a whole camera; `image` selects the appearance code (`u32::MAX` = average).
