@@ -115,7 +115,9 @@ struct Candidate {
 
 /// Splats every usable pixel of `src` into `target`, keeping those that land on `hole`
 /// pixels behind the target's surface. Where `cones` hold the holes' directions, the
-/// source's tiles outside them are skipped (the same candidates).
+/// source's tiles outside them are skipped, and where the target's lens has no
+/// distortion, the pixels whose quick projection lands far from every hole of `near`
+/// (the holes grown by [`NEAR`]): the same candidates either way.
 fn splat(
     src: &Source,
     src_index: u32,
@@ -413,7 +415,7 @@ pub(crate) mod tests {
 
     /// Ray-cast view of a textured ground plane with a magenta sphere on it; with
     /// `object` false the sphere is absent (the background truth).
-    pub(crate) fn render(camera: &Camera, object: bool) -> View {
+    fn render(camera: &Camera, object: bool) -> View {
         render_on(camera, object, None)
     }
 

@@ -239,10 +239,9 @@ pub fn run(a: RenderBenchArgs) -> anyhow::Result<()> {
                 last = Some(img);
             }
             let img = last.expect("runs ≥ 1");
-            let total = |s: &RenderStats| s.wall_s;
-            per.sort_by(|x, y| total(x).total_cmp(&total(y)));
+            per.sort_by(|x, y| x.wall_s.total_cmp(&y.wall_s));
             let mid = per[per.len() / 2];
-            times.push(total(&mid));
+            times.push(mid.wall_s);
             stats.add(&mid);
             if a.width.is_none() {
                 let v = assist_train::load_view(f, u32::MAX, bg)?;
