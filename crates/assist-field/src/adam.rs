@@ -147,23 +147,40 @@ fn flush_grad(g: f32) -> f32 {
     if g.abs() < 1e-17 { 0.0 } else { g }
 }
 
-/// Every entry updated.
+/// Every entry updated, except that a cache line whose gradient and moments are all
+/// +0.0 is skipped: the rule would leave it exactly as it is (no step, moments and
+/// gradient still zero). Most of a shadow grid's lines are such: only the lattice points
+/// near the background's surface ever get a gradient.
 #[inline(always)]
 fn dense_block(h: Hyper, p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [f32]) {
+    const LINE: usize = 16;
     let n = p.len();
     let (g, m, v) = (&mut g[..n], &mut m[..n], &mut v[..n]);
-    for i in 0..n {
-        entry(
-            h,
-            h.b1,
-            h.b2,
-            h.step_size,
-            g[i],
-            &mut p[i],
-            &mut m[i],
-            &mut v[i],
-        );
-        g[i] = 0.0;
+    let bits = |x: &[f32]| x.iter().fold(0u32, |a, x| a | x.to_bits());
+    for (((p, g), m), v) in p
+        .chunks_mut(LINE)
+        .zip(g.chunks_mut(LINE))
+        .zip(m.chunks_mut(LINE))
+        .zip(v.chunks_mut(LINE))
+    {
+        if bits(g) == 0 && bits(m) == 0 && bits(v) == 0 {
+            continue;
+        }
+        let k = p.len();
+        let (g, m, v) = (&mut g[..k], &mut m[..k], &mut v[..k]);
+        for i in 0..k {
+            entry(
+                h,
+                h.b1,
+                h.b2,
+                h.step_size,
+                g[i],
+                &mut p[i],
+                &mut m[i],
+                &mut v[i],
+            );
+            g[i] = 0.0;
+        }
     }
 }
 
@@ -368,6 +385,65 @@ mod tests {
         }
         let worst = reference.worst(&p);
         assert!(worst < 1e-5, "{worst}");
+    }
+
+    /// The dense rule skips lines whose gradient and moments are all zero, which it would
+    /// leave as they are: the same bits as every entry updated one by one (a shadow grid,
+    /// most of whose lines never get a gradient); a line touched once keeps moving on its
+    /// momentum after its gradient stops.
+    #[test]
+    fn dense_skips_only_idle_lines() {
+        let n = (1 << 14) + 200;
+        let mut rng = assist_core::Rng::new(6);
+        let p0: Vec<f32> = (0..n).map(|_| rng.f32() - 0.5).collect();
+        let (mut p, mut q) = (p0.clone(), p0.clone());
+        let mut adam = Adam::new(n);
+        let (mut m, mut v) = (vec![0.0f32; n], vec![0.0f32; n]);
+        // Lines touched at the first step only, at every step, or never.
+        let kind: Vec<u8> = (0..n.div_ceil(16))
+            .map(|_| (rng.f32() * 3.0) as u8)
+            .collect();
+        for t in 1..=4 {
+            let g: Vec<f32> = (0..n)
+                .map(|i| match (kind[i / 16], t) {
+                    (0, 1) | (1, _) => rng.f32() - 0.5,
+                    _ => 0.0,
+                })
+                .collect();
+            let mut gg = g.clone();
+            adam.update(1e-2, &mut p, &mut gg);
+            assert!(gg.iter().all(|&x| x == 0.0));
+            let c1 = 1.0 - adam.beta1.powi(t);
+            let c2 = 1.0 - adam.beta2.powi(t);
+            let h = Hyper {
+                b1: adam.beta1,
+                b2: adam.beta2,
+                eps: adam.eps,
+                step_size: 1e-2 / c1,
+                inv_sqrt_c2: 1.0 / c2.sqrt(),
+            };
+            for i in 0..n {
+                entry(
+                    h,
+                    h.b1,
+                    h.b2,
+                    h.step_size,
+                    g[i],
+                    &mut q[i],
+                    &mut m[i],
+                    &mut v[i],
+                );
+            }
+        }
+        let bits = |x: &[f32]| x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&p), bits(&q));
+        assert_eq!(bits(&adam.m), bits(&m));
+        assert_eq!(bits(&adam.v), bits(&v));
+        for (i, k) in kind.iter().enumerate() {
+            let (a, b) = (16 * i, (16 * i + 16).min(n));
+            let moved = p[a..b] != p0[a..b];
+            assert_eq!(moved, *k != 2, "line {i} of kind {k}");
+        }
     }
 
     /// The sparse rule against the reference, over blocks that are wholly sparse (the

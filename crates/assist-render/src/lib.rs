@@ -43,5 +43,8 @@ pub use render::{
     query_fields, query_node, render_camera, render_camera_timed, render_rays, render_rays_timed,
 };
 pub use sample::{HiddenStop, NodeSamples, RayBatch, SampleOptions, Traced, distortion_distance};
-pub use shade::{Caster, CasterGrid, casters, casts_shadows, shade_background, shade_backward};
+pub use shade::{
+    Caster, CasterGrid, casters, casts_shadows, shade_background, shade_backward,
+    shade_backward_add,
+};
 pub use tables::SceneTables;

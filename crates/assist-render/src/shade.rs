@@ -269,39 +269,77 @@ pub fn shade_backward(
     rays: &RayBatch,
     traced: &Traced,
 ) -> Vec<(usize, Vec<f32>)> {
+    let mut grads = Vec::new();
+    shade_backward_add(scene, rays, traced, &mut grads);
+    grads
+}
+
+/// [`shade_backward`] into buffers kept between calls (a trainer's): `grads` is made to
+/// hold one `(node index, gradient)` per caster, in [`casters`]' order, each gradient
+/// sized like its grid's values (kept where node and size already match, else replaced by
+/// zeros), and each sample's contributions are added to it. Each caster's gradient is
+/// summed by one thread in ray, sample and corner order: the same bits however the
+/// threads split the work, and without a list of every contribution in between.
+pub fn shade_backward_add(
+    scene: &NeuralScene,
+    rays: &RayBatch,
+    traced: &Traced,
+    grads: &mut Vec<(usize, Vec<f32>)>,
+) {
     let cs = casters(scene);
-    let Some(ns) = background(scene).and_then(|b| traced.nodes.get(b)) else {
-        return Vec::new();
+    let bg = background(scene).and_then(|b| traced.nodes.get(b));
+    let Some(ns) = bg.filter(|ns| !cs.is_empty() && ns.d_shade.len() == 3 * ns.len()) else {
+        grads.clear();
+        return;
     };
-    if cs.is_empty() || ns.d_shade.len() != 3 * ns.len() {
-        return Vec::new();
+    let fits = grads.len() == cs.len()
+        && grads
+            .iter()
+            .zip(&cs)
+            .all(|((k, g), c)| *k == c.node && g.len() == c.grid.values.len());
+    if !fits {
+        *grads = cs
+            .iter()
+            .map(|c| (c.node, vec![0.0f32; c.grid.values.len()]))
+            .collect();
     }
-    // Each sample's contributions, gathered in sample order and summed in that order: the
-    // same seed trains the same bits however the threads split the rays.
-    let contributions: Vec<(u32, u32, [f32; 3])> = (0..traced.rays)
-        .into_par_iter()
-        .flat_map_iter(|r| {
-            let mut out: Vec<(u32, u32, [f32; 3])> = Vec::new();
+    cs.par_iter()
+        .enumerate()
+        .zip(grads.par_iter_mut())
+        .for_each(|((me, c), (_, out))| {
             let mut hit: Vec<(usize, Corners, [f32; 3])> = Vec::with_capacity(cs.len());
             let mut meets = Vec::new();
-            ray_casters(rays, r, &cs, &mut meets);
-            for j in ns.range(r) {
-                let g: [f32; 3] = ns.d_shade[3 * j..3 * j + 3].try_into().expect("3");
-                if g == [0.0; 3] {
+            for r in 0..traced.rays {
+                // Whether the ray meets this caster's region at all, before the others'.
+                if ray_span(rays, r, c.bounds).is_none() {
                     continue;
                 }
-                let t = ns.t[j];
-                hit.clear();
-                for &(i, (a, b), br) in &meets {
-                    let c = &cs[i].grid;
-                    if (a..=b).contains(&(t as f64))
-                        && let Some(k) = c.corners(br.at(t))
-                    {
-                        hit.push((i, k, c.at(&k)));
+                ray_casters(rays, r, &cs, &mut meets);
+                let Some(&(_, (a0, b0), _)) = meets.iter().find(|m| m.0 == me) else {
+                    continue;
+                };
+                for j in ns.range(r) {
+                    let t = ns.t[j];
+                    if !(a0..=b0).contains(&(t as f64)) {
+                        continue;
                     }
-                }
-                // d(Π s_i)/d s_i = Π_{other} s_j, channel by channel.
-                for (a, &(i, ref k, _)) in hit.iter().enumerate() {
+                    let g: [f32; 3] = ns.d_shade[3 * j..3 * j + 3].try_into().expect("3");
+                    if g == [0.0; 3] {
+                        continue;
+                    }
+                    hit.clear();
+                    for &(i, (a, b), br) in &meets {
+                        let ci = &cs[i].grid;
+                        if (a..=b).contains(&(t as f64))
+                            && let Some(k) = ci.corners(br.at(t))
+                        {
+                            hit.push((i, k, ci.at(&k)));
+                        }
+                    }
+                    let Some(a) = hit.iter().position(|h| h.0 == me) else {
+                        continue;
+                    };
+                    // d(Π s_i)/d s_i = Π_{other} s_j, channel by channel.
                     let mut gi = g;
                     for (b, h) in hit.iter().enumerate() {
                         if b != a {
@@ -310,24 +348,16 @@ pub fn shade_backward(
                             }
                         }
                     }
+                    let k = &hit[a].1;
                     for q in 0..8 {
                         let w = k.weight[q];
-                        out.push((i as u32, k.index[q], gi.map(|v| v * w)));
+                        let v = gi.map(|v| v * w);
+                        let at = 3 * k.index[q] as usize;
+                        for ch in 0..3 {
+                            out[at + ch] += v[ch];
+                        }
                     }
                 }
             }
-            out
-        })
-        .collect();
-    let mut grads: Vec<Vec<f32>> = cs
-        .iter()
-        .map(|c| vec![0.0f32; c.grid.values.len()])
-        .collect();
-    for (i, idx, v) in contributions {
-        let at = 3 * idx as usize;
-        for ch in 0..3 {
-            grads[i as usize][at + ch] += v[ch];
-        }
-    }
-    cs.iter().map(|c| c.node).zip(grads).collect()
+        });
 }

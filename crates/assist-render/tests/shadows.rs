@@ -11,7 +11,7 @@ use assist_core::{DVec3, Similarity3};
 use assist_field::ShadeGrid;
 use assist_render::{
     RayBatch, RenderOptions, RenderScratch, SampleOptions, Traced, render_rays, sample_rays,
-    shade_background, shade_backward,
+    shade_background, shade_backward, shade_backward_add,
 };
 use assist_scene::NeuralScene;
 use common::{constant_field, node, scene};
@@ -195,4 +195,24 @@ fn the_shadow_gradient_matches_central_differences() {
         }
     }
     assert!(checked > 20, "only {checked} grid values had a gradient");
+    // Into kept buffers (a trainer's): the same bits as alone, then added to what they hold.
+    let mut kept = Vec::new();
+    shade_backward_add(&s, &rays, &traced, &mut kept);
+    assert_eq!(kept, grads);
+    shade_backward_add(&s, &rays, &traced, &mut kept);
+    for ((k, a), (l, b)) in kept.iter().zip(&grads) {
+        assert_eq!(k, l);
+        let top = b.iter().fold(0.0f32, |m, y| m.max(y.abs()));
+        assert!(top > 0.0);
+        assert!(
+            a.iter()
+                .zip(b)
+                .all(|(x, y)| (x - 2.0 * y).abs() <= 1e-5 * top)
+        );
+    }
+    // Buffers that do not fit the casters (another scene's) are replaced.
+    kept.truncate(1);
+    kept[0].1.push(1.0);
+    shade_backward_add(&s, &rays, &traced, &mut kept);
+    assert_eq!(kept, grads);
 }

@@ -27,6 +27,10 @@ use crate::{Result, SessionError, request};
 pub enum TrainEvent {
     /// The dataset is read; its training images are being loaded.
     Loading { images: usize, data: PathBuf },
+    /// A stage of the setup before the first step begins (the background prior, the
+    /// scene's nodes, carving, shadows: seconds each on a large capture), named for the
+    /// user; the event that ends it follows.
+    Stage { name: &'static str },
     /// The background prior: the share of object-covered pixels other views see.
     Prior { seen_share: f64 },
     /// Background priors read from a folder (`TrainConfig::prior_dir`).
@@ -166,6 +170,11 @@ impl TrainJob {
             });
         }
         let mut views = load_views(&ds, Split::Train, background_color(&ds))?;
+        if c.prior != assist_train::PriorKind::None && views.iter().any(|v| v.ids.is_some()) {
+            on_event(&TrainEvent::Stage {
+                name: "background prior: what objects hide in each view, from the others",
+            });
+        }
         // A depth prior the user supplies (a monocular model's) has an unknown scale; one
         // the built-in fill makes from the dataset's depth is metric.
         let depth_affine = views.iter().any(|v| v.inpaint_depth.is_some());
@@ -176,6 +185,9 @@ impl TrainJob {
                 seen_share: mv.filled_pixels as f64 / mv.hole_pixels as f64,
             });
         }
+        on_event(&TrainEvent::Stage {
+            name: "the scene's nodes and the free space the views see through",
+        });
         let (mut scene, kept) = self.scene(&ds, &views, user_boxes)?;
         self.check_space(scene.fields.values().map(|f| f.field.param_count()).sum())?;
         let carved = assist_train::carve_scene(&mut scene, &views);
@@ -331,6 +343,13 @@ impl TrainJob {
         on_event: &mut impl FnMut(&TrainEvent),
     ) -> std::collections::BTreeMap<String, Vec<bool>> {
         let c = &self.config;
+        let estimate = c.learns_shadows(depth)
+            && (c.shadow_estimate == OnOff::On || c.shadows.resolve(depth) == Shadows::Fixed);
+        if estimate && scene.scene.nodes.iter().any(|n| !n.is_background()) {
+            on_event(&TrainEvent::Stage {
+                name: "shadows: each object's first estimate from the photographs",
+            });
+        }
         // Objects learn their shadows (a resumed scene's grids train on whatever the flag).
         let objects = if c.learns_shadows(depth) {
             assist_train::add_shadow_grids(scene)
@@ -339,9 +358,7 @@ impl TrainJob {
         };
         let st = assist_train::shadow_free_priors(scene, views);
         // New grids start from the photographs' darkening (trained ones are left as they are).
-        let est = if c.learns_shadows(depth)
-            && (c.shadow_estimate == OnOff::On || c.shadows.resolve(depth) == Shadows::Fixed)
-        {
+        let est = if estimate {
             assist_train::estimate_shadows(scene, views)
         } else {
             assist_train::ShadowEstimate::default()

@@ -289,6 +289,7 @@ impl Reporter {
                     }
                 );
             }
+            TrainEvent::Stage { name } if self.text => eprintln!("{name} …"),
             TrainEvent::Prior { seen_share } if self.text => eprintln!(
                 "background prior: {:.0}% of the pixels objects cover are seen by other views, the rest filled by push-pull",
                 100.0 * seen_share

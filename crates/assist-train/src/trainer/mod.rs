@@ -96,6 +96,9 @@ pub struct Trainer {
     ray_views: Vec<u32>,
     /// Adam over each casting object's shadow grid, by field key.
     shade_adam: BTreeMap<String, Adam>,
+    /// The step's gradient of each casting object's shadow grid, by node index (kept
+    /// between steps: Adam leaves it zeroed).
+    shade_grads: Vec<(usize, Vec<f32>)>,
     /// Lattice points of shadow grids that keep their values (by field key; see
     /// [`crate::ShadowEstimate::held`]): every other point trains with the scene.
     pub shade_held: BTreeMap<String, Vec<bool>>,
@@ -197,6 +200,7 @@ impl Trainer {
             poses,
             ray_views: Vec::new(),
             shade_adam: BTreeMap::new(),
+            shade_grads: Vec::new(),
             shade_held: BTreeMap::new(),
             kept: KeptHistory::default(),
             proposal: Default::default(),

@@ -68,9 +68,9 @@ impl Trainer {
         };
         let g_wq = self.composite_and_losses(&mut s)?;
         phase[2] = tp.elapsed().as_secs_f64();
-        let shade_grads = self.backward()?;
+        self.backward()?;
         phase[3] = tp.elapsed().as_secs_f64();
-        self.update(lr, shade_grads, g_wq)?;
+        self.update(lr, g_wq)?;
         phase[4] = tp.elapsed().as_secs_f64();
         if self.opts.poison_at == Some(self.iteration) {
             self.pull()?;
@@ -264,7 +264,7 @@ impl Trainer {
         Ok(())
     }
 
-    fn backward(&mut self) -> Result<Vec<(usize, Vec<f32>)>> {
+    fn backward(&mut self) -> Result<()> {
         for (ns, tape) in self.traced.nodes.iter().zip(self.tapes.iter_mut()) {
             if ns.is_empty() {
                 continue;
@@ -282,7 +282,12 @@ impl Trainer {
                 )
                 .map_err(|e| TrainError::Other(format!("the gradient of field {key}: {e}")))?;
         }
-        let shade_grads = assist_render::shade_backward(&self.scene, &self.rays, &self.traced);
+        assist_render::shade_backward_add(
+            &self.scene,
+            &self.rays,
+            &self.traced,
+            &mut self.shade_grads,
+        );
         let pose_step = self.iteration.is_multiple_of(POSE_EVERY);
         if let Some(p) = self.poses.as_mut().filter(|_| pose_step) {
             // The poses' gradient reads dL/d(encoding) from the CPU's tapes; where the
@@ -302,17 +307,12 @@ impl Trainer {
                 &self.ray_views,
             );
         }
-        Ok(shade_grads)
+        Ok(())
     }
 
     /// The optimizers' steps at learning rate `lr`: poses, fields, shadow grids (points
     /// held keep their factors) and the depth scale/shift.
-    fn update(
-        &mut self,
-        lr: f32,
-        shade_grads: Vec<(usize, Vec<f32>)>,
-        mut g_wq: [f32; 2],
-    ) -> Result<()> {
+    fn update(&mut self, lr: f32, mut g_wq: [f32; 2]) -> Result<()> {
         let pose_step = self.iteration.is_multiple_of(POSE_EVERY);
         if let Some(p) = self.poses.as_mut().filter(|_| pose_step) {
             p.step(POSE_LR * lr / self.opts.lr_start);
@@ -324,8 +324,8 @@ impl Trainer {
                 .step(Arc::make_mut(nf), lr)
                 .map_err(|e| TrainError::Other(format!("the step of field {key}: {e}")))?;
         }
-        for (k, mut g) in shade_grads {
-            let key = self.scene.scene.nodes[k].field.clone();
+        for (k, g) in self.shade_grads.iter_mut() {
+            let key = self.scene.scene.nodes[*k].field.clone();
             let nf = Arc::make_mut(self.scene.fields.get_mut(&key).expect("field of node"));
             if let Some(grid) = nf.shade.as_mut() {
                 let held = self
@@ -336,7 +336,7 @@ impl Trainer {
                 self.shade_adam
                     .entry(key)
                     .or_insert_with(|| Adam::new(grid.values.len()))
-                    .update(lr, &mut grid.values, &mut g);
+                    .update(lr, &mut grid.values, g);
                 grid.clamp();
                 if let Some(h) = held {
                     // Per lattice point: its three factors.
