@@ -49,6 +49,12 @@ pub struct OccupancyGrid {
 pub const REACH_CAP: u8 = 32;
 
 /// One bit per flag, 64 to a word (flag `c` is bit `c % 64` of word `c / 64`).
+/// Whether bit `c` of a packed bit set is set.
+#[inline]
+fn bit_set(bits: &[u64], c: usize) -> bool {
+    bits.get(c / 64).is_some_and(|&e| e >> (c % 64) & 1 == 1)
+}
+
 fn pack_bits(flags: &[bool]) -> Vec<u64> {
     flags
         .chunks(64)
@@ -347,6 +353,7 @@ impl OccupancyGrid {
         const SUB: usize = 4096;
         let mut pos = [vec![0f32; BLOCK], vec![0f32; BLOCK], vec![0f32; BLOCK]];
         let mut sigma = vec![0f32; BLOCK];
+        let (mut packed, mut packed_sigma) = ([Vec::new(), Vec::new(), Vec::new()], Vec::new());
         for lo in (0..selected).step_by(BLOCK) {
             let m = BLOCK.min(selected - lo);
             let [px, py, pz] = &mut pos;
@@ -366,7 +373,33 @@ impl OccupancyGrid {
                         z[i] = (cz as f32 + rng.f32()) / r as f32;
                     }
                 });
-            density([&pos[0][..m], &pos[1][..m], &pos[2][..m]], &mut sigma[..m]);
+            // Cells known empty are not queried: `refresh_bits` holds their estimate at 0
+            // whatever they read (their random points are still drawn, so every other
+            // cell's stays where it was). Carving empties most of a capture with depth.
+            let live: Vec<u32> = match self.empty.is_empty() {
+                true => Vec::new(),
+                false => (0..m as u32)
+                    .filter(|&i| !bit_set(&self.empty, cell(lo + i as usize)))
+                    .collect(),
+            };
+            if self.empty.is_empty() || live.len() == m {
+                density([&pos[0][..m], &pos[1][..m], &pos[2][..m]], &mut sigma[..m]);
+            } else {
+                let k = live.len();
+                let q = &mut packed;
+                for (a, p) in q.iter_mut().zip(&pos) {
+                    a.clear();
+                    a.extend(live.iter().map(|&i| p[i as usize]));
+                }
+                sigma[..m].fill(0.0);
+                if k > 0 {
+                    packed_sigma.resize(k, 0.0);
+                    density([&q[0][..], &q[1][..], &q[2][..]], &mut packed_sigma[..k]);
+                    for (&i, &v) in live.iter().zip(&packed_sigma) {
+                        sigma[i as usize] = v;
+                    }
+                }
+            }
             for (i, &s) in sigma[..m].iter().enumerate() {
                 let c = cell(lo + i);
                 let d = &mut self.density[c];
@@ -728,6 +761,63 @@ mod tests {
                 .enumerate()
                 .all(|(c, &d)| c == 5 || (d - want).abs() < 1e-3)
         );
+    }
+
+    /// A refresh queries no cell known empty, and ends as it would have had it queried
+    /// them (their estimate is held at 0 either way), bit for bit: the other cells' random
+    /// points are where they were.
+    #[test]
+    fn a_refresh_skips_the_cells_known_empty() {
+        let r = 32usize;
+        let mut rng = assist_core::Rng::new(8);
+        let empty: Vec<bool> = (0..r * r * r).map(|_| rng.f32() < 0.7).collect();
+        let mut skipping = OccupancyGrid::new(r as u32);
+        skipping.set_empty(&empty);
+        let mut querying = OccupancyGrid::new(r as u32);
+        // The cells a point may be in (a random point rounds onto its cell's far face).
+        let cells = |p: [f32; 3]| {
+            let i = |v: f32, e: f32| ((v * r as f32 - e).max(0.0) as usize).min(r - 1);
+            (0..8).map(move |k| {
+                let e = |a: usize| if k >> a & 1 == 1 { 1e-3 } else { 0.0 };
+                i(p[0], e(0)) + r * (i(p[1], e(1)) + r * i(p[2], e(2)))
+            })
+        };
+        let smooth = |x: f32, y: f32, z: f32| 20.0 * (x * 7.0).sin().abs() * y + z;
+        let (mut asked, mut all) = (0usize, 0usize);
+        for round in 0..5u64 {
+            let (part, parts) = (round as usize % 3, 3);
+            let (mut a, mut b) = (assist_core::Rng::new(round), assist_core::Rng::new(round));
+            skipping.update_part_with(&mut a, part, parts, |[x, y, z], sigma| {
+                for i in 0..sigma.len() {
+                    let p = [x[i], y[i], z[i]];
+                    assert!(
+                        cells(p).any(|c| !empty[c]),
+                        "a known-empty cell was queried"
+                    );
+                    sigma[i] = smooth(x[i], y[i], z[i]);
+                }
+                asked += sigma.len();
+            });
+            querying.update_part_with(&mut b, part, parts, |[x, y, z], sigma| {
+                for i in 0..sigma.len() {
+                    sigma[i] = smooth(x[i], y[i], z[i]);
+                }
+                all += sigma.len();
+            });
+        }
+        let live = empty.iter().filter(|&&e| !e).count();
+        assert!(asked < all / 2 && asked >= live, "{asked} of {all}");
+        for c in 0..r * r * r {
+            let (d, q) = (skipping.density[c], querying.density[c]);
+            if empty[c] {
+                assert_eq!(d, 0.0, "cell {c}");
+                assert!(!skipping.is_occupied_cell(c));
+            } else {
+                assert_eq!(d.to_bits(), q.to_bits(), "cell {c}");
+                assert_eq!(skipping.is_occupied_cell(c), querying.is_occupied_cell(c));
+            }
+        }
+        assert!(skipping.occupied_fraction() > 0.05);
     }
 
     #[test]
