@@ -22,6 +22,7 @@ pub mod split;
 mod train_checks;
 mod train_config;
 mod train_job;
+mod train_shadows;
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};

@@ -9,16 +9,16 @@ use std::sync::atomic::AtomicBool;
 use assist_core::NodeSpace;
 use assist_data::{Dataset, LoadOptions, Split};
 use assist_scene::NeuralScene;
-use assist_train::{KeptHistory, ResumeState, StepStats};
 use assist_train::{
-    SetupOptions, TrainOptions, TrainReport, Trainer, background_color, build_scene,
+    KeptHistory, ResumeState, SetupOptions, StepStats, TrainOptions, TrainReport, Trainer,
 };
-use assist_train::{default_lr_end, default_proposal, default_prune_eps, fill_priors, load_views};
+use assist_train::{background_color, build_scene, default_lr_end, default_proposal};
+use assist_train::{default_prune_eps, fill_priors, load_views};
 use serde::Serialize;
 
 use crate::held_out::HeldOutSet;
 pub use crate::held_out::{HeldOut, preview_path};
-use crate::train_config::{Appearance, OnOff, Shadows, TrainConfig, lambdas};
+use crate::train_config::{Appearance, Shadows, TrainConfig, lambdas};
 use crate::{Result, SessionError, request};
 
 /// What a training job tells while it runs.
@@ -27,9 +27,7 @@ use crate::{Result, SessionError, request};
 pub enum TrainEvent {
     /// The dataset is read; its training images are being loaded.
     Loading { images: usize, data: PathBuf },
-    /// A stage of the setup before the first step begins (the background prior, the
-    /// scene's nodes, carving, shadows: seconds each on a large capture), named for the
-    /// user; the event that ends it follows.
+    /// A stage of the setup begins (seconds each on a large capture); its result follows.
     Stage { name: &'static str },
     /// The background prior: the share of object-covered pixels other views see.
     Prior { seen_share: f64 },
@@ -39,10 +37,9 @@ pub enum TrainEvent {
     },
     /// Free space carved from the depth maps, per node (share of its grid cells).
     Carved { nodes: Vec<(String, f64)> },
-    /// Objects learn their shadows: `objects` shadow grids were added; the background
-    /// prior near them was made shadow-free on `covered` pixels under objects and `seen`
-    /// pixels around them; `estimated` photograph pixels gave the new grids their first
-    /// estimate ([`assist_train::estimate_shadows`]).
+    /// Objects learn their shadows: `objects` grids added; the background prior near them
+    /// made shadow-free on `covered` pixels under objects and `seen` around them; the new
+    /// grids' first estimate from `estimated` pixels ([`assist_train::estimate_shadows`]).
     Shadows {
         objects: usize,
         covered: usize,
@@ -172,7 +169,7 @@ impl TrainJob {
         let mut views = load_views(&ds, Split::Train, background_color(&ds))?;
         if c.prior != assist_train::PriorKind::None && views.iter().any(|v| v.ids.is_some()) {
             on_event(&TrainEvent::Stage {
-                name: "background prior: what objects hide in each view, from the others",
+                name: "background prior, from the other views",
             });
         }
         // A depth prior the user supplies (a monocular model's) has an unknown scale; one
@@ -186,7 +183,7 @@ impl TrainJob {
             });
         }
         on_event(&TrainEvent::Stage {
-            name: "the scene's nodes and the free space the views see through",
+            name: "nodes, and the free space views see through",
         });
         let (mut scene, kept) = self.scene(&ds, &views, user_boxes)?;
         self.check_space(scene.fields.values().map(|f| f.field.param_count()).sum())?;
@@ -332,48 +329,6 @@ impl TrainJob {
         SessionError::SaveFailed(format!("{e}; {hint}"))
     }
 
-    /// Gives the objects their shadow grids (as configured), makes the background prior
-    /// shadow-free near them and estimates new grids from the photographs; returns the
-    /// lattice points the photographs hold (see [`Trainer::shade_held`]).
-    fn shadows(
-        &self,
-        scene: &mut NeuralScene,
-        views: &mut [assist_train::View],
-        depth: bool,
-        on_event: &mut impl FnMut(&TrainEvent),
-    ) -> std::collections::BTreeMap<String, Vec<bool>> {
-        let c = &self.config;
-        let estimate = c.learns_shadows(depth)
-            && (c.shadow_estimate == OnOff::On || c.shadows.resolve(depth) == Shadows::Fixed);
-        if estimate && scene.scene.nodes.iter().any(|n| !n.is_background()) {
-            on_event(&TrainEvent::Stage {
-                name: "shadows: each object's first estimate from the photographs",
-            });
-        }
-        // Objects learn their shadows (a resumed scene's grids train on whatever the flag).
-        let objects = if c.learns_shadows(depth) {
-            assist_train::add_shadow_grids(scene)
-        } else {
-            0
-        };
-        let st = assist_train::shadow_free_priors(scene, views);
-        // New grids start from the photographs' darkening (trained ones are left as they are).
-        let est = if estimate {
-            assist_train::estimate_shadows(scene, views)
-        } else {
-            assist_train::ShadowEstimate::default()
-        };
-        if objects > 0 || st.views > 0 {
-            on_event(&TrainEvent::Shadows {
-                objects,
-                covered: st.covered,
-                seen: st.seen,
-                estimated: est.pixels,
-            });
-        }
-        est.held
-    }
-
     /// The trainer's options for this job's configuration.
     fn options(
         &self,
@@ -455,9 +410,6 @@ impl TrainJob {
         Ok(())
     }
 
-    /// Where a resumed run starts, and the run's time budget (a resumed run's counts from
-    /// where it stopped); refused when the scene was trained on another dataset (unless
-    /// `force`) or has no iterations left.
     /// The trainer of `scene`, with this job's optimizers, continuing `resume`.
     fn trainer(
         &self,
@@ -479,6 +431,9 @@ impl TrainJob {
         Ok(trainer)
     }
 
+    /// Where a resumed run starts, and the run's time budget (a resumed run's counts from
+    /// where it stopped); refused when the scene was trained on another dataset (unless
+    /// `force`) or has no iterations left.
     fn resume_point(&self, fingerprint: &str) -> Result<(Option<ResumeState>, Option<f64>)> {
         let c = &self.config;
         let mut max_time = c.max_time;

@@ -1,0 +1,51 @@
+//! A training job's shadows: the objects' grids added, the background prior made
+//! shadow-free near them, the new grids' first estimate from the photographs.
+
+use assist_scene::NeuralScene;
+
+use crate::train_config::{OnOff, Shadows};
+use crate::train_job::{TrainEvent, TrainJob};
+
+impl TrainJob {
+    /// Gives the objects their shadow grids (as configured), makes the background prior
+    /// shadow-free near them and estimates new grids from the photographs; returns the
+    /// lattice points the photographs hold (see [`Trainer::shade_held`]).
+    pub(crate) fn shadows(
+        &self,
+        scene: &mut NeuralScene,
+        views: &mut [assist_train::View],
+        depth: bool,
+        on_event: &mut impl FnMut(&TrainEvent),
+    ) -> std::collections::BTreeMap<String, Vec<bool>> {
+        let c = &self.config;
+        let estimate = c.learns_shadows(depth)
+            && (c.shadow_estimate == OnOff::On || c.shadows.resolve(depth) == Shadows::Fixed);
+        if estimate && scene.scene.nodes.iter().any(|n| !n.is_background()) {
+            on_event(&TrainEvent::Stage {
+                name: "shadows' first estimate from the photographs",
+            });
+        }
+        // Objects learn their shadows (a resumed scene's grids train on whatever the flag).
+        let objects = if c.learns_shadows(depth) {
+            assist_train::add_shadow_grids(scene)
+        } else {
+            0
+        };
+        let st = assist_train::shadow_free_priors(scene, views);
+        // New grids start from the photographs' darkening (trained ones are left as they are).
+        let est = if estimate {
+            assist_train::estimate_shadows(scene, views)
+        } else {
+            assist_train::ShadowEstimate::default()
+        };
+        if objects > 0 || st.views > 0 {
+            on_event(&TrainEvent::Shadows {
+                objects,
+                covered: st.covered,
+                seen: st.seen,
+                estimated: est.pixels,
+            });
+        }
+        est.held
+    }
+}
