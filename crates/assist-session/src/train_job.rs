@@ -13,7 +13,7 @@ use assist_train::{
     KeptHistory, ResumeState, SetupOptions, StepStats, TrainOptions, TrainReport, Trainer,
 };
 use assist_train::{background_color, build_scene, default_lr_end, default_proposal};
-use assist_train::{default_prune_eps, fill_priors, load_views};
+use assist_train::{default_prune_eps, load_views};
 use serde::Serialize;
 
 use crate::held_out::HeldOutSet;
@@ -167,21 +167,10 @@ impl TrainJob {
             });
         }
         let mut views = load_views(&ds, Split::Train, background_color(&ds))?;
-        if c.prior != assist_train::PriorKind::None && views.iter().any(|v| v.ids.is_some()) {
-            on_event(&TrainEvent::Stage {
-                name: "background prior, from the other views",
-            });
-        }
         // A depth prior the user supplies (a monocular model's) has an unknown scale; one
         // the built-in fill makes from the dataset's depth is metric.
         let depth_affine = views.iter().any(|v| v.inpaint_depth.is_some());
-        if let Some(mv) = fill_priors(&mut views, c.prior)
-            && mv.hole_pixels > 0
-        {
-            on_event(&TrainEvent::Prior {
-                seen_share: mv.filled_pixels as f64 / mv.hole_pixels as f64,
-            });
-        }
+        self.priors(&mut views, &mut on_event);
         on_event(&TrainEvent::Stage {
             name: "nodes, and the free space views see through",
         });

@@ -1,5 +1,6 @@
-//! A training job's shadows: the objects' grids added, the background prior made
-//! shadow-free near them, the new grids' first estimate from the photographs.
+//! A training job's background prior and shadows: what objects hide in each view filled
+//! from the others, the objects' shadow grids added, the prior made shadow-free near them,
+//! the new grids' first estimate from the photographs.
 
 use assist_scene::NeuralScene;
 
@@ -7,6 +8,27 @@ use crate::train_config::{OnOff, Shadows};
 use crate::train_job::{TrainEvent, TrainJob};
 
 impl TrainJob {
+    /// Fills each view's background prior where objects hide it (the configured kind).
+    pub(crate) fn priors(
+        &self,
+        views: &mut [assist_train::View],
+        on_event: &mut impl FnMut(&TrainEvent),
+    ) {
+        let c = &self.config;
+        if c.prior != assist_train::PriorKind::None && views.iter().any(|v| v.ids.is_some()) {
+            on_event(&TrainEvent::Stage {
+                name: "background prior, from the other views",
+            });
+        }
+        if let Some(mv) = assist_train::fill_priors(views, c.prior)
+            && mv.hole_pixels > 0
+        {
+            on_event(&TrainEvent::Prior {
+                seen_share: mv.filled_pixels as f64 / mv.hole_pixels as f64,
+            });
+        }
+    }
+
     /// Gives the objects their shadow grids (as configured), makes the background prior
     /// shadow-free near them and estimates new grids from the photographs; returns the
     /// lattice points the photographs hold (see [`Trainer::shade_held`]).
