@@ -48,13 +48,13 @@ pub struct OccupancyGrid {
 /// few jumps).
 pub const REACH_CAP: u8 = 32;
 
-/// One bit per flag, 64 to a word (flag `c` is bit `c % 64` of word `c / 64`).
-/// Whether bit `c` of a packed bit set is set.
+/// Whether bit `c` of a packed bit set (see [`pack_bits`]) is set.
 #[inline]
 fn bit_set(bits: &[u64], c: usize) -> bool {
     bits.get(c / 64).is_some_and(|&e| e >> (c % 64) & 1 == 1)
 }
 
+/// One bit per flag, 64 to a word (flag `c` is bit `c % 64` of word `c / 64`).
 fn pack_bits(flags: &[bool]) -> Vec<u64> {
     flags
         .chunks(64)
@@ -220,8 +220,8 @@ impl OccupancyGrid {
 
     /// Whether cell `c` is in warm-up (occupied whatever its estimate) and not known empty.
     pub fn warming(&self, c: usize) -> bool {
-        let bit = |v: &[u64]| v.get(c / 64).is_some_and(|&e| e >> (c % 64) & 1 == 1);
-        (self.warmup.get(c).is_some_and(|&w| w > 0) || bit(&self.kept)) && !bit(&self.empty)
+        (self.warmup.get(c).is_some_and(|&w| w > 0) || bit_set(&self.kept, c))
+            && !bit_set(&self.empty, c)
     }
 
     pub fn cells(&self) -> usize {
