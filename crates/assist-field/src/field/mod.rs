@@ -350,10 +350,16 @@ impl Field {
                     let b = slots[0] as usize * l.out;
                     bias_act(out, &biases[b..b + l.out], nl > 1);
                 } else {
-                    for (o, row) in out.chunks_exact_mut(CHUNK).enumerate() {
-                        for (v, &sl) in row.iter_mut().zip(&slots) {
-                            *v += biases[sl as usize * l.out + o];
+                    // By runs of one image (a ray's samples), each a constant bias.
+                    let mut l0 = 0;
+                    while l0 < CHUNK {
+                        let sl = slots[l0];
+                        let l1 = l0 + slots[l0..].iter().take_while(|&&x| x == sl).count();
+                        let b = &biases[sl as usize * l.out..][..l.out];
+                        for (row, &bo) in out.chunks_exact_mut(CHUNK).zip(b) {
+                            row[l0..l1].iter_mut().for_each(|v| *v += bo);
                         }
+                        l0 = l1;
                     }
                     if nl > 1 {
                         out.iter_mut().for_each(|v| *v = v.max(0.0));
