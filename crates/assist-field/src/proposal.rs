@@ -236,12 +236,21 @@ impl ProposalField {
         let wt1 = self.l1.transposed(&self.params);
         let wt2 = self.l2.transposed(&self.params);
         let mut d_enc = vec![0.0f32; Layout { width: self.width }.len(n)];
-        let nets = d_enc
-            .par_chunks_mut(block)
+        // One contiguous run of chunks per thread, each summed in chunk order into its
+        // own gradient, and the runs summed in order: the same bits on every run with the
+        // same thread count (a fold over rayon's adaptive splits grouped the chunks
+        // differently from run to run, so training with a proposal was not repeatable).
+        let nc = n.div_ceil(CHUNK);
+        let per = nc.div_ceil(rayon::current_num_threads().max(1)).max(1);
+        let runs: Vec<Vec<f32>> = d_enc[..nc * block]
+            .par_chunks_mut(per * block)
             .enumerate()
-            .fold(
-                || vec![0.0f32; self.params.len() - mlp0],
-                |mut g, (c, de)| {
+            .map(|(run, d_run)| {
+                let mut g = vec![0.0f32; self.params.len() - mlp0];
+                let mut dh = vec![0.0f32; hidden * CHUNK];
+                let mut xt = vec![0.0f32; CHUNK * self.width.max(pad16(hidden))];
+                for (k, de) in d_run.chunks_mut(block).enumerate() {
+                    let c = run * per + k;
                     let lanes = (n - c * CHUNK).min(CHUNK);
                     let mut d_raw = [0.0f32; CHUNK];
                     for l in 0..lanes {
@@ -250,8 +259,6 @@ impl ProposalField {
                         d_raw[l] = d_sigma[c * CHUNK + l] * s;
                     }
                     let h = &tape.hidden[c * hidden * CHUNK..(c + 1) * hidden * CHUNK];
-                    let mut dh = vec![0.0f32; hidden * CHUNK];
-                    let mut xt = vec![0.0f32; CHUNK * self.width.max(pad16(hidden))];
                     self.l2.backward(
                         &wt2,
                         h,
@@ -270,15 +277,12 @@ impl ProposalField {
                     let x = &tape.enc[c * block..(c + 1) * block];
                     self.l1
                         .backward(&wt1, x, &dh, &mut g, mlp0, Some(de), &mut xt, self.width);
-                    g
-                },
-            )
-            .reduce_with(|mut a, b| {
-                a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
-                a
-            });
-        if let Some(g) = nets {
-            grad[mlp0..].iter_mut().zip(&g).for_each(|(x, y)| *x += y);
+                }
+                g
+            })
+            .collect();
+        for g in &runs {
+            grad[mlp0..].iter_mut().zip(g).for_each(|(x, y)| *x += y);
         }
         encode_backward(&self.grid, pos, self.width, &d_enc, &mut grad[..mlp0]);
     }
@@ -347,6 +351,34 @@ mod tests {
             .iter()
             .fold((f32::MAX, 0f32), |(a, b), &s| (a.min(s), b.max(s)));
         assert!(hi > 1.5 * lo, "densities barely vary: {lo} … {hi}");
+    }
+
+    /// The gradient is the same bits however rayon's threads happen to share the chunks:
+    /// training with a proposal repeats run to run. Many chunks over more threads than
+    /// the machine has make the old fold over adaptive splits differ within a few calls.
+    #[test]
+    fn gradient_repeats_bit_for_bit() {
+        let f = field();
+        let n = 64 * 300 + 17;
+        let p = points(n, 5);
+        let pos = [&p[0][..], &p[1][..], &p[2][..]];
+        let mut rng = assist_core::Rng::new(6);
+        let c: Vec<f32> = (0..n).map(|_| rng.f32() * 2.0 - 1.0).collect();
+        let mut tape = ProposalTape::default();
+        f.forward_train(pos, &mut tape);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(6)
+            .build()
+            .unwrap();
+        let grad = || {
+            let mut g = vec![0.0f32; f.params.len()];
+            pool.install(|| f.backward(pos, &tape, &c, &mut g));
+            g.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+        };
+        let first = grad();
+        for call in 1..24 {
+            assert!(grad() == first, "call {call} differs from the first");
+        }
     }
 
     /// Every parameter group's gradient against central differences (in f64 sums).

@@ -88,9 +88,13 @@ fn fit_k(a: &[f64], b: impl Iterator<Item = f64> + Clone) -> (f64, f64) {
 
 /// Sum over objects of the residual of the best `k` under `lights`.
 fn residual(fits: &[Fit], lights: &[DVec3]) -> f64 {
-    fits.par_iter()
+    // Summed in order (rayon's `sum` associates by how the work was split: the same
+    // lights could score differently from run to run).
+    let each: Vec<f64> = fits
+        .par_iter()
         .map(|f| fit_k(&f.hidden(lights), f.dark.iter().copied()).1)
-        .sum()
+        .collect();
+    each.iter().sum()
 }
 
 /// `n` directions spread over the cap of the hemisphere about `up` from `min_elev`

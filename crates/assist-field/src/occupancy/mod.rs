@@ -452,7 +452,10 @@ impl OccupancyGrid {
         let factor = |c: usize| {
             if weighted { self.step_factor[c] } else { 1.0 }
         };
-        let sum: f64 = self
+        // Partial sums collected in order and added in order: rayon's own `sum` associates
+        // by however the work was split and stolen, which moved the threshold's last bits
+        // from run to run.
+        let parts: Vec<f64> = self
             .density
             .par_chunks(1 << 16)
             .enumerate()
@@ -462,7 +465,8 @@ impl OccupancyGrid {
                     .map(|(i, &d)| (d * factor(k * (1 << 16) + i)) as f64)
                     .sum::<f64>()
             })
-            .sum();
+            .collect();
+        let sum: f64 = parts.iter().sum();
         let thr = self.threshold.min((sum / self.density.len() as f64) as f32);
         self.refresh_bits_above(thr);
     }

@@ -85,7 +85,9 @@ impl Trainer {
             parts.push((r..r + 1, head));
             rest = tail;
         }
-        let loss: f64 = parts
+        // Each ray's loss collected in order and summed in order (rayon's `sum` associates
+        // by how the work was split, so the reported loss moved from run to run).
+        let per_ray: Vec<f64> = parts
             .into_par_iter()
             .map_init(
                 || (Vec::new(), Vec::new(), Vec::new()),
@@ -106,7 +108,8 @@ impl Trainer {
                     l as f64
                 },
             )
-            .sum();
+            .collect();
+        let loss: f64 = per_ray.iter().sum();
         let scale = 1.0 / rays.max(1) as f32;
         t.d_sigma.iter_mut().for_each(|d| *d *= scale);
         let nf = Arc::make_mut(self.scene.fields.get_mut(key).expect("field of node"));
