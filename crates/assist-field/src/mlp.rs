@@ -162,3 +162,20 @@ pub fn bias_act(y: &mut [f32], bias: &[f32], relu: bool) {
         }
     }
 }
+
+/// Adds to lane `l` of every row `o` of `y` (`[out][CHUNK]`) the bias of its image,
+/// `biases[slots[l] · out + o]`: a chunk whose samples come from several images. The
+/// lanes go by runs of one image (a ray's samples), each a constant added along the run.
+#[inline(always)]
+pub fn bias_by_slot(y: &mut [f32], biases: &[f32], slots: &[u32; CHUNK], out: usize) {
+    let mut l0 = 0;
+    while l0 < CHUNK {
+        let sl = slots[l0];
+        let l1 = l0 + slots[l0..].iter().take_while(|&&x| x == sl).count();
+        let b = &biases[sl as usize * out..][..out];
+        for (row, &bo) in y.chunks_exact_mut(CHUNK).zip(b) {
+            row[l0..l1].iter_mut().for_each(|v| *v += bo);
+        }
+        l0 = l1;
+    }
+}

@@ -350,17 +350,7 @@ impl Field {
                     let b = slots[0] as usize * l.out;
                     bias_act(out, &biases[b..b + l.out], nl > 1);
                 } else {
-                    // By runs of one image (a ray's samples), each a constant bias.
-                    let mut l0 = 0;
-                    while l0 < CHUNK {
-                        let sl = slots[l0];
-                        let l1 = l0 + slots[l0..].iter().take_while(|&&x| x == sl).count();
-                        let b = &biases[sl as usize * l.out..][..l.out];
-                        for (row, &bo) in out.chunks_exact_mut(CHUNK).zip(b) {
-                            row[l0..l1].iter_mut().for_each(|v| *v += bo);
-                        }
-                        l0 = l1;
-                    }
+                    crate::mlp::bias_by_slot(out, biases, &slots, l.out);
                     if nl > 1 {
                         out.iter_mut().for_each(|v| *v = v.max(0.0));
                     }
