@@ -185,9 +185,25 @@ pub(crate) type RayCaster = (usize, (f64, f64), BoxRay);
 
 /// The casters ray `r` can meet, in their order, into `out`.
 pub(crate) fn ray_casters(rays: &RayBatch, r: usize, cs: &[Caster], out: &mut Vec<RayCaster>) {
+    ray_casters_over(rays, r, cs, (f64::NEG_INFINITY, f64::INFINITY), out);
+}
+
+/// [`ray_casters`] for samples at distances within `(t0, t1)` only: a caster whose
+/// stretch of the ray misses that range shades none of them ([`shade_at`] passes it by),
+/// so it is left out before its ray in box units is found.
+fn ray_casters_over(
+    rays: &RayBatch,
+    r: usize,
+    cs: &[Caster],
+    (t0, t1): (f64, f64),
+    out: &mut Vec<RayCaster>,
+) {
     out.clear();
     for (i, c) in cs.iter().enumerate() {
-        if let Some(span) = ray_span(rays, r, c.bounds) {
+        if let Some(span) = ray_span(rays, r, c.bounds)
+            && span.0 <= t1
+            && span.1 >= t0
+        {
             out.push((i, span, BoxRay::new(c.scene_node, rays, r)));
         }
     }
@@ -239,8 +255,19 @@ pub fn shade_background(scene: &NeuralScene, rays: &RayBatch, traced: &mut Trace
                     Vec::with_capacity(3 * (ns.start[rs.end] - ns.start[rs.start]) as usize);
                 let mut hit = Vec::new();
                 for r in rs {
-                    ray_casters(rays, r, cs, &mut hit);
-                    for j in ns.range(r) {
+                    let js = ns.range(r);
+                    if js.is_empty() {
+                        continue;
+                    }
+                    // The casters whose stretch of the ray holds a sample of it.
+                    let near = ns.t[js.clone()]
+                        .iter()
+                        .fold(f32::INFINITY, |a, &t| a.min(t));
+                    let far = ns.t[js.clone()]
+                        .iter()
+                        .fold(f32::NEG_INFINITY, |a, &t| a.max(t));
+                    ray_casters_over(rays, r, cs, (near as f64, far as f64), &mut hit);
+                    for j in js {
                         out.extend_from_slice(&shade_at(cs, &hit, ns.t[j]));
                     }
                 }
