@@ -163,19 +163,28 @@ pub fn bias_act(y: &mut [f32], bias: &[f32], relu: bool) {
     }
 }
 
+/// The runs of equal slots in `slots` (a chunk's lanes by image: a ray's samples are
+/// adjacent and share one), in lane order: each slot with its lanes.
+pub fn slot_runs(slots: &[u32]) -> impl Iterator<Item = (u32, std::ops::Range<usize>)> + '_ {
+    let mut l0 = 0;
+    std::iter::from_fn(move || {
+        let &slot = slots.get(l0)?;
+        let l1 = l0 + slots[l0..].iter().take_while(|&&s| s == slot).count();
+        let run = (slot, l0..l1);
+        l0 = l1;
+        Some(run)
+    })
+}
+
 /// Adds to lane `l` of every row `o` of `y` (`[out][CHUNK]`) the bias of its image,
-/// `biases[slots[l] · out + o]`: a chunk whose samples come from several images. The
-/// lanes go by runs of one image (a ray's samples), each a constant added along the run.
+/// `biases[slots[l] · out + o]`: a chunk whose samples come from several images, by runs
+/// of one image, each a constant added along the run.
 #[inline(always)]
 pub fn bias_by_slot(y: &mut [f32], biases: &[f32], slots: &[u32; CHUNK], out: usize) {
-    let mut l0 = 0;
-    while l0 < CHUNK {
-        let sl = slots[l0];
-        let l1 = l0 + slots[l0..].iter().take_while(|&&x| x == sl).count();
+    for (sl, run) in slot_runs(slots) {
         let b = &biases[sl as usize * out..][..out];
         for (row, &bo) in y.chunks_exact_mut(CHUNK).zip(b) {
-            row[l0..l1].iter_mut().for_each(|v| *v += bo);
+            row[run.clone()].iter_mut().for_each(|v| *v += bo);
         }
-        l0 = l1;
     }
 }

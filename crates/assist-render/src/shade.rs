@@ -260,12 +260,11 @@ pub fn shade_background(scene: &NeuralScene, rays: &RayBatch, traced: &mut Trace
                         continue;
                     }
                     // The casters whose stretch of the ray holds a sample of it.
-                    let near = ns.t[js.clone()]
+                    let (near, far) = ns.t[js.clone()]
                         .iter()
-                        .fold(f32::INFINITY, |a, &t| a.min(t));
-                    let far = ns.t[js.clone()]
-                        .iter()
-                        .fold(f32::NEG_INFINITY, |a, &t| a.max(t));
+                        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &t| {
+                            (a.min(t), b.max(t))
+                        });
                     ray_casters_over(rays, r, cs, (near as f64, far as f64), &mut hit);
                     for j in js {
                         out.extend_from_slice(&shade_at(cs, &hit, ns.t[j]));

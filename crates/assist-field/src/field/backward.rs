@@ -481,17 +481,13 @@ impl ChunkBackward<'_> {
 /// whose store-to-load chain made this a few per cent of a training step).
 #[inline(always)]
 fn add_code_sums(dy: &[f32], slots: &[u32], out: usize, sums: &mut [f32]) {
-    let mut l0 = 0;
-    while l0 < slots.len() {
-        let slot = slots[l0];
-        let l1 = l0 + slots[l0..].iter().take_while(|&&s| s == slot).count();
+    for (slot, run) in crate::mlp::slot_runs(slots) {
         let sum = &mut sums[slot as usize * out..][..out];
         for (o, acc) in sum.iter_mut().enumerate() {
-            *acc = dy[o * CHUNK + l0..o * CHUNK + l1]
+            *acc = dy[o * CHUNK + run.start..o * CHUNK + run.end]
                 .iter()
                 .fold(*acc, |a, &v| a + v);
         }
-        l0 = l1;
     }
 }
 
