@@ -477,8 +477,8 @@ impl ChunkBackward<'_> {
 /// `sums[slot[l]][o] += dy[o][l]` for every lane `l` (in lane order) and output `o`: a
 /// chunk whose samples come from several images. A ray's samples are adjacent and share
 /// an image, so the lanes go by runs of one slot, each output's sum held in a register
-/// over its run (the same additions in the same order as lane by lane through memory,
-/// whose store-to-load chain made this a few per cent of a training step).
+/// over its run: the same additions in the same order as lane by lane through memory,
+/// without each addition waiting on the store before it.
 #[inline(always)]
 fn add_code_sums(dy: &[f32], slots: &[u32], out: usize, sums: &mut [f32]) {
     for (slot, run) in crate::mlp::slot_runs(slots) {
