@@ -103,6 +103,15 @@ impl TrainConfig {
                 ),
             ));
         }
+        if !(c.error_rays.is_finite() && (0.0..=0.9).contains(&c.error_rays)) {
+            return Err(request(
+                "error_rays",
+                format!(
+                    "expected a share of the rays of at least 0 and at most 0.9 (0 = off), got {}",
+                    c.error_rays
+                ),
+            ));
+        }
         if !(0.0..=1.0).contains(&c.hidden_stop) {
             return Err(request(
                 "hidden_stop",

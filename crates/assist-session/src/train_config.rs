@@ -302,6 +302,13 @@ pub struct TrainConfig {
     #[arg(long, help_heading = MODEL, value_name = "L",
           default_value_t = TrainOptions::default().grid_decay)]
     pub grid_decay: f32,
+    /// Draw this share of the rays (those not drawn for objects) where the colour error
+    /// is high, from a running map of each view's error per 16×16-pixel tile, each ray
+    /// weighted so that every pixel still counts as much as under a uniform draw (0: all
+    /// uniform; at most 0.9). Measured in BENCHMARKS.md.
+    #[arg(long, help_heading = MODEL, value_name = "SHARE",
+          default_value_t = TrainOptions::default().error_rays)]
+    pub error_rays: f64,
     /// Refine the training views' camera poses with the scene: each view learns a small
     /// translation and rotation (held-out views keep their poses).
     #[arg(long, help_heading = MODEL)]

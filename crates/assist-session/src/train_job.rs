@@ -347,6 +347,7 @@ impl TrainJob {
             depth_affine,
             refine_poses: c.refine_poses,
             grid_decay: c.grid_decay,
+            error_rays: c.error_rays,
             hidden_stop: c.hidden_stop,
             step_scale: c.step_scale,
             proposal_samples: proposal,

@@ -228,8 +228,9 @@ impl OccupancyGrid {
         (self.res as usize).pow(3)
     }
 
+    /// The flat index of the cell holding `p` (in [0, 1]³), `None` outside.
     #[inline]
-    fn cell_of(&self, p: [f32; 3]) -> Option<usize> {
+    pub fn cell_of(&self, p: [f32; 3]) -> Option<usize> {
         self.locate(p).map(|(_, c)| c)
     }
 
@@ -419,6 +420,21 @@ impl OccupancyGrid {
         self.refresh_bits();
     }
 
+    /// Raises each cell's estimate to the density `seen` holds for it (one value per
+    /// cell; 0 = nothing seen), e.g. the largest that training's samples met there since
+    /// the last round: a round's one random point per cell rarely lands on a thin
+    /// surface that crosses only a corner of the cell, so without this such a cell's
+    /// estimate decays below the threshold, the cell empties, and the surface vanishes
+    /// from every ray through it (which then learns nothing there to bring it back).
+    /// The bits follow at the next [`refresh_bits`](Self::refresh_bits).
+    pub fn fold_seen(&mut self, seen: &[f32]) {
+        for (d, &s) in self.density.iter_mut().zip(seen) {
+            if d.is_finite() && s > *d {
+                *d = s;
+            }
+        }
+    }
+
     /// Folds one density value per cell into the estimate and recomputes the bits.
     pub fn update_from(&mut self, sigma: &[f32]) {
         for (d, &s) in self.density.iter_mut().zip(sigma) {
@@ -550,6 +566,54 @@ mod tests {
         let mut fine = g.clone();
         fine.reach.clear();
         (g, fine)
+    }
+
+    /// A thin surface across the corner of a cell: the rounds' random points miss it, so
+    /// the cell empties; with the densities training's samples met there folded in, it
+    /// stays occupied. Folding never lowers an estimate nor touches an unmeasured cell.
+    #[test]
+    fn samples_on_a_surface_keep_its_cell_occupied() {
+        // Density 500 only where x + y + z < 0.01 (a corner of cell 0 of an 8³ grid, whose
+        // cells are 0.125 wide), a little everywhere else.
+        let corner = |x: f32, y: f32, z: f32| if x + y + z < 0.01 { 500.0 } else { 0.05 };
+        let density = |p: [&[f32]; 3], out: &mut [f32]| {
+            for (i, o) in out.iter_mut().enumerate() {
+                *o = corner(p[0][i], p[1][i], p[2][i]);
+            }
+        };
+        let run = |fold: bool| {
+            let mut g = OccupancyGrid::new(8);
+            g.threshold = 1.0;
+            g.density = vec![0.05; g.cells()];
+            g.density[0] = 500.0;
+            let mut rng = assist_core::Rng::new(9);
+            let mut seen = vec![0.0f32; g.cells()];
+            for _ in 0..200 {
+                if fold {
+                    // A training sample on the surface.
+                    let p = [0.002f32, 0.003, 0.001];
+                    let c = g.cell_of(p).unwrap();
+                    seen[c] = seen[c].max(corner(p[0], p[1], p[2]));
+                    g.fold_seen(&seen);
+                    seen.fill(0.0);
+                }
+                g.update_part_with(&mut rng, 0, 1, density);
+            }
+            g.is_occupied_cell(0)
+        };
+        assert!(
+            !run(false),
+            "the random points alone should have lost the corner"
+        );
+        assert!(run(true));
+
+        let mut g = OccupancyGrid::new(2);
+        g.density = vec![3.0, f32::INFINITY, 7.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        g.fold_seen(&[5.0, 9.0, 1.0, 0.0, 0.0, 0.0, 0.0, 2.0]);
+        assert_eq!(
+            g.density,
+            vec![5.0, f32::INFINITY, 7.0, 0.0, 0.0, 0.0, 0.0, 2.0]
+        );
     }
 
     #[test]

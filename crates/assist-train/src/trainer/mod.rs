@@ -29,6 +29,7 @@ use rayon::prelude::*;
 use crate::error::{Result, TrainError};
 use crate::views::View;
 
+mod error_map;
 mod objective;
 mod options;
 mod poses;
@@ -106,6 +107,11 @@ pub struct Trainer {
     pub kept: KeptHistory,
     /// The background's proposal field's training, when it has one.
     proposal: proposal::ProposalTraining,
+    /// Where a share of the rays is drawn (`TrainOptions::error_rays`).
+    error_map: error_map::ErrorMap,
+    /// Per field, the largest density training's samples met in each occupancy cell
+    /// since the grid's last round (see [`assist_field::OccupancyGrid::fold_seen`]).
+    seen: BTreeMap<String, Vec<f32>>,
 }
 
 impl Trainer {
@@ -174,6 +180,7 @@ impl Trainer {
             .refine_poses
             .then(|| PoseRefiner::new(views.len(), extent));
         let proposal_samples = opts.proposal_samples;
+        let error_map = error_map::ErrorMap::new(&views, opts.error_rays);
         let mut t = Trainer {
             scene,
             views,
@@ -204,6 +211,8 @@ impl Trainer {
             shade_held: BTreeMap::new(),
             kept: KeptHistory::default(),
             proposal: Default::default(),
+            error_map,
+            seen: BTreeMap::new(),
         };
         t.attach_proposal(proposal_samples);
         Ok(t)
@@ -232,12 +241,33 @@ impl Trainer {
         }
     }
 
-    /// Refreshes every field's occupancy grid from its density.
+    /// Notes the largest density the step's samples met in each cell of their field's
+    /// occupancy grid, for its next round.
+    fn note_densities(&mut self) {
+        for ns in &self.traced.nodes {
+            let key = &self.scene.scene.nodes[ns.node].field;
+            let grid = &self.scene.fields[key].occupancy;
+            let seen = self.seen.entry(key.clone()).or_default();
+            seen.resize(grid.cells(), 0.0);
+            for (i, &s) in ns.sigma.iter().enumerate() {
+                if let Some(c) = grid.cell_of([ns.pos[0][i], ns.pos[1][i], ns.pos[2][i]]) {
+                    seen[c] = seen[c].max(s);
+                }
+            }
+        }
+    }
+
+    /// Refreshes every field's occupancy grid from its density (and what the samples
+    /// met since the last refresh).
     pub fn update_occupancy(&mut self) {
         let seed = self.opts.seed ^ self.iteration as u64;
         let round = self.iteration / self.opts.occupancy_every.max(1);
         for (i, (key, nf)) in self.scene.fields.iter_mut().enumerate() {
             let mut rng = Rng::stream(seed, i as u64);
+            if let Some(seen) = self.seen.get_mut(key) {
+                Arc::make_mut(nf).occupancy.fold_seen(seen);
+                seen.fill(0.0);
+            }
             self.optimizers
                 .get_mut(key)
                 .expect("optimizer per field")

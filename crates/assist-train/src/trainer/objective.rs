@@ -54,7 +54,7 @@ impl Objective<'_> {
         o: &RayOutputs,
         mut grads: Option<(&mut CompositeGrad, &mut [CompositeGrad])>,
     ) -> RayTerms {
-        let (lam, n) = (self.lam, self.n_rays);
+        let (lam, n) = (self.lam, self.n_rays / t.weight);
         let (c, per) = (o.composite, o.nodes);
         let mut terms = RayTerms::default();
         let (v, d) = losses::rgb(c.rgb, t.rgb);
@@ -265,6 +265,8 @@ mod tests {
                 prior_weight: 0.8,
                 rgb_weight: 0.3,
                 surface: Some(1.1),
+                pixel: 0,
+                weight: 1.0,
             };
             let mut c = comp([0.3, 0.5, 0.7], 1.2, 0.95, 1.9);
             let mut nodes = [

@@ -65,6 +65,10 @@ pub struct TrainOptions {
     /// L2 decay of the hash tables' entries each step touches ([`assist_field::Adam::
     /// table_decay`]; 0 = none, the default: measured in BENCHMARKS.md).
     pub grid_decay: f32,
+    /// Share of the rays not drawn for objects that is drawn where the colour error is
+    /// high (a running map per tile of each view, `trainer::error_map`), each weighted so
+    /// the objective stays the uniform mean; 0 = every such ray uniform.
+    pub error_rays: f64,
     /// Learn a correction of every training view's pose with the scene (see
     /// [`super::PoseRefiner`]); held-out views keep their given poses.
     pub refine_poses: bool,
@@ -100,6 +104,7 @@ impl Default for TrainOptions {
             depth_affine: false,
             refine_poses: false,
             grid_decay: 0.0,
+            error_rays: 0.0,
             prune_eps: 0.0,
             hidden_stop: 0.0,
             step_scale: 1.0,

@@ -24,6 +24,10 @@ pub(super) struct Target {
     /// The dataset's depth as distance along the ray, in units of the scene extent: the
     /// first surface the ray meets (`None`: no depth map, or none at this pixel).
     pub(super) surface: Option<f32>,
+    /// The pixel's index in its view.
+    pub(super) pixel: u32,
+    /// The ray's weight in every term (see [`super::error_map`]; 1 for a uniform draw).
+    pub(super) weight: f32,
 }
 
 /// A pixel `(view, index)` drawn uniformly over the pixels to train on: one a `mask_path`
@@ -54,15 +58,24 @@ impl Trainer {
         let objects = &self.object_pixels;
         let object_fraction = self.opts.object_ray_fraction;
         let poses = self.poses.as_ref();
+        let map = &self.error_map;
         let drawn: Vec<Option<(assist_core::Ray, u32, u32, Target)>> = (0..n)
             .into_par_iter()
             .map(|r| {
                 let mut rng = Rng::stream(seed, r as u64);
-                let (vi, p) = if !objects.is_empty() && rng.f64() < object_fraction {
+                let (vi, p, weight) = if !objects.is_empty() && rng.f64() < object_fraction {
                     let (vi, p) = objects[rng.below(objects.len() as u64) as usize];
-                    (vi as usize, p as usize)
+                    (vi as usize, p as usize, 1.0)
+                } else if map.is_on() {
+                    let (vi, p) = if rng.f64() < map.share {
+                        map.draw(views, &mut rng)?
+                    } else {
+                        draw_pixel(views, total, &mut rng)?
+                    };
+                    (vi, p, map.weight(views, vi, p))
                 } else {
-                    draw_pixel(views, total, &mut rng)?
+                    let (vi, p) = draw_pixel(views, total, &mut rng)?;
+                    (vi, p, 1.0)
                 };
                 let v = &views[vi];
                 let (i, j) = ((p % v.width) as u32, (p / v.width) as u32);
@@ -107,6 +120,8 @@ impl Trainer {
                         prior_weight,
                         rgb_weight,
                         surface,
+                        pixel: p as u32,
+                        weight,
                     },
                 ))
             })

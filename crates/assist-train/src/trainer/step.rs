@@ -51,6 +51,7 @@ impl Trainer {
         let (candidates, pruned) = self.trace()?;
         phase[0] = tp.elapsed().as_secs_f64();
         self.forward()?;
+        self.note_densities();
         let interlevel = self.train_proposal(lr);
         phase[1] = tp.elapsed().as_secs_f64();
         // The step's figures; the losses come with the compositing.
@@ -185,6 +186,7 @@ impl Trainer {
             Some(&grad_fn),
         );
         let mut g_wq = [0.0f32; 2];
+        let mut weights = 0.0f64;
         for (r, t) in self.targets.iter().enumerate() {
             let o = RayOutputs {
                 ray: r,
@@ -194,12 +196,30 @@ impl Trainer {
                 distortion: self.out.distortion[r],
             };
             let v = objective.ray(t, &o, None);
-            s.terms.zip_with(&v.map(f64::from), |a, b| *a += b);
+            let w = f64::from(t.weight);
+            weights += w;
+            s.terms
+                .zip_with(&v.map(|x| f64::from(x) * w), |a, b| *a += b);
             g_wq[0] += v.d_depth_wq[0];
             g_wq[1] += v.d_depth_wq[1];
         }
-        let nr = self.targets.len().max(1) as f64;
-        s.terms = s.terms.map(|v| v / nr);
+        s.terms = s.terms.map(|v| v / weights.max(1e-12));
+        if self.error_map.is_on() {
+            let rays = self.out.rays.iter().zip(&self.targets).zip(&self.ray_views);
+            self.error_map.record(
+                &self.views,
+                rays.map(|((o, t), &vi)| {
+                    (
+                        vi as usize,
+                        t.pixel as usize,
+                        crate::losses::rgb(o.rgb, t.rgb).0,
+                    )
+                }),
+            );
+            if self.iteration.is_multiple_of(8) {
+                self.error_map.rebuild();
+            }
+        }
         s.loss = s.terms.weighted(&lam);
         s.psnr = crate::metrics::mse_to_psnr(s.terms.comp_rgb);
         if !s.loss.is_finite() {
