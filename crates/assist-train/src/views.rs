@@ -65,6 +65,37 @@ pub struct View {
     pub prior_from_user: bool,
 }
 
+#[cfg(test)]
+impl View {
+    /// A black `width × height` view seen from +z, with nothing but its colour (tests).
+    pub(crate) fn blank(width: usize, height: usize) -> View {
+        View {
+            name: "v".into(),
+            camera: Camera {
+                intrinsics: assist_core::Intrinsics::from_fov_x(width as u32, height as u32, 1.0),
+                pose: assist_core::Pose::look_at(
+                    assist_core::DVec3::Z,
+                    assist_core::DVec3::ZERO,
+                    assist_core::DVec3::Y,
+                )
+                .unwrap(),
+            },
+            image_index: 0,
+            width,
+            height,
+            rgb: vec![0.0; width * height * 3],
+            ids: None,
+            valid: None,
+            depth: None,
+            inpaint: None,
+            inpaint_depth: None,
+            prior_confidence: None,
+            prior_rgb_weight: None,
+            prior_from_user: false,
+        }
+    }
+}
+
 /// Pixels covered by objects, dilated by this many pixels, are filled by the prior.
 pub const PRIOR_DILATION: usize = 3;
 

@@ -146,30 +146,7 @@ mod tests {
     use super::*;
 
     fn view(width: usize, height: usize) -> View {
-        View {
-            name: "v".into(),
-            camera: assist_core::Camera {
-                intrinsics: assist_core::Intrinsics::from_fov_x(width as u32, height as u32, 1.0),
-                pose: assist_core::Pose::look_at(
-                    assist_core::DVec3::Z,
-                    assist_core::DVec3::ZERO,
-                    assist_core::DVec3::Y,
-                )
-                .unwrap(),
-            },
-            image_index: 0,
-            width,
-            height,
-            rgb: vec![0.0; width * height * 3],
-            ids: None,
-            valid: None,
-            depth: None,
-            inpaint: None,
-            inpaint_depth: None,
-            prior_confidence: None,
-            prior_rgb_weight: None,
-            prior_from_user: false,
-        }
+        View::blank(width, height)
     }
 
     /// Draws follow the tiles' errors times their pixels, and the weights undo it: the

@@ -144,30 +144,9 @@ mod tests {
 
     #[test]
     fn pixels_a_mask_excludes_are_never_drawn() {
-        let camera = assist_core::Camera {
-            intrinsics: assist_core::Intrinsics::from_fov_x(4, 2, 1.0),
-            pose: assist_core::Pose::look_at(
-                assist_core::DVec3::Z,
-                assist_core::DVec3::ZERO,
-                assist_core::DVec3::Y,
-            )
-            .unwrap(),
-        };
         let view = |valid: Option<Vec<bool>>| View {
-            name: "v".into(),
-            camera,
-            image_index: 0,
-            width: 4,
-            height: 2,
-            rgb: vec![0.0; 24],
-            ids: None,
             valid,
-            depth: None,
-            inpaint: None,
-            inpaint_depth: None,
-            prior_confidence: None,
-            prior_rgb_weight: None,
-            prior_from_user: false,
+            ..View::blank(4, 2)
         };
         // View 0: only pixel 5 is valid; view 1: all; view 2: none.
         let mut only5 = vec![false; 8];
