@@ -103,12 +103,13 @@ impl TrainConfig {
                 ),
             ));
         }
-        if !(c.error_rays.is_finite() && (0.0..=0.9).contains(&c.error_rays)) {
+        if let Some(e) = c.error_rays
+            && !(e.is_finite() && (0.0..=0.9).contains(&e))
+        {
             return Err(request(
                 "error_rays",
                 format!(
-                    "expected a share of the rays of at least 0 and at most 0.9 (0 = off), got {}",
-                    c.error_rays
+                    "expected a share of the rays of at least 0 and at most 0.9 (0 = off), got {e}"
                 ),
             ));
         }

@@ -305,10 +305,10 @@ pub struct TrainConfig {
     /// Draw this share of the rays (those not drawn for objects) where the colour error
     /// is high, from a running map of each view's error per 16×16-pixel tile, each ray
     /// weighted so that every pixel still counts as much as under a uniform draw (0: all
-    /// uniform; at most 0.9). Measured in BENCHMARKS.md.
-    #[arg(long, help_heading = MODEL, value_name = "SHARE",
-          default_value_t = TrainOptions::default().error_rays)]
-    pub error_rays: f64,
+    /// uniform; at most 0.9) [default: 0.5 where the background is unbounded (contracted:
+    /// captures without depth), else 0]. Measured in BENCHMARKS.md.
+    #[arg(long, help_heading = MODEL, value_name = "SHARE")]
+    pub error_rays: Option<f64>,
     /// Refine the training views' camera poses with the scene: each view learns a small
     /// translation and rotation (held-out views keep their poses).
     #[arg(long, help_heading = MODEL)]

@@ -13,7 +13,7 @@ use assist_train::{
     KeptHistory, ResumeState, SetupOptions, StepStats, TrainOptions, TrainReport, Trainer,
 };
 use assist_train::{background_color, build_scene, default_lr_end, default_proposal};
-use assist_train::{default_prune_eps, load_views};
+use assist_train::{default_error_rays, default_prune_eps, load_views};
 use serde::Serialize;
 
 use crate::held_out::HeldOutSet;
@@ -336,6 +336,7 @@ impl TrainJob {
         let lr_end = c.lr_end.unwrap_or(default_lr_end(unbounded));
         let prune_eps = c.prune_eps.unwrap_or(default_prune_eps(unbounded_on_cpu));
         let proposal = c.proposal.unwrap_or(default_proposal(unbounded_on_cpu));
+        let error_rays = c.error_rays.unwrap_or(default_error_rays(unbounded));
         TrainOptions {
             iters: c.iters_limit(),
             max_time,
@@ -347,7 +348,7 @@ impl TrainJob {
             depth_affine,
             refine_poses: c.refine_poses,
             grid_decay: c.grid_decay,
-            error_rays: c.error_rays,
+            error_rays,
             hidden_stop: c.hidden_stop,
             step_scale: c.step_scale,
             proposal_samples: proposal,
@@ -372,11 +373,12 @@ impl TrainJob {
                 ("dataset_fingerprint".to_string(), fingerprint.into()),
                 ("train_config".to_string(), {
                     let mut r = c.record();
-                    // The floor, the pruning and the proposal the run used, where left to the
-                    // scene.
+                    // The floor, the pruning, the proposal and the error map's share the run
+                    // used, where left to the scene.
                     r["lr_end"] = lr_end.into();
                     r["prune_eps"] = prune_eps.into();
                     r["proposal"] = proposal.into();
+                    r["error_rays"] = error_rays.into();
                     if !self.masks_recorded {
                         r["masks"] = serde_json::Value::Null;
                     }

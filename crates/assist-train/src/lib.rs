@@ -44,7 +44,7 @@ pub use shadow::{
 };
 pub use trainer::{
     EMPTY_MARGIN, KeptHistory, Lambdas, POSE_LR, PhaseTimes, PoseRefiner, ResumeState, StepStats,
-    StopReason, TERMS, TermInfo, Terms, TrainOptions, TrainReport, Trainer, default_lr_end,
-    default_proposal, default_prune_eps, term, update_depth_affine,
+    StopReason, TERMS, TermInfo, Terms, TrainOptions, TrainReport, Trainer, default_error_rays,
+    default_lr_end, default_proposal, default_prune_eps, term, update_depth_affine,
 };
 pub use views::{PriorKind, View, fill_prior, fill_priors, load_view, load_views};

@@ -40,7 +40,7 @@ mod terms;
 
 pub use options::{
     EMPTY_MARGIN, KeptHistory, PhaseTimes, ResumeState, StepStats, StopReason, TrainOptions,
-    TrainReport, default_lr_end, default_proposal, default_prune_eps,
+    TrainReport, default_error_rays, default_lr_end, default_proposal, default_prune_eps,
 };
 pub use poses::{POSE_EVERY, POSE_LR, PoseRefiner, scene_extent};
 use rays::Target;

@@ -349,6 +349,19 @@ pub fn default_proposal(unbounded: bool) -> usize {
     }
 }
 
+/// The share of rays a run draws from its error map unless told (`train --error-rays`):
+/// half where a node is unbounded (real captures without depth, whose error gathers in
+/// fine texture and in what few views see: fern, beer and gold_cape gained over two or
+/// three seeds), else none (desk and lego came out level, within their seeds' spread).
+/// BENCHMARKS.md has the figures.
+pub fn default_error_rays(unbounded: bool) -> f64 {
+    if unbounded {
+        0.5
+    } else {
+        TrainOptions::default().error_rays
+    }
+}
+
 /// The pruning threshold a run uses unless told: `PRUNE_EPS` where a node is unbounded (a
 /// contracted background marches on through the room behind the first surface it meets,
 /// and those samples carry no weight), else off (bounded nodes march few samples, and

@@ -289,6 +289,18 @@ fn config_files_give_flags_and_print_config_round_trips() {
     assert!(has_proposal(&u));
     assert_eq!(proposal(&unbounded(&["--proposal", "0"])), 0);
     assert!(!has_proposal(&u));
+    // And the error map's share: none with a bounded background, half with an unbounded
+    // one, and what is given.
+    let error_rays = |info: &serde_json::Value| info["options"]["error_rays"].as_f64().unwrap();
+    let info = common::scene_info(&t);
+    assert_eq!(
+        (error_rays(&info), &info["train_config"]["error_rays"]),
+        (0.0, &0.0.into())
+    );
+    let info = unbounded(&[]);
+    assert_eq!(error_rays(&info), 0.5, "{info}");
+    assert_eq!(info["train_config"]["error_rays"], 0.5, "{info}");
+    assert_eq!(error_rays(&unbounded(&["--error-rays", "0"])), 0.0);
     let o = run(&[
         "train",
         s(&data),
