@@ -145,15 +145,11 @@ impl ErrorMap {
 mod tests {
     use super::*;
 
-    fn view(width: usize, height: usize) -> View {
-        View::blank(width, height)
-    }
-
     /// Draws follow the tiles' errors times their pixels, and the weights undo it: the
     /// weighted count of draws per pixel is the uniform one.
     #[test]
     fn draws_follow_the_error_and_weights_undo_it() {
-        let views = [view(40, 20), view(16, 16)];
+        let views = [View::blank(40, 20), View::blank(16, 16)];
         let mut map = ErrorMap::new(&views, 0.5);
         // View 0 has 3 × 2 tiles (the last column 8 wide, the last row 4 high).
         assert_eq!(map.views, vec![(3, 0), (1, 6)]);
@@ -212,7 +208,7 @@ mod tests {
     /// A tile's first error replaces the unseen mark; later ones move it by `RATE`.
     #[test]
     fn a_tile_follows_its_rays() {
-        let views = [view(32, 16)];
+        let views = [View::blank(32, 16)];
         let mut map = ErrorMap::new(&views, 0.3);
         map.record(&views, [(0, 17, 0.2)].into_iter());
         assert_eq!(map.error, vec![UNSEEN, 0.2]);

@@ -301,6 +301,14 @@ fn config_files_give_flags_and_print_config_round_trips() {
     assert_eq!(error_rays(&info), 0.5, "{info}");
     assert_eq!(info["train_config"]["error_rays"], 0.5, "{info}");
     assert_eq!(error_rays(&unbounded(&["--error-rays", "0"])), 0.0);
+    let none = tmp.path().join("none.assist");
+    let o = run(&["train", s(&data), "--out", s(&none), "--error-rays", "0.95"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("--error-rays") && err.contains("0.9"),
+        "{err}"
+    );
+    assert!(!none.exists());
     let o = run(&[
         "train",
         s(&data),
