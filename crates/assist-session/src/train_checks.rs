@@ -103,6 +103,14 @@ impl TrainConfig {
                 ),
             ));
         }
+        if let assist_train::GridResolution::Cells(r) = c.grid_resolution
+            && !(16..=65_536).contains(&r)
+        {
+            return Err(request(
+                "grid_resolution",
+                format!("expected 16 to 65536 cells or auto, got {r}"),
+            ));
+        }
         if let Some(e) = c.error_rays
             && !(e.is_finite() && (0.0..=0.9).contains(&e))
         {

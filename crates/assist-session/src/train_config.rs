@@ -7,7 +7,7 @@
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
-use assist_train::{BackgroundSpace, Lambdas, PriorKind, TERMS, TrainOptions};
+use assist_train::{BackgroundSpace, GridResolution, Lambdas, PriorKind, TERMS, TrainOptions};
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use serde::{Deserialize, Serialize};
 
@@ -180,6 +180,10 @@ fn prior_parser() -> impl TypedValueParser<Value = PriorKind> {
         .map(|s| PriorKind::parse(&s).expect("one of the possible values"))
 }
 
+fn grid_resolution_parser(s: &str) -> std::result::Result<GridResolution, String> {
+    GridResolution::parse(s).ok_or_else(|| format!("expected a number of cells or auto, got {s:?}"))
+}
+
 fn background_parser() -> impl TypedValueParser<Value = BackgroundSpace> {
     PossibleValuesParser::new(["auto", "box", "contracted"])
         .map(|s| BackgroundSpace::parse(&s).expect("one of the possible values"))
@@ -295,6 +299,14 @@ pub struct TrainConfig {
     /// unless the training views have depth maps, which bound the scene).
     #[arg(long, help_heading = MODEL, default_value = "auto", value_parser = background_parser())]
     pub background: BackgroundSpace,
+    /// The background's finest hash-grid resolution: cells across its field's cube (the
+    /// box, or a contracted background's box and shell), or auto: about one cell per pixel
+    /// of the training images at the median depth of what they see (2048 to 8192). auto
+    /// helped a 360° walk-around and cost a forward-facing capture, so Nerfacto's 2048
+    /// stays the default (measured in BENCHMARKS.md).
+    #[arg(long, help_heading = MODEL, value_name = "CELLS|auto",
+          default_value_t = GridResolution::default(), value_parser = grid_resolution_parser)]
+    pub grid_resolution: GridResolution,
     /// Pull every hash-table entry a step touches toward zero by this much (L2, added to its
     /// gradient; 0: off), so that what few views constrain does not keep what they put
     /// there. It helped a 360° walk-around and cost forward-facing captures, so it is off

@@ -379,6 +379,7 @@ impl TrainJob {
                     r["prune_eps"] = prune_eps.into();
                     r["proposal"] = proposal.into();
                     r["error_rays"] = error_rays.into();
+                    r["grid_resolution"] = grid_resolution(scene).into();
                     if !self.masks_recorded {
                         r["masks"] = serde_json::Value::Null;
                     }
@@ -529,6 +530,7 @@ impl TrainJob {
             seed: c.seed,
             boxes,
             background_space: c.background,
+            grid_resolution: c.grid_resolution,
             ..Default::default()
         };
         Ok((build_scene(ds, views, &so)?, KeptHistory::default()))
@@ -543,6 +545,12 @@ fn resume_state(out: &std::path::Path, info: &serde_json::Value) -> Result<Resum
             format!("{}: {m}", out.join("scene.json").display()),
         )
     })
+}
+
+/// The finest hash-grid resolution of `scene`'s background, if it has one.
+fn grid_resolution(scene: &NeuralScene) -> Option<u32> {
+    let node = scene.scene.nodes.iter().find(|n| n.is_background())?;
+    Some(scene.fields.get(&node.field)?.field.config.max_resolution)
 }
 
 /// Whether a node of `scene` is unbounded (a contracted background).

@@ -11,6 +11,7 @@ mod align;
 mod distil;
 mod error;
 mod eval;
+mod footprint;
 mod freespace;
 pub mod light;
 pub mod losses;
@@ -30,6 +31,10 @@ pub use error::{Result, TrainError};
 pub use eval::{
     EvalReport, EvaluatedView, ImageScore, PriorReport, PriorScore, background_dataset, evaluate,
     evaluate_each, evaluate_priors,
+};
+pub use footprint::{
+    GridResolution, MAX_GRID_RESOLUTION, MIN_GRID_RESOLUTION, background_resolution,
+    content_depth_percentile, footprint_resolution,
 };
 pub use freespace::{CarveStats, carve_scene};
 pub use light::{LightEstimate, estimate_light, estimate_light_from};

@@ -33,6 +33,8 @@ pub struct SetupOptions {
     /// The background node's space (auto: contracted unless the training views have
     /// depth, which bounds the scene).
     pub background_space: BackgroundSpace,
+    /// The background's finest hash-grid resolution.
+    pub grid_resolution: crate::GridResolution,
 }
 
 /// The space of the background node.
@@ -83,6 +85,7 @@ impl Default for SetupOptions {
             seed: 0,
             boxes: Vec::new(),
             background_space: BackgroundSpace::Auto,
+            grid_resolution: Default::default(),
         }
     }
 }
@@ -152,7 +155,9 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
             space,
             cast: None,
         };
-        let field = Field::new(app(FieldConfig::nerfacto(n_images)), opts.seed)?;
+        let mut config = app(FieldConfig::nerfacto(n_images));
+        config.max_resolution = opts.grid_resolution.resolve(ds, views, half, space);
+        let field = Field::new(config, opts.seed)?;
         fields.insert(
             "background".to_string(),
             Arc::new(NodeField::with_space(
@@ -292,39 +297,8 @@ pub fn unbounded_inner_region(ds: &Dataset, views: &[View]) -> Aabb {
 /// unknown. Keeps each view from painting its own haze
 /// right in front of its camera.
 pub fn near_plane(ds: &Dataset, views: &[View]) -> f64 {
-    // At most ~20k points (every k-th), so a large model does not slow start-up: the
-    // percentile needs no more.
-    // Depth maps, where the views have them (every 7th pixel).
-    let mut seen: Vec<f64> = views
-        .par_iter()
-        .flat_map_iter(|v| {
-            v.depth
-                .iter()
-                .flat_map(|d| d.iter().step_by(7))
-                .filter(|&&z| z > 0.0)
-                .map(|&z| z as f64)
-        })
-        .collect();
-    if seen.len() >= 100 {
-        let k = seen.len() / 100;
-        let (_, z, _) = seen.select_nth_unstable_by(k, f64::total_cmp);
-        return 0.5 * *z;
-    }
-    let stride = ds.points.len().div_ceil(20_000).max(1);
-    let mut depths: Vec<f64> = views
-        .par_iter()
-        .flat_map_iter(|v| {
-            ds.points.iter().step_by(stride).filter_map(move |&p| {
-                let (px, z) = v.camera.project(p)?;
-                let inside =
-                    px.x >= 0.0 && px.y >= 0.0 && px.x < v.width as f64 && px.y < v.height as f64;
-                (inside && z > 0.0).then_some(z)
-            })
-        })
-        .collect();
-    if depths.len() >= 100 {
-        depths.sort_by(f64::total_cmp);
-        return 0.5 * depths[depths.len() / 100];
+    if let Some(z) = crate::content_depth_percentile(&ds.points, views, 1) {
+        return 0.5 * z;
     }
     match ds.depth_range {
         Some((near, _)) if near > 0.0 => 0.5 * near,

@@ -301,7 +301,36 @@ fn config_files_give_flags_and_print_config_round_trips() {
     assert_eq!(error_rays(&info), 0.5, "{info}");
     assert_eq!(info["train_config"]["error_rays"], 0.5, "{info}");
     assert_eq!(error_rays(&unbounded(&["--error-rays", "0"])), 0.0);
+    // And the background's finest grid resolution: Nerfacto's 2048 unless given; auto
+    // (one cell per pixel at the views' median depth) within 2048 and 8192; recorded as
+    // used and saved in the field's config.
+    let res = |info: &serde_json::Value| info["train_config"]["grid_resolution"].as_u64();
+    assert_eq!(res(&common::scene_info(&t)), Some(2048));
+    let info = unbounded(&["--grid-resolution", "auto"]);
+    assert!(
+        res(&info).is_some_and(|r| (2048..=8192).contains(&r)),
+        "{info}"
+    );
+    let info = unbounded(&["--grid-resolution", "4096"]);
+    assert_eq!(info["train_config"]["grid_resolution"], 4096, "{info}");
+    let bytes = std::fs::read(u.join("fields").join("background.safetensors")).unwrap();
+    let head = String::from_utf8_lossy(&bytes[..bytes.len().min(1 << 16)]).replace('\\', "");
+    assert!(head.contains("\"max_resolution\":4096"), "{head}");
     let none = tmp.path().join("none.assist");
+    let o = run(&[
+        "train",
+        s(&data),
+        "--out",
+        s(&none),
+        "--grid-resolution",
+        "8",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("--grid-resolution") && err.contains("65536"),
+        "{err}"
+    );
+    assert!(!none.exists());
     let o = run(&["train", s(&data), "--out", s(&none), "--error-rays", "0.95"]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
