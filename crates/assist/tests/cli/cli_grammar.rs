@@ -316,28 +316,19 @@ fn config_files_give_flags_and_print_config_round_trips() {
     let bytes = std::fs::read(u.join("fields").join("background.safetensors")).unwrap();
     let head = String::from_utf8_lossy(&bytes[..bytes.len().min(1 << 16)]).replace('\\', "");
     assert!(head.contains("\"max_resolution\":4096"), "{head}");
+    // Out of range: refused with an error naming the flag and its limit, nothing written.
     let none = tmp.path().join("none.assist");
-    let o = run(&[
-        "train",
-        s(&data),
-        "--out",
-        s(&none),
-        "--grid-resolution",
-        "8",
-    ]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        !o.status.success() && err.contains("--grid-resolution") && err.contains("65536"),
-        "{err}"
-    );
-    assert!(!none.exists());
-    let o = run(&["train", s(&data), "--out", s(&none), "--error-rays", "0.95"]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        !o.status.success() && err.contains("--error-rays") && err.contains("0.9"),
-        "{err}"
-    );
-    assert!(!none.exists());
+    let refused = |flag: &str, value: &str, limit: &str| {
+        let o = run(&["train", s(&data), "--out", s(&none), flag, value]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success() && err.contains(flag) && err.contains(limit),
+            "{err}"
+        );
+        assert!(!none.exists());
+    };
+    refused("--grid-resolution", "8", "65536");
+    refused("--error-rays", "0.95", "0.9");
     let o = run(&[
         "train",
         s(&data),
