@@ -94,16 +94,15 @@ impl TrainConfig {
                 format!("expected a transmittance of at least 0 and below 1 (0 = off), got {t}"),
             ));
         }
-        if !(c.grid_decay.is_finite() && (0.0..=1.0).contains(&c.grid_decay)) {
+        if let Some(d) = c.grid_decay
+            && !(d.is_finite() && (0.0..=1.0).contains(&d))
+        {
             return Err(request(
                 "grid_decay",
-                format!(
-                    "expected a decay of at least 0 and at most 1 (0 = off), got {}",
-                    c.grid_decay
-                ),
+                format!("expected a decay of at least 0 and at most 1 (0 = off), got {d}"),
             ));
         }
-        if let assist_train::GridResolution::Cells(r) = c.grid_resolution
+        if let Some(assist_train::GridResolution::Cells(r)) = c.grid_resolution
             && !(16..=65_536).contains(&r)
         {
             return Err(request(

@@ -7,7 +7,9 @@
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
-use assist_train::{BackgroundSpace, GridResolution, Lambdas, PriorKind, TERMS, TrainOptions};
+use assist_train::{
+    BackgroundSpace, GridResolution, Lambdas, LayoutChoice, PriorKind, TERMS, TrainOptions,
+};
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use serde::{Deserialize, Serialize};
 
@@ -184,6 +186,11 @@ fn grid_resolution_parser(s: &str) -> std::result::Result<GridResolution, String
     GridResolution::parse(s).ok_or_else(|| format!("expected a number of cells or auto, got {s:?}"))
 }
 
+fn layout_parser() -> impl TypedValueParser<Value = LayoutChoice> {
+    PossibleValuesParser::new(["auto", "facing", "walk-around"])
+        .map(|s| LayoutChoice::parse(&s).expect("one of the possible values"))
+}
+
 fn background_parser() -> impl TypedValueParser<Value = BackgroundSpace> {
     PossibleValuesParser::new(["auto", "box", "contracted"])
         .map(|s| BackgroundSpace::parse(&s).expect("one of the possible values"))
@@ -299,21 +306,27 @@ pub struct TrainConfig {
     /// unless the training views have depth maps, which bound the scene).
     #[arg(long, help_heading = MODEL, default_value = "auto", value_parser = background_parser())]
     pub background: BackgroundSpace,
+    /// How the cameras stand around what they look at: facing one way, all around it
+    /// (walk-around: no azimuth gap of 180° or more around the point their axes meet), or
+    /// auto (read from the training poses). A walk-around whose background is unbounded
+    /// and which has no objects takes --grid-resolution auto, --grid-decay 1e-6 and
+    /// --lambda-distortion 0.002 unless they are given (measured in BENCHMARKS.md).
+    #[arg(long, help_heading = MODEL, default_value = "auto", value_parser = layout_parser())]
+    pub layout: LayoutChoice,
     /// The background's finest hash-grid resolution: cells across its field's cube (the
     /// box, or a contracted background's box and shell), or auto: about one cell per pixel
-    /// of the training images at the median depth of what they see (2048 to 8192). auto
-    /// helped a 360° walk-around and cost a forward-facing capture, so Nerfacto's 2048
-    /// stays the default (measured in BENCHMARKS.md).
+    /// of the training images at the median depth of what they see (2048 to 8192)
+    /// [default: auto for an unbounded walk-around without objects (--layout), else
+    /// Nerfacto's 2048].
     #[arg(long, help_heading = MODEL, value_name = "CELLS|auto",
-          default_value_t = GridResolution::default(), value_parser = grid_resolution_parser)]
-    pub grid_resolution: GridResolution,
+          value_parser = grid_resolution_parser)]
+    pub grid_resolution: Option<GridResolution>,
     /// Pull every hash-table entry a step touches toward zero by this much (L2, added to its
     /// gradient; 0: off), so that what few views constrain does not keep what they put
-    /// there. It helped a 360° walk-around and cost forward-facing captures, so it is off
-    /// unless given (measured in BENCHMARKS.md).
-    #[arg(long, help_heading = MODEL, value_name = "L",
-          default_value_t = TrainOptions::default().grid_decay)]
-    pub grid_decay: f32,
+    /// there [default: 1e-6 for an unbounded walk-around without objects (--layout), else
+    /// 0].
+    #[arg(long, help_heading = MODEL, value_name = "L")]
+    pub grid_decay: Option<f32>,
     /// Draw this share of the rays (those not drawn for objects) where the colour error
     /// is high, from a running map of each view's error per 16×16-pixel tile, each ray
     /// weighted so that every pixel still counts as much as under a uniform draw (0: all
@@ -522,9 +535,13 @@ impl<'de> Deserialize<'de> for LambdaOverrides {
 }
 
 /// The loss weights of a run: the table's defaults, the background-prior terms off when
-/// there is no prior at all, then the user's values.
-pub fn lambdas(c: &TrainConfig, dataset_inpaint: bool) -> Lambdas {
+/// there is no prior at all, the distortion term on for an unbounded walk-around
+/// (`walk_around`, [`assist_train::WalkAroundDefaults`]), then the user's values.
+pub fn lambdas(c: &TrainConfig, dataset_inpaint: bool, walk_around: bool) -> Lambdas {
     let mut l = Lambdas::default();
+    if walk_around {
+        l.distortion = assist_train::WalkAroundDefaults::DISTORTION;
+    }
     if c.prior == PriorKind::None && !dataset_inpaint {
         l.bg_rgb = 0.0;
         l.bg_depth = 0.0;
@@ -570,6 +587,63 @@ mod tests {
         .unwrap();
         assert_eq!(c.lambdas.get("obj_share"), Some(0.3));
         assert_eq!((c.shadows, c.shadow_estimate), (Shadows::On, OnOff::Off));
-        assert_eq!(lambdas(&c, false).obj_share, 0.3);
+        assert_eq!(lambdas(&c, false, false).obj_share, 0.3);
+    }
+
+    /// The numbers `--layout`'s help and the flags' defaults name are the walk-around's.
+    #[test]
+    fn the_help_names_the_walk_around_defaults() {
+        use assist_train::WalkAroundDefaults as W;
+        use clap::Args;
+        let cmd = TrainConfig::augment_args(clap::Command::new("train"));
+        let help = |id: &str| {
+            let a = cmd.get_arguments().find(|a| a.get_id() == id).unwrap();
+            a.get_help().unwrap().to_string()
+        };
+        let layout = help("layout");
+        for want in [
+            format!("--grid-resolution {}", W::GRID_RESOLUTION),
+            format!("--grid-decay {:e}", W::GRID_DECAY),
+            format!("--lambda-distortion {}", W::DISTORTION),
+        ] {
+            assert!(layout.contains(&want), "{want:?} in {layout:?}");
+        }
+        let res = help("grid_resolution");
+        assert!(
+            res.contains(&format!(
+                "default: {} for an unbounded walk-around without objects",
+                W::GRID_RESOLUTION
+            )),
+            "{res}"
+        );
+        let decay = help("grid_decay");
+        assert!(
+            decay.contains(&format!(
+                "default: {:e} for an unbounded walk-around without objects",
+                W::GRID_DECAY
+            )),
+            "{decay}"
+        );
+        let dist = help("lambda_distortion");
+        assert!(
+            dist.contains(&format!(
+                "{} (Nerfacto's) for an unbounded walk-around without objects",
+                W::DISTORTION
+            )),
+            "{dist}"
+        );
+        // And the choice resolves as named.
+        assert_eq!(
+            LayoutChoice::parse("walk-around"),
+            Some(LayoutChoice::WalkAround)
+        );
+        assert_eq!(TrainConfig::default().layout, LayoutChoice::Auto);
+        assert_eq!(
+            (
+                TrainConfig::default().grid_decay,
+                TrainConfig::default().grid_resolution
+            ),
+            (None, None)
+        );
     }
 }

@@ -10,10 +10,13 @@ use assist_core::NodeSpace;
 use assist_data::{Dataset, LoadOptions, Split};
 use assist_scene::NeuralScene;
 use assist_train::{
+    CaptureLayout, GridResolution, WalkAroundDefaults, default_error_rays, default_prune_eps,
+    load_views, scene_takes_walk_around_defaults, takes_walk_around_defaults,
+};
+use assist_train::{
     KeptHistory, ResumeState, SetupOptions, StepStats, TrainOptions, TrainReport, Trainer,
 };
 use assist_train::{background_color, build_scene, default_lr_end, default_proposal};
-use assist_train::{default_error_rays, default_prune_eps, load_views};
 use serde::Serialize;
 
 use crate::held_out::HeldOutSet;
@@ -48,6 +51,15 @@ pub enum TrainEvent {
     },
     /// The views have no instance masks; `unused` are mask folders for other sizes.
     NoMasks { unused: Vec<PathBuf> },
+    /// How the training cameras stand (`gap_degrees`: the largest azimuth gap around the
+    /// point they look at) and whether the run takes the walk-around's defaults.
+    Layout {
+        layout: CaptureLayout,
+        /// The layout was given (`--layout`), not read from the poses.
+        given: bool,
+        gap_degrees: Option<f64>,
+        walk_around_defaults: bool,
+    },
     /// The scene's nodes (id, label).
     Nodes { nodes: Vec<(u16, String)> },
     /// One training step, with the share of the run done and the seconds left.
@@ -174,7 +186,15 @@ impl TrainJob {
         on_event(&TrainEvent::Stage {
             name: "nodes, and the free space views see through",
         });
-        let (mut scene, kept) = self.scene(&ds, &views, user_boxes)?;
+        let layout = c.layout.resolve(&views);
+        let (mut scene, kept) = self.scene(&ds, &views, user_boxes, layout)?;
+        let walk_around = scene_takes_walk_around_defaults(layout, &scene);
+        on_event(&TrainEvent::Layout {
+            layout,
+            given: c.layout != assist_train::LayoutChoice::Auto,
+            gap_degrees: assist_train::azimuth_gap(&views),
+            walk_around_defaults: walk_around,
+        });
         self.check_space(scene.fields.values().map(|f| f.field.param_count()).sum())?;
         let carved = assist_train::carve_scene(&mut scene, &views);
         if !carved.is_empty() {
@@ -183,7 +203,7 @@ impl TrainJob {
         // `--shadows auto` learns them where every view has depth.
         let depth = views.iter().all(|v| v.depth.is_some());
         let held_shadows = self.shadows(&mut scene, &mut views, depth, &mut on_event);
-        let lambdas = lambdas(c, views.iter().any(|v| v.inpaint.is_some()));
+        let lambdas = lambdas(c, views.iter().any(|v| v.inpaint.is_some()), walk_around);
         // (Not with `--no-objects`: the masks were set aside on purpose.)
         if !c.resume
             && self.start.is_none()
@@ -202,7 +222,7 @@ impl TrainJob {
                 .map(|n| (n.id, n.label.clone()))
                 .collect(),
         });
-        let opts = self.options(max_time, depth_affine, lambdas, fingerprint, &scene);
+        let opts = self.options(max_time, depth_affine, lambdas, fingerprint, &scene, layout);
         let held = HeldOutSet::load(&ds, c.eval_views)?;
         if c.eval_every.is_some() && held.is_none() {
             return Err(request(
@@ -326,8 +346,10 @@ impl TrainJob {
         lambdas: assist_train::Lambdas,
         fingerprint: String,
         scene: &NeuralScene,
+        layout: CaptureLayout,
     ) -> TrainOptions {
         let c = &self.config;
+        let walk_around = scene_takes_walk_around_defaults(layout, scene);
         // Left to the scene: the floor where it is unbounded; so are the pruning and the
         // proposal, but on the CPU only (a GPU queries every sample, and the density pass
         // and the proposal's training would run on this CPU).
@@ -337,6 +359,11 @@ impl TrainJob {
         let prune_eps = c.prune_eps.unwrap_or(default_prune_eps(unbounded_on_cpu));
         let proposal = c.proposal.unwrap_or(default_proposal(unbounded_on_cpu));
         let error_rays = c.error_rays.unwrap_or(default_error_rays(unbounded));
+        let grid_decay = c.grid_decay.unwrap_or(if walk_around {
+            WalkAroundDefaults::GRID_DECAY
+        } else {
+            TrainOptions::default().grid_decay
+        });
         TrainOptions {
             iters: c.iters_limit(),
             max_time,
@@ -347,7 +374,7 @@ impl TrainJob {
             downscale: c.downscale,
             depth_affine,
             refine_poses: c.refine_poses,
-            grid_decay: c.grid_decay,
+            grid_decay,
             error_rays,
             hidden_stop: c.hidden_stop,
             step_scale: c.step_scale,
@@ -379,6 +406,8 @@ impl TrainJob {
                     r["prune_eps"] = prune_eps.into();
                     r["proposal"] = proposal.into();
                     r["error_rays"] = error_rays.into();
+                    r["layout"] = layout.as_str().into();
+                    r["grid_decay"] = grid_decay.into();
                     r["grid_resolution"] = grid_resolution(scene).into();
                     if !self.masks_recorded {
                         r["masks"] = serde_json::Value::Null;
@@ -515,6 +544,7 @@ impl TrainJob {
         ds: &Dataset,
         views: &[assist_train::View],
         boxes: Vec<assist_data::boxes::BoxOverride>,
+        layout: CaptureLayout,
     ) -> Result<(NeuralScene, KeptHistory)> {
         let c = &self.config;
         if let Some((scene, kept)) = &self.start {
@@ -530,7 +560,13 @@ impl TrainJob {
             seed: c.seed,
             boxes,
             background_space: c.background,
-            grid_resolution: c.grid_resolution,
+            grid_resolution: c.grid_resolution.unwrap_or_else(|| {
+                let objects = assist_train::makes_objects(ds, views);
+                match takes_walk_around_defaults(layout, c.background.resolve(views), objects) {
+                    true => WalkAroundDefaults::GRID_RESOLUTION,
+                    false => GridResolution::default(),
+                }
+            }),
             ..Default::default()
         };
         Ok((build_scene(ds, views, &so)?, KeptHistory::default()))

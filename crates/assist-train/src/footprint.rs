@@ -7,8 +7,9 @@
 //! about four on the object), and detail finer than a cell cannot be learnt, on the
 //! training views either. `train --grid-resolution auto` sets the background's finest
 //! level so that one cell spans about one pixel at the median depth of what the views
-//! see. It helped a walk-around and cost a forward-facing capture, so Nerfacto's number
-//! stays the default (measured in BENCHMARKS.md).
+//! see. It helped a walk-around and cost forward-facing captures, so it is the default of
+//! unbounded walk-arounds only ([`crate::WalkAroundDefaults`]) and Nerfacto's number stays
+//! everyone else's (measured in BENCHMARKS.md).
 
 use assist_core::{DVec3, NodeSpace};
 use assist_data::Dataset;

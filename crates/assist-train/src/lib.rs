@@ -13,6 +13,7 @@ mod error;
 mod eval;
 mod footprint;
 mod freespace;
+mod layout;
 pub mod light;
 pub mod losses;
 pub mod metrics;
@@ -37,12 +38,18 @@ pub use footprint::{
     content_depth_percentile, footprint_resolution,
 };
 pub use freespace::{CarveStats, carve_scene};
+pub use layout::{
+    CaptureLayout, LayoutChoice, SURROUND_MAX_GAP_DEGREES, WalkAroundDefaults, azimuth_gap,
+    capture_layout, describe_layout, focus_point, largest_azimuth_gap, mean_up,
+    scene_takes_walk_around_defaults, takes_walk_around_defaults,
+};
 pub use light::{LightEstimate, estimate_light, estimate_light_from};
 pub use multiview::MultiViewStats;
 pub use optimizer::{CpuOptimizer, NodeOptimizer, OptimizerFactory};
 pub use setup::{
     BackgroundSpace, BoxSource, NodeBox, SetupOptions, background_color, build_scene,
-    is_object_capture, near_plane, node_boxes, object_field, scene_param_estimate, scene_region,
+    is_object_capture, makes_objects, near_plane, node_boxes, object_field, scene_param_estimate,
+    scene_region,
 };
 pub use shadow::{
     ShadowEstimate, ShadowPriorStats, add_shadow_grids, estimate_shadows, shadow_free_priors,

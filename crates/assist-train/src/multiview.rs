@@ -150,7 +150,10 @@ fn splat(
         let Some((px, zt)) = target.intrinsics.project_gl(p_t) else {
             return;
         };
-        if !(px.x.is_finite() && px.y.is_finite()) {
+        // Far outside the image (or not finite: a point on the camera's plane) it splats
+        // nothing, and its pixel would not fit the integer arithmetic below.
+        const FAR: f64 = 1e9;
+        if !(px.x.abs() < FAR && px.y.abs() < FAR) {
             return;
         }
         let (cx, cy) = (px.x.floor() as i64, px.y.floor() as i64);

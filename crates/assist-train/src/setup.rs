@@ -122,6 +122,15 @@ pub fn scene_param_estimate(ds: &Dataset, n_images: usize, appearance: bool) -> 
     background + ds.instances.len().max(1) * app(FieldConfig::object(n_images))
 }
 
+/// Whether [`build_scene`] makes object nodes for `ds`: it names instances, or the views'
+/// masks hold some (the sources [`node_boxes`] reads).
+pub fn makes_objects(ds: &Dataset, views: &[View]) -> bool {
+    !ds.instances.is_empty()
+        || views
+            .iter()
+            .any(|v| v.ids.as_ref().is_some_and(|m| m.iter().any(|&i| i != 0)))
+}
+
 /// Builds the untrained scene for `ds` from its training `views`.
 pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<NeuralScene> {
     let n_images = views.len();
@@ -439,20 +448,9 @@ pub fn depth_bounds(views: &[View]) -> Option<Aabb> {
 /// at (least-squares intersection of their optical axes) reaching the median camera
 /// distance — for object captures whose cameras all sit on one side of the object.
 pub fn carve_region(views: &[View], region: &Aabb) -> Aabb {
-    let mut a = assist_core::DMat3::ZERO;
-    let mut b = DVec3::ZERO;
-    for v in views {
-        let c = v.camera.pose.center();
-        let d = v.camera.pose.forward().normalize();
-        let m =
-            assist_core::DMat3::IDENTITY - assist_core::DMat3::from_cols(d * d.x, d * d.y, d * d.z);
-        a += m;
-        b += m * c;
-    }
-    if a.determinant().abs() < 1e-9 {
+    let Some(focus) = crate::focus_point(views) else {
         return *region;
-    }
-    let focus = a.inverse() * b;
+    };
     let mut dist: Vec<f64> = views
         .iter()
         .map(|v| (v.camera.pose.center() - focus).length())

@@ -328,6 +328,15 @@ impl Reporter {
             TrainEvent::Light(e) if self.text => {
                 eprintln!("{}", crate::cmd_scene::describe_light(e))
             }
+            TrainEvent::Layout {
+                layout,
+                given,
+                gap_degrees,
+                walk_around_defaults,
+            } if self.text => eprintln!(
+                "{}",
+                assist_train::describe_layout(*layout, *given, *gap_degrees, *walk_around_defaults)
+            ),
             TrainEvent::Nodes { nodes } if self.text => {
                 let n: Vec<String> = nodes.iter().map(|(id, l)| format!("{id} {l:?}")).collect();
                 eprintln!("nodes: {}", n.join(", "));

@@ -113,7 +113,8 @@ loss_terms! {
          grow a copy of the object's surface in front of it.";
     distortion: 0.0, settable: true,
         "The distortion loss of mip-NeRF 360 (Nerfacto's; 0 turns it off): the composited \
-         weights of a ray gathered in depth, which removes semi-transparent haze.";
+         weights of a ray gathered in depth, which removes semi-transparent haze; 0.002 \
+         (Nerfacto's) for an unbounded walk-around without objects (--layout).";
     empty: 0.0, settable: true,
         "The empty-space term (ours, after Urban Radiance Fields' line-of-sight prior): where \
          the dataset has depth, every node must be empty in front of the surface the depth \

@@ -362,7 +362,55 @@ fn config_files_give_flags_and_print_config_round_trips() {
     // one refused by name.
     let decay = |info: &serde_json::Value| info["options"]["grid_decay"].as_f64().unwrap() as f32;
     assert_eq!(decay(&common::scene_info(&t)), 0.0);
-    assert_eq!(decay(&unbounded(&[])), 0.0);
+    assert_eq!(decay(&unbounded(&["--layout", "facing"])), 0.0);
+    // The synthetic capture's cameras stand all around its table. Trained unbounded and
+    // without its objects it is the walk-around the defaults are for (the finest level
+    // matched to the pixels, the decay, Nerfacto's distortion weight) unless told
+    // `--layout facing` or given each; with its objects, or bounded (its depth maps), it
+    // takes none of them. Recorded as used.
+    let dist = |info: &serde_json::Value| {
+        info["options"]["lambdas"]["distortion"].as_f64().unwrap() as f32
+    };
+    let info = common::scene_info(&t);
+    assert_eq!(info["train_config"]["layout"], "walk-around", "{info}");
+    assert_eq!(
+        (decay(&info), dist(&info), res(&info)),
+        (0.0, 0.0, Some(2048))
+    );
+    let info = unbounded(&[]);
+    assert_eq!(info["train_config"]["layout"], "walk-around", "{info}");
+    assert_eq!(
+        (decay(&info), dist(&info), res(&info)),
+        (0.0, 0.0, Some(2048))
+    );
+    let info = unbounded(&["--no-objects"]);
+    assert_eq!((decay(&info), dist(&info)), (1e-6, 0.002), "{info}");
+    assert_eq!(
+        info["train_config"]["grid_decay"].as_f64().unwrap() as f32,
+        1e-6
+    );
+    let auto_cells = res(&info).unwrap();
+    assert!((2048..=8192).contains(&auto_cells), "{info}");
+    let info = unbounded(&["--no-objects", "--layout", "facing"]);
+    assert_eq!(info["train_config"]["layout"], "facing", "{info}");
+    assert_eq!(
+        (decay(&info), dist(&info), res(&info)),
+        (0.0, 0.0, Some(2048))
+    );
+    let given = [
+        "--no-objects",
+        "--grid-decay",
+        "0",
+        "--lambda-distortion",
+        "0.01",
+        "--grid-resolution",
+        "3000",
+    ];
+    let info = unbounded(&given);
+    assert_eq!(
+        (decay(&info), dist(&info), res(&info)),
+        (0.0, 0.01, Some(3000))
+    );
     let info = unbounded(&["--grid-decay", "1e-6"]);
     assert_eq!(decay(&info), 1e-6, "{info}");
     assert_eq!(
