@@ -10,8 +10,8 @@ use assist_core::NodeSpace;
 use assist_data::{Dataset, LoadOptions, Split};
 use assist_scene::NeuralScene;
 use assist_train::{
-    CaptureLayout, GridResolution, WalkAroundDefaults, default_error_rays, default_prune_eps,
-    load_views, scene_takes_walk_around_defaults, takes_walk_around_defaults,
+    CaptureLayout, WalkAroundDefaults, default_error_rays, default_prune_eps, load_views,
+    scene_takes_walk_around_defaults,
 };
 use assist_train::{
     KeptHistory, ResumeState, SetupOptions, StepStats, TrainOptions, TrainReport, Trainer,
@@ -189,12 +189,7 @@ impl TrainJob {
         let layout = c.layout.resolve(&views);
         let (mut scene, kept) = self.scene(&ds, &views, user_boxes, layout)?;
         let walk_around = scene_takes_walk_around_defaults(layout, &scene);
-        on_event(&TrainEvent::Layout {
-            layout,
-            given: c.layout != assist_train::LayoutChoice::Auto,
-            gap_degrees: assist_train::azimuth_gap(&views),
-            walk_around_defaults: walk_around,
-        });
+        on_event(&self.layout_event(layout, &views, walk_around));
         self.check_space(scene.fields.values().map(|f| f.field.param_count()).sum())?;
         let carved = assist_train::carve_scene(&mut scene, &views);
         if !carved.is_empty() {
@@ -289,6 +284,21 @@ impl TrainJob {
             out: c.out.clone(),
             held_out,
         })
+    }
+
+    /// What the run tells of its cameras' layout.
+    fn layout_event(
+        &self,
+        layout: CaptureLayout,
+        views: &[assist_train::View],
+        walk_around_defaults: bool,
+    ) -> TrainEvent {
+        TrainEvent::Layout {
+            layout,
+            given: self.config.layout != assist_train::LayoutChoice::Auto,
+            gap_degrees: assist_train::azimuth_gap(views),
+            walk_around_defaults,
+        }
     }
 
     /// Ends a run: the key light looked for in the learned shadows, then the scene saved.
@@ -408,7 +418,7 @@ impl TrainJob {
                     r["error_rays"] = error_rays.into();
                     r["layout"] = layout.as_str().into();
                     r["grid_decay"] = grid_decay.into();
-                    r["grid_resolution"] = grid_resolution(scene).into();
+                    r["grid_resolution"] = assist_train::background_grid_resolution(scene).into();
                     if !self.masks_recorded {
                         r["masks"] = serde_json::Value::Null;
                     }
@@ -561,11 +571,7 @@ impl TrainJob {
             boxes,
             background_space: c.background,
             grid_resolution: c.grid_resolution.unwrap_or_else(|| {
-                let objects = assist_train::makes_objects(ds, views);
-                match takes_walk_around_defaults(layout, c.background.resolve(views), objects) {
-                    true => WalkAroundDefaults::GRID_RESOLUTION,
-                    false => GridResolution::default(),
-                }
+                assist_train::default_grid_resolution(layout, ds, views, c.background)
             }),
             ..Default::default()
         };
@@ -581,12 +587,6 @@ fn resume_state(out: &std::path::Path, info: &serde_json::Value) -> Result<Resum
             format!("{}: {m}", out.join("scene.json").display()),
         )
     })
-}
-
-/// The finest hash-grid resolution of `scene`'s background, if it has one.
-fn grid_resolution(scene: &NeuralScene) -> Option<u32> {
-    let node = scene.scene.nodes.iter().find(|n| n.is_background())?;
-    Some(scene.fields.get(&node.field)?.field.config.max_resolution)
 }
 
 /// Whether a node of `scene` is unbounded (a contracted background).

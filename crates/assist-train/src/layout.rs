@@ -155,6 +155,29 @@ pub fn capture_layout(views: &[View]) -> CaptureLayout {
     }
 }
 
+/// The background's finest resolution where none is given: the walk-around's
+/// ([`WalkAroundDefaults`]) where [`takes_walk_around_defaults`] holds for the scene
+/// [`crate::build_scene`] makes of `ds` with `background`, else Nerfacto's.
+pub fn default_grid_resolution(
+    layout: CaptureLayout,
+    ds: &assist_data::Dataset,
+    views: &[View],
+    background: crate::BackgroundSpace,
+) -> GridResolution {
+    let objects = crate::makes_objects(ds, views);
+    if takes_walk_around_defaults(layout, background.resolve(views), objects) {
+        WalkAroundDefaults::GRID_RESOLUTION
+    } else {
+        GridResolution::default()
+    }
+}
+
+/// The finest hash-grid resolution of `scene`'s background, if it has one.
+pub fn background_grid_resolution(scene: &NeuralScene) -> Option<u32> {
+    let node = scene.scene.nodes.iter().find(|n| n.is_background())?;
+    Some(scene.fields.get(&node.field)?.field.config.max_resolution)
+}
+
 /// [`takes_walk_around_defaults`] for a built `scene`: its background's space (contracted
 /// where any node is) and whether it has object nodes.
 pub fn scene_takes_walk_around_defaults(layout: CaptureLayout, scene: &NeuralScene) -> bool {

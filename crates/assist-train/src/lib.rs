@@ -40,8 +40,9 @@ pub use footprint::{
 pub use freespace::{CarveStats, carve_scene};
 pub use layout::{
     CaptureLayout, LayoutChoice, SURROUND_MAX_GAP_DEGREES, WalkAroundDefaults, azimuth_gap,
-    capture_layout, describe_layout, focus_point, largest_azimuth_gap, mean_up,
-    scene_takes_walk_around_defaults, takes_walk_around_defaults,
+    background_grid_resolution, capture_layout, default_grid_resolution, describe_layout,
+    focus_point, largest_azimuth_gap, mean_up, scene_takes_walk_around_defaults,
+    takes_walk_around_defaults,
 };
 pub use light::{LightEstimate, estimate_light, estimate_light_from};
 pub use multiview::MultiViewStats;
