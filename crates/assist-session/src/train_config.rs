@@ -608,30 +608,21 @@ mod tests {
         ] {
             assert!(layout.contains(&want), "{want:?} in {layout:?}");
         }
-        let res = help("grid_resolution");
-        assert!(
-            res.contains(&format!(
-                "default: {} for an unbounded walk-around without objects",
-                W::GRID_RESOLUTION
-            )),
-            "{res}"
-        );
-        let decay = help("grid_decay");
-        assert!(
-            decay.contains(&format!(
-                "default: {:e} for an unbounded walk-around without objects",
-                W::GRID_DECAY
-            )),
-            "{decay}"
-        );
-        let dist = help("lambda_distortion");
-        assert!(
-            dist.contains(&format!(
-                "{} (Nerfacto's) for an unbounded walk-around without objects",
-                W::DISTORTION
-            )),
-            "{dist}"
-        );
+        let tail = "for an unbounded walk-around without objects";
+        for (id, want) in [
+            (
+                "grid_resolution",
+                format!("default: {} {tail}", W::GRID_RESOLUTION),
+            ),
+            ("grid_decay", format!("default: {:e} {tail}", W::GRID_DECAY)),
+            (
+                "lambda_distortion",
+                format!("{} (Nerfacto's) {tail}", W::DISTORTION),
+            ),
+        ] {
+            let h = help(id);
+            assert!(h.contains(&want), "{want:?} in {h:?}");
+        }
         // And the choice resolves as named.
         assert_eq!(
             LayoutChoice::parse("walk-around"),
