@@ -316,14 +316,14 @@ pub struct TrainConfig {
     /// The background's finest hash-grid resolution: cells across its field's cube (the
     /// box, or a contracted background's box and shell), or auto: about one cell per pixel
     /// of the training images at the median depth of what they see (2048 to 8192)
-    /// [default: auto for an unbounded walk-around without objects (--layout), else
+    /// [default: auto for an unbounded walk-around (--layout), else
     /// Nerfacto's 2048].
     #[arg(long, help_heading = MODEL, value_name = "CELLS|auto",
           value_parser = grid_resolution_parser)]
     pub grid_resolution: Option<GridResolution>,
     /// Pull every hash-table entry a step touches toward zero by this much (L2, added to its
     /// gradient; 0: off), so that what few views constrain does not keep what they put
-    /// there [default: 1e-6 for an unbounded walk-around without objects (--layout), else
+    /// there [default: 1e-6 for an unbounded walk-around (--layout), else
     /// 0].
     #[arg(long, help_heading = MODEL, value_name = "L")]
     pub grid_decay: Option<f32>,
@@ -608,7 +608,7 @@ mod tests {
         ] {
             assert!(layout.contains(&want), "{want:?} in {layout:?}");
         }
-        let tail = "for an unbounded walk-around without objects";
+        let tail = "for an unbounded walk-around";
         for (id, want) in [
             (
                 "grid_resolution",

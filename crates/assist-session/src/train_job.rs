@@ -182,11 +182,11 @@ impl TrainJob {
         // A depth prior the user supplies (a monocular model's) has an unknown scale; one
         // the built-in fill makes from the dataset's depth is metric.
         let depth_affine = views.iter().any(|v| v.inpaint_depth.is_some());
-        self.priors(&mut views, &mut on_event);
+        let layout = c.layout.resolve(&views);
+        self.priors(&mut views, layout, &mut on_event);
         on_event(&TrainEvent::Stage {
             name: "nodes, and the free space views see through",
         });
-        let layout = c.layout.resolve(&views);
         let (mut scene, kept) = self.scene(&ds, &views, user_boxes, layout)?;
         let walk_around = scene_takes_walk_around_defaults(layout, &scene);
         on_event(&self.layout_event(layout, &views, walk_around));
@@ -571,7 +571,7 @@ impl TrainJob {
             boxes,
             background_space: c.background,
             grid_resolution: c.grid_resolution.unwrap_or_else(|| {
-                assist_train::default_grid_resolution(layout, ds, views, c.background)
+                assist_train::default_grid_resolution(layout, views, c.background)
             }),
             ..Default::default()
         };

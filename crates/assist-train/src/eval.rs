@@ -342,7 +342,7 @@ pub fn evaluate_priors(
             v.prior_confidence = None;
         }
         let t0 = std::time::Instant::now();
-        crate::views::fill_priors(&mut filled, kind);
+        crate::views::fill_priors(&mut filled, kind, true);
         secs[k] += t0.elapsed().as_secs_f64();
         for (v, t) in filled.iter().zip(&truths) {
             let mask: Vec<bool> = v

@@ -65,10 +65,10 @@ impl LayoutChoice {
     }
 }
 
-/// What an unbounded walk-around without objects trains with where the user sets nothing
-/// else: the background's finest level matched to the pixels, the hash tables' weight
-/// decay and Nerfacto's distortion weight. Together they helped gold_cape trained as one
-/// background node and cost it trained with its object node (fewer steps in the time);
+/// What an unbounded walk-around trains with where the user sets nothing else: the
+/// background's finest level matched to the pixels, the hash tables' weight decay and
+/// Nerfacto's distortion weight. Together they helped gold_cape, as one background node
+/// and with its object node (once no single-view prior guessed what the object hides);
 /// each cost the facing captures (measured in BENCHMARKS.md).
 pub struct WalkAroundDefaults;
 
@@ -79,10 +79,9 @@ impl WalkAroundDefaults {
 }
 
 /// Whether a run takes [`WalkAroundDefaults`]: a walk-around whose background is
-/// unbounded (contracted) and which has no object nodes. A bounded room's walk-around
-/// (depth maps) and one trained with objects keep the others.
-pub fn takes_walk_around_defaults(layout: CaptureLayout, space: NodeSpace, objects: bool) -> bool {
-    layout == CaptureLayout::WalkAround && space == NodeSpace::Contracted && !objects
+/// unbounded (contracted). A bounded room's walk-around (depth maps) keeps the others.
+pub fn takes_walk_around_defaults(layout: CaptureLayout, space: NodeSpace) -> bool {
+    layout == CaptureLayout::WalkAround && space == NodeSpace::Contracted
 }
 
 /// The point closest, in the least-squares sense, to every view's optical axis: what the
@@ -157,15 +156,13 @@ pub fn capture_layout(views: &[View]) -> CaptureLayout {
 
 /// The background's finest resolution where none is given: the walk-around's
 /// ([`WalkAroundDefaults`]) where [`takes_walk_around_defaults`] holds for the scene
-/// [`crate::build_scene`] makes of `ds` with `background`, else Nerfacto's.
+/// [`crate::build_scene`] makes with `background`, else Nerfacto's.
 pub fn default_grid_resolution(
     layout: CaptureLayout,
-    ds: &assist_data::Dataset,
     views: &[View],
     background: crate::BackgroundSpace,
 ) -> GridResolution {
-    let objects = crate::makes_objects(ds, views);
-    if takes_walk_around_defaults(layout, background.resolve(views), objects) {
+    if takes_walk_around_defaults(layout, background.resolve(views)) {
         WalkAroundDefaults::GRID_RESOLUTION
     } else {
         GridResolution::default()
@@ -179,7 +176,7 @@ pub fn background_grid_resolution(scene: &NeuralScene) -> Option<u32> {
 }
 
 /// [`takes_walk_around_defaults`] for a built `scene`: its background's space (contracted
-/// where any node is) and whether it has object nodes.
+/// where any node is).
 pub fn scene_takes_walk_around_defaults(layout: CaptureLayout, scene: &NeuralScene) -> bool {
     let unbounded = scene
         .fields
@@ -190,8 +187,7 @@ pub fn scene_takes_walk_around_defaults(layout: CaptureLayout, scene: &NeuralSce
     } else {
         NodeSpace::Box
     };
-    let objects = scene.scene.nodes.iter().any(|n| !n.is_background());
-    takes_walk_around_defaults(layout, space, objects)
+    takes_walk_around_defaults(layout, space)
 }
 
 /// What a run says of its cameras' layout (`given`: by `--layout`; `gap`: the largest
@@ -212,7 +208,7 @@ pub fn describe_layout(
     };
     let defaults = if walk_around_defaults {
         format!(
-            "; an unbounded walk-around without objects: --grid-resolution {}, --grid-decay {:e} and --lambda-distortion {} where not given",
+            "; an unbounded walk-around: --grid-resolution {}, --grid-decay {:e} and --lambda-distortion {} where not given",
             WalkAroundDefaults::GRID_RESOLUTION,
             WalkAroundDefaults::GRID_DECAY,
             WalkAroundDefaults::DISTORTION
@@ -327,13 +323,12 @@ mod tests {
     }
 
     #[test]
-    fn only_an_unbounded_walk_around_without_objects_takes_its_defaults() {
+    fn only_an_unbounded_walk_around_takes_its_defaults() {
         use CaptureLayout::{Facing, WalkAround};
         use NodeSpace::{Box, Contracted};
-        assert!(takes_walk_around_defaults(WalkAround, Contracted, false));
-        assert!(!takes_walk_around_defaults(WalkAround, Contracted, true));
-        assert!(!takes_walk_around_defaults(WalkAround, Box, false));
-        assert!(!takes_walk_around_defaults(Facing, Contracted, false));
+        assert!(takes_walk_around_defaults(WalkAround, Contracted));
+        assert!(!takes_walk_around_defaults(WalkAround, Box));
+        assert!(!takes_walk_around_defaults(Facing, Contracted));
         // The choice: auto reads the poses, the others are kept.
         let full = ring(12, 0.0, 360.0);
         assert_eq!(LayoutChoice::Auto.resolve(&full), WalkAround);

@@ -49,8 +49,8 @@ pub use multiview::MultiViewStats;
 pub use optimizer::{CpuOptimizer, NodeOptimizer, OptimizerFactory};
 pub use setup::{
     BackgroundSpace, BoxSource, NodeBox, SetupOptions, background_color, build_scene,
-    is_object_capture, makes_objects, near_plane, node_boxes, object_field, scene_param_estimate,
-    scene_region,
+    is_object_capture, near_plane, node_boxes, object_field, object_table_log2,
+    scene_param_estimate, scene_region,
 };
 pub use shadow::{
     ShadowEstimate, ShadowPriorStats, add_shadow_grids, estimate_shadows, shadow_free_priors,

@@ -122,15 +122,6 @@ pub fn scene_param_estimate(ds: &Dataset, n_images: usize, appearance: bool) -> 
     background + ds.instances.len().max(1) * app(FieldConfig::object(n_images))
 }
 
-/// Whether [`build_scene`] makes object nodes for `ds`: it names instances, or the views'
-/// masks hold some (the sources [`node_boxes`] reads).
-pub fn makes_objects(ds: &Dataset, views: &[View]) -> bool {
-    !ds.instances.is_empty()
-        || views
-            .iter()
-            .any(|v| v.ids.as_ref().is_some_and(|m| m.iter().any(|&i| i != 0)))
-}
-
 /// Builds the untrained scene for `ds` from its training `views`.
 pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<NeuralScene> {
     let n_images = views.len();
@@ -181,7 +172,8 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
     for nb in node_boxes(ds, views, &region, opts)? {
         let key = format!("object-{}", nb.id);
         let node = SceneNode::from_obb(nb.id, &nb.label, &key, &nb.obb);
-        fields.insert(key, Arc::new(object_field(opts, n_images, &node)?));
+        let table = object_table_log2(views, nb.id);
+        fields.insert(key, Arc::new(object_field(opts, n_images, &node, table)?));
         nodes.push(node);
     }
     let scene = Scene {
@@ -206,10 +198,47 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
     Ok(NeuralScene { scene, fields })
 }
 
-/// A new, untrained field for object `node` (its seed from the node's id), as training
-/// gives every object of a dataset.
-pub fn object_field(opts: &SetupOptions, n_images: usize, node: &SceneNode) -> Result<NodeField> {
+/// A visible convex surface's area over its silhouette's (a sphere's: 4πr² / πr²).
+const SURFACE_PER_SILHOUETTE: f64 = 4.0;
+
+/// The hash-table size (log2 entries per level) object `id` needs to hold its surface at
+/// the training views' resolution, about one finest-level cell per pixel: its median
+/// silhouette over the views that see it, in pixels, times [`SURFACE_PER_SILHOUETTE`],
+/// between [`FieldConfig::object`]'s and [`FieldConfig::nerfacto`]'s (a background's).
+/// Small objects keep the small table; one that fills half of every view (a walk-around's
+/// subject) gets the background's.
+pub fn object_table_log2(views: &[View], id: InstanceId) -> u32 {
+    let (lo, hi) = (
+        FieldConfig::object(0).log2_table_size,
+        FieldConfig::nerfacto(0).log2_table_size,
+    );
+    let mut silhouettes: Vec<usize> = views
+        .par_iter()
+        .filter_map(|v| {
+            let n = v.ids.as_ref()?.iter().filter(|&&i| i == id).count();
+            (n > 0).then_some(n)
+        })
+        .collect();
+    if silhouettes.is_empty() {
+        return lo;
+    }
+    silhouettes.sort_unstable();
+    let median = silhouettes[silhouettes.len() / 2] as f64;
+    let need = (median * SURFACE_PER_SILHOUETTE).log2().ceil();
+    (need.max(0.0) as u32).clamp(lo, hi)
+}
+
+/// A new, untrained field for object `node` (its seed from the node's id) with 2^`table`
+/// hash-table entries per level ([`object_table_log2`]), as training gives every object
+/// of a dataset.
+pub fn object_field(
+    opts: &SetupOptions,
+    n_images: usize,
+    node: &SceneNode,
+    table: u32,
+) -> Result<NodeField> {
     let mut c = FieldConfig::object(n_images);
+    c.log2_table_size = table;
     if !opts.appearance {
         c.appearance_dim = 0;
     }
@@ -517,4 +546,35 @@ fn carve_pass(views: &[View], id: InstanceId, region: &Aabb, g: usize) -> Option
         b.extend(p + voxel);
     }
     Some(b)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 512×512 view whose first `n` pixels belong to instance 7.
+    fn seen(n: usize) -> View {
+        let mut v = View::blank(512, 512);
+        let mut ids = vec![0u16; 512 * 512];
+        ids[..n].fill(7);
+        v.ids = Some(ids);
+        v
+    }
+
+    #[test]
+    fn an_objects_table_holds_its_surface_between_the_object_and_background_sizes() {
+        // Small on screen (a desk mug): the object default.
+        assert_eq!(object_table_log2(&[seen(3000), seen(4000)], 7), 16);
+        // Median silhouette 40,000 px: 160,000 surface cells need 2^18.
+        let views = [seen(10), seen(40_000), seen(50_000), View::blank(512, 512)];
+        assert_eq!(object_table_log2(&views, 7), 18);
+        // Half of every view (a walk-around's subject): capped at the background's.
+        assert_eq!(
+            object_table_log2(&[seen(131_072), seen(140_000), seen(200_000)], 7),
+            19
+        );
+        // Seen nowhere, or another id: the default.
+        assert_eq!(object_table_log2(&[], 7), 16);
+        assert_eq!(object_table_log2(&[seen(131_072)], 3), 16);
+    }
 }

@@ -259,13 +259,19 @@ pub fn fill_prior(v: &mut View, kind: PriorKind) {
 }
 
 /// Fills the background prior of every view that has none: from the other views first
-/// with [`PriorKind::MultiView`] (where views have depth), then with the single-view fill.
+/// with [`PriorKind::MultiView`] (where views have depth), then, with `guess`, with the
+/// single-view fill. Without `guess`, what no other view filled keeps no prior: where the
+/// other views see what objects hide (a walk-around), a guess from one image contradicts
+/// them.
 pub fn fill_priors(
     views: &mut [View],
     kind: PriorKind,
+    guess: bool,
 ) -> Option<crate::multiview::MultiViewStats> {
     let stats = (kind == PriorKind::MultiView).then(|| crate::multiview::fill_multiview(views));
-    views.par_iter_mut().for_each(|v| fill_prior(v, kind));
+    if guess {
+        views.par_iter_mut().for_each(|v| fill_prior(v, kind));
+    }
     stats
 }
 

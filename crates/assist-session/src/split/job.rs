@@ -381,7 +381,10 @@ impl SplitJob {
         for (b, &base) in objects.iter().zip(support_bases) {
             let key = fresh(&format!("object-{}", b.id), true);
             let node = SceneNode::from_obb(b.id, &b.label, &key, &b.obb);
-            let mut nf = assist_train::object_field(&opts, bg_field.config.num_images, &node)?;
+            // No masks yet: the object default table.
+            let table = assist_train::object_table_log2(&[], b.id);
+            let mut nf =
+                assist_train::object_field(&opts, bg_field.config.num_images, &node, table)?;
             // The support stays the background's alone (copied, it would show twice).
             let owned = |p| owns(&b.obb, base, p);
             let report = assist_train::distil(

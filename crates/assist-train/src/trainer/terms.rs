@@ -114,7 +114,7 @@ loss_terms! {
     distortion: 0.0, settable: true,
         "The distortion loss of mip-NeRF 360 (Nerfacto's; 0 turns it off): the composited \
          weights of a ray gathered in depth, which removes semi-transparent haze; 0.002 \
-         (Nerfacto's) for an unbounded walk-around without objects (--layout).";
+         (Nerfacto's) for an unbounded walk-around (--layout).";
     empty: 0.0, settable: true,
         "The empty-space term (ours, after Urban Radiance Fields' line-of-sight prior): where \
          the dataset has depth, every node must be empty in front of the surface the depth \
