@@ -288,7 +288,8 @@ pub struct TrainConfig {
     #[arg(long, help_heading = SAMPLING, value_name = "DIR")]
     pub masks: Option<PathBuf>,
     /// Background prior under the objects: multi-view (from the other views that see it,
-    /// where the dataset has depth; push-pull elsewhere), push-pull, exemplar, or none
+    /// where the dataset has depth; push-pull elsewhere, except in an unbounded
+    /// walk-around, whose other views see it themselves), push-pull, exemplar, or none
     /// (none also sets the background's prior weights to 0 unless --prior-dir gives files).
     #[arg(long, help_heading = PRIOR, default_value = "multi-view", value_parser = prior_parser())]
     pub prior: PriorKind,
