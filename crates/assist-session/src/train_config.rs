@@ -310,8 +310,8 @@ pub struct TrainConfig {
     /// How the cameras stand around what they look at: facing one way, all around it
     /// (walk-around: no azimuth gap of 180° or more around the point their axes meet), or
     /// auto (read from the training poses). A walk-around whose background is unbounded
-    /// and which has no objects takes --grid-resolution auto, --grid-decay 1e-6 and
-    /// --lambda-distortion 0.002 unless they are given (measured in BENCHMARKS.md).
+    /// takes --grid-resolution auto, --grid-decay 1e-6 and --lambda-distortion 0.002
+    /// unless they are given, with or without objects (measured in BENCHMARKS.md).
     #[arg(long, help_heading = MODEL, default_value = "auto", value_parser = layout_parser())]
     pub layout: LayoutChoice,
     /// The background's finest hash-grid resolution: cells across its field's cube (the
