@@ -256,7 +256,7 @@ fn proposal_lanes<R: Marching + Copy>(
             .opts
             .jitter
             .then(|| Rng::stream(drawn.opts.seed ^ DRAW_STREAM, (r * 1024 + drawn.k) as u64));
-        let n = drawn.proposal.samples.min(drawn.opts.max_per_node);
+        let n = drawn_samples(drawn.proposal.samples, drawn.opts);
         resample(&steps[c], &w, n, rng.as_mut(), &mut fine, &mut spans);
         p.push(&fine, rays.image[r], local);
     }
@@ -268,6 +268,14 @@ fn proposal_lanes<R: Marching + Copy>(
         rec.start = start;
         rec.spans = spans;
     }
+}
+
+/// How many samples a proposal draws on each ray: its own count divided by the step
+/// scale (so `render --quality draft` draws half, as it marches half), at least one and
+/// at most `max_per_node`.
+pub(crate) fn drawn_samples(samples: usize, opts: &SampleOptions) -> usize {
+    let scaled = (samples as f32 / opts.step_scale.max(f32::MIN_POSITIVE)).round();
+    (scaled as usize).clamp(1, opts.max_per_node.max(1))
 }
 
 /// How much longer a proposal's coarse march steps than the node's own march: its
@@ -565,5 +573,22 @@ mod tests {
             hits > 2_000 && skipped > 2_000,
             "{hits} hits, {skipped} skipped"
         );
+    }
+
+    /// A proposal draws its own count at the default scale, half at a draft's, and
+    /// never none or more than the cap.
+    #[test]
+    fn drawn_samples_follow_the_step_scale() {
+        let at = |step_scale: f32, max_per_node: usize| SampleOptions {
+            step_scale,
+            max_per_node,
+            ..SampleOptions::default()
+        };
+        assert_eq!(drawn_samples(24, &at(1.0, 1024)), 24);
+        assert_eq!(drawn_samples(24, &at(2.0, 1024)), 12);
+        assert_eq!(drawn_samples(24, &at(1.5, 1024)), 16);
+        assert_eq!(drawn_samples(24, &at(0.5, 1024)), 48);
+        assert_eq!(drawn_samples(24, &at(1.0, 10)), 10);
+        assert_eq!(drawn_samples(1, &at(16.0, 1024)), 1);
     }
 }
