@@ -10,6 +10,9 @@ use crate::{Field, Samples};
 pub struct FieldQuery<'a> {
     pub field: &'a Field,
     pub samples: Samples<'a>,
+    /// The code of samples without an image's (`None`: the average code), as
+    /// [`Field::forward_at`] takes it.
+    pub novel: Option<&'a [f32]>,
     pub sigma: &'a mut [f32],
     pub rgb: &'a mut [f32],
 }

@@ -67,6 +67,20 @@ pub fn to_bytes_node(
             .collect();
         bufs.push((name.clone(), shape_of(field, name, *len), bytes, Dtype::F32));
     }
+    if !field.anchors.is_empty() {
+        let bytes: Vec<u8> = field
+            .anchors
+            .iter()
+            .flatten()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        bufs.push((
+            ANCHORS.into(),
+            vec![field.anchors.len(), 3],
+            bytes,
+            Dtype::F32,
+        ));
+    }
     if let Some(o) = occupancy {
         // A cell still in warm-up, or known to hold a surface, is occupied whatever its
         // estimate: it is saved as never measured (infinite), which loads as occupied.
@@ -228,6 +242,7 @@ pub fn from_bytes_node(path: &Path, bytes: &[u8]) -> Result<Loaded, FieldError> 
     let cfg = read_config(path, &md, bytes.len())?;
     let mut field = Field::new(cfg, 0).map_err(|e| fmt_err(path, e.to_string()))?;
     read_params(path, &st, &mut field)?;
+    field.anchors = read_anchors(path, &st, &field)?;
     let occupancy = read_occupancy(path, &st, &md)?;
     let shade = read_shade(path, &st, &md)?;
     let proposal = read_proposal(path, &st, &md)?;
@@ -295,6 +310,7 @@ fn read_params(
     expected.push("occupancy.density");
     expected.push("shade");
     expected.push("proposal");
+    expected.push(ANCHORS);
     for name in st.names() {
         if !expected.contains(&&*name.to_string()) {
             return Err(fmt_err(
@@ -344,6 +360,44 @@ fn read_params(
         }
     }
     Ok(())
+}
+
+/// Tensor of [`Field::anchors`]: `[num_images, 3]`, absent in fields without them.
+const ANCHORS: &str = "appearance.anchors";
+
+/// Where each appearance code's view was taken from, when the file says: one finite
+/// point per code.
+fn read_anchors(
+    path: &Path,
+    st: &safetensors::SafeTensors,
+    field: &Field,
+) -> Result<Vec<[f32; 3]>, FieldError> {
+    let Ok(t) = st.tensor(ANCHORS) else {
+        return Ok(Vec::new());
+    };
+    let n = field.config.num_images;
+    if t.dtype() != Dtype::F32 || t.shape() != [n, 3] || n == 0 {
+        return Err(fmt_err(
+            path,
+            format!(
+                "tensor {ANCHORS:?}: {:?} {:?}, expected F32 [{n}, 3] (one point per appearance code)",
+                t.dtype(),
+                t.shape()
+            ),
+        ));
+    }
+    let v: Vec<f32> = t
+        .data()
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
+    if let Some(bad) = v.iter().position(|x| !x.is_finite()) {
+        return Err(fmt_err(
+            path,
+            format!("tensor {ANCHORS:?}: element {bad} is not finite"),
+        ));
+    }
+    Ok(v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
 }
 
 /// The occupancy grid, when the file has one.

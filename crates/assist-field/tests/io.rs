@@ -263,3 +263,42 @@ fn proposal_round_trips_and_bad_ones_are_named() {
         .to_string();
     assert!(e.contains("metadata.proposal.samples"), "{e}");
 }
+
+/// Where each code's photograph was taken round-trips; a field without them loads
+/// without; a file whose points do not match the codes is refused by name.
+#[test]
+fn anchors_round_trip_and_mismatches_are_named() {
+    let mut field = Field::new(small(), 5).unwrap();
+    let plain = to_bytes(&field, None).unwrap();
+    assert!(
+        from_bytes(Path::new("x"), &plain)
+            .unwrap()
+            .0
+            .anchors
+            .is_empty()
+    );
+    field.anchors = vec![[0.5, -1.0, 2.0], [1.5, 0.0, 0.25], [-3.0, 1.0, 0.0]];
+    let bytes = to_bytes(&field, None).unwrap();
+    let (back, _) = from_bytes(Path::new("x"), &bytes).unwrap();
+    assert_eq!(back.anchors, field.anchors);
+    assert_eq!(back.params, field.params);
+    // Two points for three codes.
+    field.anchors.pop();
+    let bad = to_bytes(&field, None).unwrap();
+    let err = from_bytes(Path::new("f.safetensors"), &bad)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("f.safetensors")
+            && err.contains("appearance.anchors")
+            && err.contains("[3, 3]"),
+        "{err}"
+    );
+    // A point that is not finite.
+    field.anchors = vec![[0.0; 3], [f32::NAN, 0.0, 0.0], [1.0; 3]];
+    let bad = to_bytes(&field, None).unwrap();
+    let err = from_bytes(Path::new("f.safetensors"), &bad)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("not finite"), "{err}");
+}

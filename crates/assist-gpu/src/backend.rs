@@ -146,6 +146,7 @@ impl GpuBackend {
                 continue;
             }
             let k = self.resident(&mut res, q.field)?;
+            res.fields[k].field.set_novel(&self.gpu, q.field, q.novel);
             for a in (0..n).step_by(self.part) {
                 let part = slice(&q.samples, a, (a + self.part).min(n));
                 let staging = res.staging_for(&self.gpu, part.len())?;
@@ -193,6 +194,7 @@ impl FieldBackend for GpuBackend {
         self.forward_all(&mut [FieldQuery {
             field,
             samples: *s,
+            novel: None,
             sigma,
             rgb,
         }])

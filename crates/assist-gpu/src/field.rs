@@ -204,6 +204,20 @@ impl GpuField {
         Ok(())
     }
 
+    /// The code of novel views' samples for the next queries: the last row of the
+    /// code biases, from `novel` or the average code (see `Field::code_biases_for`).
+    pub(crate) fn set_novel(&self, gpu: &Gpu, field: &Field, novel: Option<&[f32]>) {
+        if field.config.appearance_dim == 0 {
+            return;
+        }
+        let out = field.layout.color[0].out;
+        let rows = field.code_biases_for(novel);
+        let last = &rows[field.config.num_images * out..];
+        let at = (field.config.num_images * out * std::mem::size_of::<f32>()) as u64;
+        gpu.queue
+            .write_buffer(&self.code_bias, at, bytemuck::cast_slice(last));
+    }
+
     /// Makes room for `n` samples (buffers grow, never shrink).
     fn reserve(&mut self, gpu: &Gpu, n: usize) -> Result<(), GpuError> {
         if self.io.as_ref().is_some_and(|io| io.capacity >= n) {

@@ -149,3 +149,35 @@ fn a_field_changed_after_a_render_is_uploaded_again() {
     let d = max_diff(&got.rgb, &want.rgb);
     assert!(d < 1e-4, "after the change the GPU's render differs by {d}");
 }
+
+/// Fields that know where their codes' photographs were taken render a novel view with
+/// the blend of the nearest ones' codes (`Field::novel_code`): the same on the GPU as on
+/// the CPU, and not the average code's image.
+#[test]
+fn a_novel_views_blended_code_matches_the_cpu() {
+    let Some(g) = gpu() else { return };
+    let backend = Arc::new(GpuBackend::new(g));
+    let plain = scene();
+    let mut s = plain.clone();
+    for (k, nf) in s.fields.values_mut().enumerate() {
+        let nf = Arc::make_mut(nf);
+        // Four cameras around the node, the first nearest this test's camera.
+        nf.field.anchors = (0..4)
+            .map(|i| {
+                let a = (i as f32 + 0.1 * k as f32) * std::f32::consts::FRAC_PI_2;
+                [2.0 * a.cos(), -2.0 * a.sin(), 0.5]
+            })
+            .collect();
+    }
+    let want = cpu(&s);
+    let got = on(&s, &backend, false);
+    assert!(backend.failure().is_none(), "{:?}", backend.failure());
+    let d = max_diff(&got.rgb, &want.rgb);
+    assert!(d < 1e-4, "rgb differs by {d}");
+    let average = cpu(&plain);
+    let moved = max_diff(&want.rgb, &average.rgb);
+    assert!(moved > 1e-3, "the blend changed nothing ({moved})");
+    // The GPU goes back to the average code for a scene without anchors.
+    let back = on(&plain, &backend, false);
+    assert!(max_diff(&back.rgb, &average.rgb) < 1e-4);
+}

@@ -127,6 +127,7 @@ fn sampling_and_query(opts: &RenderOptions) -> (SampleOptions, Query<'_>) {
         highlight: opts.highlight,
         tables: opts.tables.as_deref(),
         backend: opts.backend.as_deref(),
+        eye: opts.eye,
     };
     (so, q)
 }
@@ -185,6 +186,7 @@ pub fn render_camera_moving(
     moving: InstanceId,
     cache: &mut DragCache,
 ) -> RenderedImage {
+    let opts = &*crate::appearance::seen_from(opts, camera, image);
     let Some(k) = scene.scene.nodes.iter().position(|n| n.id == moving) else {
         cache.clear();
         return render_camera(scene, camera, image, opts);

@@ -13,6 +13,7 @@
 #![forbid(unsafe_code)]
 
 mod alone;
+mod appearance;
 mod batch;
 mod composite;
 mod drag;

@@ -158,6 +158,7 @@ pub(crate) fn query_stage(
         highlight: opts.highlight,
         tables: opts.tables.as_deref(),
         backend: opts.backend.as_deref(),
+        eye: opts.eye,
     };
     let t = std::time::Instant::now();
     if opts.prune_eps > 0.0 && opts.backend.is_none() {

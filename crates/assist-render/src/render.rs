@@ -46,6 +46,10 @@ pub struct RenderOptions {
     /// GPU queries all samples for less than the CPU would spend choosing). `None`: the
     /// CPU.
     pub backend: Option<std::sync::Arc<dyn FieldBackend>>,
+    /// Where the camera stands (world): samples without an image's code take the blend
+    /// of the codes of the training views taken nearest there ([`assist_field::Field::
+    /// novel_code`]). `render_camera` sets it from its camera; `None`: the average code.
+    pub eye: Option<[f64; 3]>,
 }
 
 impl RenderOptions {
@@ -91,6 +95,7 @@ impl Default for RenderOptions {
             tables: None,
             cancel: None,
             backend: None,
+            eye: None,
         }
     }
 }
@@ -232,6 +237,8 @@ pub enum Query<'a> {
         tables: Option<&'a SceneTables>,
         /// Queries the fields there rather than on this CPU (see [`RenderOptions::backend`]).
         backend: Option<&'a dyn FieldBackend>,
+        /// The camera's centre, for novel views' codes (see [`RenderOptions::eye`]).
+        eye: Option<[f64; 3]>,
     },
     /// For a training step: in f32, keeping each node's tape for the backward pass and
     /// leaving room for the gradients.
@@ -245,9 +252,10 @@ pub fn query_fields(scene: &NeuralScene, traced: &mut Traced, tapes: &mut Vec<Ta
     if let Query::Render {
         backend: Some(b),
         highlight,
+        eye,
         ..
     } = q
-        && query_all_on(b, scene, traced)
+        && query_all_on(b, scene, traced, eye)
     {
         for ns in &mut traced.nodes {
             relight(scene, ns.node, &ns.pos, &mut ns.rgb);
@@ -262,7 +270,12 @@ pub fn query_fields(scene: &NeuralScene, traced: &mut Traced, tapes: &mut Vec<Ta
 
 /// Every node's samples queried on `backend` in one call (so a GPU waits once per batch,
 /// not once per node); false when it failed (the caller then queries on this CPU).
-fn query_all_on(backend: &dyn FieldBackend, scene: &NeuralScene, traced: &mut Traced) -> bool {
+fn query_all_on(
+    backend: &dyn FieldBackend,
+    scene: &NeuralScene,
+    traced: &mut Traced,
+    eye: Option<[f64; 3]>,
+) -> bool {
     let mut outs: Vec<(Vec<f32>, Vec<f32>)> = traced
         .nodes
         .iter_mut()
@@ -271,14 +284,21 @@ fn query_all_on(backend: &dyn FieldBackend, scene: &NeuralScene, traced: &mut Tr
             (std::mem::take(&mut ns.sigma), std::mem::take(&mut ns.rgb))
         })
         .collect();
+    let codes: Vec<Option<Vec<f32>>> = traced
+        .nodes
+        .iter()
+        .map(|ns| crate::appearance::novel_code(scene, ns.node, eye))
+        .collect();
     let mut queries: Vec<assist_field::FieldQuery> = traced
         .nodes
         .iter()
         .zip(outs.iter_mut())
-        .filter(|(ns, _)| !ns.is_empty())
-        .map(|(ns, (sigma, rgb))| assist_field::FieldQuery {
+        .zip(&codes)
+        .filter(|((ns, _), _)| !ns.is_empty())
+        .map(|((ns, (sigma, rgb)), code)| assist_field::FieldQuery {
             field: &scene.field_of(ns.node).field,
             samples: ns.samples(),
+            novel: code.as_deref(),
             sigma,
             rgb,
         })
@@ -385,17 +405,33 @@ pub fn query_node(scene: &NeuralScene, ns: &mut NodeSamples, tape: &mut Tape, q:
             precision,
             highlight,
             backend,
+            eye,
             ..
         } => {
             let tables = crate::tables::for_node(scene, ns.node, &q);
+            let code = crate::appearance::novel_code(scene, ns.node, eye);
             // A backend that fails falls back to this CPU (it keeps its error to report).
             let elsewhere = backend.is_some_and(|b| {
-                b.forward(&nf.field, &ns.samples(), &mut sigma, &mut rgb)
-                    .is_ok()
+                b.forward_all(&mut [assist_field::FieldQuery {
+                    field: &nf.field,
+                    samples: ns.samples(),
+                    novel: code.as_deref(),
+                    sigma: &mut sigma,
+                    rgb: &mut rgb,
+                }])
+                .is_ok()
             });
             if !elsewhere {
-                nf.field
-                    .forward_at(precision, tables, &ns.samples(), tape, &mut sigma, &mut rgb);
+                let s = ns.samples();
+                nf.field.forward_at(
+                    precision,
+                    tables,
+                    code.as_deref(),
+                    &s,
+                    tape,
+                    &mut sigma,
+                    &mut rgb,
+                );
             }
             relight(scene, ns.node, &ns.pos, &mut rgb);
             add_highlight(scene, ns.node, &mut rgb, highlight);
@@ -487,6 +523,7 @@ pub fn render_camera_timed(
     opts: &RenderOptions,
 ) -> (RenderedImage, RenderStats) {
     let start = std::time::Instant::now();
+    let opts = &*crate::appearance::seen_from(opts, camera, image);
     let mut stats = RenderStats::default();
     let mut img = RenderedImage::empty(scene, camera, opts.layers);
     let pixels_n = img.opacity.len();

@@ -234,6 +234,7 @@ fn batch_backward_matches_finite_differences() {
         highlight: None,
         tables: None,
         backend: None,
+        eye: None,
     };
     assist_render::query_fields(&s, &mut traced, &mut tapes, q);
     let bg = s.scene.background_color;

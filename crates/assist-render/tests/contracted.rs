@@ -210,6 +210,7 @@ fn f32_query() -> assist_render::Query<'static> {
         highlight: None,
         tables: None,
         backend: None,
+        eye: None,
     }
 }
 
@@ -273,6 +274,7 @@ fn a_whole_query_cut_afterwards_keeps_what_the_rounds_keep() {
         highlight: None,
         tables: Some(&tables),
         backend: None,
+        eye: None,
     };
     let eps = 1e-4f32;
     let traced = oblique_samples(&s);

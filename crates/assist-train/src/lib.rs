@@ -50,7 +50,7 @@ pub use optimizer::{CpuOptimizer, NodeOptimizer, OptimizerFactory};
 pub use setup::{
     BackgroundSpace, BoxSource, NodeBox, SetupOptions, background_color, build_scene,
     is_object_capture, near_plane, node_boxes, object_field, object_table_log2,
-    scene_param_estimate, scene_region,
+    scene_param_estimate, scene_region, set_anchors,
 };
 pub use shadow::{
     ShadowEstimate, ShadowPriorStats, add_shadow_grids, estimate_shadows, shadow_free_priors,

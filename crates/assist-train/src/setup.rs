@@ -195,7 +195,39 @@ pub fn build_scene(ds: &Dataset, views: &[View], opts: &SetupOptions) -> Result<
     };
     let mut scene = scene;
     scene.register_classes();
-    Ok(NeuralScene { scene, fields })
+    let mut scene = NeuralScene { scene, fields };
+    set_anchors(&mut scene, views);
+    Ok(scene)
+}
+
+/// Records where each training view's camera stood ([`Field::anchors`], in each node's
+/// local frame) in every field with one appearance code per view that has none yet, so
+/// that views from elsewhere take the codes of the nearest ones. Fields whose codes are
+/// of other photographs (another capture's node) are left as they are.
+pub fn set_anchors(scene: &mut NeuralScene, views: &[View]) {
+    let NeuralScene { scene, fields } = scene;
+    for node in &scene.nodes {
+        let Some(nf) = fields.get_mut(&node.field) else {
+            continue;
+        };
+        let f = &nf.field;
+        if f.config.appearance_dim == 0
+            || f.config.num_images != views.len()
+            || !f.anchors.is_empty()
+        {
+            continue;
+        }
+        let anchors = views
+            .iter()
+            .map(|v| {
+                let p = node
+                    .world_from_local
+                    .local_from_world_point(v.camera.pose.center());
+                p.as_vec3().to_array()
+            })
+            .collect();
+        Arc::make_mut(nf).field.anchors = anchors;
+    }
 }
 
 /// A visible convex surface's area over its silhouette's (a sphere's: 4πr² / πr²).

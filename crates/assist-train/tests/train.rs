@@ -298,6 +298,7 @@ fn haze_in_front_of_surfaces(scene: &assist_scene::NeuralScene, ds: &Dataset) ->
             highlight: None,
             tables: None,
             backend: None,
+            eye: None,
         };
         assist_render::query_fields(scene, &mut traced, &mut Vec::new(), q);
         let mut out = BatchOutput::default();
@@ -564,4 +565,38 @@ fn training_with_a_proposal_repeats_bit_for_bit() {
         assert!(other.0 == first.0, "run {again}: the field differs");
         assert!(other.1 == first.1, "run {again}: the proposal differs");
     }
+}
+
+/// A scene built with appearance codes records where each training view's camera stood,
+/// in each node's own frame, so that novel views take the nearest views' codes; a scene
+/// built without codes records none.
+#[test]
+fn fields_with_codes_record_their_views_cameras() {
+    let ds = assist_data::load(synth(), &LoadOptions::default()).unwrap();
+    let views = load_views(&ds, Split::Train, background_color(&ds)).unwrap();
+    let setup = SetupOptions {
+        appearance: true,
+        ..SetupOptions::default()
+    };
+    let scene = build_scene(&ds, &views, &setup).unwrap();
+    assert!(scene.scene.nodes.len() > 1);
+    for node in &scene.scene.nodes {
+        let f = &scene.fields[&node.field].field;
+        assert_eq!(f.anchors.len(), views.len(), "{}", node.label);
+        for (a, v) in f.anchors.iter().zip(&views) {
+            let back = node
+                .world_from_local
+                .transform_point(assist_core::DVec3::from_array(a.map(f64::from)));
+            let d = (back - v.camera.pose.center()).length();
+            assert!(d < 1e-4 * (1.0 + back.length()), "{}: {d}", node.label);
+        }
+        // The view a code belongs to takes that code back.
+        let at = f.anchors[1].map(f64::from);
+        let code = f.novel_code(at).unwrap();
+        let a = f.config.appearance_dim;
+        let own = &f.params[f.layout.appearance + a..][..a];
+        assert!(code.iter().zip(own).all(|(x, y)| (x - y).abs() < 1e-5));
+    }
+    let plain = build_scene(&ds, &views, &SetupOptions::default()).unwrap();
+    assert!(plain.fields.values().all(|nf| nf.field.anchors.is_empty()));
 }

@@ -198,7 +198,15 @@ fn bench_one(
         let mut scratch = Tape::default();
         for i in 0..a.steps + 1 {
             let t0 = Instant::now();
-            field.forward_at(precision, packed, &s, &mut scratch, &mut sig, &mut rgb);
+            field.forward_at(
+                precision,
+                packed,
+                None,
+                &s,
+                &mut scratch,
+                &mut sig,
+                &mut rgb,
+            );
             if i >= 1 {
                 times.push(t0.elapsed().as_secs_f64());
             }

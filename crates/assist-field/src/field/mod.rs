@@ -16,6 +16,7 @@ use assist_simd::fixed16::{self, QuantA};
 
 use crate::mlp::{Linear, bias_act};
 
+mod appearance;
 mod backward;
 mod layout;
 
@@ -101,6 +102,10 @@ pub struct Field {
     pub config: FieldConfig,
     pub layout: ParamLayout,
     pub params: Vec<f32>,
+    /// Where each appearance code's photograph was taken from: its camera's centre in
+    /// the field's local frame, one per code (empty: not known, and novel views take the
+    /// average code; see [`Field::novel_code`]).
+    pub anchors: Vec<[f32; 3]>,
 }
 
 /// Copies one chunk's σ and RGB rows into the interleaved outputs.
@@ -146,6 +151,7 @@ impl Field {
             config,
             layout,
             params,
+            anchors: Vec::new(),
         })
     }
 
@@ -173,22 +179,6 @@ impl Field {
             .map(|l| l.out * l.inp)
             .sum::<usize>()
             + c0.out * self.code_col()
-    }
-
-    fn average_code(&self) -> Vec<f32> {
-        let a = self.config.appearance_dim;
-        let mut avg = vec![0.0f32; a];
-        if a == 0 || self.config.num_images == 0 {
-            return avg;
-        }
-        for i in 0..self.config.num_images {
-            for k in 0..a {
-                avg[k] += self.params[self.layout.appearance + i * a + k];
-            }
-        }
-        avg.iter_mut()
-            .for_each(|v| *v /= self.config.num_images as f32);
-        avg
     }
 
     /// Fills the colour-net input rows of one chunk that go through the product: geometry
@@ -228,35 +218,6 @@ impl Field {
     /// First column of the appearance code in the first colour layer's weights.
     fn code_col(&self) -> usize {
         self.config.geo_features + self.config.sh_width()
-    }
-
-    /// The first colour layer's bias for every appearance code, `out` floats each:
-    /// `b + W_app · code` for each image, then the average code (novel views) last. The
-    /// code is constant over the samples of an image, so its part of the product is folded
-    /// into the bias once per call instead of being multiplied per sample. Public for other
-    /// backends of the same field (the GPU's), which fold the code the same way.
-    pub fn code_biases(&self) -> Vec<f32> {
-        let l = &self.layout.color[0];
-        let (a, k0) = (self.config.appearance_dim, self.code_col());
-        let b = &self.params[l.b..l.b + l.out];
-        if a == 0 {
-            return b.to_vec();
-        }
-        let avg = self.average_code();
-        let mut out = Vec::with_capacity((self.config.num_images + 1) * l.out);
-        for i in 0..=self.config.num_images {
-            let code = if i < self.config.num_images {
-                let o = self.layout.appearance + i * a;
-                &self.params[o..o + a]
-            } else {
-                &avg[..]
-            };
-            for o in 0..l.out {
-                let w = &self.params[l.w + o * l.inp_pad + k0..l.w + o * l.inp_pad + k0 + a];
-                out.push(b[o] + w.iter().zip(code).map(|(w, c)| w * c).sum::<f32>());
-            }
-        }
-        out
     }
 
     /// Which row of `code_biases` sample `i` uses.
@@ -414,7 +375,7 @@ impl Field {
         sigma: &mut [f32],
         rgb: &mut [f32],
     ) {
-        self.forward_at(Precision::F32, None, s, scratch, sigma, rgb)
+        self.forward_at(Precision::F32, None, None, s, scratch, sigma, rgb)
     }
 
     /// The MLP weights of each product, in product order (density 0 and 1, then the
@@ -451,10 +412,14 @@ impl Field {
     /// either way; `Precision::Bf16`'s products are `assist_simd::products`').
     /// The encoding reads `tables` (this field's packed copy, see [`PackedTables`]) where
     /// given, else the f32 parameters.
+    /// `novel` is the code of samples without an image's (`u32::MAX`; `None`: the
+    /// average code; see [`Field::novel_code`]).
+    #[allow(clippy::too_many_arguments)]
     pub fn forward_at(
         &self,
         precision: Precision,
         tables: Option<&PackedTables>,
+        novel: Option<&[f32]>,
         s: &Samples,
         scratch: &mut Tape,
         sigma: &mut [f32],
@@ -470,13 +435,15 @@ impl Field {
         scratch.n = 0;
         let enc = &mut scratch.enc[..need];
         self.encode(s.pos, tables, enc);
-        self.nets(precision, s, &*enc, width, sigma, rgb);
+        self.nets(precision, novel, s, &*enc, width, sigma, rgb);
     }
 
     /// The nets over every chunk of `s`, from the encoding (`width` rows per chunk).
+    #[allow(clippy::too_many_arguments)]
     fn nets(
         &self,
         precision: Precision,
+        novel: Option<&[f32]>,
         s: &Samples,
         input: &[f32],
         width: usize,
@@ -485,7 +452,7 @@ impl Field {
     ) {
         let n = s.len();
         let rows = self.rows();
-        let biases = self.code_biases();
+        let biases = self.code_biases_for(novel);
         let packed = self.reduced(precision);
         let max_in = self.max_inputs();
         let block = width * CHUNK;

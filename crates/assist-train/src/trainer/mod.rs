@@ -128,10 +128,12 @@ impl Trainer {
         Ok(())
     }
 
-    pub fn new(scene: NeuralScene, views: Vec<View>, opts: TrainOptions) -> Result<Self> {
+    pub fn new(mut scene: NeuralScene, views: Vec<View>, opts: TrainOptions) -> Result<Self> {
         if views.is_empty() {
             return Err(TrainError::Other("no training images".into()));
         }
+        // Scenes saved before fields recorded their views, and nodes made since (a split).
+        crate::setup::set_anchors(&mut scene, &views);
         let keys: std::collections::BTreeSet<&String> =
             scene.scene.nodes.iter().map(|n| &n.field).collect();
         if keys.len() != scene.scene.nodes.len() {
