@@ -116,6 +116,7 @@ fn fits_an_image_through_a_slice() {
     field.forward_at(
         assist_field::Precision::F32,
         Some(&tables),
+        None,
         &Samples {
             pos: [&px, &py, &pz],
             dir: [&dx, &dy, &dz],
@@ -156,6 +157,7 @@ fn fits_an_image_through_a_slice() {
         assist_simd::with_products(kind, || {
             field.forward_at(
                 assist_field::Precision::Bf16,
+                None,
                 None,
                 &Samples {
                     pos: [&px, &py, &pz],

@@ -29,14 +29,31 @@ impl FieldBackend for ThisCpu {
         sigma: &mut [f32],
         rgb: &mut [f32],
     ) -> Result<(), String> {
-        field.forward_at(Precision::F32, None, s, &mut Tape::default(), sigma, rgb);
+        field.forward_at(
+            Precision::F32,
+            None,
+            None,
+            s,
+            &mut Tape::default(),
+            sigma,
+            rgb,
+        );
         Ok(())
     }
 
     fn forward_all(&self, queries: &mut [FieldQuery<'_>]) -> Result<(), String> {
         self.batches.fetch_add(1, Ordering::Relaxed);
         for q in queries {
-            self.forward(q.field, &q.samples, q.sigma, q.rgb)?;
+            let s = q.samples;
+            q.field.forward_at(
+                Precision::F32,
+                None,
+                q.novel,
+                &s,
+                &mut Tape::default(),
+                q.sigma,
+                q.rgb,
+            );
         }
         Ok(())
     }

@@ -299,7 +299,9 @@ pub struct TrainConfig {
     /// replace the built-in fill; images without one keep it.
     #[arg(long, help_heading = PRIOR, value_name = "DIR")]
     pub prior_dir: Option<PathBuf>,
-    /// Per-image appearance embeddings (auto: on for real captures, COLMAP and LLFF).
+    /// Per-image appearance embeddings (auto: on for real captures, COLMAP and LLFF). A
+    /// view from elsewhere takes the blend of the codes of the three training views taken
+    /// nearest to its camera.
     #[arg(long, help_heading = MODEL, value_enum, default_value_t = Appearance::Auto)]
     pub appearance: Appearance,
     /// The background node's space: contracted (a box kept linearly, all space beyond it
