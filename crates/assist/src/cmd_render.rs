@@ -69,9 +69,10 @@ pub struct RenderArgs {
     /// line win).
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
-    /// How finely rays are marched: `full` (as trained) or `draft` (steps twice as long:
-    /// half the samples per ray and about half the time; measured PSNR cost 0.02–0.08 dB
-    /// on real captures (beer, fern), 1.0–1.4 dB on object scenes (desk, lego_400)).
+    /// How finely rays are sampled: `full` (as trained) or `draft` (half the samples per
+    /// ray: steps twice as long, and half the samples a proposal draws; 0.5–0.8 of the
+    /// time; measured PSNR cost 0.8–2.7 dB on real captures (gold_cape, fern, beer),
+    /// 2.3–5.3 dB on object scenes (lego_400, desk)).
     #[arg(long, value_enum, default_value_t = Quality::Full)]
     pub quality: Quality,
     /// Print a JSON summary (views, folder, outputs) on stdout.
