@@ -9,7 +9,8 @@ use assist_core::Ray;
 pub struct RayBatch {
     pub origin: Vec<[f32; 3]>,
     pub dir: Vec<[f32; 3]>,
-    /// Appearance code per ray; `u32::MAX` = the average code (novel views).
+    /// Appearance code per ray; `u32::MAX` = a novel view's (the render's blend, else the
+    /// average code).
     pub image: Vec<u32>,
     /// Samples closer than this (world distance) are ignored.
     pub near: f32,

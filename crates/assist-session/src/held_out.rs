@@ -142,7 +142,7 @@ impl HeldOutSet {
         self.measure(&t.scene, s.iteration, s.elapsed, Some(preview))
     }
 
-    /// Renders the views with `scene` (the average appearance) and scores them; with
+    /// Renders the views with `scene` (the nearest training views' codes) and scores them; with
     /// `preview`, writes the first view beside its render there.
     pub(crate) fn measure(
         &self,

@@ -71,7 +71,8 @@ pub const MAX_RAW_DENSITY: f32 = 15.0;
 
 /// Per-sample inputs, structure of arrays. Positions are in the node's canonical box
 /// scaled to [0, 1]³; directions are unit vectors in the same frame. `image[i]` selects an
-/// appearance code; `u32::MAX` (or an empty slice) means the average code (novel views).
+/// appearance code; `u32::MAX` (or an empty slice) means a novel view's code
+/// (`novel` where a query takes one, else the average code).
 #[derive(Clone, Copy)]
 pub struct Samples<'a> {
     pub pos: [&'a [f32]; 3],
