@@ -386,6 +386,12 @@ fn read_anchors(
             ),
         ));
     }
+    let v = finite_f32s(path, ANCHORS, &t)?;
+    Ok(v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+}
+
+/// Tensor `name`'s values (F32, little-endian), each one finite.
+fn finite_f32s(path: &Path, name: &str, t: &TensorView) -> Result<Vec<f32>, FieldError> {
     let v: Vec<f32> = t
         .data()
         .chunks_exact(4)
@@ -394,10 +400,10 @@ fn read_anchors(
     if let Some(bad) = v.iter().position(|x| !x.is_finite()) {
         return Err(fmt_err(
             path,
-            format!("tensor {ANCHORS:?}: element {bad} is not finite"),
+            format!("tensor {name:?}: element {bad} is not finite"),
         ));
     }
-    Ok(v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+    Ok(v)
 }
 
 /// The occupancy grid, when the file has one.
@@ -523,17 +529,7 @@ fn read_proposal(
             ),
         ));
     }
-    let params: Vec<f32> = t
-        .data()
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
-    if let Some(bad) = params.iter().position(|v| !v.is_finite()) {
-        return Err(fmt_err(
-            path,
-            format!("tensor \"proposal\": element {bad} is not finite"),
-        ));
-    }
+    let params = finite_f32s(path, "proposal", &t)?;
     let field = ProposalField::with_params(config, params)
         .map_err(|e| fmt_err(path, format!("tensor \"proposal\": {e}")))?;
     Ok(Some(Proposal { field, samples }))

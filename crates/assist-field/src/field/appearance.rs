@@ -36,20 +36,29 @@ impl Field {
     /// into the bias once per call instead of being multiplied per sample. Public for other
     /// backends of the same field (the GPU's), which fold the code the same way.
     pub fn code_biases(&self) -> Vec<f32> {
+        self.code_biases_for(None)
+    }
+
+    /// [`Field::code_biases`] with the last row (novel views') from `novel`, a code of
+    /// `appearance_dim` values, instead of the average code.
+    pub fn code_biases_for(&self, novel: Option<&[f32]>) -> Vec<f32> {
         let l = &self.layout.color[0];
         let (a, k0) = (self.config.appearance_dim, self.code_col());
         let b = &self.params[l.b..l.b + l.out];
         if a == 0 {
             return b.to_vec();
         }
-        let avg = self.average_code();
+        let last = match novel.filter(|c| c.len() == a) {
+            Some(c) => c.to_vec(),
+            None => self.average_code(),
+        };
         let mut out = Vec::with_capacity((self.config.num_images + 1) * l.out);
         for i in 0..=self.config.num_images {
             let code = if i < self.config.num_images {
                 let o = self.layout.appearance + i * a;
                 &self.params[o..o + a]
             } else {
-                &avg[..]
+                &last[..]
             };
             for o in 0..l.out {
                 let w = &self.params[l.w + o * l.inp_pad + k0..l.w + o * l.inp_pad + k0 + a];
@@ -92,24 +101,6 @@ impl Field {
             }
         }
         Some(code)
-    }
-
-    /// [`Field::code_biases`] with the last row (novel views') from `novel`, a code of
-    /// `appearance_dim` values, instead of the average code.
-    pub fn code_biases_for(&self, novel: Option<&[f32]>) -> Vec<f32> {
-        let mut out = self.code_biases();
-        let l = &self.layout.color[0];
-        let (a, k0) = (self.config.appearance_dim, self.code_col());
-        let Some(code) = novel.filter(|c| a > 0 && c.len() == a) else {
-            return out;
-        };
-        let row = self.config.num_images * l.out;
-        for o in 0..l.out {
-            let w = &self.params[l.w + o * l.inp_pad + k0..][..a];
-            out[row + o] =
-                self.params[l.b + o] + w.iter().zip(code).map(|(w, c)| w * c).sum::<f32>();
-        }
-        out
     }
 }
 
