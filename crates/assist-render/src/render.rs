@@ -243,6 +243,9 @@ pub enum Query<'a> {
     /// For a training step: in f32, keeping each node's tape for the backward pass and
     /// leaving room for the gradients.
     Train,
+    /// As `Train`, for a camera no photograph was taken from (fitting a held-out view):
+    /// its samples take the novel view's code seen from `eye`, as its render does.
+    Fit { eye: Option<[f64; 3]> },
 }
 
 /// Queries every node's field at its samples: the one query path of rendering and
@@ -389,7 +392,7 @@ fn add_highlight(
 
 /// Queries one node's samples (see [`query_fields`]).
 pub fn query_node(scene: &NeuralScene, ns: &mut NodeSamples, tape: &mut Tape, q: Query) {
-    ns.prepare_outputs(matches!(q, Query::Train));
+    ns.prepare_outputs(matches!(q, Query::Train | Query::Fit { .. }));
     if ns.is_empty() {
         return;
     }
@@ -401,6 +404,12 @@ pub fn query_node(scene: &NeuralScene, ns: &mut NodeSamples, tape: &mut Tape, q:
         Query::Train => nf
             .field
             .forward_train(&ns.samples(), tape, &mut sigma, &mut rgb),
+        Query::Fit { eye } => {
+            let code = crate::appearance::novel_code(scene, ns.node, eye);
+            let s = ns.samples();
+            nf.field
+                .forward_train_novel(&s, code.as_deref(), tape, &mut sigma, &mut rgb)
+        }
         Query::Render {
             precision,
             highlight,

@@ -103,7 +103,16 @@ impl Batch {
 
     /// Traces, queries and composites the drawn rays; with `grad`, the gradient of the
     /// mean squared error is left in the nodes' samples. Returns the mean squared error.
-    fn run(&mut self, scene: &NeuralScene, seed: u64, jitter: bool, grad: bool) -> f64 {
+    /// `eye` is the held-out camera's centre: its samples take the novel view's
+    /// appearance code seen from there, as its render does.
+    fn run(
+        &mut self,
+        scene: &NeuralScene,
+        seed: u64,
+        jitter: bool,
+        grad: bool,
+        eye: [f64; 3],
+    ) -> f64 {
         let so = SampleOptions {
             jitter,
             seed,
@@ -123,7 +132,12 @@ impl Batch {
             &mut self.tapes,
         );
         shade_background(scene, &self.rays, &mut self.traced);
-        query_fields(scene, &mut self.traced, &mut self.tapes, Query::Train);
+        query_fields(
+            scene,
+            &mut self.traced,
+            &mut self.tapes,
+            Query::Fit { eye: Some(eye) },
+        );
         let n = self.targets.len().max(1) as f32;
         let targets = &self.targets;
         let grad_fn = |o: &RayOutputs, g: &mut CompositeGrad, _: &mut [CompositeGrad]| {
@@ -187,14 +201,17 @@ pub fn align_camera(
     if usable.is_empty() {
         return unchanged;
     }
+    // The code of the given camera's place throughout, so that the fit moves the camera,
+    // not the code it sees.
+    let eye = camera.pose.center().to_array();
     b.draw(scene, camera, rgb, check.iter().copied(), &poses);
-    let before = b.run(scene, opts.seed, false, false);
+    let before = b.run(scene, opts.seed, false, false, eye);
     let no_views = vec![0u32; opts.rays];
     for step in 0..opts.steps {
         let mut rng = Rng::stream(opts.seed, 1 + step as u64);
         let pixels = (0..opts.rays).map(|_| usable[rng.below(usable.len() as u64) as usize]);
         b.draw(scene, camera, rgb, pixels, &poses);
-        b.run(scene, opts.seed.wrapping_add(step as u64), true, true);
+        b.run(scene, opts.seed.wrapping_add(step as u64), true, true, eye);
         for (ns, tape) in b.traced.nodes.iter().zip(b.tapes.iter_mut()) {
             if !ns.is_empty() {
                 let f = &scene.field_of(ns.node).field;
@@ -207,7 +224,7 @@ pub fn align_camera(
         poses.step(opts.lr * 0.1f32.powf(progress));
     }
     b.draw(scene, camera, rgb, check.iter().copied(), &poses);
-    let after = b.run(scene, opts.seed, false, false);
+    let after = b.run(scene, opts.seed, false, false, eye);
     let (t, r) = poses.correction(0);
     // A NaN loss counts as not lowered.
     if after.partial_cmp(&before) != Some(std::cmp::Ordering::Less) {

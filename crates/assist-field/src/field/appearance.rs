@@ -148,7 +148,8 @@ mod tests {
         // Samples of a novel view with that code render as the photograph's own.
         let (x, y, z) = ([0.3f32, 0.6], [0.5f32, 0.2], [0.7f32, 0.4]);
         let d = ([0.0f32, 0.6], [0.0f32, 0.0], [1.0f32, 0.8]);
-        let run = |image: &[u32], novel: Option<&[f32]>| {
+        // Rendering's query and training's (a held-out camera's fit) alike.
+        let run = |image: &[u32], novel: Option<&[f32]>, train: bool| {
             let s = Samples {
                 pos: [&x, &y, &z],
                 dir: [&d.0, &d.1, &d.2],
@@ -156,24 +157,30 @@ mod tests {
             };
             let (mut sig, mut rgb) = (vec![0.0; 2], vec![0.0; 6]);
             let mut tape = crate::Tape::default();
-            f.forward_at(
-                crate::Precision::F32,
-                None,
-                novel,
-                &s,
-                &mut tape,
-                &mut sig,
-                &mut rgb,
-            );
+            if train {
+                f.forward_train_novel(&s, novel, &mut tape, &mut sig, &mut rgb);
+            } else {
+                f.forward_at(
+                    crate::Precision::F32,
+                    None,
+                    novel,
+                    &s,
+                    &mut tape,
+                    &mut sig,
+                    &mut rgb,
+                );
+            }
             rgb
         };
-        let own = run(&[2, 2], None);
-        let novel = run(&[u32::MAX, u32::MAX], Some(&at2));
-        let average = run(&[u32::MAX, u32::MAX], None);
-        for (p, q) in own.iter().zip(&novel) {
-            assert!((p - q).abs() < 1e-5, "{own:?} {novel:?}");
+        for train in [false, true] {
+            let own = run(&[2, 2], None, train);
+            let novel = run(&[u32::MAX, u32::MAX], Some(&at2), train);
+            let average = run(&[u32::MAX, u32::MAX], None, train);
+            for (p, q) in own.iter().zip(&novel) {
+                assert!((p - q).abs() < 1e-5, "train {train}: {own:?} {novel:?}");
+            }
+            assert!(own.iter().zip(&average).any(|(p, q)| (p - q).abs() > 1e-4));
         }
-        assert!(own.iter().zip(&average).any(|(p, q)| (p - q).abs() > 1e-4));
     }
 
     /// Without anchors (fields trained before them), or without codes, novel views keep

@@ -85,6 +85,19 @@ impl Field {
 
     /// Training forward: like `forward`, recording activations in `tape`.
     pub fn forward_train(&self, s: &Samples, tape: &mut Tape, sigma: &mut [f32], rgb: &mut [f32]) {
+        self.forward_train_novel(s, None, tape, sigma, rgb)
+    }
+
+    /// [`Field::forward_train`] where samples without an image's code (`u32::MAX`) take
+    /// `novel` (`None`: the average code), as [`Field::forward_at`] does.
+    pub fn forward_train_novel(
+        &self,
+        s: &Samples,
+        novel: Option<&[f32]>,
+        tape: &mut Tape,
+        sigma: &mut [f32],
+        rgb: &mut [f32],
+    ) {
         let n = s.len();
         assert!(sigma.len() >= n && rgb.len() >= 3 * n);
         let width = self.config.encoding_rows();
@@ -113,7 +126,7 @@ impl Field {
         }
         let t1 = std::time::Instant::now();
         tape.times.encode_forward += (t1 - t0).as_secs_f64();
-        let biases = self.code_biases();
+        let biases = self.code_biases_for(novel);
         let block = width * CHUNK;
         let enc = &tape.enc;
         tape.act[..nc * rows.total * CHUNK]
