@@ -79,6 +79,7 @@ pub fn load(dir: &Path) -> Result<Dataset> {
         points: vec![],
         depth_range: None,
         split_declared: true,
+        rendered: true,
         split_source: "transforms_{train,val,test}.json".into(),
         bounds,
         normalization,

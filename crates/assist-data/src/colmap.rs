@@ -209,6 +209,7 @@ pub fn load_dataset(model_dir: &Path, format: Format) -> Result<Dataset> {
         points,
         depth_range: None,
         split_declared: false,
+        rendered: false,
         split_source: "every 8th image (sorted by name) held out for test".into(),
         bounds,
         normalization,

@@ -176,6 +176,12 @@ pub struct Dataset {
     /// Whether the dataset declares its split (split.json, `*_filenames`, Blender's files)
     /// rather than following a hold-out rule (every 8th frame for test).
     pub split_declared: bool,
+    /// Whether the images were rendered rather than photographed: a Blender dataset, or a
+    /// `transforms.json` that names its `renderer` (as desk's does, and every dataset
+    /// assist writes). Rendered views agree in exposure and white balance, so they need no
+    /// per-image appearance codes; photographs (COLMAP, LLFF, `assist process`,
+    /// nerfstudio's own captures) do.
+    pub rendered: bool,
     pub bounds: SceneBounds,
     pub normalization: Normalization,
     /// Instance masks found in a `masks/` folder beside the images ([`crate::masks`]).

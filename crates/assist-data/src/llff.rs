@@ -168,6 +168,7 @@ pub fn load(dir: &Path, factor: Option<u32>) -> Result<Dataset> {
         points: vec![],
         depth_range,
         split_declared: false,
+        rendered: false,
         split_source: format!(
             "every 8th image held out for test (images from {})",
             img_dir.file_name().unwrap_or_default().to_string_lossy()

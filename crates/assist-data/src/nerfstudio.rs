@@ -289,6 +289,7 @@ pub fn load(file: &Path) -> Result<Dataset> {
         depth_range: None,
         split_source,
         split_declared,
+        rendered: top.get("renderer").is_some(),
         bounds,
         normalization,
         mask_folder: None,

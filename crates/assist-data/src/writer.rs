@@ -543,6 +543,11 @@ impl DatasetWriter {
             "frames": frames,
         });
         tj["instances"] = cfg.instances.iter().map(instance_json).collect();
+        // Rendered, not photographed (`Dataset::rendered`): training needs no per-image
+        // appearance codes for it. A renderer named in `extra` is kept.
+        if !cfg.extra.contains_key("renderer") {
+            tj["renderer"] = json!(concat!("assist ", env!("CARGO_PKG_VERSION")));
+        }
         for (k, v) in &cfg.extra {
             if tj.get(k).is_none() {
                 tj[k] = v.clone();

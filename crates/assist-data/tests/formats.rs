@@ -264,4 +264,11 @@ fn nerfstudio_fisheye_and_per_frame_intrinsics() {
     assert!(ds.frames[1].image_path.ends_with("images/1.png"));
     let report = assist_data::validate::validate(&ds);
     assert!(report.errors.is_empty(), "{:?}", report.errors);
+    // Photographs unless the file names its renderer (then training takes no
+    // appearance codes by default).
+    assert!(!ds.rendered);
+    let mut rendered = json.clone();
+    rendered["renderer"] = serde_json::json!("Blender Cycles");
+    std::fs::write(tmp.join("transforms.json"), rendered.to_string()).unwrap();
+    assert!(load(tmp.path(), &LoadOptions::default()).unwrap().rendered);
 }

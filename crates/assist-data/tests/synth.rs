@@ -54,6 +54,8 @@ fn writes_a_valid_desk_format_dataset() {
     assert_eq!(ds.count(Split::Test), 4);
     assert_eq!(ds.instances.len(), 4);
     assert_eq!(ds.meters_per_unit, Some(1.0));
+    // Marked as rendered, so training takes no appearance codes by default.
+    assert!(ds.rendered);
     let report = assist_data::validate::validate(&ds);
     assert!(report.errors.is_empty(), "{:?}", report.errors);
     assert!(report.undeclared_ids.is_empty());

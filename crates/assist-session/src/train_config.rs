@@ -17,7 +17,8 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Appearance {
-    /// On for real captures (COLMAP, LLFF), off for rendered ones.
+    /// On for photographs (COLMAP, LLFF, `assist process`, nerfstudio captures), off for
+    /// rendered images (Blender, a `transforms.json` naming its `renderer`).
     #[default]
     Auto,
     On,

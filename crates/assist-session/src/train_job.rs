@@ -523,18 +523,13 @@ impl TrainJob {
         Ok(ds)
     }
 
-    /// Whether the fields get per-image appearance codes (`auto`: for the formats of
-    /// real photographs).
+    /// Whether the fields get per-image appearance codes (`auto`: for photographs, not
+    /// rendered images; see [`Dataset::rendered`]).
     fn appearance(&self, ds: &Dataset) -> bool {
         match self.config.appearance {
             Appearance::On => true,
             Appearance::Off => false,
-            Appearance::Auto => matches!(
-                ds.format,
-                assist_data::Format::ColmapBinary
-                    | assist_data::Format::ColmapText
-                    | assist_data::Format::Llff
-            ),
+            Appearance::Auto => !ds.rendered,
         }
     }
 

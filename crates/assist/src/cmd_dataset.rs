@@ -214,6 +214,7 @@ pub fn describe(ds: &Dataset) -> Value {
         "splits": splits,
         "split_source": ds.split_source,
         "split_declared": ds.split_declared,
+        "rendered": ds.rendered,
         "width": f0.camera.width(),
         "height": f0.camera.height(),
         "uniform_resolution": same_size,
@@ -260,14 +261,20 @@ fn print_text(ds: &Dataset, v: &Value) {
         ds.split_source
     );
     println!(
-        "images    {}x{}{}",
+        "images    {}x{}{}, {} (appearance codes by default: {})",
         v["width"],
         v["height"],
         if v["uniform_resolution"].as_bool() == Some(true) {
             ""
         } else {
             " (first frame; sizes vary)"
-        }
+        },
+        if ds.rendered {
+            "rendered"
+        } else {
+            "photographs"
+        },
+        if ds.rendered { "off" } else { "on" }
     );
     let i = &ds.frames[0].camera.intrinsics;
     println!(

@@ -182,6 +182,9 @@ fn a_video_and_photographs_become_posed_datasets() {
     // Upright: the cameras' mean up is +Z in the written frame.
     let ds = assist_data::load(&out, &Default::default()).unwrap();
     assert_eq!(ds.world_up, Some(DVec3::Z));
+    // Frames of a video are photographs (though this one's were rendered by `synth`,
+    // its encoding by ffmpeg keeps no mark of that): training gives them appearance codes.
+    assert!(!ds.rendered, "a processed capture is photographs");
     assert_eq!(
         ds.meters_per_unit, None,
         "no known distance: the unit is COLMAP's"
