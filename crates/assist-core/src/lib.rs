@@ -21,6 +21,7 @@ pub mod placement;
 pub mod rng;
 pub mod scene;
 pub mod similarity;
+pub mod up;
 
 pub use action::{
     Action, ActionConfig, ActionError, AxisSpec, Edit, NodeRef, Operation, SceneSource,
@@ -35,6 +36,7 @@ pub use glam::{DAffine3, DMat3, DMat4, DQuat, DVec2, DVec3, Vec3};
 pub use rng::Rng;
 pub use scene::{Backdrop, KeyLight, NodeSpace, Scene, SceneNode, ShadowCast};
 pub use similarity::Similarity3;
+pub use up::cameras_up;
 
 /// Instance identifier of a scene node; 0 is the background.
 pub type InstanceId = u16;

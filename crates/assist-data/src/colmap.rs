@@ -198,7 +198,7 @@ pub fn load_dataset(model_dir: &Path, format: Format) -> Result<Dataset> {
             .then(a.z.total_cmp(&b.z))
     });
     let (bounds, normalization) = compute_bounds(&frames, &points, &[], None);
-    let world_up = crate::dataset::cameras_mean_up(&frames);
+    let world_up = crate::dataset::cameras_up(&frames);
     Ok(Dataset {
         format,
         root: model_dir.to_path_buf(),

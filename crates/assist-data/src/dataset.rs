@@ -163,7 +163,7 @@ pub struct Dataset {
     pub frames: Vec<Frame>,
     pub instances: Vec<InstanceInfo>,
     /// The world's up (against gravity): as the dataset states it, or, for formats that
-    /// state none (LLFF, COLMAP), the cameras' mean up ([`cameras_mean_up`]).
+    /// state none (LLFF, COLMAP), the cameras' up ([`cameras_up`]).
     pub world_up: Option<DVec3>,
     /// Metres per world unit, when the dataset says (or implies) its scale.
     pub meters_per_unit: Option<f64>,
@@ -252,19 +252,19 @@ impl Dataset {
     }
 }
 
-/// The file stem of `p` (the name outputs rendered for a frame are given).
-/// The cameras' mean up (each image's upward direction in the world, averaged and made
-/// unit): gravity's opposite for a capture taken the way people hold phones and cameras,
-/// upright, whether facing forward or walking around an object. LLFF and COLMAP frames are
-/// COLMAP's, whose axes are arbitrary (often +Y down), so +Z is no guess at all. `None`
-/// when the cameras disagree so much that their mean is shorter than half (views turned
-/// every which way).
-pub fn cameras_mean_up(frames: &[Frame]) -> Option<DVec3> {
-    let sum: DVec3 = frames.iter().map(|f| f.camera.pose.rotation().y_axis).sum();
-    let mean = sum / frames.len().max(1) as f64;
-    (mean.length() >= 0.5).then(|| mean.normalize())
+/// Up for a capture that states none (LLFF and COLMAP frames are COLMAP's, whose axes are
+/// arbitrary, often +Y down, so +Z is no guess at all): perpendicular to the cameras'
+/// right axes, since people hold cameras level, on the side of their mean up
+/// ([`assist_core::cameras_up`]; the mean up alone leans by the pitch of a capture that
+/// looks down from one side). `None` when the cameras are turned every which way.
+pub fn cameras_up(frames: &[Frame]) -> Option<DVec3> {
+    assist_core::cameras_up(frames.iter().map(|f| {
+        let r = f.camera.pose.rotation();
+        (r.x_axis, r.y_axis)
+    }))
 }
 
+/// The file stem of `p` (the name outputs rendered for a frame are given).
 pub fn file_stem(p: &Path) -> String {
     p.file_stem()
         .map(|s| s.to_string_lossy().into_owned())
@@ -390,7 +390,7 @@ mod tests {
     }
 
     /// Upright cameras walking around an object and looking down at it, in a world turned
-    /// every which way: their mean up is the world's up turned the same way.
+    /// every which way: their up is the world's up turned the same way.
     #[test]
     fn the_mean_up_of_a_walk_around_is_up_in_any_frame() {
         let turn = DQuat::from_euler(assist_core::glam::EulerRot::XYZ, 1.1, -0.4, 2.3);
@@ -401,13 +401,13 @@ mod tests {
                 frame(turn * eye, DVec3::ZERO, turn * DVec3::Z)
             })
             .collect();
-        let up = cameras_mean_up(&frames).unwrap();
+        let up = cameras_up(&frames).unwrap();
         assert!((up - turn * DVec3::Z).length() < 1e-9, "{up}");
         // Cameras rolled a quarter turn each in turn: no mean worth the name.
         let rolled: Vec<Frame> = [DVec3::Z, DVec3::X, -DVec3::Z, -DVec3::X]
             .iter()
             .map(|u| frame(DVec3::new(0.0, -3.0, 0.0), DVec3::ZERO, *u))
             .collect();
-        assert_eq!(cameras_mean_up(&rolled), None);
+        assert_eq!(cameras_up(&rolled), None);
     }
 }

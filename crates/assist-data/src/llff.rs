@@ -157,7 +157,7 @@ pub fn load(dir: &Path, factor: Option<u32>) -> Result<Dataset> {
     }
     let depth_range = (near.is_finite() && far > 0.0).then_some((near, far));
     let (bounds, normalization) = compute_bounds(&frames, &[], &[], depth_range);
-    let world_up = crate::dataset::cameras_mean_up(&frames);
+    let world_up = crate::dataset::cameras_up(&frames);
     Ok(Dataset {
         format: Format::Llff,
         root: dir.to_path_buf(),

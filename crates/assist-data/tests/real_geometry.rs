@@ -210,7 +210,8 @@ fn llff_fern_poses_and_factor() {
     let _ = DVec2::ZERO;
 }
 
-/// LLFF and COLMAP state no up; the readers take the cameras' mean up. On gold_cape (a
+/// LLFF and COLMAP state no up; the readers take it from how the cameras were held
+/// (`assist_core::cameras_up`). On gold_cape (a
 /// walk around an object) it is checked against geometry it was not computed from: the
 /// camera centres lie near one level plane (the walk), whose normal must be up. On the
 /// forward-facing captures every camera's up is within 45° of it, and beer's COLMAP model

@@ -1,5 +1,5 @@
-//! COLMAP's model in the frame training expects: gravity along +Z (the cameras' mean up
-//! taken as up: people hold phones upright), the origin at the cameras' mean centre, and
+//! COLMAP's model in the frame training expects: gravity along +Z (perpendicular to the
+//! cameras' right axes: people hold phones level; `assist_core::cameras_up`), the origin at the cameras' mean centre, and
 //! metres when the user names one known distance (`--scale-by`), else COLMAP's arbitrary
 //! unit, said so. Cameras become nerfstudio's camera-to-world matrices (OpenGL axes: +X
 //! right, +Y up, looking along −Z).
@@ -118,12 +118,15 @@ pub fn align(
     let mut images: Vec<&ColmapImage> = model.images.iter().collect();
     images.sort_by(|a, b| a.name.cmp(&b.name));
     let cams: Vec<(DMat3, DVec3)> = images.iter().map(|i| camera(i)).collect();
-    // Up: the mean of the cameras' up (−Y of COLMAP's camera).
-    let up = cams
-        .iter()
-        .map(|(r, _)| -(r.y_axis))
-        .sum::<DVec3>()
-        .normalize_or(DVec3::Z);
+    // Up: perpendicular to the cameras' right axes (+X of COLMAP's camera), on the side
+    // of their up (−Y), as every reader takes a capture's up (`assist_core::cameras_up`).
+    let up = assist_core::cameras_up(cams.iter().map(|(r, _)| (r.x_axis, -r.y_axis)))
+        .unwrap_or_else(|| {
+            cams.iter()
+                .map(|(r, _)| -(r.y_axis))
+                .sum::<DVec3>()
+                .normalize_or(DVec3::Z)
+        });
     let turn = DQuat::from_rotation_arc(up, DVec3::Z);
     let centre = cams.iter().map(|(_, c)| *c).sum::<DVec3>() / cams.len().max(1) as f64;
     let mut warnings = Vec::new();
@@ -430,7 +433,7 @@ mod tests {
     }
 
     /// Cameras on a ring looking inward, all tilted the same way: after alignment their
-    /// mean up is +Z and their mean centre the origin; then a known distance sets metres.
+    /// up is +Z and their mean centre the origin; then a known distance sets metres.
     #[test]
     fn cameras_come_out_upright_centred_and_scaled() {
         let tilt = DQuat::from_rotation_x(0.4) * DQuat::from_rotation_y(-0.3);

@@ -364,7 +364,7 @@ fn print_text(ds: &Dataset, v: &Value) {
                 ds.format,
                 Format::Llff | Format::ColmapBinary | Format::ColmapText
             ) {
-                " (the cameras' mean up: the format states none)"
+                " (from how the cameras were held: the format states none)"
             } else {
                 ""
             }

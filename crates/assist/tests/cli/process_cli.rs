@@ -179,7 +179,7 @@ fn a_video_and_photographs_become_posed_datasets() {
         worst < 0.25 * extent,
         "worst centre error {worst} (extent {extent})"
     );
-    // Upright: the cameras' mean up is +Z in the written frame.
+    // Upright: the cameras' up is +Z in the written frame.
     let ds = assist_data::load(&out, &Default::default()).unwrap();
     assert_eq!(ds.world_up, Some(DVec3::Z));
     // Frames of a video are photographs (though this one's were rendered by `synth`,
