@@ -27,6 +27,9 @@ use rayon::prelude::*;
 
 use crate::light::Occluder;
 
+mod node;
+pub(crate) use node::relight_node;
+
 /// Lattice points per axis at most (an object's shading varies smoothly).
 const MAX_RES: usize = 32;
 

@@ -261,7 +261,7 @@ pub fn query_fields(scene: &NeuralScene, traced: &mut Traced, tapes: &mut Vec<Ta
         && query_all_on(b, scene, traced, eye)
     {
         for ns in &mut traced.nodes {
-            relight(scene, ns.node, &ns.pos, &mut ns.rgb);
+            crate::relight::relight_node(scene, ns.node, &ns.pos, &mut ns.rgb);
             add_highlight(scene, ns.node, &mut ns.rgb, highlight);
         }
         return;
@@ -315,63 +315,6 @@ fn query_all_on(
     ok
 }
 
-/// Node `node`'s colours shaded by the scene's light where the node stands now, when the
-/// scene relights and the node stands elsewhere than where it was photographed
-/// ([`crate::relight`]).
-fn relight(scene: &NeuralScene, node: usize, pos: &[Vec<f32>; 3], rgb: &mut [f32]) {
-    let s = &scene.scene;
-    let n = &s.nodes[node];
-    if let (true, Some(light), Some(cast)) = (s.relight, &s.light, &n.cast)
-        && cast.pose != n.world_from_local
-        && !rgb.is_empty()
-    {
-        let lights = crate::light::light_points(light, s.up);
-        let nf = scene.field_of(node);
-        // The key light's share as the object's own shading shows it, else as its shadow
-        // does.
-        let colour = |pos: &[[f32; 3]], dirs: &[[f32; 3]]| {
-            let axis = |v: &[[f32; 3]], a: usize| v.iter().map(|p| p[a]).collect::<Vec<f32>>();
-            let (p, d) = (
-                [0, 1, 2].map(|a| axis(pos, a)),
-                [0, 1, 2].map(|a| axis(dirs, a)),
-            );
-            let image = vec![u32::MAX; pos.len()];
-            let samples = assist_field::Samples {
-                pos: [&p[0], &p[1], &p[2]],
-                dir: [&d[0], &d[1], &d[2]],
-                image: &image,
-            };
-            let (mut sigma, mut rgb) = (vec![0.0; pos.len()], vec![0.0; 3 * pos.len()]);
-            nf.field.forward(&samples, &mut sigma, &mut rgb);
-            rgb.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
-        };
-        let strength = crate::relight::strength_cached(
-            &n.field,
-            &nf.occupancy,
-            n.half_size,
-            &cast.pose,
-            &lights,
-            s.up,
-            colour,
-        )
-        .unwrap_or(cast.strength);
-        let cast = assist_core::ShadowCast {
-            pose: cast.pose,
-            strength,
-        };
-        let grid = crate::relight::relight_cached(
-            &n.field,
-            &nf.occupancy,
-            n.half_size,
-            &n.world_from_local,
-            &cast,
-            &lights,
-            s.up,
-        );
-        grid.apply(pos, rgb);
-    }
-}
-
 /// Adds the highlight's colour to node `node`'s samples when it is the one highlighted.
 fn add_highlight(
     scene: &NeuralScene,
@@ -401,14 +344,15 @@ pub fn query_node(scene: &NeuralScene, ns: &mut NodeSamples, tape: &mut Tape, q:
     let mut sigma = std::mem::take(&mut ns.sigma);
     let mut rgb = std::mem::take(&mut ns.rgb);
     match q {
-        Query::Train => nf
-            .field
-            .forward_train(&ns.samples(), tape, &mut sigma, &mut rgb),
-        Query::Fit { eye } => {
+        Query::Train | Query::Fit { .. } => {
+            let eye = if let Query::Fit { eye } = q {
+                eye
+            } else {
+                None
+            };
             let code = crate::appearance::novel_code(scene, ns.node, eye);
             let s = ns.samples();
-            nf.field
-                .forward_train_novel(&s, code.as_deref(), tape, &mut sigma, &mut rgb)
+            (nf.field).forward_train_novel(&s, code.as_deref(), tape, &mut sigma, &mut rgb)
         }
         Query::Render {
             precision,
@@ -442,7 +386,7 @@ pub fn query_node(scene: &NeuralScene, ns: &mut NodeSamples, tape: &mut Tape, q:
                     &mut rgb,
                 );
             }
-            relight(scene, ns.node, &ns.pos, &mut rgb);
+            crate::relight::relight_node(scene, ns.node, &ns.pos, &mut rgb);
             add_highlight(scene, ns.node, &mut rgb, highlight);
         }
     }
