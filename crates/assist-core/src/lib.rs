@@ -15,6 +15,7 @@ pub mod action;
 pub mod camera;
 pub mod distortion;
 pub mod edit;
+pub mod eigen;
 pub mod error;
 pub mod geometry;
 pub mod placement;

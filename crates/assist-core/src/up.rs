@@ -42,49 +42,10 @@ pub fn cameras_up(axes: impl IntoIterator<Item = (DVec3, DVec3)>) -> Option<DVec
     Some(up)
 }
 
-/// Eigenvalues (largest first) and unit eigenvectors of a symmetric 3×3 matrix, by
-/// Jacobi rotations.
+/// Eigenvalues (largest first) and unit eigenvectors of a symmetric 3×3 matrix.
 pub fn symmetric_eigen(m: DMat3) -> ([f64; 3], [DVec3; 3]) {
-    let mut a = m.to_cols_array_2d();
-    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-    for _ in 0..50 {
-        let off = a[0][1].powi(2) + a[0][2].powi(2) + a[1][2].powi(2);
-        let scale = a[0][0].powi(2) + a[1][1].powi(2) + a[2][2].powi(2);
-        if off <= 1e-30 * scale.max(1e-300) {
-            break;
-        }
-        for (p, q) in [(0, 1), (0, 2), (1, 2)] {
-            if a[p][q].abs() < 1e-300 {
-                continue;
-            }
-            // The rotation in the (p, q) plane that zeroes a[p][q].
-            let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
-            let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-            let c = 1.0 / (t * t + 1.0).sqrt();
-            let s = t * c;
-            for k in 0..3 {
-                let (akp, akq) = (a[k][p], a[k][q]);
-                a[k][p] = c * akp - s * akq;
-                a[k][q] = s * akp + c * akq;
-            }
-            for k in 0..3 {
-                let (apk, aqk) = (a[p][k], a[q][k]);
-                a[p][k] = c * apk - s * aqk;
-                a[q][k] = s * apk + c * aqk;
-            }
-            for row in v.iter_mut() {
-                let (vp, vq) = (row[p], row[q]);
-                row[p] = c * vp - s * vq;
-                row[q] = s * vp + c * vq;
-            }
-        }
-    }
-    // Column k of `v` is the eigenvector of a[k][k].
-    let mut order = [0, 1, 2];
-    order.sort_by(|&i, &j| a[j][j].total_cmp(&a[i][i]));
-    let values = order.map(|k| a[k][k]);
-    let vectors = order.map(|k| DVec3::new(v[0][k], v[1][k], v[2][k]).normalize());
-    (values, vectors)
+    let (values, vectors) = crate::eigen::symmetric_eigen(m.to_cols_array_2d());
+    (values, vectors.map(DVec3::from_array))
 }
 
 #[cfg(test)]

@@ -230,13 +230,8 @@ fn captures_without_a_stated_up_take_it_from_how_the_cameras_were_held() {
         let d = *c - mean;
         cov += assist_core::DMat3::from_cols(d * d.x, d * d.y, d * d.z);
     }
-    // The plane's normal: the covariance's weakest direction (inverse power iteration
-    // on the well-conditioned 3×3).
-    let inv = cov.inverse();
-    let mut n = DVec3::new(0.3, 0.5, 0.8);
-    for _ in 0..100 {
-        n = (inv * n).normalize();
-    }
+    // The plane's normal: the covariance's weakest direction.
+    let n = assist_core::up::symmetric_eigen(cov).1[2];
     let angle = n.dot(up).abs().clamp(-1.0, 1.0).acos().to_degrees();
     eprintln!("gold_cape up {up:.3}, the walk's plane normal {n:.3}: {angle:.1}° apart");
     assert!(angle < 10.0, "{angle}°");

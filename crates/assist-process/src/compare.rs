@@ -70,51 +70,11 @@ pub fn fit_similarity(from: &[DVec3], to: &[DVec3]) -> Option<Similarity> {
     })
 }
 
-/// The eigenvector of the largest eigenvalue of a symmetric 4×4 matrix (Jacobi
-/// rotations).
-fn top_eigenvector(mut a: [[f64; 4]; 4]) -> Option<[f64; 4]> {
-    let mut v = [[0.0f64; 4]; 4];
-    for (i, row) in v.iter_mut().enumerate() {
-        row[i] = 1.0;
-    }
-    for _ in 0..64 {
-        let off: f64 = (0..4)
-            .flat_map(|i| (0..4).filter(move |&j| j != i).map(move |j| (i, j)))
-            .map(|(i, j)| a[i][j] * a[i][j])
-            .sum();
-        if off < 1e-30 {
-            break;
-        }
-        for p in 0..4 {
-            for q in p + 1..4 {
-                if a[p][q].abs() < 1e-300 {
-                    continue;
-                }
-                let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
-                let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-                let t = if theta == 0.0 { 1.0 } else { t };
-                let c = 1.0 / (t * t + 1.0).sqrt();
-                let s = t * c;
-                for k in 0..4 {
-                    let (akp, akq) = (a[k][p], a[k][q]);
-                    a[k][p] = c * akp - s * akq;
-                    a[k][q] = s * akp + c * akq;
-                }
-                for k in 0..4 {
-                    let (apk, aqk) = (a[p][k], a[q][k]);
-                    a[p][k] = c * apk - s * aqk;
-                    a[q][k] = s * apk + c * aqk;
-                }
-                for row in v.iter_mut() {
-                    let (vp, vq) = (row[p], row[q]);
-                    row[p] = c * vp - s * vq;
-                    row[q] = s * vp + c * vq;
-                }
-            }
-        }
-    }
-    let best = (0..4).max_by(|&i, &j| a[i][i].total_cmp(&a[j][j]))?;
-    let e = [v[0][best], v[1][best], v[2][best], v[3][best]];
+/// The eigenvector of the largest eigenvalue of a symmetric 4×4 matrix; `None` when it
+/// is not finite.
+fn top_eigenvector(a: [[f64; 4]; 4]) -> Option<[f64; 4]> {
+    let (_, vectors) = assist_core::eigen::symmetric_eigen(a);
+    let e = vectors[0];
     e.iter().all(|x| x.is_finite()).then_some(e)
 }
 
