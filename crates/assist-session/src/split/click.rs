@@ -1,8 +1,9 @@
 //! An object's box from one click: the surface under the click, the support it stands on
 //! (the densest layer of the connected surface below it), the part of that surface above
 //! the support connected to the click (in the clicked view), then the same region seen
-//! from the other views, fused in a voxel grid, its component through the click boxed
-//! upright (yaw by the smallest footprint).
+//! from the other views (as deep as it is wide, above the support or, with none seen,
+//! above where the clicked view saw the object end), fused in a voxel grid, its
+//! component through the click boxed upright (yaw by the smallest footprint).
 
 use std::collections::{HashMap, VecDeque};
 
@@ -257,6 +258,7 @@ pub fn box_at_click(
     // once, from the clicked view's region (voxels growing with the box would bridge
     // the fog around a noisy object).
     let cell = (obb.size().max_element() / 24.0).max(2.0 * bin);
+    let floor = fused_floor(floor, support, &obb, cell);
     let clicked = Clicked {
         first: &first,
         p0,
@@ -281,6 +283,18 @@ pub fn box_at_click(
     })
 }
 
+/// The height the other views' points must lie above to join the object: `floor` over a
+/// support; with none seen, a voxel below where the clicked view saw the object end
+/// (`first`, its box): what the other views show lower down is the floor around it, or
+/// the mirror image a shiny floor puts under it, as consistent across views as the object
+/// and so fused with it otherwise.
+fn fused_floor(floor: f64, support: Option<f64>, first: &Obb, cell: f64) -> f64 {
+    match support {
+        Some(_) => floor,
+        None => first.center.dot(first.rotation.col(2)) - first.half_size.z - cell,
+    }
+}
+
 /// What the clicked view found: its region's points, the clicked point, the scene's up,
 /// the height objects start above (−∞ without a support) and the support's height.
 struct Clicked<'a> {
@@ -291,38 +305,54 @@ struct Clicked<'a> {
     support: Option<f64>,
 }
 
-/// Rounds until the box holds still: the other views' points in the box grown by half,
-/// the component through the click kept (voxels of `cell`), the box fitted again. A noisy
-/// field breaks the clicked view's region into pieces; each round reaches further along
-/// the object. Views are rendered once and reused across rounds.
+/// Rounds until the box holds still: the other views' points in the box grown by half
+/// (and as deep as wide), the component through the click kept (voxels of `cell`), the
+/// box fitted again. A noisy field breaks the clicked view's region into pieces; each
+/// round reaches further along the object. Views are rendered once and reused.
 fn fuse(
     session: &Session,
     others: &[Camera],
     opts: &ClickOptions,
     c: &Clicked,
-    mut obb: Obb,
+    obb: Obb,
     cell: f64,
 ) -> Result<Obb> {
-    let mut rendered: HashMap<usize, Points> = HashMap::new();
+    fuse_rounds(others, opts.views, c, obb, cell, |k| {
+        let pts = render_points(session, &others[k], opts.render_downscale as f64)?.1;
+        Ok(pts.at.into_iter().flatten().collect())
+    })
+}
+
+/// [`fuse`]'s rounds, with `seen(k)` the surface points view `k` of `others` shows (asked
+/// once per view).
+fn fuse_rounds(
+    others: &[Camera],
+    views: usize,
+    c: &Clicked,
+    mut obb: Obb,
+    cell: f64,
+    mut seen: impl FnMut(usize) -> Result<Vec<DVec3>>,
+) -> Result<Obb> {
+    let mut rendered: HashMap<usize, Vec<DVec3>> = HashMap::new();
     for _ in 0..MAX_ROUNDS {
+        // Grown by half, and as deep as it is wide: the clicked view saw the object's
+        // front only, and its back may lie as far behind as the front is wide (a can's
+        // half-cylinder seen from one side).
+        let across = obb.half_size.x.max(obb.half_size.y);
         let grown = Obb {
-            half_size: obb.half_size * 1.5,
+            half_size: DVec3::new(across, across, obb.half_size.z) * 1.5,
             ..obb
         };
         // Points tagged with the view that saw them: the clicked view is 0.
         let mut cloud: Vec<(DVec3, usize)> = c.first.iter().map(|p| (*p, 0)).collect();
-        let chosen = spread(others, obb.center, opts.views);
+        let chosen = spread(others, obb.center, views);
         for &k in &chosen {
-            let seen = match rendered.entry(k) {
+            let pts = match rendered.entry(k) {
                 std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
-                std::collections::hash_map::Entry::Vacant(e) => {
-                    e.insert(render_points(session, &others[k], opts.render_downscale as f64)?.1)
-                }
+                std::collections::hash_map::Entry::Vacant(e) => e.insert(seen(k)?),
             };
             cloud.extend(
-                seen.at
-                    .iter()
-                    .flatten()
+                pts.iter()
                     .filter(|q| grown.contains(**q, 0.0) && q.dot(c.up) > c.floor)
                     .map(|q| (*q, k + 1)),
             );
@@ -498,6 +528,69 @@ mod tests {
         let side: Vec<f64> = (0..1000).map(|k| 0.5 + 0.3 * k as f64 / 1000.0).collect();
         assert_eq!(support_height(&side, 0.85, 0.005, SUPPORT_SHARE), None);
         assert!(support_height(&side, 0.85, 0.005, 0.0).is_some());
+    }
+
+    /// A can (radius 0.4, 2.3 tall) on a mirror-like floor, as the field renders it: each
+    /// view shows the can's side facing it and, below the floor, the can's mirror image.
+    /// The clicked view sees the front half; no support is seen.
+    #[test]
+    fn a_click_fuses_the_objects_back_and_not_its_mirror_image() {
+        let (r, tall) = (0.4, 2.3);
+        let cams: Vec<Camera> = (0..8)
+            .map(|k| {
+                let a = k as f64 * std::f64::consts::TAU / 8.0 + 0.2;
+                let eye = DVec3::new(5.0 * a.cos(), 5.0 * a.sin(), 2.0);
+                let pose = assist_core::Pose::look_at(eye, DVec3::new(0.0, 0.0, 1.0), DVec3::Z);
+                Camera {
+                    intrinsics: assist_core::Intrinsics::from_fov_x(64, 48, 1.0),
+                    pose: pose.unwrap(),
+                }
+            })
+            .collect();
+        // The can's side (and its mirror image) as seen from `eye`, points 0.03 apart.
+        let side = |eye: DVec3, mirror: bool| -> Vec<DVec3> {
+            let mut out = Vec::new();
+            for i in 0..84 {
+                let a = i as f64 * std::f64::consts::TAU / 84.0;
+                let n = DVec3::new(a.cos(), a.sin(), 0.0);
+                for j in 1..77 {
+                    let z = j as f64 * 0.03;
+                    let p = n * r + DVec3::Z * if mirror { -z } else { z };
+                    if n.dot(eye - p) > 0.0 {
+                        out.push(p);
+                    }
+                }
+            }
+            out
+        };
+        let click_eye = DVec3::new(5.0, 0.0, 2.0);
+        let first = side(click_eye, false);
+        let p0 = DVec3::new(r, 0.0, 1.5);
+        let obb = upright_box(&first, DVec3::Z, None);
+        let cell = obb.size().max_element() / 24.0;
+        let fused = |floor: f64| {
+            let c = Clicked {
+                first: &first,
+                p0,
+                up: DVec3::Z,
+                floor,
+                support: None,
+            };
+            fuse_rounds(&cams, 16, &c, obb, cell, |k| {
+                let eye = cams[k].pose.center();
+                Ok([side(eye, false), side(eye, true)].concat())
+            })
+            .unwrap()
+        };
+        let b = fused(fused_floor(f64::NEG_INFINITY, None, &obb, cell));
+        let (s, base) = (b.size(), b.center.z - b.half_size.z);
+        assert!(s.x > 0.75 && s.y > 0.75, "the can's back is in: {s}");
+        assert!(s.x < 0.9 && s.y < 0.9, "{s}");
+        assert!(base > -cell, "the mirror image is not: base at {base}");
+        assert!((s.z - tall).abs() < 0.1, "{s}");
+        // Without the cut the mirror image joins the can.
+        let b = fused(f64::NEG_INFINITY);
+        assert!(b.center.z - b.half_size.z < -1.0, "{b:?}");
     }
 
     #[test]
