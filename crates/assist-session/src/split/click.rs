@@ -228,10 +228,9 @@ pub fn box_at_click(
             "the click is on the surface objects stand on: click an object",
         ));
     }
-    let first: Vec<DVec3> = grow(&pts, &cam, seed, |p| p.dot(up) > floor)
-        .into_iter()
-        .filter_map(|i| pts.at[i])
-        .collect();
+    let region = grow(&pts, &cam, seed, |p| p.dot(up) > floor);
+    let foot = foot_seen(&pts, cam.pose.center(), &region);
+    let first: Vec<DVec3> = region.iter().filter_map(|&i| pts.at[i]).collect();
     let obb = upright_box(&first, up, support);
     // An object is much smaller than the surface it stands on; a region as wide is that
     // surface (its field not quite flat) or a wall. The surface is all the view sees at
@@ -258,7 +257,7 @@ pub fn box_at_click(
     // once, from the clicked view's region (voxels growing with the box would bridge
     // the fog around a noisy object).
     let cell = (obb.size().max_element() / 24.0).max(2.0 * bin);
-    let floor = fused_floor(floor, support, &obb, cell);
+    let floor = fused_floor(floor, support, foot, &obb, cell);
     let clicked = Clicked {
         first: &first,
         p0,
@@ -284,15 +283,41 @@ pub fn box_at_click(
 }
 
 /// The height the other views' points must lie above to join the object: `floor` over a
-/// support; with none seen, a voxel below where the clicked view saw the object end
-/// (`first`, its box): what the other views show lower down is the floor around it, or
-/// the mirror image a shiny floor puts under it, as consistent across views as the object
-/// and so fused with it otherwise.
-fn fused_floor(floor: f64, support: Option<f64>, first: &Obb, cell: f64) -> f64 {
+/// support; with none seen but the object's foot seen (`foot`), a voxel below where the
+/// clicked view saw the object end (`first`, its box): what the other views show lower
+/// down is the floor around it, or the mirror image a shiny floor puts under it, as
+/// consistent across views as the object and so fused with it otherwise. With the foot
+/// hidden, the other views find where the object ends.
+fn fused_floor(floor: f64, support: Option<f64>, foot: bool, first: &Obb, cell: f64) -> f64 {
     match support {
-        Some(_) => floor,
-        None => first.center.dot(first.rotation.col(2)) - first.half_size.z - cell,
+        None if foot => first.center.dot(first.rotation.col(2)) - first.half_size.z - cell,
+        _ => floor,
     }
+}
+
+/// Whether the view sees where the object in `region` (pixels of `pts`) ends below:
+/// under most of the region's lower edge it sees something no nearer than the region
+/// (the floor, or what a shiny floor mirrors). Something nearer there, an existing
+/// object, nothing, or the image's edge hides the foot.
+fn foot_seen(pts: &Points, eye: DVec3, region: &[usize]) -> bool {
+    let inside: std::collections::HashSet<usize> = region.iter().copied().collect();
+    let (mut seen, mut edge) = (0usize, 0usize);
+    for &i in region {
+        let below = i + pts.width;
+        if inside.contains(&below) {
+            continue;
+        }
+        edge += 1;
+        let (Some(p), Some(q)) = (pts.at[i], pts.at.get(below).copied().flatten()) else {
+            continue;
+        };
+        // Nearer by more than a few pixels' footprint (grow's reach) hides it.
+        let (d, e) = (p.distance(eye), q.distance(eye));
+        if e > d - 4.0 * pts.footprint * d {
+            seen += 1;
+        }
+    }
+    2 * seen > edge
 }
 
 /// What the clicked view found: its region's points, the clicked point, the scene's up,
@@ -582,7 +607,7 @@ mod tests {
             })
             .unwrap()
         };
-        let b = fused(fused_floor(f64::NEG_INFINITY, None, &obb, cell));
+        let b = fused(fused_floor(f64::NEG_INFINITY, None, true, &obb, cell));
         let (s, base) = (b.size(), b.center.z - b.half_size.z);
         assert!(s.x > 0.75 && s.y > 0.75, "the can's back is in: {s}");
         assert!(s.x < 0.9 && s.y < 0.9, "{s}");
@@ -591,6 +616,43 @@ mod tests {
         // Without the cut the mirror image joins the can.
         let b = fused(f64::NEG_INFINITY);
         assert!(b.center.z - b.half_size.z < -1.0, "{b:?}");
+    }
+
+    /// A region 3 pixels wide (rows 1–3 of a 5 × 6 view, 10 units away) and what the view
+    /// sees under it.
+    #[test]
+    fn the_foot_is_seen_unless_something_nearer_hides_it() {
+        let view = |under: Option<f64>, rows: usize| {
+            let (w, h) = (5usize, 6usize);
+            let mut at = vec![Some(DVec3::new(30.0, 0.0, 0.0)); w * h];
+            let mut region = Vec::new();
+            for y in 1..1 + rows {
+                for x in 1..4 {
+                    at[y * w + x] = Some(DVec3::new(10.0, 0.0, 0.0));
+                    region.push(y * w + x);
+                }
+            }
+            if 1 + rows < h {
+                for x in 1..4 {
+                    at[(1 + rows) * w + x] = under.map(|d| DVec3::new(d, 0.0, 0.0));
+                }
+            }
+            let pts = Points {
+                width: w,
+                height: h,
+                at,
+                footprint: 0.01,
+            };
+            foot_seen(&pts, DVec3::ZERO, &region)
+        };
+        assert!(view(Some(12.0), 3), "the floor behind its base");
+        assert!(
+            view(Some(9.8), 3),
+            "the floor at its base, within the reach"
+        );
+        assert!(!view(Some(5.0), 3), "an object in front of it");
+        assert!(!view(None, 3), "an existing object or nothing");
+        assert!(!view(Some(12.0), 5), "cut by the image's edge");
     }
 
     #[test]
