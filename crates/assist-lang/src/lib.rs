@@ -56,8 +56,10 @@ pub enum LangError {
         clause: String,
         message: String,
     },
-    #[error("in {clause:?}: 'it'/'the copy' does not refer to any object yet")]
-    NoAntecedent { clause: String },
+    #[error(
+        "in {clause:?}: no object named, and 'it'/'the copy' does not refer to any object yet (the scene has {candidates})"
+    )]
+    NoAntecedent { clause: String, candidates: String },
     #[error("in {clause:?}: {what}: {message}")]
     BadValue {
         what: String,

@@ -371,6 +371,8 @@ const ERRORS: &[(&str, &str)] = &[
     ("move the duck 10 cm", "which way"),
     ("scale the mug", "by how much"),
     ("rotate it 90 degrees", "does not refer to any object"),
+    ("move 10 cm left", "no object named"),
+    ("move 10 cm left", "1 \"yellow rubber duck\""),
     ("blah blah blah", "no operation understood"),
     ("delete the red chair", "no object called \"red chair\""),
     ("delete the blue duck", "no object called \"blue duck\""),
@@ -450,6 +452,48 @@ fn directions_follow_the_camera() {
         (v[0] - 0.1).abs() < 1e-9 && v[1].abs() < 1e-9 && v[2].abs() < 1e-9,
         "{v:?}"
     );
+}
+
+/// "can" names an object where it stands as a noun, and is a polite modal elsewhere.
+#[test]
+fn a_can_is_an_object_where_it_is_a_noun() {
+    let mut bg = node(0, "background", [0.0, 0.0, 1.0]);
+    bg.half_size = DVec3::splat(2.0);
+    let s = Scene::with_nodes(
+        vec![
+            bg,
+            node(1, "red soda can", [-0.5, 0.0, 0.8]),
+            node(2, "mug", [0.5, 0.0, 0.8]),
+        ],
+        DVec3::Z,
+    );
+    for (text, id) in [
+        ("move the can 10 cm left", 1),
+        ("move can 10 cm left", 1),
+        ("move the red can 10 cm left", 1),
+        ("can you move the can 10 cm left", 1),
+        ("please can you move the mug 10 cm left", 2),
+        ("you can move the mug 10 cm left", 2),
+        ("could you move the soda can 10 cm left", 1),
+    ] {
+        let a = parse(text, &s, &ParseOptions::default(), &mut Other)
+            .unwrap_or_else(|e| panic!("{text:?}: {e}"));
+        assert_eq!(a.len(), 1, "{text:?}: {a:?}");
+        assert_eq!(a[0].instance_id, id, "{text:?}");
+        let cfg = serde_json::to_value(&a[0]).unwrap()["config"].clone();
+        assert!(
+            close(&cfg, &json!({"vector": [-0.1, 0, 0], "unit": "m"})),
+            "{text:?}: {cfg}"
+        );
+    }
+    // "can't" still refuses by naming "not".
+    let e = parse(
+        "you can't move the can",
+        &s,
+        &ParseOptions::default(),
+        &mut Other,
+    );
+    assert!(e.unwrap_err().to_string().contains("not"));
 }
 
 #[test]

@@ -348,10 +348,13 @@ impl Clause<'_> {
         let after_bare_number = i > 0
             && matches!(self.toks[i - 1], Tok::Num(_))
             && matches!(self.p.quantities.last(), Some((_, None)));
-        let content = !(PRONOUNS.contains(&w)
-            || CREATED.contains(&w)
-            || GENERIC.contains(&w)
-            || FILLER.contains(&w));
+        let prev = i
+            .checked_sub(1)
+            .and_then(|j| self.toks.get(j))
+            .and_then(word);
+        let filler = FILLER.contains(&w) && !names_a_can(i, w, prev, next);
+        let content =
+            !(PRONOUNS.contains(&w) || CREATED.contains(&w) || GENERIC.contains(&w) || filler);
         if after_bare_number && content && !self.refs.targets.is_empty() {
             return Err(LangError::NotUnderstood {
                 word: w.to_string(),
@@ -398,7 +401,7 @@ impl Clause<'_> {
             && refs.phrase.is_empty()
         {
             // "remove the duck from the scene"
-        } else if FILLER.contains(&w) {
+        } else if filler {
             if !refs.phrase.is_empty() && !matches!(w, "the" | "a" | "an") {
                 refs.close();
             }
@@ -407,4 +410,15 @@ impl Clause<'_> {
         }
         Ok(1)
     }
+}
+
+/// Whether "can" at token `i` (between `prev` and `next`) names an object ("move the can",
+/// "the red can", "move can 5 cm left") rather than asking ("can you move …", "you can
+/// move …"): a modal opens the clause or stands beside its subject.
+fn names_a_can(i: usize, w: &str, prev: Option<&str>, next: Option<&str>) -> bool {
+    const SUBJECTS: &[&str] = &["you", "i", "we", "u", "please"];
+    w == "can"
+        && i > 0
+        && !prev.is_some_and(|p| SUBJECTS.contains(&p))
+        && !next.is_some_and(|n| SUBJECTS.contains(&n))
 }

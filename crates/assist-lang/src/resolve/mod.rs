@@ -129,6 +129,7 @@ impl State {
                 if self.last.is_empty() {
                     Err(LangError::NoAntecedent {
                         clause: cmd.text.clone(),
+                        candidates: describe_nodes(&self.scene),
                     })
                 } else {
                     Ok(self.last.clone())
@@ -149,6 +150,7 @@ impl State {
                     .map(|c| vec![c])
                     .ok_or_else(|| LangError::NoAntecedent {
                         clause: cmd.text.clone(),
+                        candidates: describe_nodes(&self.scene),
                     })
             }
             ObjectRef::Phrase(words) => {
