@@ -129,6 +129,12 @@ pub fn quant_b(
     let k2 = k.div_ceil(2);
     assert!(out.len() >= k2 * n && scale.len() >= n);
     #[cfg(target_arch = "x86_64")]
+    if level == Level::Avx512 && Level::Avx512.supported() && n.is_multiple_of(16) {
+        // SAFETY: AVX-512F present (checked); the same reads and writes as below.
+        unsafe { x86v::quant_b(b, k, n, ldb, out, scale) };
+        return;
+    }
+    #[cfg(target_arch = "x86_64")]
     if level >= Level::Avx2 && Level::Avx2.supported() && n.is_multiple_of(8) {
         // SAFETY: AVX2 present (checked); rows < k over columns < n are read, words p·n + j
         // for p < k2, j < n and scale[..n] written: within the lengths asserted above.
@@ -409,6 +415,16 @@ mod tests {
             if ps != pv || ss != sv {
                 failures.push(format!("pack m{m} n{n} k{k}: words or scales differ"));
             }
+            if Level::Avx512.supported() {
+                let (mut p5, mut s5) = (vec![0u32; k2 * n], vec![0.0f32; n]);
+                quant_b(Level::Avx512, &b, k, n, ldb, &mut p5, &mut s5);
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                if ps != p5 || bits(&ss) != bits(&s5) {
+                    failures.push(format!(
+                        "pack m{m} n{n} k{k}: AVX-512 words or scales differ"
+                    ));
+                }
+            }
             let c0 = rand_vec(m * ldc, &mut seed);
             let (mut cs, mut cv) = (c0.clone(), c0.clone());
             gemm(Level::Scalar, &qa, &ps, &ss, n, &mut cs, ldc);
@@ -506,7 +522,7 @@ mod tests {
     /// NaN outputs; the other samples and rows are unchanged.
     #[test]
     fn non_finite_values_give_nan() {
-        for level in [Level::Scalar, Level::Avx2] {
+        for level in [Level::Scalar, Level::Avx2, Level::Avx512] {
             if !level.supported() {
                 continue;
             }

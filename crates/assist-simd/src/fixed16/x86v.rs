@@ -1,4 +1,6 @@
-//! The fixed-point product kernel with AVX-512 VNNI (see [`super::vnni`]); the same panels as the AVX2 kernel.
+//! The fixed-point kernels at the AVX-512 level: the activations' scaling and packing (16
+//! columns a vector, the AVX2 path's bits) and the product with VNNI (see [`super::vnni`];
+//! the same panels as the AVX2 kernel).
 
 use std::arch::x86_64::*;
 
@@ -62,4 +64,65 @@ pub unsafe fn gemm_vnni(
 ) {
     // SAFETY: the caller's contract (`panels!`'s).
     unsafe { panels!(block, 32, a, scale, m, k2, bp, sb, n, c, ldc) }
+}
+
+/// `super::quant_b` 16 columns at a time: the AVX2 path's steps on twice the lanes (each
+/// lane's largest magnitude from its values' bits without their signs, `1 / s` or 0, the
+/// values rounded to nearest even and packed in pairs of rows), so the same bits.
+///
+/// # Safety
+/// AVX-512F; `n` a multiple of 16; bounds as `super::quant_b` asserts.
+#[target_feature(enable = "avx512f")]
+pub unsafe fn quant_b(
+    b: &[f32],
+    k: usize,
+    n: usize,
+    ldb: usize,
+    out: &mut [u32],
+    scale: &mut [f32],
+) {
+    let (bp, op) = (b.as_ptr(), out.as_mut_ptr());
+    let k2 = k.div_ceil(2);
+    // SAFETY (whole function): rows < k at columns < n, output words < k2·n and scales < n,
+    // which the caller's contract puts inside the slices.
+    unsafe {
+        let abs = _mm512_set1_epi32(0x7fff_ffff);
+        let low = _mm512_set1_epi32(0xffff);
+        let xm = _mm512_set1_ps(super::x_max(k2));
+        let tiny = _mm512_set1_ps(f32::MIN_POSITIVE);
+        let one = _mm512_set1_ps(1.0);
+        for j in (0..n).step_by(16) {
+            let mut big = _mm512_setzero_si512();
+            for r in 0..k {
+                let v = _mm512_loadu_si512(bp.add(r * ldb + j).cast());
+                big = _mm512_max_epi32(big, _mm512_and_si512(v, abs));
+            }
+            // Infinity and NaN have every exponent bit set.
+            let bad = _mm512_cmpgt_epi32_mask(big, _mm512_set1_epi32(0x7f7f_ffff));
+            let s = _mm512_div_ps(_mm512_castsi512_ps(big), xm);
+            let usable = !bad & _mm512_cmp_ps_mask::<_CMP_GE_OQ>(s, tiny);
+            let inv = _mm512_maskz_div_ps(usable, one, s);
+            _mm512_storeu_ps(
+                scale.as_mut_ptr().add(j),
+                _mm512_mask_blend_ps(bad, s, _mm512_set1_ps(f32::NAN)),
+            );
+            for p in 0..k2 {
+                // The default rounding mode: to nearest even, as `round_ties_even`.
+                let q0 = _mm512_cvtps_epi32(_mm512_mul_ps(
+                    _mm512_loadu_ps(bp.add(2 * p * ldb + j)),
+                    inv,
+                ));
+                let q1 = if 2 * p + 1 < k {
+                    _mm512_cvtps_epi32(_mm512_mul_ps(
+                        _mm512_loadu_ps(bp.add((2 * p + 1) * ldb + j)),
+                        inv,
+                    ))
+                } else {
+                    _mm512_setzero_si512()
+                };
+                let w = _mm512_or_si512(_mm512_and_si512(q0, low), _mm512_slli_epi32::<16>(q1));
+                _mm512_storeu_si512(op.add(p * n + j).cast(), w);
+            }
+        }
+    }
 }
