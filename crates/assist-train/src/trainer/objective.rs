@@ -126,12 +126,26 @@ impl Objective<'_> {
                 (0.0, 0.0)
             };
             terms.bg_opacity = pw * vo;
+            // The background's opacity in front of where `beyond` starts: what it holds
+            // there lies inside the object that hides the prior's surface.
+            let placed = t
+                .depth
+                .and_then(|d| super::step::prior_depth(d, self.depth_affine, self.depth_wq));
+            let (vc, dfront) = if placed.is_some() && lam.bg_clear > 0.0 {
+                losses::opacity(pb.opacity - pb.beyond, 0.0)
+            } else {
+                (0.0, 0.0)
+            };
+            terms.bg_clear = pw * vc;
             if let Some((_, gn)) = grads.as_mut() {
                 for ch in 0..3 {
                     gn[b].rgb[ch] += rw * lam.bg_rgb * dc[ch] / n;
                 }
                 gn[b].opacity += rw * lam.bg_rgb * d_o / n;
                 gn[b].beyond += pw * lam.bg_opacity * dob / n;
+                let g = pw * lam.bg_clear * dfront / n;
+                gn[b].opacity += g;
+                gn[b].beyond -= g;
             }
         }
         if let Some(d) = t.depth {
@@ -171,6 +185,7 @@ mod tests {
             + l.distortion * v.distortion
             + l.bg_rgb * v.bg_rgb
             + l.bg_opacity * v.bg_opacity
+            + l.bg_clear * v.bg_clear
             + l.bg_depth * v.bg_depth
             + l.empty * v.empty) as f64
             / obj.n_rays as f64
@@ -246,6 +261,7 @@ mod tests {
                 lam: Lambdas {
                     distortion: 0.3,
                     bg_opacity: 0.4,
+                    bg_clear: 0.6,
                     empty: 0.7,
                     ..Lambdas::default()
                 },

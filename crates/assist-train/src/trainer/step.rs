@@ -401,24 +401,24 @@ impl Trainer {
             );
         }
         self.traced.beyond.clear();
-        if self.background.is_none() || self.opts.lambdas.bg_opacity <= 0.0 {
+        let lam = &self.opts.lambdas;
+        if self.background.is_none() || (lam.bg_opacity <= 0.0 && lam.bg_clear <= 0.0) {
             return;
         }
-        let (e, [a, b]) = (self.extent, self.depth_wq);
+        let (e, wq) = (self.extent, self.depth_wq);
         let affine = self.opts.depth_affine;
         self.traced.beyond.extend(self.targets.iter().map(|t| {
-            match (t.inpaint, t.depth) {
-                (Some(_), Some(d)) => {
-                    // The prior's depth in units of the extent: `a·x + b = d`.
-                    let x = if affine { (d - b) / a } else { d };
-                    if x.is_finite() && x > 0.0 {
-                        BEYOND_FRACTION * x * e
-                    } else {
-                        f32::INFINITY
-                    }
-                }
+            match (t.inpaint, t.depth.and_then(|d| prior_depth(d, affine, wq))) {
+                (Some(_), Some(x)) => BEYOND_FRACTION * x * e,
                 _ => f32::INFINITY,
             }
         }));
     }
+}
+
+/// The prior's depth `d` in units of the extent (`a·x + b = d` when its scale is learnt,
+/// `wq = [a, b]`), or `None` where that gives no distance in front of the camera.
+pub(super) fn prior_depth(d: f32, affine: bool, [a, b]: [f32; 2]) -> Option<f32> {
+    let x = if affine { (d - b) / a } else { d };
+    (x.is_finite() && x > 0.0).then_some(x)
 }
