@@ -126,12 +126,15 @@ impl Objective<'_> {
                 (0.0, 0.0)
             };
             terms.bg_opacity = pw * vo;
-            // The background's opacity in front of where `beyond` starts: what it holds
-            // there lies inside the object that hides the prior's surface.
+            // On an object's pixels, the background's opacity in front of where `beyond`
+            // starts: what it holds there lies inside the object that hides the prior's
+            // surface. (Elsewhere a bounded background paints what lies outside its box
+            // in front of it.)
             let placed = t
                 .depth
                 .and_then(|d| super::step::prior_depth(d, self.depth_affine, self.depth_wq));
-            let (vc, dfront) = if placed.is_some() && lam.bg_clear > 0.0 {
+            let on_object = self.is_object.get(t.mask_node as usize) == Some(&true);
+            let (vc, dfront) = if on_object && placed.is_some() && lam.bg_clear > 0.0 {
                 losses::opacity(pb.opacity - pb.beyond, 0.0)
             } else {
                 (0.0, 0.0)

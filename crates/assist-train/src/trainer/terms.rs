@@ -101,10 +101,10 @@ loss_terms! {
          the background alone must be opaque past 95% of it, so that what objects hide is \
          learnt as a surface at the prior's depth and not left transparent.";
     bg_clear: 0.0, settable: true,
-        "A background clear in front of its prior's depth (ours): where the prior has a \
-         depth, the background alone must be transparent before 95% of it, so that the \
-         volume of an object hiding it belongs to the object alone (a background that kept \
-         part of an object leaves it behind, a ghost, once the object moves).";
+        "A background clear in front of its prior's depth (ours): on an object's pixels, \
+         where the prior has a depth, the background alone must be transparent before 95% \
+         of it, so that the object's volume belongs to the object alone (a background that \
+         kept part of it leaves a ghost behind once the object moves).";
     bg_depth: 0.1, settable: true,
         "λ2 of the paper: the background's depth against the prior's depth, in units of the \
          scene's extent (0 with --prior none).";
