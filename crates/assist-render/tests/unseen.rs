@@ -91,3 +91,51 @@ fn a_drag_fills_exactly_as_a_full_render() {
         assert!(full.unseen.iter().any(|&u| u));
     }
 }
+
+/// A ray that meets only something faint (opacity below `UNSEEN_OPACITY`) under a
+/// last-sample backdrop is unseen too: its pixel takes the seen floor's grey, not the
+/// faint node's yellow spread over the whole of it; where the same node is opaque its
+/// pixels are seen and yellow.
+#[test]
+fn a_faint_ray_is_unseen_and_filled() {
+    const YELLOW: [f32; 3] = [0.9, 0.9, 0.1];
+    let render = |sigma: f32| {
+        let (_, cam) = room(Backdrop::LastSample);
+        let floor = Similarity3::from_translation(DVec3::new(0.0, 0.0, -2.0));
+        // A box floating past the floor's far edge, where the top rows see nothing else.
+        let haze = Similarity3::from_translation(DVec3::new(0.0, 3.0, 0.6));
+        let mut s = scene(
+            vec![node(0, "floor", 2.0, floor), node(2, "haze", 0.4, haze)],
+            vec![
+                ("floor", constant_field(200.0, GREY, false, 1)),
+                ("haze", constant_field(sigma, YELLOW, false, 3)),
+            ],
+            0.0,
+        );
+        s.scene.backdrop = Backdrop::LastSample;
+        render_camera(&s, &cam, u32::MAX, &RenderOptions::default())
+    };
+    let faint = render(0.05);
+    // The pixels that see the haze and nothing else.
+    let floor_only = render(1e-6);
+    let inside: Vec<usize> = (0..faint.opacity.len())
+        .filter(|&q| floor_only.opacity[q] < 1e-4 && faint.opacity[q] > 1e-3)
+        .collect();
+    assert!(inside.len() > 20, "{} faint pixels", inside.len());
+    for &q in &inside {
+        assert!(faint.opacity[q] < assist_render::UNSEEN_OPACITY);
+        assert!(
+            faint.unseen[q],
+            "pixel {q} (opacity {}) seen",
+            faint.opacity[q]
+        );
+        let c = &faint.rgb[3 * q..3 * q + 3];
+        assert!(c.iter().all(|v| (v - 0.5).abs() < 1e-3), "pixel {q}: {c:?}");
+    }
+    let dense = render(200.0);
+    let yellow = (0..dense.opacity.len())
+        .filter(|&q| dense.opacity[q] > 0.99 && !dense.unseen[q])
+        .filter(|&q| (dense.rgb[3 * q + 2] - YELLOW[2]).abs() < 1e-3)
+        .count();
+    assert!(yellow > 20, "{yellow} opaque yellow pixels");
+}
