@@ -51,7 +51,7 @@ impl BackgroundAlone {
                 Behind::LastSample => last.unwrap_or([0.0; 3]),
             };
             let rgb = with_backdrop(a.rgb, a.opacity, backdrop);
-            self.unseen[q] = crate::render::unseen(behind == Behind::LastSample, a.opacity);
+            self.unseen[q] = behind == Behind::LastSample && a.opacity == 0.0 && rgb == [0.0; 3];
             self.rgb[3 * q..3 * q + 3].copy_from_slice(&rgb);
         }
     }

@@ -41,8 +41,7 @@ pub use prune::{
 };
 pub use render::{
     HIGHLIGHT, NodeLayer, Query, RenderOptions, RenderScratch, RenderStats, RenderedImage,
-    UNSEEN_OPACITY, query_fields, query_node, render_camera, render_camera_timed, render_rays,
-    render_rays_timed,
+    query_fields, query_node, render_camera, render_camera_timed, render_rays, render_rays_timed,
 };
 pub use sample::{HiddenStop, NodeSamples, RayBatch, SampleOptions, Traced, distortion_distance};
 pub use shade::{

@@ -126,10 +126,9 @@ pub struct RenderedImage {
     /// Instance id of the node with the largest composited weight; 0 = background.
     pub panoptic: Vec<u16>,
     pub layers: Vec<NodeLayer>,
-    /// Pixels whose ray met nothing opaque under a last-sample backdrop (opacity below
-    /// [`UNSEEN_OPACITY`]): what no training view saw (e.g. the top of a wall).
-    /// [`RenderedImage::fill_unseen`] gives them the colour and depth of the nearest seen
-    /// pixels; their opacity stays as composited.
+    /// Pixels whose ray met no sample of any node under a last-sample backdrop: what no
+    /// training view saw (e.g. the top of a wall). [`RenderedImage::fill_unseen`] gives
+    /// them the colour and depth of the nearest seen pixels; their opacity stays 0.
     pub unseen: Vec<bool>,
     /// Interleaved RGB of the background alone (empty unless asked for): the same bits as
     /// rendering the scene with its objects removed, from the samples this render queried
@@ -201,7 +200,8 @@ impl RenderedImage {
 impl RenderedImage {
     /// Pixel `q`'s colour, its opacity already set.
     fn set_rgb(&mut self, last_sample: bool, q: usize, rgb: [f32; 3]) {
-        self.unseen[q] = unseen(last_sample, self.opacity[q]);
+        // No sample at all: nothing weighted and no last sample's colour behind.
+        self.unseen[q] = last_sample && self.opacity[q] == 0.0 && rgb == [0.0; 3];
         self.rgb[3 * q..3 * q + 3].copy_from_slice(&rgb);
     }
 
@@ -221,25 +221,9 @@ impl RenderedImage {
         let seen: Vec<bool> = self.unseen.iter().map(|u| !u).collect();
         crate::fill::pull_push(w, h, 3, &mut self.rgb, &seen, &self.unseen);
         // Depth from the seen pixels that have one (a nearly transparent ray has none).
-        let with_depth: Vec<bool> = (self.depth.iter().zip(&seen))
-            .map(|(&d, &s)| s && d > 0.0)
-            .collect();
+        let with_depth: Vec<bool> = self.depth.iter().map(|&d| d > 0.0).collect();
         crate::fill::pull_push(w, h, 1, &mut self.depth, &with_depth, &self.unseen);
     }
-}
-
-/// The composited opacity below which a ray under a last-sample backdrop shows what no
-/// training view saw: most of its colour would be its last sample's, and a sample the
-/// field left nearly transparent (free space the views saw through, carved empty) has a
-/// colour training never constrained — a faint floater's, in desk's unseen floor a yellow
-/// blot. Such a pixel is filled from the seen pixels around it instead
-/// ([`RenderedImage::fill_unseen`]), as one whose ray met no sample at all.
-pub const UNSEEN_OPACITY: f32 = 0.5;
-
-/// Whether a ray of composited opacity `opacity` shows what no view saw (see
-/// [`UNSEEN_OPACITY`]); never under a colour backdrop, which is what such a ray shows.
-pub(crate) fn unseen(last_sample: bool, opacity: f32) -> bool {
-    last_sample && opacity < UNSEEN_OPACITY
 }
 
 /// How fields are queried.

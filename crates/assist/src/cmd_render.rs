@@ -36,8 +36,7 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downscale: u32,
     /// Comma-separated: rgb, depth, panoptic, semantic, objects, background, unseen (255
-    /// where the ray met nothing opaque — no training view saw the surface — and its colour
-    /// was continued from the pixels around it).
+    /// where no training view saw the surface and its colour was continued).
     #[arg(long, default_value = "rgb,depth,panoptic")]
     pub outputs: String,
     /// Highlight this object: an instance id or a name ("ball", "the red mug"), found as
