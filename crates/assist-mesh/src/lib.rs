@@ -15,6 +15,7 @@ mod decimate;
 mod extract;
 mod hull;
 mod mass;
+pub mod pad;
 mod parts;
 pub use parts::Topology;
 pub mod sim;

@@ -12,6 +12,7 @@ use assist_core::glam::EulerRot;
 use assist_core::{DQuat, DVec3};
 
 use crate::MassProperties;
+use crate::pad::Pad;
 
 /// One body of a model: a mesh file (OBJ, node frame, world units) at a pose.
 #[derive(Debug, Clone)]
@@ -29,6 +30,9 @@ pub struct Body {
     pub rgb: [f32; 3],
     /// The background: static, no joint.
     pub fixed: bool,
+    /// A thin box under a flat base, in the node frame (world units), so that the
+    /// object rests on several contacts ([`crate::pad`]).
+    pub pad: Option<Pad>,
 }
 
 /// A static slab an object rests on: its top at `level` along the scene's up (world
@@ -98,6 +102,9 @@ fn xml_escape(s: &str) -> String {
         .replace('>', "&gt;")
         .replace('"', "&quot;")
 }
+
+/// Half the thickness of a base pad in metres: it reaches 2 mm up into the object.
+const PAD_HALF_THICK_M: f64 = 0.001;
 
 /// A MuJoCo model of `bodies` (`up`: the scene's up, for gravity).
 pub fn mjcf(
@@ -192,9 +199,26 @@ pub fn mjcf(
         }
         let _ = writeln!(
             s,
-            "      <geom type=\"mesh\" mesh=\"{}\" rgba=\"{rgba}\"/>\n    </body>",
+            "      <geom type=\"mesh\" mesh=\"{}\" rgba=\"{rgba}\"/>",
             b.name
         );
+        if let Some(p) = &b.pad {
+            // Drawn in group 3 (hidden by MuJoCo's viewer): it sits inside the mesh.
+            let centre = p.base * m + p.rotation * DVec3::Z * PAD_HALF_THICK_M;
+            let q = p.rotation;
+            let _ = writeln!(
+                s,
+                "      <geom name=\"{}_pad\" type=\"box\" pos=\"{}\" quat=\"{} {} {} {}\" size=\"{}\" group=\"3\" rgba=\"{rgba}\"/>",
+                b.name,
+                vec3(centre.to_array()),
+                f(q.w),
+                f(q.x),
+                f(q.y),
+                f(q.z),
+                vec3([p.half[0] * m, p.half[1] * m, PAD_HALF_THICK_M])
+            );
+        }
+        s += "    </body>\n";
     }
     s += "  </worldbody>\n</mujoco>\n";
     s
@@ -295,6 +319,7 @@ mod tests {
             }),
             rgb: [0.5, 0.25, 1.0],
             fixed,
+            pad: None,
         }
     }
 
@@ -321,6 +346,21 @@ mod tests {
             "{s}"
         );
         assert!(s.contains("gravity=\"0 0 -9.81\""));
+        // A pad goes in its body, 2 mm thick in metres, its bottom on the base.
+        let padded = Body {
+            pad: Some(Pad {
+                base: DVec3::new(0.0, 0.0, -0.02),
+                rotation: DQuat::IDENTITY,
+                half: [0.01, 0.02],
+            }),
+            ..body(false)
+        };
+        let s = mjcf("desk", &[padded], 0.5, DVec3::Z, &[]);
+        assert!(
+            s.contains("type=\"box\" pos=\"0 0 -0.009\" quat=\"1 0 0 0\" size=\"0.005 0.01 0.001\" group=\"3\""),
+            "{s}"
+        );
+        assert!(s.find("_pad\"").unwrap() < s.find("</body>").unwrap());
         let u = urdf_scene("desk", &[body(false)], 0.5);
         assert!(u.contains("<mass value=\"0.1\"/>"));
         assert!(u.contains("xyz=\"0.5 1 0.25\""), "{u}");

@@ -447,6 +447,20 @@ fn export_node(
         "mass_properties": mass,
         "bounds": mesh.bounds(),
     });
+    let rotation = if frame == MeshFrame::Node {
+        pose.rotation
+    } else {
+        Default::default()
+    };
+    let fixed = node.is_background();
+    // A pad under a flat base (points within 1 mm of the lowest; none under 4 mm a side),
+    // in the frame the mesh is written in.
+    let pad = (!fixed)
+        .then(|| {
+            let up = rotation.inverse() * scene.scene.up;
+            assist_mesh::pad::base_pad(&mesh.positions, up, 0.001 / mpu, 0.004 / mpu)
+        })
+        .flatten();
     let body = Body {
         name,
         mesh_file: file,
@@ -455,14 +469,11 @@ fn export_node(
         } else {
             DVec3::ZERO
         },
-        rotation: if frame == MeshFrame::Node {
-            pose.rotation
-        } else {
-            Default::default()
-        },
+        rotation,
         mass,
         rgb: mean_color(&mesh),
-        fixed: node.is_background(),
+        fixed,
+        pad,
     };
     Ok((done, record, body))
 }
