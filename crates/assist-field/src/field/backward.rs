@@ -7,11 +7,15 @@ use rayon::prelude::*;
 use super::{Field, PhaseTimes, Samples};
 use crate::hashgrid::{CHUNK, Layout, encode, encode_backward, position_grad};
 
-/// `d ← d · [x > 0]` (ReLU backward), branch-free so that it vectorises.
+/// `d ← d · [x > 0]` (ReLU backward), as a product with 1 or 0 so that every lane is
+/// stored: written as a choice between `d` and 0 (or as a bit mask, which the compiler
+/// turns into that choice), it became AVX2 masked stores of the zeros alone, which AMD's
+/// cores run many times slower than whole stores. A dropped lane becomes ±0 (its sign
+/// from `d`), which adds as 0 wherever it goes.
 #[inline(always)]
 fn relu_mask(d: &mut [f32], x: &[f32]) {
     for (d, v) in d.iter_mut().zip(x) {
-        *d = if *v > 0.0 { *d } else { 0.0 };
+        *d *= if *v > 0.0 { 1.0 } else { 0.0 };
     }
 }
 
@@ -446,7 +450,7 @@ impl ChunkBackward<'_> {
             if self.field.chunk_slots(self.s, c0, &mut slots) {
                 let sum = &mut code_sums[slots[0] as usize * l0.out..][..l0.out];
                 for (o, r) in dy.chunks_exact(CHUNK).enumerate() {
-                    sum[o] += r[..lanes].iter().sum::<f32>();
+                    sum[o] += crate::mlp::row_sum(&r[..lanes]);
                 }
             } else {
                 add_code_sums(dy, &slots[..lanes], l0.out, code_sums);
@@ -507,6 +511,28 @@ fn add_code_sums(dy: &[f32], slots: &[u32], out: usize, sums: &mut [f32]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The ReLU's backward keeps a lane's gradient where the activation is positive and
+    /// zeroes it elsewhere (0, negative, NaN), at every length the vector loop may split.
+    #[test]
+    fn relu_mask_keeps_the_active_lanes_only() {
+        for n in [0, 1, 7, 8, 31, 64, 67] {
+            let x: Vec<f32> = (0..n)
+                .map(|i| match i % 4 {
+                    0 => 1.5 + i as f32,
+                    1 => -0.25,
+                    2 => 0.0,
+                    _ => f32::NAN,
+                })
+                .collect();
+            let mut d: Vec<f32> = (0..n).map(|i| i as f32 - 3.5).collect();
+            relu_mask(&mut d, &x);
+            for i in 0..n {
+                let want = if i % 4 == 0 { i as f32 - 3.5 } else { 0.0 };
+                assert_eq!(d[i], want, "lane {i} of {n}");
+            }
+        }
+    }
 
     /// The run-wise sums are the lane-by-lane sums bit for bit, whatever the runs (one
     /// slot, alternating slots, a slot coming back after another).
