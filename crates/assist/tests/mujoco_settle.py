@@ -4,7 +4,8 @@ usage: mujoco_settle.py MJCF_DIR   (or imported: `settle(mjcf_dir, count)`)
 
 Loads scene.xml, checks the bodies start at the nodes' poses with a mass, steps two
 simulated seconds and checks every object stays within 1 cm of where it started (with
-nothing under it, an object falls to -4 m in that time).
+nothing under it, an object falls to -4 m in that time) and every base pad rests on at
+least three contacts.
 """
 
 import json
@@ -35,7 +36,21 @@ def settle(mjcf_dir, count=None):
     assert np.all(np.isfinite(data.qpos))
     moved = np.linalg.norm(data.xpos[1:] - start, axis=1)
     assert np.all(moved < 0.01), f"objects moved {moved} m in 2 s"
-    print(f"mujoco: {len(moved)} objects, largest move in 2 s {moved.max() * 1000:.2f} mm")
+    # A flat base rests on its pad's corners (the box-box collider), not on one point.
+    pads = 0
+    for g in range(model.ngeom):
+        if not model.geom(g).name.endswith("_pad"):
+            continue
+        pads += 1
+        touching = [
+            c
+            for c in data.contact[: data.ncon]
+            if g in (c.geom1, c.geom2)
+        ]
+        assert len(touching) >= 3, f"{model.geom(g).name}: {len(touching)} contacts"
+    print(
+        f"mujoco: {len(moved)} objects ({pads} on pads), largest move in 2 s {moved.max() * 1000:.2f} mm"
+    )
 
 
 if __name__ == "__main__":

@@ -177,6 +177,9 @@ fn meshes_are_true_and_rest_in_mujoco(scene: &Path, root: &Path) {
         );
         assert!(n["cut_at_support_m"].as_f64().is_some(), "{label}: not cut");
     }
+    // Every object is cut flat at the table, so each stands on a base pad.
+    let model = std::fs::read_to_string(out.join("scene.xml")).unwrap();
+    assert_eq!(model.matches("_pad\" type=\"box\"").count(), 5, "{model}");
     common::python_check("mujoco_settle.py", &[out.as_os_str()], "mujoco");
 }
 
