@@ -16,6 +16,14 @@ pub struct Pad {
     pub half: [f64; 2],
 }
 
+/// How thick a simulator's pad is, in metres: it reaches this far up into the object.
+pub const THICKNESS_M: f64 = 0.002;
+
+/// The base of an exported mesh: its points within this many metres of its lowest.
+pub const BASE_TOLERANCE_M: f64 = 0.001;
+/// No pad under a base whose rectangle has a side shorter than this, metres.
+pub const MIN_SIDE_M: f64 = 0.004;
+
 /// How far the pad keeps inside the base's outline: its sides are this share of the
 /// largest rectangle found inside it.
 const INSET: f64 = 0.9;
@@ -52,6 +60,35 @@ pub fn base_pad(points: &[[f64; 3]], up: DVec3, tolerance: f64, min_side: f64) -
         rotation: turn * DQuat::from_rotation_z(angle),
         half,
     })
+}
+
+/// The pad under an exported mesh (`points` in its body's frame, world units, the body
+/// turned by `rotation` in a world whose up is `up`), with the export's thresholds in
+/// metres ([`BASE_TOLERANCE_M`], [`MIN_SIDE_M`]).
+pub fn exported_pad(
+    points: &[[f64; 3]],
+    rotation: DQuat,
+    up: DVec3,
+    meters_per_unit: f64,
+) -> Option<Pad> {
+    base_pad(
+        points,
+        rotation.inverse() * up,
+        BASE_TOLERANCE_M / meters_per_unit,
+        MIN_SIDE_M / meters_per_unit,
+    )
+}
+
+impl Pad {
+    /// The pad for an export's index, in metres (`meters_per_unit` per world unit).
+    pub fn json_m(&self, meters_per_unit: f64) -> serde_json::Value {
+        serde_json::json!({
+            "base_m": (self.base * meters_per_unit).to_array(),
+            "rotation_xyzw": self.rotation.to_array(),
+            "half_size_m": self.half.map(|h| h * meters_per_unit),
+            "thickness_m": THICKNESS_M,
+        })
+    }
 }
 
 /// The convex hull of `points`, counter-clockwise, without collinear points (Andrew's

@@ -103,8 +103,8 @@ fn xml_escape(s: &str) -> String {
         .replace('"', "&quot;")
 }
 
-/// Half the thickness of a base pad in metres: it reaches 2 mm up into the object.
-const PAD_HALF_THICK_M: f64 = 0.001;
+/// Half a base pad's thickness, metres.
+const PAD_HALF_THICK_M: f64 = crate::pad::THICKNESS_M / 2.0;
 
 /// A MuJoCo model of `bodies` (`up`: the scene's up, for gravity).
 pub fn mjcf(

@@ -427,6 +427,16 @@ fn export_node(
         world_base: world_base(&mesh, frame, &pose, scene.scene.up),
         seconds: t0.elapsed().as_secs_f64(),
     };
+    let rotation = if frame == MeshFrame::Node {
+        pose.rotation
+    } else {
+        Default::default()
+    };
+    let fixed = node.is_background();
+    // A pad under a flat base, in the frame the mesh is written in (`assist_mesh::pad`).
+    let pad = (!fixed)
+        .then(|| assist_mesh::pad::exported_pad(&mesh.positions, rotation, scene.scene.up, mpu))
+        .flatten();
     let record = json!({
         "id": id,
         "label": node.label,
@@ -445,22 +455,9 @@ fn export_node(
         "cut_at_support_m": done.cut_at_support_m,
         "warnings": done.warnings,
         "mass_properties": mass,
+        "base_pad": pad.map(|p| p.json_m(mpu)),
         "bounds": mesh.bounds(),
     });
-    let rotation = if frame == MeshFrame::Node {
-        pose.rotation
-    } else {
-        Default::default()
-    };
-    let fixed = node.is_background();
-    // A pad under a flat base (points within 1 mm of the lowest; none under 4 mm a side),
-    // in the frame the mesh is written in.
-    let pad = (!fixed)
-        .then(|| {
-            let up = rotation.inverse() * scene.scene.up;
-            assist_mesh::pad::base_pad(&mesh.positions, up, 0.001 / mpu, 0.004 / mpu)
-        })
-        .flatten();
     let body = Body {
         name,
         mesh_file: file,

@@ -102,6 +102,21 @@ fn export_meshes_points_and_models_read_back() {
     let mi: serde_json::Value =
         serde_json::from_slice(&std::fs::read(mjcf.join("export.json")).unwrap()).unwrap();
     assert_eq!(mi["frame"], "node", "--sim exports in the nodes' frames");
+    // Every base pad in the index is in the model, a few centimetres a side.
+    let pads: Vec<&serde_json::Value> = mi["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|n| n["base_pad"].as_object().map(|_| &n["base_pad"]))
+        .collect();
+    assert!(!pads.is_empty(), "{mi}");
+    for p in &pads {
+        for h in p["half_size_m"].as_array().unwrap() {
+            assert!((0.002..0.5).contains(&h.as_f64().unwrap()), "{p}");
+        }
+    }
+    let model = std::fs::read_to_string(mjcf.join("scene.xml")).unwrap();
+    assert_eq!(model.matches("_pad\" type=\"box\"").count(), pads.len());
     export(&scene, &urdf, &[&res[..], &["--sim", "urdf"]].concat());
 
     // Refusals: named, exit 1, nothing written.
