@@ -99,25 +99,27 @@ fn convex_hull(mut points: Vec<DVec2>) -> Vec<DVec2> {
     if points.len() < 3 {
         return points;
     }
-    let cross = |o: DVec2, a: DVec2, b: DVec2| (a - o).perp_dot(b - o);
-    let mut hull: Vec<DVec2> = Vec::with_capacity(2 * points.len());
-    for pass in 0..2 {
-        let start = hull.len();
-        let ordered: Box<dyn Iterator<Item = &DVec2>> = if pass == 0 {
-            Box::new(points.iter())
-        } else {
-            Box::new(points.iter().rev())
-        };
-        for &p in ordered {
-            while hull.len() >= start + 2
-                && cross(hull[hull.len() - 2], hull[hull.len() - 1], p) <= 0.0
-            {
-                hull.pop();
+    // Adds `p` to the chain from `start` on, dropping the points it leaves inside.
+    let add = |hull: &mut Vec<DVec2>, start: usize, p: DVec2| {
+        while hull.len() >= start + 2 {
+            let (o, a) = (hull[hull.len() - 2], hull[hull.len() - 1]);
+            if (a - o).perp_dot(p - o) > 0.0 {
+                break;
             }
-            hull.push(p);
+            hull.pop();
         }
-        hull.pop();
+        hull.push(p);
+    };
+    let mut hull: Vec<DVec2> = Vec::with_capacity(2 * points.len());
+    for &p in &points {
+        add(&mut hull, 0, p);
     }
+    hull.pop();
+    let start = hull.len();
+    for &p in points.iter().rev() {
+        add(&mut hull, start, p);
+    }
+    hull.pop();
     hull
 }
 
