@@ -1,5 +1,6 @@
 //! Measures the machine's peak single-precision FMA throughput on one core (independent
-//! accumulator chains, no memory traffic), for "how far from the limit" figures.
+//! accumulator chains, no memory traffic) and the memory bandwidth of all its threads, for
+//! "how far from the limit" figures.
 
 use crate::Level;
 
@@ -28,6 +29,43 @@ pub fn fma_gflops(level: Level, seconds: f64) -> f64 {
     }
     std::hint::black_box(sink);
     flops / start.elapsed().as_secs_f64() / 1e9
+}
+
+/// Bytes each [`memory_gbytes`] thread streams through per pass: two arrays of 48 MiB
+/// between them all (with four threads, 24 MiB per thread), far beyond any L3 this
+/// product meets per core complex, so every pass goes to memory.
+const STREAM_BYTES: usize = 96 << 20;
+
+/// GB/s of memory traffic `threads` threads sustain together over roughly `seconds`
+/// (the best pass): each updates its own share of two large arrays in place, `a[i] =
+/// a[i] · s + b[i]`, which reads `a` and `b` and writes `a` back, as Adam's sweep reads
+/// and rewrites its moments (no line is written that was not read, so none is fetched
+/// for the write alone). The traffic counted is the three streams, 12 bytes an element:
+/// the figure Adam's own bytes per second are set against (`assist bench field`).
+pub fn memory_gbytes(seconds: f64, threads: usize) -> f64 {
+    let threads = threads.max(1);
+    let per = STREAM_BYTES / 8 / threads;
+    let mut data: Vec<(Vec<f32>, Vec<f32>)> = (0..threads)
+        .map(|t| (vec![1.0f32; per], vec![t as f32 * 1e-3; per]))
+        .collect();
+    let start = std::time::Instant::now();
+    let mut best = 0f64;
+    while best == 0.0 || start.elapsed().as_secs_f64() < seconds {
+        let t0 = std::time::Instant::now();
+        std::thread::scope(|sc| {
+            for (a, b) in data.iter_mut() {
+                sc.spawn(move || {
+                    for (x, y) in a.iter_mut().zip(b.iter()) {
+                        *x = *x * 0.999 + *y;
+                    }
+                    std::hint::black_box(&a[0]);
+                });
+            }
+        });
+        let bytes = (threads * per * 12) as f64;
+        best = best.max(bytes / t0.elapsed().as_secs_f64() / 1e9);
+    }
+    best
 }
 
 fn scalar(iters: u64) -> (f64, f32) {
@@ -82,5 +120,22 @@ mod x86 {
         }
         std::hint::black_box(s);
         iters as f64 * 12.0 * 16.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The bandwidth is a finite, positive figure whatever the thread count, and the FMA
+    /// peak one at every level this CPU runs.
+    #[test]
+    fn the_measured_limits_are_positive_figures() {
+        for threads in [1, 2, 3] {
+            let g = memory_gbytes(0.0, threads);
+            assert!(g.is_finite() && g > 0.0, "{threads} threads: {g}");
+        }
+        let f = fma_gflops(crate::level(), 0.01);
+        assert!(f.is_finite() && f > 0.0, "{f}");
     }
 }

@@ -169,11 +169,16 @@ fn bench_one(
     let mut tape = Tape::default();
     let (mut step_times, mut adam_times) = (Vec::new(), Vec::new());
     let mut phases = PhaseTimes::default();
+    let mut swept = field.param_count();
     for i in 0..a.steps + 2 {
         tape.times = PhaseTimes::default();
         let t0 = Instant::now();
         field.forward_train(&s, &mut tape, &mut sig, &mut rgb);
         field.backward(&s, &mut tape, &d_sigma, &d_rgb, &mut grad);
+        if i == 0 {
+            // Every step's batch is the same, so its lines are the same.
+            swept = swept_params(&adam, &grad);
+        }
         let t1 = Instant::now();
         adam.update(1e-2, &mut field.params, &mut grad);
         let t2 = Instant::now();
@@ -268,7 +273,8 @@ fn bench_one(
         "occupancy_round_seconds": occupancy_t,
         "mlp_macs_per_sample": macs,
         "mlp_train_gflops": mlp_train_gflops,
-        "adam_gbytes_per_sec": 7.0 * 4.0 * field.param_count() as f64 / adam_t / 1e9,
+        "adam_swept_params": swept,
+        "adam_gbytes_per_sec": 7.0 * 4.0 * swept as f64 / adam_t / 1e9,
     });
     if show {
         eprintln!(
@@ -290,6 +296,17 @@ fn bench_one(
         );
     }
     Ok(v)
+}
+
+/// Parameters Adam's sweep reads and writes: every one outside the hash tables, and the
+/// tables' lines of 16 values that hold a gradient (it skips the others whole).
+fn swept_params(adam: &Adam, grad: &[f32]) -> usize {
+    let tables = &grad[adam.sparse_range.clone()];
+    let lines = tables
+        .chunks(16)
+        .filter(|l| l.iter().any(|&g| g != 0.0))
+        .count();
+    grad.len() - tables.len() + lines * 16
 }
 
 /// GFLOP/s of the MLP product kernel on one core (64×64 weights times 64×64 samples, as
@@ -396,11 +413,12 @@ fn field(a: FieldBenchArgs) -> anyhow::Result<()> {
     let level = assist_simd::level();
     let threads = rayon::current_num_threads();
     let peak_core = assist_simd::peak::fma_gflops(level, 0.3);
+    let memory = assist_simd::peak::memory_gbytes(0.3, threads);
     let show = !a.json;
     let gemm = gemm_gflops();
     if show {
         eprintln!(
-            "SIMD {} · {threads} threads · measured FMA peak {peak_core:.1} GFLOP/s per core ({:.1} total)",
+            "SIMD {} · {threads} threads · measured FMA peak {peak_core:.1} GFLOP/s per core ({:.1} total) · memory {memory:.1} GB/s",
             level.name(),
             peak_core * threads as f64
         );
@@ -436,6 +454,22 @@ fn field(a: FieldBenchArgs) -> anyhow::Result<()> {
             gpu.as_ref(),
         )?);
     }
+    // How far each phase is from what bounds it: the nets' products from the FMA peak of
+    // every thread, Adam's sweep from the memory's bandwidth.
+    for v in &mut results {
+        let mlp = v["mlp_train_gflops"].as_f64().unwrap_or(0.0) / (peak_core * threads as f64);
+        let adam = v["adam_gbytes_per_sec"].as_f64().unwrap_or(0.0) / memory;
+        v["mlp_share_of_peak"] = json!(mlp);
+        v["adam_share_of_bandwidth"] = json!(adam);
+        if show {
+            eprintln!(
+                "{:>9}: the MLP at {:.0}% of the FMA peak, Adam at {:.0}% of the memory bandwidth",
+                v["field"].as_str().unwrap_or(""),
+                mlp * 100.0,
+                adam * 100.0
+            );
+        }
+    }
     let nerf = &results[0];
     let out = json!({
         "train_samples_per_sec": nerf["train_samples_per_sec"],
@@ -445,6 +479,7 @@ fn field(a: FieldBenchArgs) -> anyhow::Result<()> {
         "threads": threads,
         "peak_gflops_per_core": peak_core,
         "peak_gflops_total": peak_core * threads as f64,
+        "memory_gbytes_per_sec": memory,
         "gemm_gflops_per_core": gemm,
         "fields": results,
     });

@@ -342,6 +342,54 @@ fn bench_rejects_empty_batches_cleanly() {
     }
 }
 
+/// `assist bench field` at a small size on the CPU: each field's throughput and phases,
+/// and how far the nets and Adam stand from the machine's measured limits (issue 44's
+/// "what bounds it"), as positive figures that are fractions of those limits.
+#[test]
+fn bench_field_reports_each_phase_against_the_machines_limits() {
+    let out = assist(&[
+        "bench",
+        "field",
+        "--rays",
+        "64",
+        "--samples-per-ray",
+        "32",
+        "--steps",
+        "1",
+        "--json",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    for k in [
+        "peak_gflops_total",
+        "memory_gbytes_per_sec",
+        "train_samples_per_sec",
+    ] {
+        assert!(v[k].as_f64().is_some_and(|x| x > 0.0), "{k}: {v}");
+    }
+    let fields = v["fields"].as_array().expect("fields");
+    assert_eq!(fields.len(), 2, "{v}");
+    for f in fields {
+        for k in [
+            "encode_forward",
+            "mlp_forward",
+            "mlp_backward",
+            "encode_backward",
+            "adam",
+        ] {
+            let t = f["breakdown_seconds"][k].as_f64();
+            assert!(t.is_some_and(|x| x > 0.0), "{k}: {f}");
+        }
+        // Shares of a limit: above zero, and not far beyond the limit (the limits are
+        // measured, so a share may exceed 1 a little on a noisy host, never by 3×).
+        for k in ["mlp_share_of_peak", "adam_share_of_bandwidth"] {
+            let r = f[k].as_f64();
+            assert!(r.is_some_and(|x| x > 0.0 && x < 3.0), "{k}: {f}");
+        }
+    }
+}
+
 /// `assist bench sam` on a small random checkpoint: every stage timed, its sizes read
 /// from the file; a bad size or checkpoint is refused by name.
 #[test]
