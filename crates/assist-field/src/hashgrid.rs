@@ -207,7 +207,17 @@ pub(crate) fn encode2_from<T: Sync>(
             .par_chunks_mut(block * chunks_per_task)
             .enumerate()
             .for_each(|(t, dst)| {
-                for (ci, chunk) in dst.chunks_mut(block).enumerate() {
+                let chunks = dst.len() / block;
+                for ci in 0..chunks {
+                    // This level's rows lie a chunk's block apart (see `backward_level`):
+                    // asked for two chunks ahead of their writing.
+                    if ci + 2 < chunks {
+                        let ahead = (ci + 2) * block + li * 2 * CHUNK;
+                        for line in dst[ahead..ahead + 2 * CHUNK].iter().step_by(16) {
+                            assist_simd::transpose::prefetch(line);
+                        }
+                    }
+                    let chunk = &mut dst[ci * block..(ci + 1) * block];
                     let s0 = (t * chunks_per_task + ci) * CHUNK;
                     let s1 = (s0 + CHUNK).min(n);
                     let (f0, rest) =
@@ -365,10 +375,20 @@ fn backward_level<const F: usize>(
     let mut idx = [0u32; 8 * CHUNK];
     let mut w = [0f32; 8 * CHUNK];
     let mut live = [0u8; CHUNK];
-    for c in 0..n.div_ceil(CHUNK) {
+    let nc = n.div_ceil(CHUNK);
+    for c in 0..nc {
         let s0 = c * CHUNK;
         let s1 = (s0 + CHUNK).min(n);
         let rows = &d_out[c * block + li * F * CHUNK..c * block + (li + 1) * F * CHUNK];
+        // This level's rows of a chunk lie a whole chunk's block apart: a stride the
+        // hardware's prefetchers do not follow, so each chunk's rows are asked for two
+        // chunks ahead.
+        if c + 2 < nc {
+            let ahead = (c + 2) * block + li * F * CHUNK;
+            for line in d_out[ahead..ahead + F * CHUNK].iter().step_by(16) {
+                assist_simd::transpose::prefetch(line);
+            }
+        }
         let p = [&pos[0][s0..s1], &pos[1][s0..s1], &pos[2][s0..s1]];
         // Corners of every lane (vectorised), then the lanes with a gradient: prefetch
         // their entries, then add.

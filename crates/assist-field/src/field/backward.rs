@@ -307,8 +307,13 @@ impl Field {
                 assist_simd::simd(
                     #[inline(always)]
                     || {
+                        let end = ((slot + 1) * per).min(nc);
                         for (k, d_enc) in d_run.chunks_mut(block).enumerate() {
-                            chunk.run(slot * per + k, d_enc, &mut guard);
+                            let c = slot * per + k;
+                            if c + 1 < end {
+                                chunk.prefetch(c + 1);
+                            }
+                            chunk.run(c, d_enc, &mut guard);
                         }
                     },
                 );
@@ -378,6 +383,21 @@ struct ChunkBackward<'a> {
 }
 
 impl ChunkBackward<'_> {
+    /// Asks for chunk `c`'s record (its activations and encoding) ahead of its turn: the
+    /// forward left it in memory, and read on demand each of its rows waits there.
+    #[inline(always)]
+    fn prefetch(&self, c: usize) {
+        let per = self.rows.total * CHUNK;
+        for part in [
+            &self.act[c * per..(c + 1) * per],
+            &self.enc[c * self.block..(c + 1) * self.block],
+        ] {
+            for line in part.iter().step_by(16) {
+                assist_simd::transpose::prefetch(line);
+            }
+        }
+    }
+
     /// Chunk `c`: its MLP gradient summed into the scratch set `sc`, its gradient of the
     /// encoding written to `d_enc`. Inlined into the SIMD-dispatched loop.
     #[inline(always)]
