@@ -388,14 +388,8 @@ impl ChunkBackward<'_> {
     #[inline(always)]
     fn prefetch(&self, c: usize) {
         let per = self.rows.total * CHUNK;
-        for part in [
-            &self.act[c * per..(c + 1) * per],
-            &self.enc[c * self.block..(c + 1) * self.block],
-        ] {
-            for line in part.iter().step_by(16) {
-                assist_simd::transpose::prefetch(line);
-            }
-        }
+        super::prefetch_all(&self.act[c * per..(c + 1) * per]);
+        super::prefetch_all(&self.enc[c * self.block..(c + 1) * self.block]);
     }
 
     /// Chunk `c`: its MLP gradient summed into the scratch set `sc`, its gradient of the

@@ -28,6 +28,15 @@ pub use layout::ParamLayout;
 use layout::Rows;
 pub use packed::PackedTables;
 
+/// Asks for every cache line of `s` ahead of its use: a chunk's record, which the forward
+/// pass left in memory, read while the chunk before it is computed.
+#[inline(always)]
+pub(crate) fn prefetch_all(s: &[f32]) {
+    for line in s.iter().step_by(16) {
+        assist_simd::transpose::prefetch(line);
+    }
+}
+
 /// Arithmetic of inference.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Precision {
