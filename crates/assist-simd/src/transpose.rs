@@ -68,6 +68,19 @@ fn scalar_region(
     }
 }
 
+/// Hints the CPU to bring the cache line holding `p` into its L2 only: for a block larger
+/// than the L1 asked for ahead, which would push out what is being computed.
+#[inline(always)]
+pub fn prefetch_l2<T>(p: &T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: a prefetch never faults and has no architectural effect; `p` is a valid reference.
+    unsafe {
+        std::arch::x86_64::_mm_prefetch(p as *const T as *const i8, std::arch::x86_64::_MM_HINT_T1)
+    };
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = p;
+}
+
 /// Hints the CPU to bring the cache line holding `p` closer (no effect elsewhere).
 #[inline(always)]
 pub fn prefetch<T>(p: &T) {

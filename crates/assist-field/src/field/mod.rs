@@ -33,7 +33,7 @@ pub use packed::PackedTables;
 #[inline(always)]
 pub(crate) fn prefetch_all(s: &[f32]) {
     for line in s.iter().step_by(16) {
-        assist_simd::transpose::prefetch(line);
+        assist_simd::transpose::prefetch_l2(line);
     }
 }
 
