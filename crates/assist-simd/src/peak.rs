@@ -31,10 +31,10 @@ pub fn fma_gflops(level: Level, seconds: f64) -> f64 {
     flops / start.elapsed().as_secs_f64() / 1e9
 }
 
-/// Bytes each [`memory_gbytes`] thread streams through per pass: two arrays of 48 MiB
-/// between them all (with four threads, 24 MiB per thread), far beyond any L3 this
-/// product meets per core complex, so every pass goes to memory.
-const STREAM_BYTES: usize = 96 << 20;
+/// Bytes [`memory_gbytes`] streams through per pass, its two arrays of 128 MiB shared out
+/// among the threads: beyond the L3 of any core complex (96 MiB on AMD's stacked-cache
+/// parts), so every pass goes to memory.
+const STREAM_BYTES: usize = 256 << 20;
 
 /// GB/s of memory traffic `threads` threads sustain together over roughly `seconds`
 /// (the best pass): each updates its own share of two large arrays in place, `a[i] =
