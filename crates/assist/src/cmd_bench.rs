@@ -226,18 +226,7 @@ fn bench_one(
         (Precision::Bf16, Products::F32) => "bf16 tables, f32 products",
         (Precision::F32, _) => "f32",
     };
-    // One occupancy-grid update round as training runs it (every 16 steps), on a grid of
-    // the size training gives this field; the first round (allocation) is not timed.
-    let mut grid = OccupancyGrid::new(grid_res);
-    let mut occ_times = Vec::new();
-    for round in 0..a.steps.max(grid.parts()) + 1 {
-        let t0 = Instant::now();
-        grid.update_round(&field, &mut rng, round);
-        if round >= 1 {
-            occ_times.push(t0.elapsed().as_secs_f64());
-        }
-    }
-    let occupancy_t = median(&mut occ_times);
+    let (occupancy_t, occupancy_cells) = occupancy_round(&field, grid_res, a.steps, &mut rng);
     let infer_f32 = infer_at(Precision::F32);
     let step = median(&mut step_times);
     let adam_t = median(&mut adam_times);
@@ -269,7 +258,7 @@ fn bench_one(
             "adam": adam_t,
         },
         "occupancy_grid": grid_res,
-        "occupancy_cells_per_round": grid.cells() / grid.parts(),
+        "occupancy_cells_per_round": occupancy_cells,
         "occupancy_round_seconds": occupancy_t,
         "mlp_macs_per_sample": macs,
         "mlp_train_gflops": mlp_train_gflops,
@@ -291,11 +280,27 @@ fn bench_one(
             adam_t * 1e3,
             mlp_train_gflops,
             grid_res,
-            grid.cells() / grid.parts(),
+            occupancy_cells,
             occupancy_t * 1e3
         );
     }
     Ok(v)
+}
+
+/// One occupancy-grid update round as training runs it (every 16 steps), on a grid of the
+/// size training gives this field: the median seconds over rounds (the first, which
+/// allocates, not timed) and the cells a round refreshes.
+fn occupancy_round(field: &Field, grid_res: u32, steps: usize, rng: &mut Rng) -> (f64, usize) {
+    let mut grid = OccupancyGrid::new(grid_res);
+    let mut times = Vec::new();
+    for round in 0..steps.max(grid.parts()) + 1 {
+        let t0 = Instant::now();
+        grid.update_round(field, rng, round);
+        if round >= 1 {
+            times.push(t0.elapsed().as_secs_f64());
+        }
+    }
+    (median(&mut times), grid.cells() / grid.parts())
 }
 
 /// Parameters Adam's sweep reads and writes: every one outside the hash tables, and the
