@@ -73,10 +73,7 @@ fn scalar_region(
 #[inline(always)]
 pub fn prefetch_l2<T>(p: &T) {
     #[cfg(target_arch = "x86_64")]
-    // SAFETY: a prefetch never faults and has no architectural effect; `p` is a valid reference.
-    unsafe {
-        std::arch::x86_64::_mm_prefetch(p as *const T as *const i8, std::arch::x86_64::_MM_HINT_T1)
-    };
+    hint::<{ std::arch::x86_64::_MM_HINT_T1 }, T>(p);
     #[cfg(not(target_arch = "x86_64"))]
     let _ = p;
 }
@@ -85,12 +82,17 @@ pub fn prefetch_l2<T>(p: &T) {
 #[inline(always)]
 pub fn prefetch<T>(p: &T) {
     #[cfg(target_arch = "x86_64")]
-    // SAFETY: a prefetch never faults and has no architectural effect; `p` is a valid reference.
-    unsafe {
-        std::arch::x86_64::_mm_prefetch(p as *const T as *const i8, std::arch::x86_64::_MM_HINT_T0)
-    };
+    hint::<{ std::arch::x86_64::_MM_HINT_T0 }, T>(p);
     #[cfg(not(target_arch = "x86_64"))]
     let _ = p;
+}
+
+/// A prefetch of `p`'s line with the cache-level hint `H`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn hint<const H: i32, T>(p: &T) {
+    // SAFETY: a prefetch never faults and has no architectural effect; `p` is a valid reference.
+    unsafe { std::arch::x86_64::_mm_prefetch::<H>(p as *const T as *const i8) };
 }
 
 #[cfg(target_arch = "x86_64")]
