@@ -342,7 +342,7 @@ async fn a_client_renders_selects_edits_undoes_and_saves() {
     assert!(e["message"].as_str().unwrap().contains("purple"), "{e}");
     // The background alone, then the view saved as a labelled one-view dataset.
     send(&mut ws, json!({"type": "output", "output": "background"})).await;
-    // The undo's full frame may still be on its way (a slow host, session 97): skip it.
+    // The undo's full frame may still be on its way on a slow host: skip it.
     let mut f = full_frame(&mut ws).await;
     for _ in 0..3 {
         if f["output"] == "background" {

@@ -80,8 +80,8 @@ try {
   // Again: cancel during the fine-tune (100,000 steps asked) keeps what it trained.
   await page.evaluate(() => { window.__assist.error = null; window.__assist.progress = null; });
   await page.click("#pconfirm");
-  // The masks, the field taken from the background and the fine-tune's set-up come first:
-  // over 300 s on a 2-core host shared with the split test (session 97), so a wide bound.
+  // The masks, the field taken from the background and the fine-tune's set-up come first,
+  // long on a slow 2-core host shared with other tests: a wide bound.
   await page.waitForFunction(() => (window.__assist.progress && window.__assist.progress.task === "fine-tune") || window.__assist.error, { timeout: 900000 });
   await page.click("#pcancel");
   await page.waitForFunction(() => window.__assist.state.nodes.some((x) => x.label === "found object") || window.__assist.error, { timeout: 600000 });
