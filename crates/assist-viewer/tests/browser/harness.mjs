@@ -11,6 +11,9 @@ export async function start(shots, chromium, prefix = "") {
     executablePath: chromium,
     headless: true,
     args: ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"],
+    // A wait for the page runs as one DevTools call, which this bounds (180 s unless
+    // given): it must outlast the longest wait below.
+    protocolTimeout: 1_200_000,
   });
   const page = await browser.newPage();
   await page.setViewport({ width: 960, height: 480 });
