@@ -10,7 +10,10 @@ use assist_scene::NeuralScene;
 use serde::Serialize;
 
 use crate::error::Result;
-use crate::metrics::{IouAccumulator, color_corrected, mse_to_psnr, squared_error, ssim};
+use crate::metrics::{
+    DetailAccumulator, IouAccumulator, color_corrected, fine_detail, mse_to_psnr, squared_error,
+    ssim,
+};
 use crate::views::load_view;
 
 #[derive(Debug, Clone, Serialize)]
@@ -35,6 +38,10 @@ pub struct EvalReport {
     /// Mean of per-image PSNR after each render's best gain and offset per channel (what
     /// the views' exposure and white balance alone cost: the gap to `psnr`).
     pub color_corrected_psnr: f64,
+    /// How much of the photographs' fine detail (structure 1–3 pixels across) the renders
+    /// reproduce, every image pooled ([`DetailAccumulator`]): 1 as sharp as they are, 0.5
+    /// at half its contrast; `None` for photographs without detail.
+    pub detail: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub panoptic_miou: Option<f64>,
     /// IoU of each instance id (0 = background) whose mean is `panoptic_miou`.
@@ -47,6 +54,11 @@ pub struct EvalReport {
     pub object_pixels_psnr: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub other_pixels_psnr: Option<f64>,
+    /// [`EvalReport::detail`] over the same two sets of pixels.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub object_pixels_detail: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub other_pixels_detail: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub background_psnr: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -138,6 +150,10 @@ pub fn evaluate_each(
     let (mut bg_se, mut bg_n, mut occ_se, mut occ_n) = (0.0, 0usize, 0.0, 0usize);
     // Squared error and channel count on object pixels [0] and the others [1].
     let mut split_se = [(0.0, 0usize); 2];
+    let (mut detail, mut split_detail) = (
+        DetailAccumulator::default(),
+        [DetailAccumulator::default(); 2],
+    );
     let mut depth_err: Vec<f32> = Vec::new();
     for (i, f) in frames.iter().enumerate() {
         progress(i, frames.len());
@@ -161,15 +177,21 @@ pub fn evaluate_each(
             render: &img,
             score: per_image.last().expect("pushed above"),
         });
+        let (rd, td) = (
+            fine_detail(&rgb, v.width, v.height, 3),
+            fine_detail(&v.rgb, v.width, v.height, 3),
+        );
+        detail.add(&rd, &td, 3, None);
         if let Some(ids) = &v.ids {
             any_ids = true;
             iou.add(&img.panoptic, ids);
             let on_object: Vec<bool> = ids.iter().map(|&i| i != 0).collect();
             let others: Vec<bool> = on_object.iter().map(|&o| !o).collect();
-            for (acc, mask) in split_se.iter_mut().zip([&on_object, &others]) {
+            for (k, mask) in [&on_object, &others].into_iter().enumerate() {
                 let (se, n) = squared_error(&rgb, &v.rgb, 3, Some(mask));
-                acc.0 += se;
-                acc.1 += n;
+                split_se[k].0 += se;
+                split_se[k].1 += n;
+                split_detail[k].add(&rd, &td, 3, Some(mask));
             }
         }
         if let (Some(bt), Some(bs)) = (&bg_truth, &bg_scene)
@@ -208,10 +230,13 @@ pub fn evaluate_each(
             .map(|s| s.color_corrected_psnr)
             .sum::<f64>()
             / m,
+        detail: detail.gain(),
         panoptic_miou: if any_ids { iou.mean() } else { None },
         panoptic_iou: any_ids.then(|| iou.per_class()),
         object_pixels_psnr: pooled_psnr(split_se[0]),
         other_pixels_psnr: pooled_psnr(split_se[1]),
+        object_pixels_detail: split_detail[0].gain(),
+        other_pixels_detail: split_detail[1].gain(),
         background_psnr: pooled_psnr((bg_se, bg_n)),
         background_occluded_psnr: pooled_psnr((occ_se, occ_n)),
         background_depth_error: median(&mut depth_err),

@@ -144,6 +144,15 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         if let (Some(o), Some(b)) = (r.object_pixels_psnr, r.other_pixels_psnr) {
             eprintln!("PSNR {o:.2} dB on the masks' object pixels, {b:.2} dB on the others");
         }
+        if let Some(d) = r.detail {
+            let mut line = format!(
+                "fine detail {d:.2} of the photographs' (1: as sharp; structure 1-3 pixels across)"
+            );
+            if let (Some(o), Some(b)) = (r.object_pixels_detail, r.other_pixels_detail) {
+                line += &format!("; {o:.2} on the object pixels, {b:.2} on the others");
+            }
+            eprintln!("{line}");
+        }
         if let Some(b) = r.background_psnr {
             eprintln!("background PSNR {b:.2} dB (all pixels)");
         }

@@ -281,6 +281,14 @@ fn eval_writes_a_contact_sheet_and_the_masks_split() {
     for k in ["object_pixels_psnr", "other_pixels_psnr"] {
         assert!(r[k].as_f64().is_some_and(f64::is_finite), "{k}: {r}");
     }
+    // The share of the photographs' fine detail the renders keep: the objects' edges and
+    // the floor's texture are learnt in place, so some and at most about all of it.
+    for k in ["detail", "object_pixels_detail", "other_pixels_detail"] {
+        assert!(
+            r[k].as_f64().is_some_and(|d| d > 0.0 && d < 1.5),
+            "{k}: {r}"
+        );
+    }
     // A view's best gain and offset can only bring its render nearer the photograph.
     let (p, c) = (
         r["psnr"].as_f64().unwrap(),
