@@ -31,6 +31,12 @@ pub struct FieldConfig {
     pub appearance_dim: usize,
     /// Number of images with an appearance code.
     pub num_images: usize,
+    /// Reflected view direction (Ref-NeRF): the density net also predicts a surface
+    /// normal, and the colour net sees the view direction mirrored about it instead of
+    /// the view direction itself, so a shiny surface's reflections vary with one
+    /// direction shared by all its points rather than with position and view together.
+    #[serde(default)]
+    pub reflect: bool,
 }
 
 /// Most images a field keeps appearance codes for.
@@ -58,6 +64,7 @@ impl FieldConfig {
             sh_degree: 4,
             appearance_dim: 32,
             num_images,
+            reflect: false,
         }
     }
 
@@ -162,5 +169,10 @@ impl FieldConfig {
     }
     pub fn sh_width(&self) -> usize {
         self.sh_degree * self.sh_degree
+    }
+    /// Outputs of the density net: raw density, the geometry feature and, with
+    /// [`reflect`](Self::reflect), the predicted normal's three components.
+    pub fn density_outputs(&self) -> usize {
+        1 + self.geo_features + if self.reflect { 3 } else { 0 }
     }
 }

@@ -35,6 +35,53 @@ pub fn sh_encode(degree: usize, x: f32, y: f32, z: f32, out: &mut [f32]) {
     out[15] = 0.590_043_6 * x * (-xx + 3.0 * yy);
 }
 
+/// The gradient of `Σ_k g[k] · Y_k(x, y, z)` with respect to `(x, y, z)` (the
+/// coordinates taken as independent, not held to the unit sphere), for the `degree²`
+/// coefficients of [`sh_encode`]: what the reflected direction's backward pass needs.
+#[inline(always)]
+pub fn sh_vjp(degree: usize, x: f32, y: f32, z: f32, g: &[f32]) -> [f32; 3] {
+    const C1: f32 = 0.488_602_5;
+    const C2: f32 = 1.092_548_4;
+    let (mut dx, mut dy, mut dz) = (0.0f32, 0.0f32, 0.0f32);
+    if degree >= 2 {
+        dy -= C1 * g[1];
+        dz += C1 * g[2];
+        dx -= C1 * g[3];
+    }
+    if degree >= 3 {
+        dx += C2 * y * g[4];
+        dy += C2 * x * g[4];
+        dy -= C2 * z * g[5];
+        dz -= C2 * y * g[5];
+        dz += 2.0 * 0.946_174_7 * z * g[6];
+        dx -= C2 * z * g[7];
+        dz -= C2 * x * g[7];
+        dx += 2.0 * 0.546_274_2 * x * g[8];
+        dy -= 2.0 * 0.546_274_2 * y * g[8];
+    }
+    if degree >= 4 {
+        let (xx, yy, zz) = (x * x, y * y, z * z);
+        let (a9, a10, a11, a12) = (0.590_043_6, 2.890_611_4, 0.457_045_8, 0.373_176_33);
+        let (a14, a15) = (1.445_305_7, 0.590_043_6);
+        dx += a9 * -6.0 * x * y * g[9];
+        dy += a9 * 3.0 * (yy - xx) * g[9];
+        dx += a10 * y * z * g[10];
+        dy += a10 * x * z * g[10];
+        dz += a10 * x * y * g[10];
+        dy += a11 * (1.0 - 5.0 * zz) * g[11];
+        dz += a11 * -10.0 * y * z * g[11];
+        dz += a12 * (15.0 * zz - 3.0) * g[12];
+        dx += a11 * (1.0 - 5.0 * zz) * g[13];
+        dz += a11 * -10.0 * x * z * g[13];
+        dx += a14 * 2.0 * x * z * g[14];
+        dy -= a14 * 2.0 * y * z * g[14];
+        dz += a14 * (xx - yy) * g[14];
+        dx += a15 * 3.0 * (yy - xx) * g[15];
+        dy += a15 * 6.0 * x * y * g[15];
+    }
+    [dx, dy, dz]
+}
+
 /// The same basis for many directions at once: coefficient `k` of lane `l` goes to
 /// `out[k * stride + l]` (the chunk's feature-major rows). Lane loops, so it vectorises.
 #[inline(always)]
@@ -154,6 +201,39 @@ mod tests {
                 let v = g[i][j] / n as f64 * area;
                 let want = if i == j { 1.0 } else { 0.0 };
                 assert!((v - want).abs() < 0.03, "<Y{i},Y{j}> = {v}");
+            }
+        }
+    }
+
+    /// The vector-Jacobian product against central differences of `sh_encode`, at every
+    /// degree, for random directions off the unit sphere too.
+    #[test]
+    fn vjp_matches_central_differences() {
+        let mut rng = assist_core::Rng::new(11);
+        for degree in 1..=4 {
+            let n = degree * degree;
+            for _ in 0..20 {
+                let p = [rng.f32() * 2.0 - 1.0, rng.f32() * 2.0 - 1.0, rng.f32() * 2.0 - 1.0];
+                let g: Vec<f32> = (0..n).map(|_| rng.f32() * 2.0 - 1.0).collect();
+                let f = |q: [f64; 3]| {
+                    let mut o = [0.0f32; 16];
+                    sh_encode(degree, q[0] as f32, q[1] as f32, q[2] as f32, &mut o);
+                    (0..n).map(|k| f64::from(o[k]) * f64::from(g[k])).sum::<f64>()
+                };
+                let got = sh_vjp(degree, p[0], p[1], p[2], &g);
+                for a in 0..3 {
+                    let h = 1e-3;
+                    let mut q1 = p.map(f64::from);
+                    let mut q0 = q1;
+                    q1[a] += h;
+                    q0[a] -= h;
+                    let want = (f(q1) - f(q0)) / (2.0 * h);
+                    assert!(
+                        (f64::from(got[a]) - want).abs() < 2e-3 * (1.0 + want.abs()),
+                        "degree {degree}, axis {a}: {} against {want}",
+                        got[a]
+                    );
+                }
             }
         }
     }

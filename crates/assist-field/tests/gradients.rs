@@ -19,6 +19,15 @@ fn small_config() -> FieldConfig {
         sh_degree: 4,
         appearance_dim: 4,
         num_images: 3,
+        reflect: false,
+    }
+}
+
+/// The same with a predicted normal and the reflected view direction.
+fn reflect_config() -> FieldConfig {
+    FieldConfig {
+        reflect: true,
+        ..small_config()
     }
 }
 
@@ -28,6 +37,9 @@ struct Batch {
     image: Vec<u32>,
     a: Vec<f32>,
     b: Vec<f32>,
+    /// The normal loss's targets (three per sample, some zero: skipped) and weights.
+    targets: Vec<f32>,
+    weights: Vec<f32>,
 }
 
 impl Batch {
@@ -63,12 +75,23 @@ impl Batch {
             .collect();
         let a = (0..n).map(|_| rng.f32() - 0.5).collect();
         let b = (0..3 * n).map(|_| rng.f32() - 0.5).collect();
+        let mut targets = vec![0.0; 3 * n];
+        for i in (0..n).filter(|i| i % 7 != 3) {
+            let t = [rng.normal(), rng.normal(), rng.normal()];
+            let len = (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt();
+            for k in 0..3 {
+                targets[3 * i + k] = (t[k] / len) as f32;
+            }
+        }
+        let weights = (0..n).map(|_| rng.f32()).collect();
         Batch {
             pos,
             dir,
             image,
             a,
             b,
+            targets,
+            weights,
         }
     }
     fn samples(&self) -> Samples<'_> {
@@ -92,22 +115,36 @@ impl Batch {
                 .zip(&self.b)
                 .map(|(c, b)| *c as f64 * *b as f64)
                 .sum::<f64>()
+            + if field.config.reflect {
+                let mut tape = Tape::default();
+                field.forward_train(&self.samples(), &mut tape, &mut sig, &mut rgb);
+                field.normal_loss(&mut tape, &self.targets, &self.weights)
+            } else {
+                0.0
+            }
     }
 }
 
 #[test]
 fn every_parameter_group_matches_central_differences() {
-    check_every_group(false, 42);
+    check_every_group(small_config(), false, 42);
+}
+
+/// With the reflected direction and the normal loss: the normal's rows through the
+/// reflection, the SH and the loss, into the density net and the tables.
+#[test]
+fn every_parameter_group_matches_central_differences_reflected() {
+    check_every_group(reflect_config(), false, 43);
 }
 
 #[test]
 fn every_parameter_group_matches_central_differences_one_image_per_chunk() {
-    check_every_group(true, 42);
+    check_every_group(small_config(), true, 42);
 }
 
-fn check_every_group(uniform: bool, seed: u64) {
+fn check_every_group(config: FieldConfig, uniform: bool, seed: u64) {
     let mut rng = Rng::new(seed);
-    let mut field = Field::new(small_config(), 7).unwrap();
+    let mut field = Field::new(config, 7).unwrap();
     // Larger table values than the default init, so the encoding matters to the output.
     let grid_len = field.layout.grid.param_count();
     for p in &mut field.params[..grid_len] {
@@ -120,6 +157,7 @@ fn check_every_group(uniform: bool, seed: u64) {
         *p = 4.0 * (rng.f32() - 0.5);
     }
     let batch = Batch::new(150, &mut rng, uniform); // not a multiple of the chunk size
+
     let s = batch.samples();
     let n = s.len();
     let mut tape = Tape::default();
@@ -136,6 +174,9 @@ fn check_every_group(uniform: bool, seed: u64) {
         sig.iter().sum::<f32>() / n as f32
     );
     let mut grad = vec![0.0f32; field.param_count()];
+    if field.config.reflect {
+        field.normal_loss(&mut tape, &batch.targets, &batch.weights);
+    }
     field.backward(&s, &mut tape, &batch.a, &batch.b, &mut grad);
 
     let eps = 1e-4f32;
@@ -321,4 +362,65 @@ fn the_backward_to_the_encoding_alone_gives_the_same_position_gradient() {
     let mut again = vec![0.0f32; field.param_count()];
     field.backward(&batch.samples(), &mut tape, &batch.a, &batch.b, &mut again);
     assert_eq!(again, grad);
+}
+
+/// The density's own normals against central differences of the density, in a box
+/// scaled unevenly: `−∇σ / |∇σ|` with the gradient taken per unit of the scaled axes.
+#[test]
+fn density_normals_match_central_differences() {
+    let mut rng = Rng::new(21);
+    let mut field = Field::new(reflect_config(), 3).unwrap();
+    let grid_len = field.layout.grid.param_count();
+    for p in &mut field.params[..grid_len] {
+        *p = rng.f32() - 0.5;
+    }
+    let mut batch = Batch::new(90, &mut rng, false);
+    for a in 0..3 {
+        for v in &mut batch.pos[a] {
+            *v = 0.05 + 0.9 * *v;
+        }
+    }
+    let n = batch.pos[0].len();
+    let mut tape = Tape::default();
+    let (mut sig, mut rgb) = (vec![0.0; n], vec![0.0; 3 * n]);
+    field.forward_train(&batch.samples(), &mut tape, &mut sig, &mut rgb);
+    let scale = [1.0f32, 2.0, 0.5];
+    let mut got = vec![0.0f32; 3 * n];
+    field.density_normals(&batch.samples(), &tape, scale, &mut got);
+    let density = |p: [f32; 3]| {
+        let mut s = [0.0f32];
+        field.density([&[p[0]], &[p[1]], &[p[2]]], &mut s);
+        f64::from(s[0])
+    };
+    let eps = 2e-4f32;
+    let (mut checked, mut close_ones) = (0, 0);
+    for i in 0..n {
+        let p = [batch.pos[0][i], batch.pos[1][i], batch.pos[2][i]];
+        let g: Vec<f64> = (0..3)
+            .map(|a| {
+                let (mut hi, mut lo) = (p, p);
+                hi[a] += eps;
+                lo[a] -= eps;
+                (density(hi) - density(lo)) / (2.0 * f64::from(eps)) / f64::from(scale[a])
+            })
+            .collect();
+        let len = g.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if len < 1e-3 {
+            continue;
+        }
+        checked += 1;
+        let err: f64 = (0..3)
+            .map(|a| (f64::from(got[3 * i + a]) + g[a] / len).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        // A cell face or ReLU kink within ±ε moves a few; the rest agree closely.
+        if err < 2e-2 {
+            close_ones += 1;
+        }
+    }
+    assert!(checked > n / 2, "only {checked} of {n} with a gradient");
+    assert!(
+        close_ones * 10 >= checked * 9,
+        "{close_ones} of {checked} normals within 0.02"
+    );
 }

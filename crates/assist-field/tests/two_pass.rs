@@ -21,6 +21,7 @@ fn setup(n: usize) -> (Field, [Vec<f32>; 3], [Vec<f32>; 3], Vec<u32>, Vec<u32>) 
         sh_degree: 4,
         appearance_dim: 4,
         num_images: 3,
+        reflect: false,
     };
     let mut field = Field::new(cfg, 5).unwrap();
     let mut rng = Rng::new(12);

@@ -35,6 +35,9 @@ pub struct Tape {
     /// by training's density pass, [`Field::density_encoded`]): the next
     /// `forward_train` on them does not encode again.
     pub(super) encoded: Option<(usize, u64)>,
+    /// dL/d(unit predicted normal), three per sample, from [`Field::normal_loss`]; the
+    /// next backward pass adds it and clears it (empty: none).
+    pub(super) d_normal: Vec<f32>,
 }
 
 /// What identifies a batch of sample positions for [`Tape::encoded`]: their count and a
@@ -287,6 +290,11 @@ impl Field {
             rows: &rows,
             d_sigma,
             d_rgb,
+            d_normal: if tape.d_normal.len() >= 3 * n {
+                &tape.d_normal
+            } else {
+                &[]
+            },
             n,
             block,
             mlp0,
@@ -318,6 +326,7 @@ impl Field {
                     },
                 );
             });
+        tape.d_normal.clear();
         let mut sums = vec![0.0f32; sizes.3];
         for sc in scratch {
             let mut sc = sc.lock().unwrap_or_else(|p| p.into_inner());
@@ -375,6 +384,8 @@ struct ChunkBackward<'a> {
     rows: &'a super::layout::Rows,
     d_sigma: &'a [f32],
     d_rgb: &'a [f32],
+    /// dL/d(unit predicted normal), three per sample, or empty.
+    d_normal: &'a [f32],
     n: usize,
     block: usize,
     mlp0: usize,
@@ -383,6 +394,35 @@ struct ChunkBackward<'a> {
 }
 
 impl ChunkBackward<'_> {
+    /// The predicted normal's rows of dL/d(density net output) in `db`, from the SH
+    /// rows of dL/d(colour input) in `dcin` and the normal loss's gradient.
+    #[inline(always)]
+    fn normal_backward(&self, c0: usize, lanes: usize, m: &[f32], dcin: &[f32], db: &mut [f32]) {
+        let cfg = &self.field.config;
+        let (geo, shw) = (cfg.geo_features, cfg.sh_width());
+        let nr = 1 + geo;
+        for l in 0..lanes {
+            let i = c0 + l;
+            let d = [self.s.dir[0][i], self.s.dir[1][i], self.s.dir[2][i]];
+            let (n, _) = super::reflect::unit_normal(m, l);
+            let dn = d[0] * n[0] + d[1] * n[1] + d[2] * n[2];
+            let r: [f32; 3] = std::array::from_fn(|a| d[a] - 2.0 * dn * n[a]);
+            let mut g = [0.0f32; 16];
+            for (k, gk) in g.iter_mut().enumerate().take(shw) {
+                *gk = dcin[(geo + k) * CHUNK + l];
+            }
+            let dr = crate::sh::sh_vjp(cfg.sh_degree, r[0], r[1], r[2], &g);
+            let extra = match self.d_normal.get(3 * i..3 * i + 3) {
+                Some(e) => [e[0], e[1], e[2]],
+                None => [0.0; 3],
+            };
+            let dm = super::reflect::reflected_backward(m, l, d, dr, extra);
+            for a in 0..3 {
+                db[(nr + a) * CHUNK + l] = dm[a];
+            }
+        }
+    }
+
     /// Asks for chunk `c`'s record (its activations and encoding) ahead of its turn: the
     /// forward left it in memory, and read on demand each of its rows waits there.
     #[inline(always)]
@@ -447,6 +487,13 @@ impl ChunkBackward<'_> {
         // summed per code: Σ dy over a code's lanes gives both its weight
         // gradient and its code gradient (after the loop over chunks).
         let l0 = &lay.color[0];
+        let reflect = self.field.config.reflect;
+        // With a reflected direction, dx for the SH rows too (they depend on the normal).
+        let dx_rows = if reflect {
+            k0
+        } else {
+            crate::mlp::pad16(geo).min(l0.inp_pad)
+        };
         l0.backward(
             &self.wts[2],
             row(rows.cin, l0.inp_pad),
@@ -454,7 +501,7 @@ impl ChunkBackward<'_> {
             g,
             mlp0,
             // (16 rows rather than the 15 geometry ones: the fast kernel.)
-            Some(&mut db[..crate::mlp::pad16(geo).min(l0.inp_pad) * CHUNK]),
+            Some(&mut db[..dx_rows * CHUNK]),
             xt,
             k0,
         );
@@ -479,6 +526,9 @@ impl ChunkBackward<'_> {
             db[l] = d_sigma[c0 + l] * sig;
         }
         db[CHUNK..(1 + geo) * CHUNK].copy_from_slice(&da[..geo * CHUNK]);
+        if reflect {
+            self.normal_backward(c0, lanes, row(self.field.normal_row(rows.dens), 3), da, db);
+        }
         let hid = row(rows.hidden, d2.inp_pad);
         d2.backward(
             &self.wts[1],

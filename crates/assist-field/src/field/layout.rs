@@ -22,7 +22,7 @@ impl ParamLayout {
         let mut off = grid.param_count();
         let enc = cfg.encoding_width();
         let d1 = Linear::new(cfg.hidden, enc, &mut off);
-        let d2 = Linear::new(1 + cfg.geo_features, cfg.hidden, &mut off);
+        let d2 = Linear::new(cfg.density_outputs(), cfg.hidden, &mut off);
         let cin = cfg.geo_features + cfg.sh_width() + cfg.appearance_dim;
         let mut color = vec![Linear::new(cfg.color_hidden, cin, &mut off)];
         for _ in 1..cfg.color_layers {
@@ -95,7 +95,7 @@ impl Rows {
             o
         };
         let hidden = take(cfg.hidden);
-        let dens = take(1 + cfg.geo_features);
+        let dens = take(cfg.density_outputs());
         let cin = take(lay.color[0].inp_pad);
         let color: Vec<usize> = (0..cfg.color_layers)
             .map(|_| take(cfg.color_hidden))

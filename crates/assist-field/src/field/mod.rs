@@ -19,6 +19,7 @@ use crate::mlp::{Linear, bias_act};
 mod appearance;
 mod backward;
 mod layout;
+mod reflect;
 
 use crate::sh::sh_encode_rows;
 pub use backward::Tape;
@@ -200,14 +201,22 @@ impl Field {
         cin[..geo * CHUNK].copy_from_slice(&dens[CHUNK..(1 + geo) * CHUNK]);
         let lanes = CHUNK.min(s.len() - c0);
         let d = |a: usize| &s.dir[a][c0..c0 + lanes];
-        sh_encode_rows(
-            cfg.sh_degree,
-            d(0),
-            d(1),
-            d(2),
-            &mut cin[geo * CHUNK..],
-            CHUNK,
-        );
+        if cfg.reflect {
+            let mut r = [[0.0f32; CHUNK]; 3];
+            reflect::reflected(&dens[(1 + geo) * CHUNK..], [d(0), d(1), d(2)], &mut r);
+            let [rx, ry, rz] = &r;
+            let (rx, ry, rz) = (&rx[..lanes], &ry[..lanes], &rz[..lanes]);
+            sh_encode_rows(cfg.sh_degree, rx, ry, rz, &mut cin[geo * CHUNK..], CHUNK);
+        } else {
+            sh_encode_rows(
+                cfg.sh_degree,
+                d(0),
+                d(1),
+                d(2),
+                &mut cin[geo * CHUNK..],
+                CHUNK,
+            );
+        }
         if lanes < CHUNK {
             for k in 0..shw {
                 cin[(geo + k) * CHUNK + lanes..(geo + k + 1) * CHUNK].fill(0.0);

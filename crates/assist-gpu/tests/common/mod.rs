@@ -77,6 +77,7 @@ pub fn configs() -> Vec<(&'static str, FieldConfig)> {
                 sh_degree: 3,
                 appearance_dim: 0,
                 num_images: 0,
+                reflect: false,
             },
         ),
     ]
