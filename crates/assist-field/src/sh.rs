@@ -213,12 +213,18 @@ mod tests {
         for degree in 1..=4 {
             let n = degree * degree;
             for _ in 0..20 {
-                let p = [rng.f32() * 2.0 - 1.0, rng.f32() * 2.0 - 1.0, rng.f32() * 2.0 - 1.0];
+                let p = [
+                    rng.f32() * 2.0 - 1.0,
+                    rng.f32() * 2.0 - 1.0,
+                    rng.f32() * 2.0 - 1.0,
+                ];
                 let g: Vec<f32> = (0..n).map(|_| rng.f32() * 2.0 - 1.0).collect();
                 let f = |q: [f64; 3]| {
                     let mut o = [0.0f32; 16];
                     sh_encode(degree, q[0] as f32, q[1] as f32, q[2] as f32, &mut o);
-                    (0..n).map(|k| f64::from(o[k]) * f64::from(g[k])).sum::<f64>()
+                    (0..n)
+                        .map(|k| f64::from(o[k]) * f64::from(g[k]))
+                        .sum::<f64>()
                 };
                 let got = sh_vjp(degree, p[0], p[1], p[2], &g);
                 for a in 0..3 {

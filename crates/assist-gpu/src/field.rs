@@ -108,6 +108,12 @@ impl GpuField {
     /// tests of the smaller tiles that only narrow adapters or wide fields get.
     #[doc(hidden)]
     pub fn with_tile(gpu: &Gpu, field: &Field, force: Option<u32>) -> Result<Self, GpuError> {
+        if field.config.reflect {
+            return Err(GpuError::Device {
+                adapter: gpu.info.name.clone(),
+                message: "this field's colour follows the view direction reflected about a predicted normal (train --reflect), which the GPU kernels do not compute: use --device cpu".into(),
+            });
+        }
         let bytes = std::mem::size_of_val(field.params.as_slice()) as u64;
         if bytes > gpu.limits.max_storage_buffer_binding_size {
             return Err(GpuError::Device {

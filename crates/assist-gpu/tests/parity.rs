@@ -149,6 +149,24 @@ fn new_parameters_are_used_after_upload() {
     assert!(gf.upload(&gpu, &other).is_err());
 }
 
+/// A field whose colour follows the reflected direction (`FieldConfig::reflect`), which
+/// no kernel computes, is refused with a message that says so, not run as another field.
+#[test]
+fn a_reflected_field_is_refused() {
+    let Some(gpu) = gpu() else { return };
+    let (_, mut cfg) = configs().remove(0);
+    cfg.reflect = true;
+    let field = random_field(cfg, 3);
+    let err = GpuField::new(&gpu, &field)
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(
+        err.contains("reflected") && err.contains("--device cpu"),
+        "{err}"
+    );
+}
+
 #[test]
 fn cpu_choice_opens_nothing_and_auto_skips_software_adapters() {
     assert!(Gpu::open(DeviceChoice::Cpu).expect("cpu").is_none());

@@ -325,6 +325,12 @@ pub struct TrainConfig {
     #[arg(long, help_heading = MODEL, value_name = "CELLS|auto",
           value_parser = grid_resolution_parser)]
     pub grid_resolution: Option<GridResolution>,
+    /// Objects' colour from the view direction mirrored about a surface normal their
+    /// density net predicts (Ref-NeRF), held to their density's own normal by
+    /// --lambda-normal: meant for shiny objects, whose reflections then follow one
+    /// direction shared by the whole surface. Objects only; not on --device gpu.
+    #[arg(long, help_heading = MODEL, value_enum, default_value_t = OnOff::Off)]
+    pub reflect: OnOff,
     /// Pull every hash-table entry a step touches toward zero by this much (L2, added to its
     /// gradient; 0: off), so that what few views constrain does not keep what they put
     /// there [default: 1e-6 for an unbounded walk-around (--layout), else

@@ -565,6 +565,7 @@ impl TrainJob {
             seed: c.seed,
             boxes,
             background_space: c.background,
+            reflect: c.reflect == crate::train_config::OnOff::On,
             grid_resolution: c.grid_resolution.unwrap_or_else(|| {
                 assist_train::default_grid_resolution(layout, views, c.background)
             }),

@@ -35,6 +35,9 @@ pub struct SetupOptions {
     pub background_space: BackgroundSpace,
     /// The background's finest hash-grid resolution.
     pub grid_resolution: crate::GridResolution,
+    /// Objects' colour from the view direction reflected about a predicted normal
+    /// ([`FieldConfig::reflect`]).
+    pub reflect: bool,
 }
 
 /// The space of the background node.
@@ -86,6 +89,7 @@ impl Default for SetupOptions {
             boxes: Vec::new(),
             background_space: BackgroundSpace::Auto,
             grid_resolution: Default::default(),
+            reflect: false,
         }
     }
 }
@@ -271,6 +275,7 @@ pub fn object_field(
 ) -> Result<NodeField> {
     let mut c = FieldConfig::object(n_images);
     c.log2_table_size = table;
+    c.reflect = opts.reflect;
     if !opts.appearance {
         c.appearance_dim = 0;
     }

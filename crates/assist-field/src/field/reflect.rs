@@ -16,7 +16,9 @@ const MIN_LEN: f32 = 1e-6;
 #[inline(always)]
 pub(super) fn unit_normal(m: &[f32], l: usize) -> ([f32; 3], f32) {
     let v = [m[l], m[CHUNK + l], m[2 * CHUNK + l]];
-    let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(MIN_LEN);
+    let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+        .sqrt()
+        .max(MIN_LEN);
     (v.map(|x| x / len), len)
 }
 
@@ -131,7 +133,10 @@ impl Field {
     /// (three per sample, taken as constants; zero ones skip their sample): its value,
     /// and its gradient left in the tape for the next [`backward`](Field::backward).
     pub fn normal_loss(&self, tape: &mut Tape, targets: &[f32], weights: &[f32]) -> f64 {
-        assert!(self.config.reflect, "normal_loss: the field predicts no normal");
+        assert!(
+            self.config.reflect,
+            "normal_loss: the field predicts no normal"
+        );
         let n = tape.n;
         assert!(targets.len() >= 3 * n && weights.len() >= n);
         let rows = self.rows();

@@ -30,6 +30,7 @@ use crate::error::{Result, TrainError};
 use crate::views::View;
 
 mod error_map;
+mod normals;
 mod objective;
 mod options;
 mod poses;

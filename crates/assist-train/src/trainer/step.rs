@@ -220,6 +220,7 @@ impl Trainer {
                 self.error_map.rebuild();
             }
         }
+        s.terms.normal = self.normal_loss();
         s.loss = s.terms.weighted(&lam);
         s.psnr = crate::metrics::mse_to_psnr(s.terms.comp_rgb);
         if !s.loss.is_finite() {

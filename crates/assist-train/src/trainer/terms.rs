@@ -120,6 +120,10 @@ loss_terms! {
         "The distortion loss of mip-NeRF 360 (Nerfacto's; 0 turns it off): the composited \
          weights of a ray gathered in depth, which removes semi-transparent haze; 0.002 \
          (Nerfacto's) for an unbounded walk-around (--layout).";
+    normal: 0.001, settable: true,
+        "Ref-NeRF's predicted-normal term, for objects trained with --reflect: each \
+         sample's predicted normal against its density's own (the negative gradient), \
+         weighed by the sample's share of its ray in the object (Nerfacto's 0.001).";
     empty: 0.0, settable: true,
         "The empty-space term (ours, after Urban Radiance Fields' line-of-sight prior): where \
          the dataset has depth, every node must be empty in front of the surface the depth \

@@ -383,3 +383,61 @@ fn bench_train_reports_each_seed_and_their_spread() {
     let left: Vec<_> = std::fs::read_dir(&scratch).unwrap().collect();
     assert!(left.is_empty(), "bench train left {left:?}");
 }
+
+/// The `config` a field file records (its safetensors header's metadata).
+fn field_config(path: &std::path::Path) -> Value {
+    let bytes = std::fs::read(path).unwrap();
+    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let header: Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
+    serde_json::from_str(header["__metadata__"]["config"].as_str().unwrap()).unwrap()
+}
+
+#[test]
+fn reflect_on_gives_the_objects_the_reflected_direction() {
+    // `--reflect on`: every object's field predicts a normal and sees the reflected
+    // direction, the background's does not; the choice is recorded and the scene renders.
+    let tmp = TempDir::new("cli-train-reflect");
+    let data = tiny_synth(&tmp);
+    let out = tmp.join("r.assist");
+    ok(&assist(&[
+        "train",
+        s(&data),
+        "--out",
+        s(&out),
+        "--iters",
+        "25",
+        "--seed",
+        "3",
+        "--reflect",
+        "on",
+    ]));
+    let mut objects = 0;
+    for e in std::fs::read_dir(out.join("fields")).unwrap() {
+        let p = e.unwrap().path();
+        let name = p.file_name().unwrap().to_string_lossy().to_string();
+        let cfg = field_config(&p);
+        let object = name.starts_with("object");
+        objects += usize::from(object);
+        assert_eq!(cfg["reflect"], json!(object), "{name}: {cfg}");
+    }
+    assert_eq!(objects, 3);
+    let scene: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("scene.json")).unwrap()).unwrap();
+    assert_eq!(scene["info"]["train_config"]["reflect"], json!("on"));
+    let frames = tmp.join("frames");
+    ok(&assist(&[
+        "render",
+        s(&out),
+        "--out",
+        s(&frames),
+        "--cameras",
+        "orbit",
+        "--frames",
+        "2",
+        "--size",
+        "40x30",
+        "--outputs",
+        "rgb",
+    ]));
+    assert!(frames.join("images/orbit_001.png").is_file());
+}
