@@ -40,7 +40,9 @@ pub struct EvalReport {
     pub color_corrected_psnr: f64,
     /// How much of the photographs' fine detail (structure 1–3 pixels across) the renders
     /// reproduce, every image pooled ([`DetailAccumulator`]): 1 as sharp as they are, 0.5
-    /// at half its contrast; `None` for photographs without detail.
+    /// at half its contrast; `None` (left out of the JSON, as every figure that does not
+    /// apply) for photographs without detail.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub detail: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub panoptic_miou: Option<f64>,
@@ -145,16 +147,7 @@ pub fn evaluate_each(
             s
         });
     let mut per_image = Vec::new();
-    let mut iou = IouAccumulator::default();
-    let mut any_ids = false;
-    let (mut bg_se, mut bg_n, mut occ_se, mut occ_n) = (0.0, 0usize, 0.0, 0usize);
-    // Squared error and channel count on object pixels [0] and the others [1].
-    let mut split_se = [(0.0, 0usize); 2];
-    let (mut detail, mut split_detail) = (
-        DetailAccumulator::default(),
-        [DetailAccumulator::default(); 2],
-    );
-    let mut depth_err: Vec<f32> = Vec::new();
+    let mut pooled = Pooled::default();
     for (i, f) in frames.iter().enumerate() {
         progress(i, frames.len());
         let v = load_view(f, u32::MAX, scene.scene.background_color)?;
@@ -177,49 +170,18 @@ pub fn evaluate_each(
             render: &img,
             score: per_image.last().expect("pushed above"),
         });
-        let (rd, td) = (
-            fine_detail(&rgb, v.width, v.height, 3),
-            fine_detail(&v.rgb, v.width, v.height, 3),
-        );
-        detail.add(&rd, &td, 3, None);
-        if let Some(ids) = &v.ids {
-            any_ids = true;
-            iou.add(&img.panoptic, ids);
-            let on_object: Vec<bool> = ids.iter().map(|&i| i != 0).collect();
-            let others: Vec<bool> = on_object.iter().map(|&o| !o).collect();
-            for (k, mask) in [&on_object, &others].into_iter().enumerate() {
-                let (se, n) = squared_error(&rgb, &v.rgb, 3, Some(mask));
-                split_se[k].0 += se;
-                split_se[k].1 += n;
-                split_detail[k].add(&rd, &td, 3, Some(mask));
-            }
-        }
+        pooled.add_view(&rgb, &img.panoptic, &v);
         if let (Some(bt), Some(bs)) = (&bg_truth, &bg_scene)
             && let Some(bf) = bt.frames.iter().find(|b| b.name == f.name)
         {
             let truth = load_view(bf, u32::MAX, scene.scene.background_color)?;
             let b = render_camera(bs, camera, u32::MAX, opts);
-            let brgb: Vec<f32> = b.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect();
-            let (se, n) = squared_error(&brgb, &truth.rgb, 3, None);
-            bg_se += se;
-            bg_n += n;
-            if let Some(td) = &truth.depth {
-                depth_err.extend(td.iter().zip(&b.depth).filter(|(t, _)| **t > 0.0).map(
-                    |(&t, &d)| {
-                        if d > 0.0 { ((d - t) / t).abs() } else { 1.0 }
-                    },
-                ));
-            }
-            if let Some(ids) = &v.ids {
-                let mask: Vec<bool> = ids.iter().map(|&i| i != 0).collect();
-                let (se, n) = squared_error(&brgb, &truth.rgb, 3, Some(&mask));
-                occ_se += se;
-                occ_n += n;
-            }
+            pooled.add_background(&b, &truth, v.ids.as_deref());
         }
     }
     progress(frames.len(), frames.len());
     let m = per_image.len().max(1) as f64;
+    let mut p = pooled;
     Ok(EvalReport {
         split: split_name.into(),
         images: per_image.len(),
@@ -230,19 +192,87 @@ pub fn evaluate_each(
             .map(|s| s.color_corrected_psnr)
             .sum::<f64>()
             / m,
-        detail: detail.gain(),
-        panoptic_miou: if any_ids { iou.mean() } else { None },
-        panoptic_iou: any_ids.then(|| iou.per_class()),
-        object_pixels_psnr: pooled_psnr(split_se[0]),
-        other_pixels_psnr: pooled_psnr(split_se[1]),
-        object_pixels_detail: split_detail[0].gain(),
-        other_pixels_detail: split_detail[1].gain(),
-        background_psnr: pooled_psnr((bg_se, bg_n)),
-        background_occluded_psnr: pooled_psnr((occ_se, occ_n)),
-        background_depth_error: median(&mut depth_err),
+        detail: p.detail.gain(),
+        panoptic_miou: if p.any_ids { p.iou.mean() } else { None },
+        panoptic_iou: p.any_ids.then(|| p.iou.per_class()),
+        object_pixels_psnr: pooled_psnr(p.split_se[0]),
+        other_pixels_psnr: pooled_psnr(p.split_se[1]),
+        object_pixels_detail: p.split_detail[0].gain(),
+        other_pixels_detail: p.split_detail[1].gain(),
+        background_psnr: pooled_psnr(p.bg),
+        background_occluded_psnr: pooled_psnr(p.occluded),
+        background_depth_error: median(&mut p.depth_err),
         per_image,
         seconds: t0.elapsed().as_secs_f64(),
     })
+}
+
+/// The figures pooled over every view measured: panoptic IoU, squared error and fine
+/// detail on the masks' object pixels and the others, and the background node's against
+/// the `background/` ground truth.
+#[derive(Default)]
+struct Pooled {
+    iou: IouAccumulator,
+    any_ids: bool,
+    /// Squared error and channel count on object pixels [0] and the others [1].
+    split_se: [(f64, usize); 2],
+    detail: DetailAccumulator,
+    split_detail: [DetailAccumulator; 2],
+    /// The background alone: everywhere, and where objects hide it.
+    bg: (f64, usize),
+    occluded: (f64, usize),
+    depth_err: Vec<f32>,
+}
+
+impl Pooled {
+    /// One view's render (`rgb` clamped, `panoptic` ids) against its photograph `v`.
+    fn add_view(&mut self, rgb: &[f32], panoptic: &[u16], v: &crate::views::View) {
+        let (rd, td) = (
+            fine_detail(rgb, v.width, v.height, 3),
+            fine_detail(&v.rgb, v.width, v.height, 3),
+        );
+        self.detail.add(&rd, &td, 3, None);
+        if let Some(ids) = &v.ids {
+            self.any_ids = true;
+            self.iou.add(panoptic, ids);
+            let on_object: Vec<bool> = ids.iter().map(|&i| i != 0).collect();
+            let others: Vec<bool> = on_object.iter().map(|&o| !o).collect();
+            for (k, mask) in [&on_object, &others].into_iter().enumerate() {
+                let (se, n) = squared_error(rgb, &v.rgb, 3, Some(mask));
+                self.split_se[k].0 += se;
+                self.split_se[k].1 += n;
+                self.split_detail[k].add(&rd, &td, 3, Some(mask));
+            }
+        }
+    }
+
+    /// The background node's render `b` of a view against the ground truth `truth` of
+    /// the background alone; `ids`, the view's instance masks, say where objects hide it.
+    fn add_background(
+        &mut self,
+        b: &assist_render::RenderedImage,
+        truth: &crate::views::View,
+        ids: Option<&[u16]>,
+    ) {
+        let brgb: Vec<f32> = b.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect();
+        let (se, n) = squared_error(&brgb, &truth.rgb, 3, None);
+        self.bg.0 += se;
+        self.bg.1 += n;
+        if let Some(td) = &truth.depth {
+            self.depth_err.extend(
+                td.iter()
+                    .zip(&b.depth)
+                    .filter(|(t, _)| **t > 0.0)
+                    .map(|(&t, &d)| if d > 0.0 { ((d - t) / t).abs() } else { 1.0 }),
+            );
+        }
+        if let Some(ids) = ids {
+            let mask: Vec<bool> = ids.iter().map(|&i| i != 0).collect();
+            let (se, n) = squared_error(&brgb, &truth.rgb, 3, Some(&mask));
+            self.occluded.0 += se;
+            self.occluded.1 += n;
+        }
+    }
 }
 
 /// PSNR of a pooled squared error and channel count; `None` when nothing was counted.
