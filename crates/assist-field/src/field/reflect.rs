@@ -85,26 +85,28 @@ impl Field {
         d_enc
             .par_chunks_mut(width * CHUNK)
             .enumerate()
-            .for_each(|(c, de)| {
-                let act = &tape.act[c * rows.total * CHUNK..(c + 1) * rows.total * CHUNK];
-                let mut dh = vec![0.0f32; d1.out * CHUNK];
-                for j in 0..d1.out {
-                    let w = p[d2.w + j];
-                    let h = &act[(rows.hidden + j) * CHUNK..(rows.hidden + j + 1) * CHUNK];
-                    for l in 0..CHUNK {
-                        dh[j * CHUNK + l] = if h[l] > 0.0 { w } else { 0.0 };
-                    }
-                }
-                for f in 0..cfg.encoding_width() {
-                    let row = &mut de[f * CHUNK..(f + 1) * CHUNK];
+            .for_each_init(
+                || vec![0.0f32; d1.out * CHUNK],
+                |dh, (c, de)| {
+                    let act = &tape.act[c * rows.total * CHUNK..(c + 1) * rows.total * CHUNK];
                     for j in 0..d1.out {
-                        let w = p[d1.w + j * d1.inp_pad + f];
+                        let w = p[d2.w + j];
+                        let h = &act[(rows.hidden + j) * CHUNK..(rows.hidden + j + 1) * CHUNK];
                         for l in 0..CHUNK {
-                            row[l] += w * dh[j * CHUNK + l];
+                            dh[j * CHUNK + l] = if h[l] > 0.0 { w } else { 0.0 };
                         }
                     }
-                }
-            });
+                    for f in 0..cfg.encoding_width() {
+                        let row = &mut de[f * CHUNK..(f + 1) * CHUNK];
+                        for j in 0..d1.out {
+                            let w = p[d1.w + j * d1.inp_pad + f];
+                            for l in 0..CHUNK {
+                                row[l] += w * dh[j * CHUNK + l];
+                            }
+                        }
+                    }
+                },
+            );
         let mut g = [vec![0.0f32; n], vec![0.0f32; n], vec![0.0f32; n]];
         let [gx, gy, gz] = &mut g;
         let grid = &self.layout.grid;
