@@ -259,23 +259,29 @@ fn density_path_matches_full_forward() {
     assert_eq!(sig, sig2);
 }
 
-#[test]
-fn the_position_gradient_matches_central_differences() {
-    // dL/dpos through the whole field (encoding, density net, colour net), for the
-    // camera-pose refinement: each sample moved alone along each axis.
-    let mut rng = Rng::new(5);
-    let mut field = Field::new(small_config(), 3).unwrap();
+/// A field (seed 3) whose tables are large random values, so the encoding matters, and
+/// `n` samples away from the box's faces, so a step of ε stays inside it.
+fn field_and_inner_batch(config: FieldConfig, rng: &mut Rng, n: usize) -> (Field, Batch) {
+    let mut field = Field::new(config, 3).unwrap();
     let grid_len = field.layout.grid.param_count();
     for p in &mut field.params[..grid_len] {
         *p = rng.f32() - 0.5;
     }
-    let mut batch = Batch::new(130, &mut rng, false);
-    // Away from the faces, so a step of ε stays inside the box.
+    let mut batch = Batch::new(n, rng, false);
     for a in 0..3 {
         for v in &mut batch.pos[a] {
             *v = 0.05 + 0.9 * *v;
         }
     }
+    (field, batch)
+}
+
+#[test]
+fn the_position_gradient_matches_central_differences() {
+    // dL/dpos through the whole field (encoding, density net, colour net), for the
+    // camera-pose refinement: each sample moved alone along each axis.
+    let mut rng = Rng::new(5);
+    let (field, mut batch) = field_and_inner_batch(small_config(), &mut rng, 130);
     let n = batch.pos[0].len();
     let mut tape = Tape::default();
     let (mut sig, mut rgb) = (vec![0.0; n], vec![0.0; 3 * n]);
@@ -369,17 +375,7 @@ fn the_backward_to_the_encoding_alone_gives_the_same_position_gradient() {
 #[test]
 fn density_normals_match_central_differences() {
     let mut rng = Rng::new(21);
-    let mut field = Field::new(reflect_config(), 3).unwrap();
-    let grid_len = field.layout.grid.param_count();
-    for p in &mut field.params[..grid_len] {
-        *p = rng.f32() - 0.5;
-    }
-    let mut batch = Batch::new(90, &mut rng, false);
-    for a in 0..3 {
-        for v in &mut batch.pos[a] {
-            *v = 0.05 + 0.9 * *v;
-        }
-    }
+    let (field, batch) = field_and_inner_batch(reflect_config(), &mut rng, 90);
     let n = batch.pos[0].len();
     let mut tape = Tape::default();
     let (mut sig, mut rgb) = (vec![0.0; n], vec![0.0; 3 * n]);

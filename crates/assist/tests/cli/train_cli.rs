@@ -285,6 +285,22 @@ fn tiny_synth(tmp: &TempDir) -> std::path::PathBuf {
     data
 }
 
+/// `train DATA --out OUT --iters 25 --seed 3` with `extra` flags, which must succeed.
+fn train_tiny(data: &std::path::Path, out: &std::path::Path, extra: &[&str]) {
+    let mut args = vec![
+        "train",
+        s(data),
+        "--out",
+        s(out),
+        "--iters",
+        "25",
+        "--seed",
+        "3",
+    ];
+    args.extend_from_slice(extra);
+    ok(&assist(&args));
+}
+
 #[test]
 fn the_same_seed_trains_the_same_bits() {
     // Two runs of the same command write the same weights: the MLP gradient is summed in
@@ -295,16 +311,7 @@ fn the_same_seed_trains_the_same_bits() {
     let mut weights = Vec::new();
     for name in ["a.assist", "b.assist"] {
         let out = tmp.join(name);
-        ok(&assist(&[
-            "train",
-            s(&data),
-            "--out",
-            s(&out),
-            "--iters",
-            "25",
-            "--seed",
-            "3",
-        ]));
+        train_tiny(&data, &out, &[]);
         let mut files: Vec<_> = std::fs::read_dir(out.join("fields"))
             .unwrap()
             .map(|e| e.unwrap().path())
@@ -399,18 +406,7 @@ fn reflect_on_gives_the_objects_the_reflected_direction() {
     let tmp = TempDir::new("cli-train-reflect");
     let data = tiny_synth(&tmp);
     let out = tmp.join("r.assist");
-    ok(&assist(&[
-        "train",
-        s(&data),
-        "--out",
-        s(&out),
-        "--iters",
-        "25",
-        "--seed",
-        "3",
-        "--reflect",
-        "on",
-    ]));
+    train_tiny(&data, &out, &["--reflect", "on"]);
     let mut objects = 0;
     for e in std::fs::read_dir(out.join("fields")).unwrap() {
         let p = e.unwrap().path();
