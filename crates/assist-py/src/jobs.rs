@@ -163,8 +163,7 @@ pub(crate) fn train<'py>(
                     }
                 }
             }
-            serde_json::from_value::<assist_session::TrainConfig>(v)
-                .map_err(|e| err(format!("train options: {e}")))?
+            crate::from_value::<assist_session::TrainConfig>(v, "train options")?
         }
         None => assist_session::TrainConfig::default(),
     };

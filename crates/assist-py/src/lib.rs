@@ -50,6 +50,19 @@ fn from_py(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<serde_json::Value> {
     args::to_json(obj, what)
 }
 
+/// A JSON value (from Python's arguments) → `T`; an error names `what` and the place in it
+/// that does not fit (`train options: reflect: expected "on", …`, `actions: [1].node: …`).
+fn from_value<T: serde::de::DeserializeOwned>(v: serde_json::Value, what: &str) -> PyResult<T> {
+    serde_path_to_error::deserialize(v).map_err(|e| {
+        let path = e.path().to_string();
+        if path == "." {
+            err(format!("{what}: {}", e.inner()))
+        } else {
+            err(format!("{what}: {path}: {}", e.inner()))
+        }
+    })
+}
+
 /// A camera: pinhole intrinsics and a pose (4×4 world-from-camera, OpenGL convention: the
 /// camera looks down −z, y up).
 #[pyclass(module = "assist", frozen)]

@@ -90,10 +90,9 @@ pub(crate) fn node_ref(obj: &Bound<'_, PyAny>) -> PyResult<NodeRef> {
 pub(crate) fn actions_from(what: &Bound<'_, PyAny>) -> PyResult<Vec<Action>> {
     let v = from_py(what, "actions")?;
     match v {
-        serde_json::Value::Array(_) => serde_json::from_value(v),
-        other => serde_json::from_value(other).map(|a| vec![a]),
+        serde_json::Value::Array(_) => crate::from_value(v, "actions"),
+        other => crate::from_value(other, "actions").map(|a| vec![a]),
     }
-    .map_err(|e| err(format!("actions: {e}")))
 }
 
 fn actions_of(session: &Session, edits: &[assist_core::Edit]) -> Vec<Action> {

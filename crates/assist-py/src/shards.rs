@@ -18,8 +18,7 @@ pub(crate) fn load_spec(
         (assist_generate::Spec::load(&p).map_err(err)?, p)
     } else {
         let v = from_py(spec, "spec")?;
-        let s: assist_generate::Spec =
-            serde_json::from_value(v).map_err(|e| err(format!("spec: {e}")))?;
+        let s: assist_generate::Spec = crate::from_value(v, "spec")?;
         (s, PathBuf::from("spec"))
     };
     if let Some(s) = seed {

@@ -170,6 +170,9 @@ def test_generate_yields_the_samples_assist_generate_writes(trained_more):
     assert next(iter(assist.generate(spec, start=3)))["index"] == 3
     with pytest.raises(assist.AssistError, match="unknown field"):
         assist.generate({"scenes": [{"path": str(scene_path)}], "colour": 1})
+    # A value of the wrong kind is named by where it stands in the spec.
+    with pytest.raises(assist.AssistError, match=r"spec: scenes\[0\]\.path: invalid type"):
+        assist.generate({"scenes": [{"path": 7}]})
     with pytest.raises(assist.AssistError, match="count"):
         assist.generate(spec, count=0)
 
@@ -189,9 +192,13 @@ def test_train_reports_and_calls_back(trained):
     with pytest.raises(RuntimeError, match="enough"):
         assist.train(cap, root / "py2.assist", iters=50, callback=stop)
     # Keywords are the CLI's long flags with `_`, recorded in the trained scene.
-    assist.train(cap, root / "py5.assist", iters=2, lambda_obj_share=0.0, shadows="off")
+    assist.train(cap, root / "py5.assist", iters=2, lambda_obj_share=0.0, shadows="off",
+                 reflect="on", lambda_normal=0.01)
     record = json.loads((root / "py5.assist" / "scene.json").read_text())["info"]["train_config"]
     assert record["lambda_obj_share"] == 0.0 and record["shadows"] == "off"
+    assert record["reflect"] == "on" and record["lambda_normal"] == pytest.approx(0.01)
+    with pytest.raises(assist.AssistError, match="reflect"):
+        assist.train(cap, root / "py6.assist", iters=1, reflect="sometimes")
     with pytest.raises(assist.AssistError, match='unknown option "colour"'):
         assist.train(cap, root / "py3.assist", colour=1)
     with pytest.raises(assist.AssistError, match="nowhere"):
