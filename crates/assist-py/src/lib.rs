@@ -54,12 +54,12 @@ fn from_py(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<serde_json::Value> {
 /// that does not fit (`train options: reflect: expected "on", …`, `actions: [1].node: …`).
 fn from_value<T: serde::de::DeserializeOwned>(v: serde_json::Value, what: &str) -> PyResult<T> {
     serde_path_to_error::deserialize(v).map_err(|e| {
-        let path = e.path().to_string();
-        if path == "." {
-            err(format!("{what}: {}", e.inner()))
-        } else {
-            err(format!("{what}: {path}: {}", e.inner()))
-        }
+        // The whole value's path is "."; a part's is named before what it lacks.
+        let at = match e.path().to_string() {
+            p if p == "." => String::new(),
+            p => format!("{p}: "),
+        };
+        err(format!("{what}: {at}{}", e.inner()))
     })
 }
 
