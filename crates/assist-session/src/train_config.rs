@@ -268,8 +268,10 @@ pub struct TrainConfig {
     /// depth) and the fields train on the CPU, else 0].
     #[arg(long, help_heading = SAMPLING, value_name = "T")]
     pub prune_eps: Option<f32>,
-    /// Share of each batch's rays drawn from pixels on or next to objects (the rest are
-    /// drawn uniformly over all pixels), so that small objects get enough rays.
+    /// The least share of each batch's rays on or next to objects, so that small objects
+    /// get enough rays: rays are drawn from the objects' pixels only as far as a uniform
+    /// draw over all pixels falls short of it (none where objects fill this share of the
+    /// views, as in a walk-around).
     #[arg(long, help_heading = SAMPLING, value_name = "SHARE",
           default_value_t = TrainOptions::default().object_ray_fraction)]
     pub object_rays: f64,

@@ -62,6 +62,8 @@ pub enum TrainEvent {
     },
     /// The scene's nodes (id, label).
     Nodes { nodes: Vec<(u16, String)> },
+    /// How the batches reach the objects (`--object-rays`; where there are object pixels).
+    ObjectRays(assist_train::ObjectRays),
     /// One training step, with the share of the run done and the seconds left.
     Step {
         stats: Box<StepStats>,
@@ -232,6 +234,9 @@ impl TrainJob {
         let mut eval_error = None;
         let mut trainer = self.trainer(scene, views, opts, resume.as_ref())?;
         trainer.kept = kept;
+        if let Some(o) = trainer.object_rays() {
+            on_event(&TrainEvent::ObjectRays(o));
+        }
         if c.shadows.resolve(depth) == Shadows::Fixed {
             // What the photographs show of each shadow stays as estimated, and what lies
             // nearer another object stays shadow-free; the rest (under the object) trains

@@ -56,8 +56,9 @@ pub use shadow::{
     ShadowEstimate, ShadowPriorStats, add_shadow_grids, estimate_shadows, shadow_free_priors,
 };
 pub use trainer::{
-    EMPTY_MARGIN, KeptHistory, Lambdas, POSE_LR, PhaseTimes, PoseRefiner, ResumeState, StepStats,
-    StopReason, TERMS, TermInfo, Terms, TrainOptions, TrainReport, Trainer, default_error_rays,
-    default_lr_end, default_proposal, default_prune_eps, term, update_depth_affine,
+    EMPTY_MARGIN, KeptHistory, Lambdas, ObjectRays, POSE_LR, PhaseTimes, PoseRefiner, ResumeState,
+    StepStats, StopReason, TERMS, TermInfo, Terms, TrainOptions, TrainReport, Trainer,
+    default_error_rays, default_lr_end, default_proposal, default_prune_eps, object_ray_draw, term,
+    update_depth_affine,
 };
 pub use views::{PriorKind, View, fill_prior, fill_priors, load_view, load_views};

@@ -341,6 +341,16 @@ impl Reporter {
                 let n: Vec<String> = nodes.iter().map(|(id, l)| format!("{id} {l:?}")).collect();
                 eprintln!("nodes: {}", n.join(", "));
             }
+            TrainEvent::ObjectRays(o) if self.text => eprintln!(
+                "object rays: objects cover {:.0}% of the pixels; {:.0}% of each batch drawn from them{}",
+                100.0 * o.share,
+                100.0 * o.extra,
+                if o.extra == 0.0 {
+                    " (they need no more than a uniform draw gives)"
+                } else {
+                    ""
+                }
+            ),
             TrainEvent::HeldOut(h) => {
                 self.held = Some(h.psnr);
                 if let Some(l) = self.log.as_mut() {

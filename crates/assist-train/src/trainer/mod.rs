@@ -40,8 +40,9 @@ mod step;
 mod terms;
 
 pub use options::{
-    EMPTY_MARGIN, KeptHistory, PhaseTimes, ResumeState, StepStats, StopReason, TrainOptions,
-    TrainReport, default_error_rays, default_lr_end, default_proposal, default_prune_eps,
+    EMPTY_MARGIN, KeptHistory, ObjectRays, PhaseTimes, ResumeState, StepStats, StopReason,
+    TrainOptions, TrainReport, default_error_rays, default_lr_end, default_proposal,
+    default_prune_eps, object_ray_draw,
 };
 pub use poses::{POSE_EVERY, POSE_LR, PoseRefiner, scene_extent};
 use rays::Target;
@@ -84,9 +85,10 @@ pub struct Trainer {
     out: BatchOutput,
     targets: Vec<Target>,
     pixel_count: usize,
-    /// Pixels on or near objects (view, pixel), drawn with probability
-    /// `object_ray_fraction` so that small objects get enough rays.
+    /// Pixels on or near objects (view, pixel), drawn from with probability
+    /// `object_rays.extra` so that small objects get enough rays.
     object_pixels: Vec<(u32, u32)>,
+    object_rays: ObjectRays,
     elapsed_before: f64,
     /// Where the optimisers' moments started afresh on fields trained before this run (a
     /// resume, a split's fine-tune): the learning rate ramps up from there (see
@@ -179,6 +181,18 @@ impl Trainer {
                     .map(move |(p, _)| (vi as u32, p as u32))
             })
             .collect();
+        let valid_pixels: usize = views
+            .iter()
+            .map(|v| {
+                v.valid
+                    .as_ref()
+                    .map_or(v.width * v.height, |ok| ok.iter().filter(|&&b| b).count())
+            })
+            .sum();
+        let object_rays = object_ray_draw(
+            opts.object_ray_fraction,
+            object_pixels.len() as f64 / valid_pixels.max(1) as f64,
+        );
         let poses = opts
             .refine_poses
             .then(|| PoseRefiner::new(views.len(), extent));
@@ -205,6 +219,7 @@ impl Trainer {
             targets: Vec::new(),
             pixel_count,
             object_pixels,
+            object_rays,
             elapsed_before: 0.0,
             warm_from: None,
             poses,
@@ -290,6 +305,11 @@ impl Trainer {
                 .map_err(|e| TrainError::Other(format!("reading field {key} back: {e}")))?;
         }
         Ok(())
+    }
+
+    /// How the batches reach the objects (`None`: no object pixels to draw from).
+    pub fn object_rays(&self) -> Option<ObjectRays> {
+        (!self.object_pixels.is_empty()).then_some(self.object_rays)
     }
 
     /// Occupied fraction of each field's grid (by field key).

@@ -31,9 +31,10 @@ pub struct TrainOptions {
     /// Checkpoint directory and interval in seconds.
     pub checkpoint: Option<PathBuf>,
     pub checkpoint_every: f64,
-    /// Fraction of each batch drawn from pixels on or near objects (when masks exist); the
-    /// rest are drawn uniformly over all pixels, so that small objects get enough rays
-    /// (the default is measured in BENCHMARKS.md).
+    /// The least share of each batch's rays on or near objects (when masks exist), so that
+    /// small objects get enough rays: rays are drawn from the objects' pixels only as far
+    /// as a uniform draw over all pixels falls short of it (see [`object_ray_draw`]; the
+    /// default is measured in BENCHMARKS.md).
     pub object_ray_fraction: f64,
     /// Samples behind the point where their node's transmittance falls below this are
     /// dropped after a density-only pass, before the forward and backward passes (0 =
@@ -99,7 +100,7 @@ impl Default for TrainOptions {
             seed: 0,
             checkpoint: None,
             checkpoint_every: 60.0,
-            object_ray_fraction: 0.25,
+            object_ray_fraction: 0.33,
             downscale: 1,
             depth_affine: false,
             refine_poses: false,
@@ -373,4 +374,26 @@ pub fn default_prune_eps(unbounded: bool) -> f32 {
     } else {
         TrainOptions::default().prune_eps
     }
+}
+
+/// How a batch's rays reach the objects: `share` of the pixels to train on lie on or
+/// next to objects, and `extra` of each batch's rays are drawn from those pixels before
+/// the rest are drawn uniformly.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ObjectRays {
+    pub share: f64,
+    pub extra: f64,
+}
+
+/// The extra draw that brings the rays on or next to objects up to `least` of each batch:
+/// a uniform draw already puts `share` of them there, so `extra + (1 - extra) * share =
+/// least`, and none where `share` reaches `least` (an object that fills the views, as
+/// in a walk-around, needs no rays taken from the room around it).
+pub fn object_ray_draw(least: f64, share: f64) -> ObjectRays {
+    let extra = if share >= least || share >= 1.0 {
+        0.0
+    } else {
+        ((least - share) / (1.0 - share)).clamp(0.0, 1.0)
+    };
+    ObjectRays { share, extra }
 }

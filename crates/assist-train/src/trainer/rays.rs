@@ -56,7 +56,7 @@ impl Trainer {
         let node_of_id = &self.node_of_id;
         let extent = self.extent;
         let objects = &self.object_pixels;
-        let object_fraction = self.opts.object_ray_fraction;
+        let object_fraction = self.object_rays.extra;
         let poses = self.poses.as_ref();
         let map = &self.error_map;
         let drawn: Vec<Option<(assist_core::Ray, u32, u32, Target)>> = (0..n)
@@ -167,5 +167,21 @@ mod tests {
         // Every valid pixel is drawn; a ray is rarely left out (P = (15/24)^16).
         assert_eq!(seen.len(), 9);
         assert!(left_out < 10, "{left_out}");
+    }
+
+    #[test]
+    fn the_extra_draw_makes_up_the_objects_share_and_no_more() {
+        use crate::trainer::object_ray_draw;
+        for (least, share) in [(0.33, 0.12), (0.33, 0.0), (0.5, 0.3), (1.0, 0.2)] {
+            let o = object_ray_draw(least, share);
+            // The draw's share on objects: the extra rays, and the uniform draw's part.
+            let on = o.extra + (1.0 - o.extra) * share;
+            assert!((on - least).abs() < 1e-12, "{least} {share}: {o:?}");
+        }
+        // Objects that already fill the share (a walk-around's) take nothing extra.
+        assert_eq!(object_ray_draw(0.33, 0.47).extra, 0.0);
+        assert_eq!(object_ray_draw(0.33, 0.33).extra, 0.0);
+        assert_eq!(object_ray_draw(0.0, 0.1).extra, 0.0);
+        assert_eq!(object_ray_draw(0.5, 1.0).extra, 0.0);
     }
 }
