@@ -336,6 +336,9 @@ impl Trainer {
         for (k, x) in &self.opts.provenance {
             v[k] = x.clone();
         }
+        if let Some(o) = self.object_rays() {
+            v["object_rays"] = serde_json::to_value(o).expect("plain numbers");
+        }
         if let Some(p) = &self.poses {
             // What the refinement did to each training view, for the user: the world
             // translation of its centre and the rotation vector (radians) of its rays.

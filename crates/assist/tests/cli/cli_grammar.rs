@@ -236,6 +236,17 @@ fn config_files_give_flags_and_print_config_round_trips() {
     assert_eq!(info["options"]["lambdas"]["obj_share"], 0.25, "{info}");
     assert_eq!(info["train_config"]["lambda_obj_share"], 0.25, "{info}");
     assert_eq!(info["train_config"]["shadows"], "off", "{info}");
+    // What was drawn for the objects: enough to bring them to the least share asked for.
+    let (share, extra) = (
+        info["object_rays"]["share"].as_f64().unwrap(),
+        info["object_rays"]["extra"].as_f64().unwrap(),
+    );
+    let least = info["train_config"]["object_rays"].as_f64().unwrap();
+    assert!(share > 0.0 && share < least, "{info}");
+    assert!(
+        (extra + (1.0 - extra) * share - least).abs() < 1e-9,
+        "{info}"
+    );
     // The learning-rate floor left to the scene: 1e-3 with a bounded background (this
     // capture has depth), 3e-3 with an unbounded one; recorded as used.
     let lr_end = |info: &serde_json::Value| info["options"]["lr_end"].as_f64().unwrap() as f32;
