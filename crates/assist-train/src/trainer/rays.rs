@@ -56,14 +56,14 @@ impl Trainer {
         let node_of_id = &self.node_of_id;
         let extent = self.extent;
         let objects = &self.object_pixels;
-        let object_fraction = self.object_rays.extra;
+        let object_extra = self.object_rays.extra;
         let poses = self.poses.as_ref();
         let map = &self.error_map;
         let drawn: Vec<Option<(assist_core::Ray, u32, u32, Target)>> = (0..n)
             .into_par_iter()
             .map(|r| {
                 let mut rng = Rng::stream(seed, r as u64);
-                let (vi, p, weight) = if !objects.is_empty() && rng.f64() < object_fraction {
+                let (vi, p, weight) = if !objects.is_empty() && rng.f64() < object_extra {
                     let (vi, p) = objects[rng.below(objects.len() as u64) as usize];
                     (vi as usize, p as usize, 1.0)
                 } else if map.is_on() {
