@@ -201,9 +201,8 @@ pub fn query_pruned(
 }
 
 /// Rendering's pruned query of one node, in rounds along the rays: each round queries
-/// the next samples of every ray whose node's own transmittance is still above `eps`
-/// (a handful in the first round, more in later ones), so a ray that has met its surface
-/// gets no further query, density or colour. What a ray keeps is the prefix of its samples
+/// the next [`ROUND`] samples of every ray whose node's own transmittance is still above
+/// `eps`, so a ray that has met its surface gets no further query, density or colour. What a ray keeps is the prefix of its samples
 /// up to the round in which its transmittance fell below `eps` — every sample before
 /// that point, and a few after it — and depends on that ray alone (a drag's re-rendered
 /// rays match a full render's). The rounds' copying pays only where many rays stop early:
@@ -291,11 +290,8 @@ fn query_in_rounds(
     rgb.resize(3 * n, 0.0);
     let mut sub = std::mem::take(&mut sc.round);
     let mut queried_s = 0.0;
-    for round in 0.. {
-        if sc.live.is_empty() {
-            break;
-        }
-        let width = ROUND_FIRST << round.min(ROUND_DOUBLINGS);
+    while !sc.live.is_empty() {
+        let width = ROUND;
         // The round's samples of every live ray, ray after ray.
         let (keep, start) = (&sc.keep, &ns.start);
         let round_of = |&r: &u32| {
@@ -371,11 +367,8 @@ fn rounds_keep(ns: &NodeSamples, limit: f32, keep: &mut Vec<u32>) {
     keep.par_iter_mut().enumerate().for_each(|(r, k)| {
         let (a, len) = (start[r] as usize, (start[r + 1] - start[r]) as usize);
         let (mut kept, mut tau) = (0usize, 0.0f32);
-        for round in 0.. {
-            if kept >= len {
-                break;
-            }
-            let end = (kept + (ROUND_FIRST << round.min(ROUND_DOUBLINGS))).min(len);
+        while kept < len {
+            let end = (kept + ROUND).min(len);
             tau += (a + kept..a + end).map(|i| sigma[i] * dt[i]).sum::<f32>();
             kept = end;
             // As the rounds judge it (a NaN depth stops the ray there too).
@@ -388,10 +381,10 @@ fn rounds_keep(ns: &NodeSamples, limit: f32, keep: &mut Vec<u32>) {
     });
 }
 
-/// Samples per ray in a pruned query's first round; each later round doubles it, up to
-/// [`ROUND_DOUBLINGS`] times.
-const ROUND_FIRST: usize = 16;
-const ROUND_DOUBLINGS: usize = 3;
+/// Samples per ray in each round of a pruned query. Short rounds stop a ray soon after
+/// its surface: a desk frame's rays have ~9 samples, of which rounds of 16 doubling (what
+/// this was before) queried 8.4 and rounds of 4 query 5.9 (`docs/history.md`, session 102).
+const ROUND: usize = 4;
 
 /// Whether node samples `ns` have enough samples per ray reaching the node for the
 /// density pass to pay ([`PRUNE_MIN_PER_RAY`]).
