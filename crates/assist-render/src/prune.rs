@@ -202,13 +202,14 @@ pub fn query_pruned(
 
 /// Rendering's pruned query of one node, in rounds along the rays: each round queries
 /// the next [`ROUND`] samples of every ray whose node's own transmittance is still above
-/// `eps`, so a ray that has met its surface gets no further query, density or colour. What a ray keeps is the prefix of its samples
-/// up to the round in which its transmittance fell below `eps` — every sample before
-/// that point, and a few after it — and depends on that ray alone (a drag's re-rendered
-/// rays match a full render's). The rounds' copying pays only where many rays stop early:
-/// a node's first batch, and any after a batch that dropped less than [`ROUNDS_PAY`] of
-/// its samples, is queried whole and each ray cut afterwards to what its rounds would
-/// keep (the same samples and bits; `sc` carries the choice from batch to batch).
+/// `eps`, so a ray that has met its surface gets no further query, density or colour.
+/// What a ray keeps is the prefix of its samples up to the round in which its
+/// transmittance fell below `eps` — every sample before that point, and a few after it —
+/// and depends on that ray alone (a drag's re-rendered rays match a full render's). The
+/// rounds' copying pays only where many rays stop early: a node's first batch, and any
+/// after a batch that dropped less than [`ROUNDS_PAY`] of its samples, is queried whole
+/// and each ray cut afterwards to what its rounds would keep (the same samples and bits;
+/// `sc` carries the choice from batch to batch).
 pub fn query_node_pruned(
     scene: &NeuralScene,
     ns: &mut NodeSamples,
@@ -291,12 +292,11 @@ fn query_in_rounds(
     let mut sub = std::mem::take(&mut sc.round);
     let mut queried_s = 0.0;
     while !sc.live.is_empty() {
-        let width = ROUND;
         // The round's samples of every live ray, ray after ray.
         let (keep, start) = (&sc.keep, &ns.start);
         let round_of = |&r: &u32| {
             let a = start[r as usize] as usize + keep[r as usize] as usize;
-            a..(a + width).min(start[r as usize + 1] as usize)
+            a..(a + ROUND).min(start[r as usize + 1] as usize)
         };
         ns.gather(sc.live.iter().map(round_of), false, &mut sub);
         let tq = std::time::Instant::now();
@@ -381,9 +381,8 @@ fn rounds_keep(ns: &NodeSamples, limit: f32, keep: &mut Vec<u32>) {
     });
 }
 
-/// Samples per ray in each round of a pruned query. Short rounds stop a ray soon after
-/// its surface: a desk frame's rays have ~9 samples, of which rounds of 16 doubling (what
-/// this was before) queried 8.4 and rounds of 4 query 5.9 (`docs/history.md`, session 102).
+/// Samples per ray in each round of a pruned query: short, so that a ray stops soon after
+/// its surface even where rays carry only a few samples (bounded rooms, objects).
 const ROUND: usize = 4;
 
 /// Whether node samples `ns` have enough samples per ray reaching the node for the
