@@ -50,7 +50,9 @@ fn pytest(args: &[&str]) {
         eprintln!("SKIPPED the Python API tests: {msg}");
         return;
     }
-    let o = Command::new(&py)
+    let mut pytest = Command::new(&py);
+    common::child_threads(&mut pytest);
+    let o = pytest
         .args([
             "-m",
             "pytest",
