@@ -9,7 +9,6 @@
 use crate::common;
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use crate::common::{ok, run, run_tree, s};
 
@@ -68,7 +67,7 @@ fn assist(cmd: &[String], subst: &Subst, env: &[(&str, String)]) -> std::process
                 .unwrap_or_else(|| a.clone())
         })
         .collect();
-    let mut c = Command::new(env!("CARGO_BIN_EXE_assist"));
+    let mut c = common::bin();
     c.args(&args);
     for (k, v) in env {
         c.env(k, v);

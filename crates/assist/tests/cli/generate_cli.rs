@@ -209,7 +209,7 @@ fn generate_shards_replays_and_annotations() {
     let sharded = root.join("sharded");
     let kids: Vec<_> = (0..4)
         .map(|i| {
-            Command::new(env!("CARGO_BIN_EXE_assist"))
+            common::bin()
                 .args(["generate", "--spec", s(&sp), "--out", s(&sharded)])
                 .env("SLURM_ARRAY_TASK_ID", (i + 1).to_string())
                 .env("SLURM_ARRAY_TASK_MIN", "1")

@@ -8,12 +8,11 @@
 use crate::common;
 
 use std::path::Path;
-use std::process::Command;
 
 use serde_json::Value;
 
 fn assist(args: &[&str], env: &[(&str, &str)]) -> std::process::Output {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_assist"));
+    let mut c = common::bin();
     c.args(args).env("XDG_RUNTIME_DIR", std::env::temp_dir());
     for (k, v) in env {
         c.env(k, v);
