@@ -2,13 +2,13 @@
 //! errors (file + field, non-zero exit, no panic) on bad input.
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 use assist_testkit::{TempDir, shared_data};
 use serde_json::Value;
 
 fn assist(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_assist"))
+    crate::common::bin()
         .args(args)
         .output()
         .expect("run assist")

@@ -77,10 +77,9 @@ pub fn bin() -> Command {
 
 /// `ASSIST_TEST_CHILD_THREADS=N` (set by `.ci/run`) runs the processes the tests start
 /// with N worker threads (`RAYON_NUM_THREADS`). The test runner already keeps every core
-/// busy with tests side by side, and a process's fork-join steps wait on a thread the
-/// other test's process holds off its core: two 300-step desk trainings side by side
-/// take about an eighth less time with one thread each (docs/history.md, CI time). The
-/// tests that run in the test process itself keep every thread.
+/// busy with tests side by side, and a process's fork-join steps would wait on a thread
+/// the other test's process holds off its core (measured in docs/history.md, CI time).
+/// The tests that run in the test process itself keep every thread.
 pub fn child_threads(c: &mut Command) {
     if let Ok(n) = std::env::var("ASSIST_TEST_CHILD_THREADS") {
         c.env("RAYON_NUM_THREADS", n);
